@@ -1,0 +1,1 @@
+"""cablebot controller: kinematics, control loop, daemon, Zenoh interface and CLI."""
