@@ -1,1 +1,1 @@
-"""cablebot drivers: CAN bus, ODrive CANSimple codec and driver, reel model, simulated ODrive node."""
+"""cablebot drivers: CAN bus, ODrive CANSimple codec and driver, reel model, simulated node."""

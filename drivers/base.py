@@ -1,0 +1,162 @@
+"""The driver contract: what the control loop sees of any reel driver.
+
+`AxisReading` is the latest known state of one reel motor, `BusStats` the receive/transmit
+counters of one bus, and `ReelDriver` the protocol every driver implements (the ODrive one is
+`drivers.odrive.ODriveReels`). Only the standard library is imported here, so the loop can depend
+on this module without pulling in python-can.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+NEVER_S = -math.inf
+"""`stamp_s` / `heartbeat_stamp_s` value of an axis that has never been heard from."""
+
+
+class DriverError(RuntimeError):
+    """Base class of the errors the driver layer raises on its transmit/open paths."""
+
+
+class BusError(DriverError):
+    """Sending on the bus failed (python-can `CanError` or OS error); the message says which.
+
+    `ODriveReels.command/arm/disarm/estop` raise it after counting the failure in
+    `BusStats.bus_errors` and `BusStats.last_error`, so the loop can enter its fault state.
+    """
+
+
+@dataclass(slots=True)
+class AxisReading:
+    """Latest known state of one reel motor (an ODrive axis).
+
+    The driver keeps one mutable instance per axis and updates it in place while polling;
+    `ReelDriver.read()` returns those instances (copy them with `snapshot()` to keep a value).
+    """
+
+    node_id: int
+    position_rev: float = 0.0
+    """Motor turns from Get_Encoder_Estimates (always finite)."""
+    velocity_rps: float = 0.0
+    """Motor turns per second from Get_Encoder_Estimates (always finite)."""
+    stamp_s: float = NEVER_S
+    """Clock time (time.monotonic() by default) when the encoder frame arrived; -inf = never."""
+    stamp_ns: int = 0
+    """time.time_ns() wall clock of the same arrival; 0 = never."""
+    axis_state: int = 0
+    """ODrive AxisState from the last heartbeat (0 UNDEFINED until one arrives, 8 CLOSED_LOOP)."""
+    axis_error: int = 0
+    """ODrive axis error bit field from the last heartbeat; 0 = no error."""
+    heartbeat_stamp_s: float = NEVER_S
+    """Clock time of the last heartbeat; -inf = never."""
+
+    def snapshot(self) -> AxisReading:
+        """Return an independent copy of this reading."""
+        return AxisReading(
+            self.node_id,
+            self.position_rev,
+            self.velocity_rps,
+            self.stamp_s,
+            self.stamp_ns,
+            self.axis_state,
+            self.axis_error,
+            self.heartbeat_stamp_s,
+        )
+
+    def encoder_age_s(self, now_s: float) -> float:
+        """Seconds since the last encoder frame at clock time `now_s` (inf if never)."""
+        return now_s - self.stamp_s
+
+    def heartbeat_age_s(self, now_s: float) -> float:
+        """Seconds since the last heartbeat at clock time `now_s` (inf if never)."""
+        return now_s - self.heartbeat_stamp_s
+
+
+@dataclass(slots=True)
+class BusStats:
+    """Counters of one driver's bus traffic.
+
+    `decode_errors` counts frames that failed to decode (wrong length, NaN/inf value, unknown
+    command, extended id); `dropped` counts well-formed frames that were ignored (unknown node,
+    messages the driver does not use); `errors_by_kind` breaks both down by name (e.g.
+    "length", "non_finite", "unknown_command", "unknown_node"). `bus_errors`/`last_error` count
+    and describe failed sends (and receive-side OS errors).
+    """
+
+    frames_rx: int = 0
+    frames_tx: int = 0
+    decode_errors: int = 0
+    dropped: int = 0
+    bus_errors: int = 0
+    last_error: str | None = None
+    ff_clamped: int = 0
+    """Velocity feed-forward values clamped to the int16 wire range (±32.767 rev/s)."""
+    errors_by_kind: dict[str, int] = field(default_factory=dict)
+
+    def snapshot(self) -> BusStats:
+        """Return an independent copy of these counters."""
+        return BusStats(
+            self.frames_rx,
+            self.frames_tx,
+            self.decode_errors,
+            self.dropped,
+            self.bus_errors,
+            self.last_error,
+            self.ff_clamped,
+            dict(self.errors_by_kind),
+        )
+
+
+@runtime_checkable
+class ReelDriver(Protocol):
+    """A set of reel motors on one bus, as the control loop drives them.
+
+    Threading: one thread (the loop) calls every method; none blocks on the bus for long.
+    """
+
+    node_ids: tuple[int, ...]
+
+    def poll(self) -> int:
+        """Drain received frames without blocking and update readings; return frames handled.
+
+        Never raises for bad frames: they are counted in `stats` and dropped.
+        """
+        ...
+
+    def read(self) -> Sequence[AxisReading]:
+        """Latest reading per axis, in the order of `node_ids`; no I/O."""
+        ...
+
+    def command(
+        self, positions_rev: Sequence[float], velocity_ff_rps: Sequence[float] | None = None
+    ) -> None:
+        """Send position set-points (motor turns), one per axis.
+
+        Raises ValueError (and sends nothing) if any value is not finite or the lengths are
+        wrong; raises BusError if the bus refuses a frame.
+        """
+        ...
+
+    def arm(self) -> None:
+        """Clear errors, select position control with passthrough input, enter closed loop."""
+        ...
+
+    def disarm(self) -> None:
+        """Request IDLE on every axis."""
+        ...
+
+    def estop(self) -> None:
+        """Send Estop to every axis."""
+        ...
+
+    def request_encoders(self) -> None:
+        """Ask every axis for its encoder estimates (RTR poll); the answers arrive via poll()."""
+        ...
+
+    @property
+    def stats(self) -> BusStats:
+        """Traffic counters (a live object; copy with `snapshot()`)."""
+        ...
