@@ -1,0 +1,452 @@
+"""Motion: trapezoidal straight-line moves, multi-point paths, stop-to-hold, streamed set-points.
+
+Everything here is deterministic and clock-free: the control loop calls
+`MotionPlanner.advance(dt_s)` once per tick with the tick's time step and gets the new position
+set-point. The per-tick path uses plain Python floats and 3-tuples (no numpy, no allocation
+beyond a few tuples), so it costs a few microseconds.
+
+Behaviour (API as agreed for issue 5; deviations none):
+
+* `TrapezoidMove`: rest-to-rest straight line, accelerate at `max_accel_mps2`, cruise at
+  `max_speed_mps`, decelerate; a triangular profile when the distance is too short to reach the
+  cruise speed. Its duration is the minimum possible under both limits.
+* `MotionPlanner.move_to` / `follow_path`: each leg is one `TrapezoidMove`; the effector stops at
+  every path point (no blending). A new move or path that arrives while the effector is moving
+  first brakes to a stop along the current direction at `max_accel_mps2`, then starts its legs
+  from the stop point, so velocity never jumps and the acceleration limit always holds.
+  Zero-length legs are dropped.
+* `MotionPlanner.stop`: brake along the current velocity direction at `max_accel_mps2` to a hold;
+  the stop point is `position + v^2/(2 a)` along that direction. In a trapezoidal leg the
+  remaining distance is always at least that braking distance, so a stop never leaves the leg.
+* `MotionPlanner.stream`: the set-point chases the latest target with speed <= max speed and
+  |change of velocity| <= max accel * dt per tick (a vector bang-bang limiter along the error
+  direction with a discrete-time braking curve, so it lands on a fixed target without
+  overshoot and holds there exactly).
+* Speeds above `max_speed_mps` given to `move_to`/`follow_path` are clamped to it; the control
+  loop is expected to refuse them with a reason before they reach the planner.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+
+Vec3 = tuple[float, float, float]
+
+_ZERO: Vec3 = (0.0, 0.0, 0.0)
+
+
+def _finite3(p: Sequence[float], what: str) -> Vec3:
+    if len(p) != 3:
+        raise ValueError(f"{what} must have 3 components, got {len(p)}")
+    x, y, z = float(p[0]), float(p[1]), float(p[2])
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        raise ValueError(f"{what} must be finite, got {(x, y, z)!r}")
+    return (x, y, z)
+
+
+def _positive(value: float, what: str) -> float:
+    v = float(value)
+    if not (math.isfinite(v) and v > 0.0):
+        raise ValueError(f"{what} must be finite and > 0, got {value!r}")
+    return v
+
+
+class TrapezoidMove:
+    """A rest-to-rest straight move from `start_m` to `end_m` with a trapezoidal speed profile.
+
+    `duration_s` is the minimum time under `max_speed_mps` and `max_accel_mps2` (triangular
+    profile when the distance is shorter than the distance needed to reach full speed and brake).
+    Raises ValueError on non-finite points or non-positive/non-finite limits.
+    """
+
+    __slots__ = (
+        "_accel_s",
+        "_cruise_s",
+        "_peak_mps",
+        "_unit",
+        "accel_mps2",
+        "distance_m",
+        "duration_s",
+        "end_m",
+        "start_m",
+    )
+
+    def __init__(
+        self,
+        start_m: Sequence[float],
+        end_m: Sequence[float],
+        max_speed_mps: float,
+        max_accel_mps2: float,
+    ) -> None:
+        self.start_m: Vec3 = _finite3(start_m, "start_m")
+        self.end_m: Vec3 = _finite3(end_m, "end_m")
+        vmax = _positive(max_speed_mps, "max_speed_mps")
+        amax = _positive(max_accel_mps2, "max_accel_mps2")
+        self.accel_mps2 = amax
+        dx = self.end_m[0] - self.start_m[0]
+        dy = self.end_m[1] - self.start_m[1]
+        dz = self.end_m[2] - self.start_m[2]
+        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        self.distance_m = d
+        if d == 0.0:
+            self._unit: Vec3 = _ZERO
+            self._peak_mps = 0.0
+            self._accel_s = 0.0
+            self._cruise_s = 0.0
+        else:
+            self._unit = (dx / d, dy / d, dz / d)
+            if vmax * vmax >= d * amax:  # cannot reach vmax and brake in time: triangle
+                peak = math.sqrt(d * amax)
+                self._peak_mps = peak
+                self._accel_s = peak / amax
+                self._cruise_s = 0.0
+            else:
+                self._peak_mps = vmax
+                self._accel_s = vmax / amax
+                self._cruise_s = (d - vmax * vmax / amax) / vmax
+        self.duration_s: float = 2.0 * self._accel_s + self._cruise_s
+
+    @property
+    def peak_speed_mps(self) -> float:
+        """The highest speed reached (the cruise speed, or the triangle's apex)."""
+        return self._peak_mps
+
+    def distance_at(self, t_s: float) -> tuple[float, float]:
+        """Distance travelled (m) and speed (m/s) at time `t_s` (clamped to [0, duration_s])."""
+        ta = self._accel_s
+        a = self.accel_mps2
+        if t_s <= 0.0 or self.distance_m == 0.0:
+            return 0.0, 0.0
+        if t_s >= self.duration_s:
+            return self.distance_m, 0.0
+        if t_s < ta:
+            return 0.5 * a * t_s * t_s, a * t_s
+        t2 = t_s - ta
+        peak = self._peak_mps
+        d_acc = 0.5 * peak * ta
+        if t2 < self._cruise_s:
+            return d_acc + peak * t2, peak
+        t3 = self.duration_s - t_s  # time left: mirror of the acceleration phase
+        return self.distance_m - 0.5 * a * t3 * t3, a * t3
+
+    def sample(self, t_s: float) -> tuple[Vec3, Vec3]:
+        """Position (m) and velocity (m/s) at time `t_s`; exactly `end_m` and zero at the end."""
+        if t_s >= self.duration_s:
+            return self.end_m, _ZERO
+        s, v = self.distance_at(t_s)
+        u = self._unit
+        p0 = self.start_m
+        return (
+            (p0[0] + u[0] * s, p0[1] + u[1] * s, p0[2] + u[2] * s),
+            (u[0] * v, u[1] * v, u[2] * v),
+        )
+
+
+_HOLD = 0
+_MOVE = 1
+_STOP = 2
+_STREAM = 3
+_MODE_NAMES = {_HOLD: "hold", _MOVE: "move", _STOP: "stop", _STREAM: "stream"}
+
+
+class MotionPlanner:
+    """The set-point generator of the control loop (see the module docstring for behaviour).
+
+    `max_speed_mps` / `max_accel_mps2` bound every set-point trajectory it produces;
+    `default_speed_mps` (default: `max_speed_mps`) is used when a move gives no speed.
+    Starts holding at the origin: call `hold(position)` with the measured pose before use.
+    Raises ValueError on non-positive or non-finite limits.
+    """
+
+    def __init__(
+        self,
+        max_speed_mps: float,
+        max_accel_mps2: float,
+        default_speed_mps: float | None = None,
+    ) -> None:
+        self.max_speed_mps = _positive(max_speed_mps, "max_speed_mps")
+        self.max_accel_mps2 = _positive(max_accel_mps2, "max_accel_mps2")
+        if default_speed_mps is None:
+            self.default_speed_mps = self.max_speed_mps
+        else:
+            self.default_speed_mps = min(
+                _positive(default_speed_mps, "default_speed_mps"), self.max_speed_mps
+            )
+        self._p: Vec3 = _ZERO
+        self._v: Vec3 = _ZERO
+        self._mode = _HOLD
+        self._legs: list[TrapezoidMove] = []
+        self._pending: list[Vec3] = []  # path points still to plan (after a stop)
+        self._pending_speed = self.default_speed_mps
+        self._t_s = 0.0
+        # stop state: p(t) = start + unit * (speed*t - a t^2/2), t <= speed/a
+        self._stop_start: Vec3 = _ZERO
+        self._stop_unit: Vec3 = _ZERO
+        self._stop_speed = 0.0
+        self._stream_target: Vec3 = _ZERO
+
+    # ----------------------------------------------------------------------------- queries
+    @property
+    def position_m(self) -> Vec3:
+        """The current set-point (m)."""
+        return self._p
+
+    @property
+    def velocity_mps(self) -> Vec3:
+        """The current set-point velocity (m/s)."""
+        return self._v
+
+    @property
+    def moving(self) -> bool:
+        """True unless holding still (a stop still braking or a stream chasing counts)."""
+        return self._mode != _HOLD
+
+    @property
+    def mode(self) -> str:
+        """'hold', 'move', 'stop' or 'stream' (for status output)."""
+        return _MODE_NAMES[self._mode]
+
+    @property
+    def target_m(self) -> Vec3:
+        """Where the set-point is heading: last path point, stream target or stop point."""
+        if self._mode == _HOLD:
+            return self._p
+        if self._mode == _STREAM:
+            return self._stream_target
+        if self._pending:
+            return self._pending[-1]
+        if self._mode == _MOVE and self._legs:
+            return self._legs[-1].end_m
+        if self._mode == _STOP:
+            return self._stop_point()
+        return self._p
+
+    def _speed(self) -> float:
+        v = self._v
+        return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+    def _stop_point(self) -> Vec3:
+        s = self._stop_speed
+        d = s * s / (2.0 * self.max_accel_mps2)
+        u = self._stop_unit
+        p = self._stop_start
+        return (p[0] + u[0] * d, p[1] + u[1] * d, p[2] + u[2] * d)
+
+    # ----------------------------------------------------------------------------- commands
+    def hold(self, position_m: Sequence[float]) -> None:
+        """Hold still at `position_m` at once (velocity zero; forgets any move or stream).
+
+        Use it to seed the planner with the measured pose (arming, homing, after a fault).
+        Raises ValueError on a non-finite position.
+        """
+        self._p = _finite3(position_m, "position_m")
+        self._v = _ZERO
+        self._mode = _HOLD
+        self._legs = []
+        self._pending = []
+
+    def move_to(self, target_m: Sequence[float], speed_mps: float | None = None) -> None:
+        """Straight-line trapezoidal move to `target_m` (brakes to a stop first if moving).
+
+        `speed_mps` None = the default speed; above max speed it is clamped. Raises ValueError
+        on a non-finite target or a non-positive/non-finite speed.
+        """
+        self.follow_path([target_m], speed_mps)
+
+    def follow_path(
+        self, points_m: Iterable[Sequence[float]], speed_mps: float | None = None
+    ) -> None:
+        """Visit `points_m` in order, one trapezoidal leg each, stopping at every point.
+
+        If the set-point is moving, it first brakes to a stop along its current direction and the
+        first leg starts from the stop point. Raises ValueError on an empty path, a non-finite
+        point or a non-positive/non-finite speed (the planner is unchanged then).
+        """
+        pts = [_finite3(p, f"points_m[{i}]") for i, p in enumerate(points_m)]
+        if not pts:
+            raise ValueError("points_m must contain at least one point")
+        if speed_mps is None:
+            speed = self.default_speed_mps
+        else:
+            speed = min(_positive(speed_mps, "speed_mps"), self.max_speed_mps)
+        if self._speed() > 0.0:
+            self._begin_stop()
+            self._pending = pts
+            self._pending_speed = speed
+        else:
+            self._pending = []
+            self._plan_legs(self._p, pts, speed)
+
+    def stop(self) -> None:
+        """Brake along the current direction at max accel to a hold; forget queued moves."""
+        self._pending = []
+        if self._mode == _STOP:
+            return
+        if self._speed() > 0.0:
+            self._begin_stop()
+        else:
+            self._legs = []
+            self._mode = _HOLD
+
+    def stream(self, target_m: Sequence[float]) -> None:
+        """Chase `target_m` (latest wins) under the speed and acceleration limits.
+
+        Replaces any move, path or stop in progress; the current velocity is kept, so the
+        hand-over is smooth. Raises ValueError on a non-finite target.
+        """
+        self._stream_target = _finite3(target_m, "target_m")
+        self._legs = []
+        self._pending = []
+        self._mode = _STREAM
+
+    # ----------------------------------------------------------------------------- internals
+    def _plan_legs(self, start: Vec3, pts: list[Vec3], speed: float) -> None:
+        legs: list[TrapezoidMove] = []
+        prev = start
+        for p in pts:
+            leg = TrapezoidMove(prev, p, speed, self.max_accel_mps2)
+            if leg.distance_m > 0.0:
+                legs.append(leg)
+                prev = p
+        self._legs = legs
+        self._t_s = 0.0
+        self._mode = _MOVE if legs else _HOLD
+        if not legs:
+            self._v = _ZERO
+
+    def _begin_stop(self) -> None:
+        s = self._speed()
+        v = self._v
+        self._legs = []
+        self._stop_start = self._p
+        self._stop_unit = (v[0] / s, v[1] / s, v[2] / s)
+        self._stop_speed = s
+        self._t_s = 0.0
+        self._mode = _STOP
+
+    def advance(self, dt_s: float) -> Vec3:
+        """Advance the set-point by `dt_s` seconds and return it (m).
+
+        `dt_s` <= 0 or non-finite leaves everything unchanged (never produces NaN).
+        """
+        if not (dt_s > 0.0 and math.isfinite(dt_s)):
+            return self._p
+        mode = self._mode
+        if mode == _MOVE:
+            self._advance_move(dt_s)
+        elif mode == _STOP:
+            self._advance_stop(dt_s)
+        elif mode == _STREAM:
+            self._advance_stream(dt_s)
+        return self._p
+
+    def _advance_move(self, dt_s: float) -> None:
+        t = self._t_s + dt_s
+        legs = self._legs
+        while legs and t >= legs[0].duration_s:
+            t -= legs[0].duration_s
+            done = legs.pop(0)
+            self._p = done.end_m
+            if legs:
+                continue
+            self._p = done.end_m
+            self._v = _ZERO
+            self._mode = _HOLD
+            self._t_s = 0.0
+            return
+        self._t_s = t
+        self._p, self._v = legs[0].sample(t)
+
+    def _advance_stop(self, dt_s: float) -> None:
+        a = self.max_accel_mps2
+        t = self._t_s + dt_s
+        s0 = self._stop_speed
+        t_end = s0 / a
+        if t >= t_end:
+            self._p = self._stop_point()
+            self._v = _ZERO
+            self._t_s = 0.0
+            if self._pending:
+                pts = self._pending
+                self._pending = []
+                self._plan_legs(self._p, pts, self._pending_speed)
+                leftover = t - t_end
+                if self._mode == _MOVE and leftover > 0.0:
+                    self._advance_move(leftover)
+            else:
+                self._mode = _HOLD
+            return
+        self._t_s = t
+        d = s0 * t - 0.5 * a * t * t
+        s = s0 - a * t
+        u = self._stop_unit
+        p = self._stop_start
+        self._p = (p[0] + u[0] * d, p[1] + u[1] * d, p[2] + u[2] * d)
+        self._v = (u[0] * s, u[1] * s, u[2] * s)
+
+    def _advance_stream(self, dt_s: float) -> None:
+        a = self.max_accel_mps2
+        p = self._p
+        v = self._v
+        g = self._stream_target
+        ex = g[0] - p[0]
+        ey = g[1] - p[1]
+        ez = g[2] - p[2]
+        d = math.sqrt(ex * ex + ey * ey + ez * ez)
+        # Desired velocity: toward the target at the fastest speed from which the discrete
+        # braking sequence (speeds k*a*dt, k = n..1, semi-implicit Euler) still stops on it, and
+        # never more than d/dt (land exactly) or max speed.
+        if d > 0.0:
+            adt2 = a * dt_s * dt_s
+            n = math.sqrt(0.25 + 2.0 * d / adt2) - 0.5
+            want = min(self.max_speed_mps, n * a * dt_s, d / dt_s)
+            k = want / d
+            wx, wy, wz = ex * k, ey * k, ez * k
+        else:
+            wx = wy = wz = 0.0
+        # Move the velocity toward the desired one by at most a*dt (keeps |v| <= max speed
+        # because the new velocity lies on the segment between two vectors within the ball).
+        cx, cy, cz = wx - v[0], wy - v[1], wz - v[2]
+        c = math.sqrt(cx * cx + cy * cy + cz * cz)
+        dv_max = a * dt_s
+        clipped = c > dv_max
+        if clipped:
+            k = dv_max / c
+            cx, cy, cz = cx * k, cy * k, cz * k
+        nv = (v[0] + cx, v[1] + cy, v[2] + cz)
+        if d > 0.0 and not clipped and want == d / dt_s:
+            self._p = g  # lands exactly this tick (removes rounding residue)
+        else:
+            self._p = (p[0] + nv[0] * dt_s, p[1] + nv[1] * dt_s, p[2] + nv[2] * dt_s)
+        self._v = nv
+
+
+def circle_path(
+    radius_m: float = 20.0,
+    centre_m: Sequence[float] = (0.0, 0.0),
+    z_m: float = 2.0,
+    steps: int = 72,
+) -> list[Vec3]:
+    """The paper's example (c): a horizontal circle as `steps` straight legs.
+
+    Returns `steps + 1` points at angles 0, 360/steps, ... 360 degrees, counter-clockwise from
+    +x; the last point repeats the first exactly, so following the path closes the circle
+    (72 legs of 5 degrees each for the defaults, radius 20 m about (0, 0) at z = 2 m).
+    Raises ValueError on a non-positive/non-finite radius, non-finite centre or z, or steps < 3.
+    """
+    r = _positive(radius_m, "radius_m")
+    if len(centre_m) != 2:
+        raise ValueError(f"centre_m must have 2 components, got {len(centre_m)}")
+    cx, cy = float(centre_m[0]), float(centre_m[1])
+    z = float(z_m)
+    if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(z)):
+        raise ValueError("centre_m and z_m must be finite")
+    if int(steps) != steps or steps < 3:
+        raise ValueError(f"steps must be an integer >= 3, got {steps!r}")
+    pts: list[Vec3] = []
+    for i in range(int(steps)):
+        ang = 2.0 * math.pi * i / steps
+        pts.append((cx + r * math.cos(ang), cy + r * math.sin(ang), z))
+    pts.append(pts[0])
+    return pts
