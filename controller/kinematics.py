@@ -1,0 +1,909 @@
+"""Kinematics of a point-mass cable robot: IPK, FPK (Williams & Needler 2014), least squares.
+
+Pure module: ``math`` and ``numpy`` only, no I/O, no global state.
+
+Conventions
+-----------
+* SI units, metres.  The world frame {A} has z up; anchors (pulley exit points) ``B_i`` are
+  rows of ``Geometry.anchors_m``.  All cables meet in one point P (no rotation).
+* Cable *indices* in data (``seed_triple``, arrays) are 0-based, as in Python.  Cable *names*
+  in error messages are 1-based (``cable 1`` is row 0), as in the paper (B1..B4).  The bare
+  three-spheres functions name the sphere (``r1``/``r2``/``r3``).
+* "Lower solution" is the intersection point below the plane of the three sphere centres
+  (the paper's ``z_m``, eq. 12): a suspended robot can only pull.
+* A tangent (discriminant zero up to a shortfall of ``TANGENT_TOL_M``) is accepted and gives
+  ``z`` at the anchor plane; beyond that the lengths cannot meet (eq. 17) and
+  ``UnreachableError`` names the cable that is too short and by how much.  For three spheres
+  the power of the radical line's closest point is the same for all three spheres
+  (eq. 17 holds for each of them at once), so the cable named is the one with the largest
+  shortfall, which is always the shortest of the three; ``shortfall_m`` is how much longer it
+  would have to be for the three spheres to touch.
+* Nothing here returns NaN or inf: inputs are checked and outputs are finite or an exception
+  is raised (single pose) / the row is flagged invalid (batch).
+
+Paper examples (W = 50.0 m, L = 80.9 m, h = 7.62 m; anchors at x = +/-40.46, y = +/-25)
+------------------------------------------------------------------------------------------
+(a) radii 48, 48, 48 from B1, B2 and (40.46, -25, 7.62) give P = (0, 0, z) with
+    z = 7.62 - sqrt(48^2 - 40.46^2 - 25^2) = 7.62 - sqrt(41.9884) = 1.140154 m exactly.
+    The paper prints 1.16, which is not a rounding of 1.140 (off by 0.0198 m).  Both printed
+    heights, (a) 1.16 and (b) 2.63, are what h = 7.64 m gives (1.1602, 2.6270); with the
+    stated h = 7.62 m they are 1.1402 and 2.6070.  The fourth cable is 48 m (symmetry).
+(b) radii 38, 48, 58.  The paper prints the third centre as (40.46, -25, 7.62), but with that
+    centre the lower solution is (-11.864, -8.600, -11.282), far from the printed
+    (-6.55, -8.60, 2.63).  The printed result holds for the third centre at (40.46, 25, 7.62):
+    P = (-6.549679, -8.600000, 2.607006), and the "fourth cable 50.04 m" check is the anchor
+    (40.46, -25, 7.62): 50.039984 m.  (With the printed centre the other anchor would need
+    64.99 m.)  tests/test_kinematics.py shows both readings.
+
+Operation counts (add/subtract, multiply/divide, square root; measured by
+tests/test_kinematics.py by running the functions on a counting float type)
+--------------------------------------------------------------------------------------------
+* Paper: new simplified algorithm 25 / 31 / 1; original general algorithm 48 / 62 / 1.
+* ``three_spheres_equal_height`` (paper-faithful, everything from the centres each call,
+  eqs. 9-12 with the quadratic solved directly): 21 / 23 / 1.
+* Per-tick hoisted form used by ``fpk`` (anchor-only terms precomputed in ``Geometry``):
+  11 / 9 / 1.
+* ``three_spheres`` (general, any heights, parametrised by z along the radical line, one
+  square root, numerically stable root choice): 40 / 47 / 1; its per-tick hoisted form used
+  by ``fpk`` for unequal heights: 17 / 21 / 1.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, overload
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "COINCIDENT_TOL_M",
+    "HEIGHT_TOL_M",
+    "SINGULAR_REL_TOL",
+    "TANGENT_TOL_M",
+    "FpkBatchResult",
+    "FpkResult",
+    "Geometry",
+    "KinematicsError",
+    "SingularGeometryError",
+    "UnreachableError",
+    "footprint_contains",
+    "fpk",
+    "fpk_batch",
+    "ipk",
+    "ipk_point",
+    "paper_anchors",
+    "three_spheres",
+    "three_spheres_equal_height",
+]
+
+FloatArray = npt.NDArray[np.float64]
+Vec3 = tuple[float, float, float]
+
+#: Anchors closer than this are coincident.
+COINCIDENT_TOL_M = 1e-6
+#: Anchor heights within this of each other count as equal (simplified algorithm allowed).
+HEIGHT_TOL_M = 1e-9
+#: A triple is singular (eq. 14) when its plan-view triangle's doubled area |ae-bd|/4 is below
+#: this fraction of the squared plan-view span of the anchors.
+SINGULAR_REL_TOL = 1e-6
+#: Shortfall (metres) up to which a negative discriminant is treated as a tangent.
+TANGENT_TOL_M = 1e-9
+#: Gauss-Newton stops when the step is below this.
+GN_STEP_TOL_M = 1e-12
+#: Gauss-Newton iteration cap.
+GN_MAX_ITER = 6
+
+# Module-level alias: one global lookup per call, and the operation-count test swaps it for a
+# counting square root.
+_sqrt = math.sqrt
+
+
+class KinematicsError(ValueError):
+    """Base class of every kinematics error."""
+
+
+class SingularGeometryError(KinematicsError):
+    """The anchors cannot be used: coincident, or collinear in plan view (eq. 14)."""
+
+
+class UnreachableError(KinematicsError):
+    """The cable lengths cannot meet in one point (negative discriminant, eq. 17).
+
+    ``cable`` is 1-based: the cable index in the geometry for ``fpk``, the sphere number
+    (1, 2, 3) for the bare three-spheres functions.  ``shortfall_m`` > 0 is how much longer
+    that cable would have to be for the spheres to touch.
+    """
+
+    def __init__(self, cable: int, shortfall_m: float, what: str = "cable") -> None:
+        self.cable = cable
+        self.shortfall_m = shortfall_m
+        name = f"r{cable}" if what == "sphere" else f"cable {cable}"
+        super().__init__(
+            f"lengths cannot meet: {name} is too short by {shortfall_m:.6g} m "
+            "(negative discriminant, eq. 17)"
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Geometry
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class _EqualSeed:
+    """Anchor-only constants of the simplified algorithm for one triple (hoisted eqs. 9-10)."""
+
+    i1: int
+    i2: int
+    i3: int
+    x1: float
+    y1: float
+    zn: float
+    e1: float  # dx = (r1^2-r3^2)*e1 + (r2^2-r3^2)*e2 + dx0
+    e2: float
+    dx0: float
+    f1: float  # dy = (r1^2-r3^2)*f1 + (r2^2-r3^2)*f2 + dy0
+    f2: float
+    dy0: float
+
+
+@dataclass(frozen=True, slots=True)
+class _GeneralSeed:
+    """Anchor-only constants of the general algorithm for one triple (see ``three_spheres``)."""
+
+    i1: int
+    i2: int
+    i3: int
+    x1: float
+    y1: float
+    z1: float
+    q2: float  # |c2-c1|^2 / 2
+    q3: float  # |c3-c1|^2 / 2
+    p1: float  # X0 = h2*p1 + h3*p2
+    p2: float
+    s1: float  # Y0 = h2*s1 + h3*s2
+    s2: float
+    wx: float  # x = x1 + X0 + wx*s
+    wy: float
+    inv_a: float  # 1 / (1 + wx^2 + wy^2)
+
+
+def _plan_cross(a: Sequence[float], b: Sequence[float], c: Sequence[float]) -> float:
+    """(x3-x1)(y3-y2) - (y3-y1)(x3-x2): eq. 13 divided by 4 (twice the signed plan area)."""
+    return (c[0] - a[0]) * (c[1] - b[1]) - (c[1] - a[1]) * (c[0] - b[0])
+
+
+def _convex_hull(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Counter-clockwise convex hull (Andrew's monotone chain), collinear points dropped."""
+    pts = sorted(set(points))
+    if len(pts) < 3:
+        return pts
+
+    def cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower: list[tuple[float, float]] = []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0.0:
+            lower.pop()
+        lower.append(p)
+    upper: list[tuple[float, float]] = []
+    for p in reversed(pts):
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0.0:
+            upper.pop()
+        upper.append(p)
+    return lower[:-1] + upper[:-1]
+
+
+class Geometry:
+    """Anchor layout of an N-cable point-mass robot (N >= 3), validated at construction.
+
+    ``anchors_m`` is an (N, 3) array-like of the pulley exit points.  Raises
+    ``KinematicsError`` for a wrong shape, N < 3 or non-finite numbers, and
+    ``SingularGeometryError`` for coincident anchors or when no triple of anchors is usable
+    by the FPK (every triple collinear in plan view, eq. 14; with N == 3 the only triple).
+    Triples that are singular are simply not used when N > 3; ``triples`` lists the usable
+    ones (0-based), ``seed_triple`` is the best-conditioned one (largest plan-view area),
+    which seeds every FPK.
+
+    ``height_tol_m``: anchor heights within this count as equal (``equal_heights``).
+    """
+
+    __slots__ = (
+        "_anchors_t",
+        "_hull_edges",
+        "_seed",
+        "anchor_height_max_m",
+        "anchor_height_min_m",
+        "anchors_m",
+        "equal_heights",
+        "height_tol_m",
+        "n_cables",
+        "seed_triple",
+        "seed_uses_simplified",
+        "triples",
+    )
+
+    anchors_m: FloatArray
+    n_cables: int
+    equal_heights: bool
+    anchor_height_min_m: float
+    anchor_height_max_m: float
+    height_tol_m: float
+    triples: tuple[tuple[int, int, int], ...]
+    seed_triple: tuple[int, int, int]
+    seed_uses_simplified: bool
+    _anchors_t: tuple[Vec3, ...]
+    _seed: _EqualSeed | _GeneralSeed
+    _hull_edges: tuple[tuple[float, float, float], ...]
+
+    def __init__(self, anchors_m: Any, height_tol_m: float = HEIGHT_TOL_M) -> None:
+        try:
+            arr = np.array(anchors_m, dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise KinematicsError(f"anchors must be an (N, 3) array of numbers: {exc}") from exc
+        if arr.ndim != 2 or arr.shape[1] != 3:
+            raise KinematicsError(f"anchors must have shape (N, 3), got {arr.shape}")
+        n = int(arr.shape[0])
+        if n < 3:
+            raise KinematicsError(f"need at least 3 anchors, got {n}")
+        if not np.all(np.isfinite(arr)):
+            raise KinematicsError("anchors must be finite numbers")
+        if not (math.isfinite(height_tol_m) and height_tol_m >= 0.0):
+            raise KinematicsError("height_tol_m must be finite and >= 0")
+        arr.setflags(write=False)
+        pts: tuple[Vec3, ...] = tuple((float(r[0]), float(r[1]), float(r[2])) for r in arr.tolist())
+        for i, j in itertools.combinations(range(n), 2):
+            if math.dist(pts[i], pts[j]) <= COINCIDENT_TOL_M:
+                raise SingularGeometryError(f"anchors {i + 1} and {j + 1} coincide")
+
+        span2 = max(
+            (a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2 for a, b in itertools.combinations(pts, 2)
+        )
+        limit = SINGULAR_REL_TOL * span2
+        usable: list[tuple[float, tuple[int, int, int]]] = []
+        for tri in itertools.combinations(range(n), 3):
+            area2 = abs(_plan_cross(pts[tri[0]], pts[tri[1]], pts[tri[2]]))
+            if area2 > limit:
+                usable.append((area2, tri))
+        if not usable:
+            raise SingularGeometryError(
+                "algorithmic singularity (eq. 14): "
+                + ("the three anchors are" if n == 3 else "every triple of anchors is")
+                + " collinear in plan view"
+            )
+
+        zs = [p[2] for p in pts]
+        self.anchors_m = arr
+        self.n_cables = n
+        self.height_tol_m = float(height_tol_m)
+        self.anchor_height_min_m = min(zs)
+        self.anchor_height_max_m = max(zs)
+        self.equal_heights = (max(zs) - min(zs)) <= height_tol_m
+        self.triples = tuple(t for _, t in usable)
+        self._anchors_t = pts
+
+        def tri_equal(t: tuple[int, int, int]) -> bool:
+            h = [zs[k] for k in t]
+            return max(h) - min(h) <= height_tol_m
+
+        best = max(a for a, _ in usable)
+        near_best = [(a, t) for a, t in usable if a >= best * (1.0 - 1e-9)]
+        # Among the best-conditioned triples prefer one the simplified algorithm can use.
+        near_best.sort(key=lambda at: (not tri_equal(at[1]), at[1]))
+        seed = near_best[0][1]
+        self.seed_triple = seed
+        self.seed_uses_simplified = tri_equal(seed)
+        self._seed = (
+            _make_equal_seed(pts, seed)
+            if self.seed_uses_simplified
+            else _make_general_seed(pts, seed)
+        )
+
+        hull = _convex_hull([(p[0], p[1]) for p in pts])
+        edges: list[tuple[float, float, float]] = []
+        for k in range(len(hull)):
+            (ax, ay), (bx, by) = hull[k], hull[(k + 1) % len(hull)]
+            ln = math.hypot(bx - ax, by - ay)
+            nx, ny = -(by - ay) / ln, (bx - ax) / ln  # inward normal of a CCW polygon
+            edges.append((nx, ny, -(nx * ax + ny * ay)))
+        self._hull_edges = tuple(edges)
+
+    def __repr__(self) -> str:
+        return f"Geometry(anchors_m={self.anchors_m.tolist()!r})"
+
+
+def _make_equal_seed(pts: Sequence[Vec3], tri: tuple[int, int, int]) -> _EqualSeed:
+    (x1, y1, z1), (x2, y2, z2), (x3, y3, z3) = (pts[k] for k in tri)
+    a, b = 2.0 * (x3 - x1), 2.0 * (y3 - y1)
+    d, e = 2.0 * (x3 - x2), 2.0 * (y3 - y2)
+    det = a * e - b * d
+    k1 = x3 * x3 + y3 * y3 - x1 * x1 - y1 * y1
+    k2 = x3 * x3 + y3 * y3 - x2 * x2 - y2 * y2
+    e1, e2 = e / det, -b / det
+    f1, f2 = -d / det, a / det
+    return _EqualSeed(
+        i1=tri[0],
+        i2=tri[1],
+        i3=tri[2],
+        x1=x1,
+        y1=y1,
+        zn=(z1 + z2 + z3) / 3.0,
+        e1=e1,
+        e2=e2,
+        dx0=k1 * e1 + k2 * e2 - x1,
+        f1=f1,
+        f2=f2,
+        dy0=k1 * f1 + k2 * f2 - y1,
+    )
+
+
+def _make_general_seed(pts: Sequence[Vec3], tri: tuple[int, int, int]) -> _GeneralSeed:
+    (x1, y1, z1), (x2, y2, z2), (x3, y3, z3) = (pts[k] for k in tri)
+    v2x, v2y, v2z = x2 - x1, y2 - y1, z2 - z1
+    v3x, v3y, v3z = x3 - x1, y3 - y1, z3 - z1
+    uz = v2x * v3y - v2y * v3x
+    wx = (v2y * v3z - v2z * v3y) / uz
+    wy = (v3x * v2z - v2x * v3z) / uz
+    return _GeneralSeed(
+        i1=tri[0],
+        i2=tri[1],
+        i3=tri[2],
+        x1=x1,
+        y1=y1,
+        z1=z1,
+        q2=0.5 * (v2x * v2x + v2y * v2y + v2z * v2z),
+        q3=0.5 * (v3x * v3x + v3y * v3y + v3z * v3z),
+        p1=v3y / uz,
+        p2=-v2y / uz,
+        s1=-v3x / uz,
+        s2=v2x / uz,
+        wx=wx,
+        wy=wy,
+        inv_a=1.0 / (1.0 + wx * wx + wy * wy),
+    )
+
+
+def paper_anchors(
+    half_length_m: float = 40.46, half_width_m: float = 25.0, height_m: float = 7.62
+) -> FloatArray:
+    """The paper's rectangular layout B1..B4 (section 2) as a (4, 3) array.
+
+    B1=(-L/2,-W/2,h), B2=(-L/2,W/2,h), B3=(L/2,W/2,h), B4=(L/2,-W/2,h).  The defaults are
+    the paper's printed anchors (x = +/-40.46 m; L/2 would be 40.45).  Raises nothing.
+    """
+    hl, hw = half_length_m, half_width_m
+    return np.array(
+        [[-hl, -hw, height_m], [-hl, hw, height_m], [hl, hw, height_m], [hl, -hw, height_m]],
+        dtype=np.float64,
+    )
+
+
+def footprint_contains(geom: Geometry, x_m: float, y_m: float, margin_m: float = 0.0) -> bool:
+    """True when (x, y) lies in the anchors' plan-view convex hull shrunk by ``margin_m``.
+
+    A point exactly ``margin_m`` from an edge is inside.  Non-finite input gives False.
+    Raises nothing.
+    """
+    # ">=" is False for NaN, so a NaN coordinate is outside.
+    return all(nx * x_m + ny * y_m + c >= margin_m for nx, ny, c in geom._hull_edges)
+
+
+# --------------------------------------------------------------------------------------------
+# Inverse pose kinematics
+# --------------------------------------------------------------------------------------------
+
+
+def ipk_point(geom: Geometry, position_m: Sequence[float]) -> tuple[float, ...]:
+    """Cable lengths (metres) for one point, pure Python floats (the per-tick fast path).
+
+    Raises ``KinematicsError`` for a non-finite position.
+    """
+    x, y, z = position_m
+    out = tuple(
+        [
+            _sqrt((x - ax) * (x - ax) + (y - ay) * (y - ay) + (z - az) * (z - az))
+            for ax, ay, az in geom._anchors_t
+        ]
+    )
+    s = x + y + z
+    if s - s != 0.0:
+        raise KinematicsError(f"position must be finite, got {tuple(position_m)!r}")
+    return out
+
+
+def ipk(geom: Geometry, position_m: Any) -> FloatArray:
+    """Cable lengths: shape (N,) for one point (3,), (M, N) for M points (M, 3).
+
+    Raises ``KinematicsError`` for a wrong shape or non-finite positions.
+    """
+    p = np.asarray(position_m, dtype=np.float64)
+    if p.shape[-1:] != (3,) or p.ndim not in (1, 2):
+        raise KinematicsError(f"position must have shape (3,) or (M, 3), got {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise KinematicsError("position must be finite")
+    diff = p[..., None, :] - geom.anchors_m
+    out: FloatArray = np.sqrt(np.einsum("...k,...k->...", diff, diff))
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Three-spheres intersection
+# --------------------------------------------------------------------------------------------
+
+
+def _unreachable(r1: float, r2: float, r3: float, power: float) -> tuple[int, float]:
+    """Which of three spheres (1-based) is too short, and by how much, for a radical-line power.
+
+    ``power`` > 0 is the (equal) power of the radical line's closest point to the three
+    spheres, d_i^2 - r_i^2; the shortfall d_i - r_i is largest for the smallest r_i.
+    """
+    rs = (r1, r2, r3)
+    k = min(range(3), key=lambda i: abs(rs[i]))
+    r = abs(rs[k])
+    return k + 1, math.sqrt(r * r + power) - r
+
+
+def three_spheres_equal_height(
+    c1: Sequence[float],
+    c2: Sequence[float],
+    c3: Sequence[float],
+    r1: float,
+    r2: float,
+    r3: float,
+) -> Vec3:
+    """Lower intersection of three spheres whose centres share one height: eqs. (1)-(12).
+
+    The paper's simplified algorithm, computed from the centres on every call (the per-tick
+    form with anchor-only terms hoisted lives in ``fpk``).  Returns (x, y, z_m) with z_m the
+    solution below the centres (eq. 12, minus sign).
+    Raises ``KinematicsError`` when the centres' heights differ (use ``three_spheres``),
+    ``SingularGeometryError`` when the centres are collinear in plan view (eq. 14), and
+    ``UnreachableError`` naming the sphere (r1/r2/r3) that is too short (eq. 17).
+    """
+    x1, y1, zn = c1
+    x2, y2, z2 = c2
+    x3, y3, z3 = c3
+    if zn != z2 or zn != z3:
+        raise KinematicsError("centre heights differ; use three_spheres()")
+    a = 2.0 * (x3 - x1)
+    b = 2.0 * (y3 - y1)
+    d = 2.0 * (x3 - x2)
+    e = 2.0 * (y3 - y2)
+    r3s = r3 * r3
+    k3 = x3 * x3 + y3 * y3
+    r1s = r1 * r1
+    c = r1s - r3s - (x1 * x1 + y1 * y1) + k3
+    f = r2 * r2 - r3s - (x2 * x2 + y2 * y2) + k3
+    det = a * e - b * d
+    if det == 0.0:
+        raise SingularGeometryError("centres collinear in plan view (eq. 14)")
+    x = (c * e - b * f) / det
+    y = (a * f - c * d) / det
+    dx = x - x1
+    dy = y - y1
+    # B^2 - 4C of eq. (12) divided by 4.
+    disc = r1s - dx * dx - dy * dy
+    if disc < 0.0:
+        cable, short = _unreachable(float(r1), float(r2), float(r3), -float(disc))
+        if short > TANGENT_TOL_M:
+            raise UnreachableError(cable, short, "sphere")
+        disc = 0.0 * disc
+    return (x, y, zn - _sqrt(disc))
+
+
+def three_spheres(
+    c1: Sequence[float],
+    c2: Sequence[float],
+    c3: Sequence[float],
+    r1: float,
+    r2: float,
+    r3: float,
+) -> Vec3:
+    """Lower intersection of three spheres with centres at any heights (general algorithm).
+
+    Subtracting sphere 1 from spheres 2 and 3 gives two planes whose intersection (the
+    radical line) is parametrised by s = z - z1: x = x1 + X0 + wx*s, y = y1 + Y0 + wy*s.
+    Sphere 1 then gives A s^2 + 2 B s + C = 0; the root with the smaller z is returned,
+    computed without cancellation.  The only singularity is the true one (centres collinear
+    in plan view, where "lower" is undefined); equal heights give wx = wy = 0 and reduce it to
+    the simplified algorithm.
+    Raises ``SingularGeometryError`` for plan-view collinear centres and ``UnreachableError``
+    naming the sphere (r1/r2/r3) that is too short.
+    """
+    x1, y1, z1 = c1
+    x2, y2, z2 = c2
+    x3, y3, z3 = c3
+    v2x = x2 - x1
+    v2y = y2 - y1
+    v2z = z2 - z1
+    v3x = x3 - x1
+    v3y = y3 - y1
+    v3z = z3 - z1
+    uz = v2x * v3y - v2y * v3x
+    if uz == 0.0:
+        raise SingularGeometryError("centres collinear in plan view (eq. 14)")
+    inv = 1.0 / uz
+    wx = (v2y * v3z - v2z * v3y) * inv
+    wy = (v3x * v2z - v2x * v3z) * inv
+    r1s = r1 * r1
+    h2 = 0.5 * (r1s - r2 * r2 + v2x * v2x + v2y * v2y + v2z * v2z)
+    h3 = 0.5 * (r1s - r3 * r3 + v3x * v3x + v3y * v3y + v3z * v3z)
+    x0 = (h2 * v3y - v2y * h3) * inv
+    y0 = (v2x * h3 - v3x * h2) * inv
+    qa = 1.0 + wx * wx + wy * wy
+    qb = x0 * wx + y0 * wy
+    qc = x0 * x0 + y0 * y0 - r1s
+    disc = qb * qb - qa * qc
+    if disc < 0.0:
+        cable, short = _unreachable(float(r1), float(r2), float(r3), -float(disc) / float(qa))
+        if short > TANGENT_TOL_M:
+            raise UnreachableError(cable, short, "sphere")
+        disc = 0.0 * disc
+    sq = _sqrt(disc)
+    if qb > 0.0:
+        s = -(qb + sq) / qa
+    else:
+        den = sq - qb
+        s = qc / den if den != 0.0 else 0.0 * qb
+    return (x1 + x0 + wx * s, y1 + y0 + wy * s, z1 + s)
+
+
+# --------------------------------------------------------------------------------------------
+# Forward pose kinematics
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class FpkResult:
+    """One FPK solution: position, RMS cable-length mismatch, seed triple (0-based)."""
+
+    position_m: Vec3
+    residual_m: float
+    seed_triple: tuple[int, int, int]
+
+
+@dataclass(frozen=True, slots=True)
+class FpkBatchResult:
+    """A batch of FPK solutions; rows with ``valid`` False hold zeros, never NaN.
+
+    ``short_cable`` is, for rows whose seed triple cannot meet, the 1-based cable that is
+    too short (0 elsewhere) and ``shortfall_m`` by how much (0 elsewhere).
+    """
+
+    position_m: FloatArray
+    residual_m: FloatArray
+    valid: npt.NDArray[np.bool_]
+    seed_triple: tuple[int, int, int]
+    short_cable: npt.NDArray[np.int64]
+    shortfall_m: FloatArray
+
+
+def _seed_equal(sd: _EqualSeed, r1: float, r2: float, r3: float) -> Vec3:
+    """Per-tick simplified algorithm with hoisted constants; 11 add, 9 mul, 1 sqrt."""
+    s1 = r1 * r1
+    s3 = r3 * r3
+    u = s1 - s3
+    v = r2 * r2 - s3
+    dx = u * sd.e1 + v * sd.e2 + sd.dx0
+    dy = u * sd.f1 + v * sd.f2 + sd.dy0
+    disc = s1 - dx * dx - dy * dy
+    if disc < 0.0:
+        cable, short = _unreachable(float(r1), float(r2), float(r3), -float(disc))
+        if short > TANGENT_TOL_M:
+            raise UnreachableError((sd.i1, sd.i2, sd.i3)[cable - 1] + 1, short)
+        disc = 0.0 * disc
+    return (sd.x1 + dx, sd.y1 + dy, sd.zn - _sqrt(disc))
+
+
+def _seed_general(sd: _GeneralSeed, r1: float, r2: float, r3: float) -> Vec3:
+    """Per-tick general algorithm with hoisted constants; 17 add, 21 mul, 1 sqrt."""
+    s1 = r1 * r1
+    h2 = 0.5 * (s1 - r2 * r2) + sd.q2
+    h3 = 0.5 * (s1 - r3 * r3) + sd.q3
+    x0 = h2 * sd.p1 + h3 * sd.p2
+    y0 = h2 * sd.s1 + h3 * sd.s2
+    qb = x0 * sd.wx + y0 * sd.wy
+    qc = x0 * x0 + y0 * y0 - s1
+    disc = qb * qb - qc / sd.inv_a
+    if disc < 0.0:
+        cable, short = _unreachable(float(r1), float(r2), float(r3), -float(disc) * sd.inv_a)
+        if short > TANGENT_TOL_M:
+            raise UnreachableError((sd.i1, sd.i2, sd.i3)[cable - 1] + 1, short)
+        disc = 0.0 * disc
+    sq = _sqrt(disc)
+    if qb > 0.0:
+        s = -(qb + sq) * sd.inv_a
+    else:
+        den = sq - qb
+        s = qc / den if den != 0.0 else 0.0 * qb
+    return (sd.x1 + x0 + sd.wx * s, sd.y1 + y0 + sd.wy * s, sd.z1 + s)
+
+
+def _gauss_newton(
+    anchors: tuple[Vec3, ...], lengths: Sequence[float], x: float, y: float, z: float
+) -> tuple[float, float, float, float]:
+    """Least-squares refinement over all cables from (x, y, z); returns x, y, z, RMS residual.
+
+    Minimises sum (|P - B_i| - L_i)^2 with Gauss-Newton, 3x3 normal equations solved in
+    closed form; stops when the step is below ``GN_STEP_TOL_M``.
+    """
+    n = len(anchors)
+    sumsq = 0.0
+    for _ in range(GN_MAX_ITER):
+        a11 = a12 = a13 = a22 = a23 = a33 = g1 = g2 = g3 = sumsq = 0.0
+        for (ax, ay, az), ln in zip(anchors, lengths, strict=True):
+            dx = x - ax
+            dy = y - ay
+            dz = z - az
+            d = _sqrt(dx * dx + dy * dy + dz * dz)
+            res = d - ln
+            sumsq += res * res
+            t = 1.0 / d
+            ux = dx * t
+            uy = dy * t
+            uz = dz * t
+            a11 += ux * ux
+            a12 += ux * uy
+            a13 += ux * uz
+            a22 += uy * uy
+            a23 += uy * uz
+            a33 += uz * uz
+            g1 += ux * res
+            g2 += uy * res
+            g3 += uz * res
+        c11 = a22 * a33 - a23 * a23
+        c12 = a13 * a23 - a12 * a33
+        c13 = a12 * a23 - a13 * a22
+        det = a11 * c11 + a12 * c12 + a13 * c13
+        if not det > 1e-12:  # cables (nearly) coplanar with P: keep the current estimate
+            break
+        c22 = a11 * a33 - a13 * a13
+        c23 = a12 * a13 - a11 * a23
+        c33 = a11 * a22 - a12 * a12
+        inv = 1.0 / det
+        sx = (c11 * g1 + c12 * g2 + c13 * g3) * inv
+        sy = (c12 * g1 + c22 * g2 + c23 * g3) * inv
+        sz = (c13 * g1 + c23 * g2 + c33 * g3) * inv
+        x -= sx
+        y -= sy
+        z -= sz
+        if sx * sx + sy * sy + sz * sz < GN_STEP_TOL_M * GN_STEP_TOL_M:
+            # The step is below tolerance: the residuals at the new point differ from the
+            # ones just summed by less than the step; re-evaluating would not change them.
+            break
+    else:
+        sumsq = 0.0
+        for (ax, ay, az), ln in zip(anchors, lengths, strict=True):
+            res = math.dist((x, y, z), (ax, ay, az)) - ln
+            sumsq += res * res
+    return x, y, z, _sqrt(sumsq / n)
+
+
+def _fpk_one(geom: Geometry, lengths: Sequence[float]) -> FpkResult:
+    sd = geom._seed
+    n = geom.n_cables
+    if len(lengths) != n:
+        raise KinematicsError(f"expected {n} cable lengths, got {len(lengths)}")
+    for k, ln in enumerate(lengths):
+        if not (0.0 < ln < math.inf):
+            raise KinematicsError(f"cable {k + 1} length must be finite and > 0, got {ln!r}")
+    r1, r2, r3 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3]
+    if isinstance(sd, _EqualSeed):
+        x, y, z = _seed_equal(sd, r1, r2, r3)
+    else:
+        x, y, z = _seed_general(sd, r1, r2, r3)
+    tri = geom.seed_triple
+    if n == 3:
+        return FpkResult((x, y, z), 0.0, tri)
+    # Consistent lengths (the usual case): the other cables already agree, skip the fit.
+    anchors = geom._anchors_t
+    sumsq = 0.0
+    worst = 0.0
+    for k in range(n):
+        if k == sd.i1 or k == sd.i2 or k == sd.i3:
+            continue
+        ax, ay, az = anchors[k]
+        dx = x - ax
+        dy = y - ay
+        dz = z - az
+        res = _sqrt(dx * dx + dy * dy + dz * dz) - lengths[k]
+        sumsq += res * res
+        if res * res > worst:
+            worst = res * res
+    if worst > GN_STEP_TOL_M * GN_STEP_TOL_M:
+        x, y, z, rms = _gauss_newton(anchors, lengths, x, y, z)
+    else:
+        rms = _sqrt(sumsq / n)
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(rms)):
+        raise KinematicsError("FPK produced a non-finite result")  # defensive, not expected
+    return FpkResult((x, y, z), rms, tri)
+
+
+@overload
+def fpk(geom: Geometry, lengths_m: Sequence[float]) -> FpkResult: ...
+@overload
+def fpk(geom: Geometry, lengths_m: FloatArray) -> FpkResult | FpkBatchResult: ...
+
+
+def fpk(geom: Geometry, lengths_m: Sequence[float] | FloatArray) -> FpkResult | FpkBatchResult:
+    """Forward pose kinematics: the point P where the cables meet.
+
+    ``lengths_m`` of shape (N,) gives an ``FpkResult``; shape (M, N) dispatches to
+    ``fpk_batch``.  The seed is the geometry's ``seed_triple`` solved with the simplified
+    algorithm when its anchors share a height, the general one otherwise; for N > 3 a
+    Gauss-Newton least-squares fit over all cables follows (skipped when the other cables
+    already agree to 1e-12 m).  ``residual_m`` is the RMS cable-length mismatch.
+    Raises ``KinematicsError`` for a wrong count or non-finite / non-positive lengths and
+    ``UnreachableError`` (naming the 1-based cable and shortfall) when the seed triple
+    cannot meet.
+    """
+    if isinstance(lengths_m, np.ndarray):
+        if lengths_m.ndim == 2:
+            return fpk_batch(geom, lengths_m)
+        if lengths_m.ndim != 1:
+            raise KinematicsError(f"lengths must have shape (N,) or (M, N), got {lengths_m.shape}")
+        return _fpk_one(geom, lengths_m.tolist())
+    return _fpk_one(geom, [float(v) for v in lengths_m])
+
+
+def fpk_batch(geom: Geometry, lengths_m: Any) -> FpkBatchResult:
+    """Vectorised FPK of M poses from an (M, N) array of lengths; never raises per row.
+
+    Rows with non-finite or non-positive lengths, or whose seed triple cannot meet, get
+    ``valid`` False, position and residual 0 (never NaN).  Raises ``KinematicsError`` only
+    for a wrong shape.
+    """
+    lens = np.asarray(lengths_m, dtype=np.float64)
+    n = geom.n_cables
+    if lens.ndim != 2 or lens.shape[1] != n:
+        raise KinematicsError(f"lengths must have shape (M, {n}), got {lens.shape}")
+    return _fpk_batch(geom, lens)
+
+
+def _fpk_batch(geom: Geometry, lens: FloatArray) -> FpkBatchResult:
+    m, n = lens.shape
+    sd = geom._seed
+    with np.errstate(all="ignore"):
+        ok = np.all((lens > 0.0) & (lens < np.inf), axis=1)
+        r1 = lens[:, sd.i1]
+        r2 = lens[:, sd.i2]
+        r3 = lens[:, sd.i3]
+        pos = np.empty((m, 3), dtype=np.float64)
+        s1 = r1 * r1
+        if isinstance(sd, _EqualSeed):
+            s3 = r3 * r3
+            u = s1 - s3
+            v = r2 * r2
+            v -= s3
+            dx = u * sd.e1
+            dx += v * sd.e2
+            dx += sd.dx0
+            dy = u * sd.f1
+            dy += v * sd.f2
+            dy += sd.dy0
+            disc = s1 - dx * dx
+            disc -= dy * dy
+            power = -disc
+            np.add(dx, sd.x1, out=pos[:, 0])
+            np.add(dy, sd.y1, out=pos[:, 1])
+            np.maximum(disc, 0.0, out=disc)
+            np.sqrt(disc, out=disc)
+            np.subtract(sd.zn, disc, out=pos[:, 2])
+        else:
+            h2 = s1 - r2 * r2
+            h2 *= 0.5
+            h2 += sd.q2
+            h3 = s1 - r3 * r3
+            h3 *= 0.5
+            h3 += sd.q3
+            x0 = h2 * sd.p1 + h3 * sd.p2
+            y0 = h2 * sd.s1 + h3 * sd.s2
+            qb = x0 * sd.wx + y0 * sd.wy
+            qc = x0 * x0 + y0 * y0 - s1
+            disc = qb * qb - qc / sd.inv_a
+            power = -disc * sd.inv_a
+            sq = np.sqrt(np.maximum(disc, 0.0))
+            den = sq - qb
+            s = np.where(
+                qb > 0.0,
+                -(qb + sq) * sd.inv_a,
+                np.where(den != 0.0, qc / np.where(den != 0.0, den, 1.0), 0.0),
+            )
+            pos[:, 0] = sd.x1 + x0 + sd.wx * s
+            pos[:, 1] = sd.y1 + y0 + sd.wy * s
+            pos[:, 2] = sd.z1 + s
+
+        # Unreachable rows: the shortest of the three seed cables is the one named.
+        short_cable = np.zeros(m, dtype=np.int64)
+        shortfall = np.zeros(m, dtype=np.float64)
+        bad = power > 0.0
+        if np.any(bad):
+            idx = np.nonzero(bad)[0]
+            trio = np.stack([r1[idx], r2[idx], r3[idx]], axis=1)
+            k = np.argmin(trio, axis=1)
+            rmin = trio[np.arange(idx.size), k]
+            sf = np.sqrt(rmin * rmin + power[idx]) - rmin
+            really = sf > TANGENT_TOL_M
+            tri = np.array([sd.i1, sd.i2, sd.i3], dtype=np.int64)
+            short_cable[idx[really]] = tri[k[really]] + 1
+            shortfall[idx[really]] = sf[really]
+            ok[idx[really]] = False
+
+        residual = np.zeros(m, dtype=np.float64)
+        if n > 3:
+            _batch_refine(geom, lens, pos, residual, ok)
+
+        ok &= np.all(np.isfinite(pos), axis=1) & np.isfinite(residual)
+        pos[~ok] = 0.0
+        residual[~ok] = 0.0
+        short_cable[ok] = 0
+        shortfall[ok] = 0.0
+    return FpkBatchResult(pos, residual, ok, geom.seed_triple, short_cable, shortfall)
+
+
+def _batch_refine(
+    geom: Geometry, lens: FloatArray, pos: FloatArray, residual: FloatArray, ok: Any
+) -> None:
+    """Vectorised Gauss-Newton over the rows that need it; updates pos and residual in place."""
+    anchors = geom.anchors_m
+    n = geom.n_cables
+    # Residuals at the seed (all cables); rows already consistent are done.
+    res = _residuals(anchors, pos, lens)
+    sumsq = np.einsum("ij,ij->i", res, res)
+    active = np.nonzero(ok & (np.max(np.abs(res), axis=1) > GN_STEP_TOL_M))[0]
+    np.sqrt(sumsq / n, out=residual)
+    first_active = active
+    tol2 = GN_STEP_TOL_M * GN_STEP_TOL_M
+    for _ in range(GN_MAX_ITER):
+        if active.size == 0:
+            break
+        p = pos[active]
+        ln = lens[active]
+        d = p[:, None, :] - anchors[None, :, :]  # (K, N, 3)
+        dist = np.sqrt(np.einsum("ijk,ijk->ij", d, d))
+        r = dist - ln
+        d /= dist[:, :, None]  # unit vectors: the Jacobian rows
+        jtj = np.einsum("ijk,ijl->ikl", d, d)
+        g = np.einsum("ijk,ij->ik", d, r)
+        step = _solve3(jtj, g)
+        p -= step
+        pos[active] = p
+        small = np.einsum("ij,ij->i", step, step) < tol2
+        active = active[~small]
+    # Residual at the final positions of every row that was refined.
+    refined = first_active
+    if refined.size:
+        r = _residuals(anchors, pos[refined], lens[refined])
+        residual[refined] = np.sqrt(np.einsum("ij,ij->i", r, r) / n)
+
+
+def _residuals(anchors: FloatArray, pos: FloatArray, lens: FloatArray) -> FloatArray:
+    d = pos[:, None, :] - anchors[None, :, :]
+    out: FloatArray = np.sqrt(np.einsum("ijk,ijk->ij", d, d)) - lens
+    return out
+
+
+def _solve3(a: FloatArray, g: FloatArray) -> FloatArray:
+    """Solve K symmetric 3x3 systems a x = g in closed form; singular rows give a zero step."""
+    a11, a12, a13 = a[:, 0, 0], a[:, 0, 1], a[:, 0, 2]
+    a22, a23, a33 = a[:, 1, 1], a[:, 1, 2], a[:, 2, 2]
+    c11 = a22 * a33 - a23 * a23
+    c12 = a13 * a23 - a12 * a33
+    c13 = a12 * a23 - a13 * a22
+    c22 = a11 * a33 - a13 * a13
+    c23 = a12 * a13 - a11 * a23
+    c33 = a11 * a22 - a12 * a12
+    det = a11 * c11 + a12 * c12 + a13 * c13
+    good = det > 1e-12
+    inv = np.where(good, 1.0 / np.where(good, det, 1.0), 0.0)
+    g1, g2, g3 = g[:, 0], g[:, 1], g[:, 2]
+    out = np.empty_like(g)
+    out[:, 0] = (c11 * g1 + c12 * g2 + c13 * g3) * inv
+    out[:, 1] = (c12 * g1 + c22 * g2 + c23 * g3) * inv
+    out[:, 2] = (c13 * g1 + c23 * g2 + c33 * g3) * inv
+    return out
