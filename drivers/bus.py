@@ -1,0 +1,66 @@
+"""Open a python-can bus from configuration, for any interface python-can supports.
+
+`open_bus("socketcan", "can0", 1_000_000)`, `open_bus("virtual", "sim")`,
+`open_bus("udp_multicast", "239.74.0.1", port=43113)`, `open_bus({"interface": "pcan",
+"channel": "PCAN_USBBUS1", "bitrate": 500000})`: every further keyword goes to the interface
+unchanged, so new interfaces need no code here. One bus per robot, passed into the drivers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import can
+
+from drivers.base import DriverError
+
+# Interfaces whose bit rate is set outside python-can (or that have none): a configured bitrate is
+# not passed to them, so one config file works on a real bus and on these.
+_NO_BITRATE = frozenset({"virtual", "udp_multicast", "socketcan"})
+
+
+class BusOpenError(DriverError):
+    """The bus could not be opened; the message names the interface and channel and why."""
+
+
+def open_bus(
+    interface: str | Mapping[str, Any],
+    channel: str | int | None = None,
+    bitrate: int | None = None,
+    **options: Any,
+) -> can.BusABC:
+    """Open and return a python-can bus.
+
+    `interface` is a python-can interface name ("socketcan", "virtual", "udp_multicast",
+    "pcan", "slcan", ...), or a mapping with keys "interface", "channel", "bitrate" and any
+    further interface keyword (explicit arguments override the mapping). `bitrate` is passed
+    only to interfaces that set it themselves (not socketcan, whose bit rate belongs to
+    `ip link`, nor virtual/udp_multicast). Raises BusOpenError (with interface and channel in
+    the message) if the interface is unknown or the bus cannot be opened, and ValueError on a
+    malformed configuration.
+    """
+    if isinstance(interface, Mapping):
+        cfg = dict(interface)
+        name = cfg.pop("interface", None)
+        channel = cfg.pop("channel", None) if channel is None else channel
+        cfg_bitrate = cfg.pop("bitrate", None)
+        bitrate = cfg_bitrate if bitrate is None else bitrate
+        options = {**cfg, **options}
+    else:
+        name = interface
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"bus configuration needs an interface name, got {name!r}")
+    if bitrate is not None and (not isinstance(bitrate, int) or bitrate <= 0):
+        raise ValueError(f"bitrate must be a positive integer, got {bitrate!r}")
+    kwargs: dict[str, Any] = dict(options)
+    if bitrate is not None and name not in _NO_BITRATE:
+        kwargs["bitrate"] = bitrate
+    try:
+        bus = can.Bus(interface=name, channel=channel, **kwargs)
+    except (can.CanError, OSError, ImportError, ValueError, TypeError, NotImplementedError) as exc:
+        raise BusOpenError(
+            f"cannot open CAN bus interface={name!r} channel={channel!r}: "
+            f"{type(exc).__name__}: {exc}"
+        ) from exc
+    return bus
