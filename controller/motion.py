@@ -199,7 +199,10 @@ class MotionPlanner:
 
     @property
     def moving(self) -> bool:
-        """True unless holding still (a stop still braking or a stream chasing counts)."""
+        """True unless holding still (a braking stop counts; a stream that sits on its target
+        with zero velocity does not)."""
+        if self._mode == _STREAM:
+            return not (self._p == self._stream_target and self._v == _ZERO)
         return self._mode != _HOLD
 
     @property
