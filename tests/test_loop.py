@@ -1,0 +1,559 @@
+"""The control loop with a fake clock and a fake driver: deterministic, no threads, no bus."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import pathlib
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+
+from controller import kinematics
+from controller.commands import (
+    Arm,
+    CommandRefused,
+    Disarm,
+    Estop,
+    Home,
+    Move,
+    Path,
+    Reset,
+    Stop,
+)
+from controller.loop import Controller, PoseSample
+from controller.states import State
+from tests.fakes import FakeClock, FakeDriver, RecordingPublisher, make_config, power_up_turns
+
+RATE_HZ = 500.0
+DT = 1.0 / RATE_HZ
+
+
+class Rig:
+    """A controller on a fake driver and a fake clock, ticked by hand."""
+
+    def __init__(self, cfg: Any | None = None, *, homed: bool = True, **kw: Any) -> None:
+        self.cfg = cfg if cfg is not None else make_config(loop={"rate_hz": RATE_HZ})
+        self.clock = FakeClock()
+        ids = [r.node_id for r in self.cfg.reels]
+        turns = power_up_turns(self.cfg) if homed else [0.0] * len(ids)
+        self.driver = FakeDriver(ids, self.clock, turns)
+        self.pub = RecordingPublisher()
+        self.ctl = Controller(
+            self.cfg,
+            self.driver,
+            self.pub,
+            clock=self.clock,
+            wall_clock_ns=self.clock.wall_ns,
+            **kw,
+        )
+        self.setpoints: list[tuple[float, float, float]] = []
+
+    def tick(self, n: int = 1) -> None:
+        for _ in range(n):
+            self.clock.advance(DT)
+            self.ctl.tick(self.clock())
+            if self.ctl.setpoint_m is not None and self.ctl.state in (
+                State.HOLDING,
+                State.MOVING,
+            ):
+                self.setpoints.append(self.ctl.setpoint_m)
+
+    def do(self, cmd: Any, ticks: int = 1) -> dict[str, Any]:
+        fut = self.ctl.submit(cmd)
+        self.tick(ticks)
+        assert fut.done()
+        result: dict[str, Any] = fut.result(timeout=0)
+        return result
+
+    def refused(self, cmd: Any) -> str:
+        fut = self.ctl.submit(cmd)
+        self.tick()
+        exc = fut.exception(timeout=0)
+        assert isinstance(exc, CommandRefused), exc
+        return str(exc)
+
+    def until(self, pred: Callable[[], bool], max_ticks: int = 50_000) -> int:
+        for i in range(max_ticks):
+            if pred():
+                return i
+            self.tick()
+        raise AssertionError(f"condition not met within {max_ticks} ticks")
+
+    def arm(self) -> None:
+        self.tick(2)
+        self.do(Arm())
+        self.until(lambda: self.ctl.state is State.HOLDING, 100)
+
+    @property
+    def start(self) -> tuple[float, float, float]:
+        p = self.cfg.homing.power_up_position_m
+        return (float(p[0]), float(p[1]), float(p[2]))
+
+
+def _dist(a: Any, b: Any) -> float:
+    return math.dist(tuple(a), tuple(b))
+
+
+def _target(rig: Rig, dx: float = 1.0, dy: float = 0.0, dz: float = 0.0) -> tuple[float, ...]:
+    s = rig.start
+    return (s[0] + dx, s[1] + dy, s[2] + dz)
+
+
+# ------------------------------------------------------------------------ arming and motion
+
+
+def test_arming_sequence_holds_current_pose() -> None:
+    rig = Rig()
+    rig.tick(2)
+    assert rig.ctl.homed and rig.ctl.home_source == "power_up"
+    assert rig.ctl.pose_valid
+    assert _dist(rig.ctl.pose_m, rig.start) < 1e-6
+    assert rig.driver.commands == []  # nothing commanded while disarmed
+    reply = rig.do(Arm())
+    assert reply["ok"] and rig.driver.calls == ["arm"]
+    assert rig.ctl.state in (State.ARMING, State.HOLDING)
+    rig.until(lambda: rig.ctl.state is State.HOLDING, 10)
+    assert rig.pub.state_names() == ["ARMING", "HOLDING"]
+    # The hold set-point is the measured pose and the motors are told to stay where they are.
+    assert _dist(rig.ctl.setpoint_m, rig.start) < 1e-6  # type: ignore[arg-type]
+    rig.tick(5)
+    for got, want in zip(rig.driver.commands[-1], power_up_turns(rig.cfg), strict=True):
+        assert got == pytest.approx(want, abs=1e-9)
+
+
+def test_arm_timeout_names_the_axis() -> None:
+    rig = Rig()
+    rig.driver.no_closed_loop = {rig.ctl.node_ids[2]}
+    rig.tick(2)
+    rig.do(Arm())
+    rig.until(lambda: rig.ctl.state is State.FAULT, int(rig.cfg.faults.arm_timeout_s * RATE_HZ) + 5)
+    assert rig.ctl.reason is not None
+    assert rig.ctl.reason.startswith("arm_timeout: ")
+    assert f"node {rig.ctl.node_ids[2]}" in rig.ctl.reason
+    assert f"node {rig.ctl.node_ids[0]}" not in rig.ctl.reason
+
+
+def test_move_arrives_within_1mm_and_respects_limits() -> None:
+    rig = Rig()
+    rig.arm()
+    target = _target(rig, 1.0, 0.5, -0.3)
+    reply = rig.do(Move(target))
+    assert reply["ok"] and rig.ctl.state is State.MOVING
+    rig.setpoints.clear()
+    n = rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert n > 10
+    rig.tick(3)
+    assert _dist(rig.ctl.pose_m, target) < 1e-3
+    assert _dist(rig.ctl.setpoint_m, target) < 1e-9  # type: ignore[arg-type]
+    vmax = rig.cfg.limits.default_speed_mps
+    amax = rig.cfg.limits.max_accel_mps2
+    pts = rig.setpoints
+    speeds = [_dist(a, b) / DT for a, b in itertools.pairwise(pts)]
+    assert max(speeds) <= min(vmax, rig.cfg.limits.max_speed_mps) * (1 + 1e-6)
+    assert max(speeds) > 0.5 * vmax  # it really moved at speed
+    accels = [
+        math.dist([(c[i] - 2 * b[i] + a[i]) / DT**2 for i in range(3)], (0, 0, 0))
+        for a, b, c in zip(pts, pts[1:], pts[2:], strict=False)
+    ]
+    assert max(accels) <= amax * (1 + 1e-6)
+    # Cable speeds from the commanded motor turns stay under the per-cable limit.
+    reels = rig.ctl.reels
+    cmds = rig.driver.commands
+    for a, b in zip(cmds[-len(pts) :], cmds[-len(pts) + 1 :], strict=False):
+        for i, reel in enumerate(reels):
+            v = abs(reel.length_m(b[i]) - reel.length_m(a[i])) / DT
+            assert v <= rig.cfg.limits.max_cable_speed_mps * (1 + 1e-6)
+
+
+def test_path_visits_points_and_stop_decelerates_to_hold() -> None:
+    rig = Rig()
+    rig.arm()
+    pts = (_target(rig, 0.5), _target(rig, 0.5, 0.5), _target(rig, 0.0, 0.5))
+    rig.do(Path(pts))
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert _dist(rig.ctl.pose_m, pts[-1]) < 1e-3
+    # A stop mid-move brakes to a hold short of the target, without a jump.
+    far = _target(rig, 3.0)
+    rig.do(Move(far))
+    rig.until(lambda: _dist(rig.ctl.setpoint_m, pts[-1]) > 0.3)
+    rig.setpoints.clear()
+    rig.do(Stop())
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert _dist(rig.ctl.setpoint_m, far) > 0.5
+    sp = rig.setpoints
+    assert max(_dist(a, b) for a, b in itertools.pairwise(sp)) / DT <= (
+        rig.cfg.limits.max_speed_mps * (1 + 1e-6)
+    )
+
+
+def test_streamed_setpoints_are_rate_limited() -> None:
+    rig = Rig()
+    rig.arm()
+    goal = _target(rig, 1.0)
+    rig.ctl.submit_setpoint(goal)
+    rig.tick()
+    assert rig.ctl.state is State.MOVING
+    rig.setpoints.clear()
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    sp = rig.setpoints
+    assert max(_dist(a, b) for a, b in itertools.pairwise(sp)) / DT <= (
+        rig.cfg.limits.max_speed_mps * (1 + 1e-6)
+    )
+    assert _dist(rig.ctl.pose_m, goal) < 1e-3
+    # An out-of-workspace streamed target is dropped and counted, no fault.
+    rig.ctl.submit_setpoint((1e6, 0.0, 0.0))
+    rig.ctl.submit_setpoint((math.nan, 0.0, 0.0))
+    rig.tick(3)
+    assert rig.ctl.state is State.HOLDING
+    assert rig.ctl.stream_refused == 1  # latest wins: only the NaN one was seen
+    assert rig.ctl.stream_last_refusal is not None
+
+
+# ------------------------------------------------------------------------ refusals
+
+
+def test_out_of_workspace_and_state_refusals_leave_state_unchanged() -> None:
+    rig = Rig()
+    rig.tick(2)
+    assert "not allowed in DISARMED" in rig.refused(Move(rig.start))
+    rig.arm()
+    anchors = rig.cfg.geometry.anchors_m
+    top = max(float(a[2]) for a in anchors)
+    xs = [float(a[0]) for a in anchors]
+    s = rig.start
+    bad = [
+        (max(xs) + 1.0, s[1], s[2]),  # outside the plan-view polygon
+        (s[0], s[1], rig.cfg.limits.floor_z_m - 0.1),  # below the floor
+        (s[0], s[1], top - 0.5 * rig.cfg.limits.top_margin_m),  # into the anchor plane margin
+    ]
+    n_cmds = len(rig.driver.commands)
+    for p in bad:
+        reason = rig.refused(Move(p))
+        assert reason and rig.ctl.state is State.HOLDING, p
+    reason = rig.refused(Path((rig.start, bad[0])))
+    assert "points_m[1]" in reason
+    assert "not allowed in HOLDING" in rig.refused(Arm())
+    assert rig.ctl.state is State.HOLDING
+    assert _dist(rig.ctl.setpoint_m, s) < 1e-6  # type: ignore[arg-type]
+    assert len(rig.driver.commands) > n_cmds  # still holding
+
+
+def test_unhomed_pose_invalid_and_arm_refused() -> None:
+    cfg = make_config(loop={"rate_hz": RATE_HZ}, homing={"power_up_position_m": None})
+    rig = Rig(cfg, homed=False)
+    rig.tick(3)
+    assert not rig.ctl.homed and not rig.ctl.pose_valid
+    assert "not homed" in rig.refused(Arm())
+    sample = rig.pub.poses[-1]
+    assert isinstance(sample, PoseSample)
+    assert sample.position_m is None and not sample.valid
+    assert json.loads(sample.to_json_bytes())["position_m"] is None
+
+
+def test_queue_full_refuses_busy() -> None:
+    rig = Rig()
+    futs = [rig.ctl.submit(Stop()) for _ in range(40)]
+    busy = [f for f in futs if f.done() and isinstance(f.exception(timeout=0), CommandRefused)]
+    assert len(busy) == 40 - 32
+    assert "busy" in str(busy[0].exception(timeout=0))
+    rig.tick(10)
+    assert all(f.done() for f in futs)
+
+
+# ------------------------------------------------------------------------ faults
+
+
+def _armed_rig(**faults: Any) -> Rig:
+    cfg = make_config(loop={"rate_hz": RATE_HZ}, faults=faults) if faults else None
+    rig = Rig(cfg)
+    rig.arm()
+    rig.tick(5)
+    return rig
+
+
+def _assert_fault_holds(rig: Rig, code: str, hold: tuple[float, ...] | None = None) -> None:
+    assert rig.ctl.state is State.FAULT
+    assert rig.ctl.reason is not None and rig.ctl.reason.startswith(code + ":"), rig.ctl.reason
+    assert rig.pub.states[-1][:2] == ("FAULT", rig.ctl.reason)
+    if hold is None:
+        return
+    n = len(rig.driver.commands)
+    rig.tick(20)
+    assert len(rig.driver.commands) == n + 20  # the last good set-point is re-sent every tick
+    for c in rig.driver.commands[n:]:
+        assert c == hold
+    assert "estop" not in rig.driver.calls and "disarm" not in rig.driver.calls
+
+
+def test_stale_encoder_fault_holds() -> None:
+    rig = _armed_rig()
+    hold = rig.driver.commands[-1]
+    rig.driver.silent = {rig.ctl.node_ids[1]}
+    rig.until(lambda: rig.ctl.state is State.FAULT, 200)
+    _assert_fault_holds(rig, "stale_encoder", hold)
+    assert f"node {rig.ctl.node_ids[1]}" in str(rig.ctl.reason)
+
+
+def test_stale_heartbeat_fault() -> None:
+    rig = _armed_rig()
+    hold = rig.driver.commands[-1]
+    rig.driver.heartbeat_silent = {rig.ctl.node_ids[3]}
+    rig.until(lambda: rig.ctl.state is State.FAULT, 1000)
+    _assert_fault_holds(rig, "stale_heartbeat", hold)
+
+
+def test_axis_error_fault() -> None:
+    rig = _armed_rig()
+    hold = rig.driver.commands[-1]
+    rig.driver.axis_error[rig.ctl.node_ids[0]] = 0x800
+    rig.tick()
+    _assert_fault_holds(rig, "axis_error", hold)
+    assert "0x800" in str(rig.ctl.reason)
+
+
+def test_fpk_unreachable_fault() -> None:
+    rig = _armed_rig()
+    hold = rig.driver.commands[-1]
+    rig.driver.follow = False
+    # Wind cable 0 in far beyond what any pose allows: the spheres cannot meet.
+    reel = rig.ctl.reels[0]
+    rig.driver.readings[0].position_rev = reel.position_rev(0.5)
+    rig.driver.readings[1].position_rev = rig.ctl.reels[1].position_rev(0.5)
+    rig.tick()
+    _assert_fault_holds(rig, "fpk_unreachable", hold)
+
+
+def test_residual_fault_on_slack_cable() -> None:
+    rig = _armed_rig(residual_max_m=0.005, tracking_max_m=1.0)
+    hold = rig.driver.commands[-1]
+    rig.driver.follow = False
+    r = rig.driver.readings[3]
+    reel = rig.ctl.reels[3]
+    r.position_rev = reel.position_rev(reel.length_m(r.position_rev) + 0.05)  # 5 cm slack
+    rig.tick()
+    _assert_fault_holds(rig, "residual", hold)
+
+
+def test_tracking_error_fault() -> None:
+    rig = _armed_rig(tracking_max_m=0.02)
+    rig.driver.follow = False  # the motors stop following: the pose stays behind
+    rig.do(Move(_target(rig, 1.0)))
+    rig.until(lambda: rig.ctl.state is State.FAULT, 2000)
+    assert _dist(rig.ctl.setpoint_m, rig.start) > 0.02  # type: ignore[arg-type]
+    _assert_fault_holds(rig, "tracking_error", rig.driver.commands[-1])
+
+
+def test_bus_error_fault_keeps_trying_to_hold() -> None:
+    rig = _armed_rig()
+    rig.driver.fail_bus("bus-off")
+    rig.tick()
+    _assert_fault_holds(rig, "bus_error")
+    assert "bus-off" in str(rig.ctl.reason)
+    rig.tick(5)
+    assert rig.ctl.hold_failures >= 5
+    rig.driver.raise_on_command = None
+    n = len(rig.driver.commands)
+    rig.tick(3)
+    assert len(rig.driver.commands) == n + 3
+
+
+def test_nan_never_commanded() -> None:
+    rig = _armed_rig()
+    hold = rig.driver.commands[-1]
+    rig.ctl.planner.advance = lambda dt_s: (math.nan, 0.0, 0.0)  # type: ignore[method-assign]
+    rig.tick()
+    _assert_fault_holds(rig, "nan_setpoint", hold)
+    assert all(math.isfinite(v) for c in rig.driver.commands for v in c)
+
+
+def test_commands_refused_in_fault_until_reset() -> None:
+    rig = _armed_rig()
+    rig.driver.axis_error[rig.ctl.node_ids[0]] = 1
+    rig.tick()
+    assert rig.ctl.state is State.FAULT
+    for cmd in (Move(rig.start), Arm(), Disarm(), Home(rig.start)):
+        assert "reset first" in rig.refused(cmd)
+        assert rig.ctl.state is State.FAULT
+    rig.driver.axis_error.clear()
+    assert rig.do(Reset())["state"] == "DISARMED"
+    assert rig.driver.calls[-1] == "disarm"
+    rig.arm()
+    assert rig.ctl.state is State.HOLDING
+
+
+def test_estop_disarms_at_once_from_any_state() -> None:
+    rig = _armed_rig()
+    rig.do(Move(_target(rig, 2.0)))
+    rig.tick(50)
+    assert rig.ctl.state is State.MOVING
+    n = len(rig.driver.commands)
+    fut = rig.ctl.submit(Estop())
+    rig.tick()
+    assert fut.result(timeout=0)["state"] == "ESTOPPED"
+    assert rig.ctl.state is State.ESTOPPED and rig.driver.calls[-1] == "estop"
+    assert len(rig.driver.commands) == n  # not a single set-point after the e-stop
+    rig.tick(10)
+    assert len(rig.driver.commands) == n
+    assert "not allowed in ESTOPPED" in rig.refused(Arm())
+    rig.do(Reset())
+    assert rig.ctl.state is State.DISARMED
+    # E-stop also works while disarmed and in FAULT.
+    rig.ctl.submit(Estop())
+    rig.tick()
+    assert rig.ctl.state is State.ESTOPPED
+
+
+def test_estop_is_not_refused_when_the_queue_is_full() -> None:
+    rig = _armed_rig()
+    for _ in range(40):
+        rig.ctl.submit(Stop())
+    fut = rig.ctl.submit(Estop())
+    rig.tick()
+    assert fut.result(timeout=0)["ok"] and rig.ctl.state is State.ESTOPPED
+
+
+# ------------------------------------------------------------------------ homing
+
+
+def test_home_sets_offsets_saves_and_reloads(tmp_path: pathlib.Path) -> None:
+    state_file = tmp_path / "offsets.json"
+    cfg = make_config(
+        loop={"rate_hz": RATE_HZ},
+        homing={"power_up_position_m": None, "state_file": str(state_file)},
+    )
+    rig = Rig(cfg, homed=False)
+    rig.tick(2)
+    assert not rig.ctl.pose_valid
+    here = (1.0, 2.0, 1.5)
+    fut = rig.ctl.submit(Home(here))
+    rig.tick()
+    reply = fut.result(timeout=5)
+    assert reply["ok"] and reply["saved"], reply
+    assert state_file.exists()
+    rig.tick()
+    assert rig.ctl.pose_valid and _dist(rig.ctl.pose_m, here) < 1e-6
+    # A new controller on the same encoders reloads the offsets from the state file.
+    again = Controller(cfg, rig.driver, clock=rig.clock, wall_clock_ns=rig.clock.wall_ns)
+    assert again.homed and again.home_source == "state_file"
+    rig.clock.advance(DT)
+    again.tick(rig.clock())
+    assert again.pose_valid and _dist(again.pose_m, here) < 1e-6
+
+
+def test_home_refused_outside_workspace_and_while_moving() -> None:
+    rig = Rig()
+    rig.tick(2)
+    assert "home position" in rig.refused(Home((1e4, 0.0, 1.0)))
+    rig.arm()
+    rig.do(Move(_target(rig, 1.0)))
+    assert "not allowed in MOVING" in rig.refused(Home(rig.start))
+
+
+def test_home_while_holding_keeps_the_motors_still() -> None:
+    rig = _armed_rig()
+    before = rig.driver.commands[-1]
+    rig.do(Home(_target(rig, 0.1)))
+    rig.tick(5)
+    assert rig.ctl.state is State.HOLDING
+    for a, b in zip(rig.driver.commands[-1], before, strict=True):
+        assert a == pytest.approx(b, abs=1e-9)
+    assert _dist(rig.ctl.pose_m, _target(rig, 0.1)) < 1e-6
+
+
+# ------------------------------------------------------------------------ publishing, stats
+
+
+def test_pose_json_schema_and_no_nan() -> None:
+    s = PoseSample(7, 123, (1.0, -2.5, 0.125), (1.5, 2.0), 0.001, True, "HOLDING")
+    assert s.to_json_bytes() == (
+        b'{"seq":7,"stamp_ns":123,"position_m":[1.0,-2.5,0.125],'
+        b'"cable_lengths_m":[1.5,2.0],"residual_m":0.001,"valid":true,"state":"HOLDING"}'
+    )
+    bad = PoseSample(8, 124, (math.nan, 0.0, 0.0), (math.inf, 2.0), math.nan, True, "FAULT")
+    obj = json.loads(bad.to_json_bytes())
+    assert obj["position_m"] is None and obj["valid"] is False
+    assert obj["cable_lengths_m"] == [None, 2.0] and obj["residual_m"] is None
+
+
+def test_published_poses_and_states() -> None:
+    cfg = make_config(loop={"rate_hz": RATE_HZ, "publish_every": 5})
+    rig = Rig(cfg)
+    rig.arm()
+    rig.tick(100)
+    poses = rig.pub.poses
+    assert len(poses) == rig.ctl.ticks // 5
+    last = poses[-1]
+    assert isinstance(last, PoseSample)
+    assert last.valid and last.state == "HOLDING" and _dist(last.position_m, rig.start) < 1e-6
+    seqs = [p.seq for p in poses]  # type: ignore[attr-defined]
+    assert seqs == list(range(1, len(poses) + 1))
+    lengths = kinematics.ipk_point(cfg.geometry, rig.start)
+    assert last.cable_lengths_m == pytest.approx(lengths, abs=1e-9)
+
+
+def test_status_snapshot() -> None:
+    rig = _armed_rig()
+    st = rig.ctl.status()
+    json.dumps(st, allow_nan=False)
+    assert st["state"] == "HOLDING" and st["pose"]["valid"]
+    assert [a["node_id"] for a in st["axes"]] == list(rig.ctl.node_ids)
+    assert all(a["axis_state"] == 8 and a["age_s"] is not None for a in st["axes"])
+    assert st["loop"]["rate_hz"] == pytest.approx(RATE_HZ)
+    assert st["loop"]["ticks"] == rig.ctl.ticks
+
+
+# ------------------------------------------------------------------------ the scheduler
+
+
+class SteppedClock:
+    """A clock for `run`: sleeping moves it; each tick costs `cost_s` (one tick can be slow)."""
+
+    def __init__(self) -> None:
+        self.now_s = 0.0
+        self.starts: list[float] = []
+
+    def __call__(self) -> float:
+        return self.now_s
+
+    def sleep(self, dt_s: float) -> None:
+        self.now_s += max(dt_s, 0.0) + 1e-6
+
+
+def test_run_keeps_absolute_deadlines_and_skips_missed_ticks() -> None:
+    import threading
+
+    cfg = make_config(loop={"rate_hz": 1000.0})
+    clk = SteppedClock()
+    driver = FakeDriver([r.node_id for r in cfg.reels], FakeClock(), power_up_turns(cfg))
+    ctl = Controller(cfg, driver, clock=clk, sleep=clk.sleep)
+    stop = threading.Event()
+    real_tick = ctl.tick
+    period = 1e-3
+
+    def tick(now_s: float) -> None:
+        clk.starts.append(now_s)
+        real_tick(now_s)
+        clk.now_s += 0.0001
+        if len(clk.starts) == 10:
+            clk.now_s += 2.5 * period  # one slow tick: misses two deadlines
+        if len(clk.starts) >= 30:
+            stop.set()
+
+    ctl.tick = tick  # type: ignore[method-assign]
+    ctl.sleep_spin_s = 0.0
+    ctl.run(stop)
+    t0 = clk.starts[0]
+    k = [(t - t0) / period for t in clk.starts]
+    # Every tick starts on the grid (within the sleep granularity), never bunched.
+    for a in k:
+        assert abs(a - round(a)) < 0.01
+    gaps = [round(b - a) for a, b in itertools.pairwise(k)]
+    assert gaps.count(3) == 1 and set(gaps) == {1, 3}
+    assert ctl.overruns == 1 and ctl.skipped == 2
+    st = ctl.status()["loop"]
+    assert st["ticks"] == 30
+    assert st["compute_max_s"] == pytest.approx(0.0001 + 2.5 * period, rel=1e-6)
+    assert st["jitter_p50_s"] < 1e-5
