@@ -238,24 +238,30 @@ class SimODriveAxis:
             return
         a = self.max_accel_rps2
         vmax = self.max_velocity_rps
-        if self.control_mode == cs.ControlMode.VELOCITY_CONTROL:
-            target_v = max(-vmax, min(vmax, self.input_vel_rps))
-        elif self.control_mode == cs.ControlMode.POSITION_CONTROL:
-            err = self.input_pos_rev - self.position_rev
-            if err == 0.0 and self.velocity_rps == 0.0:
-                return
-            # fastest velocity from which the axis can still stop at the target
-            target_v = math.copysign(min(vmax, math.sqrt(2.0 * a * abs(err))), err)
-        else:
-            target_v = 0.0
-        dv = max(-a * dt, min(a * dt, target_v - self.velocity_rps))
-        v_new = self.velocity_rps + dv
-        p_new = self.position_rev + 0.5 * (self.velocity_rps + v_new) * dt
+        v = self.velocity_rps
         if self.control_mode == cs.ControlMode.POSITION_CONTROL:
             err = self.input_pos_rev - self.position_rev
-            # arrived (or would step across the target at a speed a single step can shed)
-            if (self.input_pos_rev - p_new) * err <= 0.0 and abs(v_new) <= a * dt * 2.0:
-                p_new = self.input_pos_rev
+            if err == 0.0 and v == 0.0:
+                return
+            sign = 1.0 if err > 0.0 else -1.0
+            # Largest speed at the end of this step from which braking at `a` (integrated the
+            # same trapezoidal way) still stops at the target: solves v² + a·dt·v = 2a·remaining.
+            remaining = abs(err) - 0.5 * v * sign * dt
+            h = 0.5 * a * dt
+            v_stop = -h + math.sqrt(h * h + 2.0 * a * remaining) if remaining > 0.0 else 0.0
+            target_v = sign * min(vmax, v_stop)
+        elif self.control_mode == cs.ControlMode.VELOCITY_CONTROL:
+            err = 0.0
+            target_v = max(-vmax, min(vmax, self.input_vel_rps))
+        else:
+            err = 0.0
+            target_v = 0.0
+        v_new = v + max(-a * dt, min(a * dt, target_v - v))
+        p_new = self.position_rev + 0.5 * (v + v_new) * dt
+        if err != 0.0:
+            left = self.input_pos_rev - p_new
+            if left * err <= 0.0 or (abs(left) < 1e-9 and abs(v_new) <= a * dt):
+                p_new = self.input_pos_rev  # arrived (float rounding would leave a crumb)
                 v_new = 0.0
         self.position_rev = p_new
         self.velocity_rps = v_new
