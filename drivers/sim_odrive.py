@@ -79,12 +79,12 @@ class SimODriveAxis:
         self.velocity_rps = 0.0
         self.input_pos_rev = self.position_rev
         self.input_vel_rps = 0.0
-        self.axis_state = cs.AxisState.IDLE
-        self.axis_error = 0
-        self.disarm_reason = 0
+        self.axis_state: int = cs.AxisState.IDLE
+        self.axis_error: int = 0
+        self.disarm_reason: int = 0
         self.procedure_result = 0
-        self.control_mode = cs.ControlMode.POSITION_CONTROL
-        self.input_mode = cs.InputMode.PASSTHROUGH
+        self.control_mode: int = cs.ControlMode.POSITION_CONTROL
+        self.input_mode: int = cs.InputMode.PASSTHROUGH
         self.commands_received = 0
         self._silent = False
         self._drift_rate_rps = 0.0
@@ -134,7 +134,7 @@ class SimODriveAxis:
     # --- protocol ---------------------------------------------------------------------------
 
     def _disarm(self) -> None:
-        self.axis_state = cs.AxisState.IDLE
+        self.axis_state: int = cs.AxisState.IDLE
         self.velocity_rps = 0.0
 
     def _encoder_frame(self) -> cs.Frame:
@@ -181,7 +181,7 @@ class SimODriveAxis:
             self.disarm_reason = cs.ODriveError.ESTOP_REQUESTED
             self._disarm()
         elif t is cs.ClearErrors:
-            self.axis_error = 0
+            self.axis_error: int = 0
             self.procedure_result = 0
         elif t is cs.SetControllerMode:
             assert isinstance(msg, cs.SetControllerMode)
