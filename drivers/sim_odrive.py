@@ -134,7 +134,7 @@ class SimODriveAxis:
     # --- protocol ---------------------------------------------------------------------------
 
     def _disarm(self) -> None:
-        self.axis_state: int = cs.AxisState.IDLE
+        self.axis_state = cs.AxisState.IDLE
         self.velocity_rps = 0.0
 
     def _encoder_frame(self) -> cs.Frame:
@@ -181,7 +181,7 @@ class SimODriveAxis:
             self.disarm_reason = cs.ODriveError.ESTOP_REQUESTED
             self._disarm()
         elif t is cs.ClearErrors:
-            self.axis_error: int = 0
+            self.axis_error = 0
             self.procedure_result = 0
         elif t is cs.SetControllerMode:
             assert isinstance(msg, cs.SetControllerMode)
