@@ -1,0 +1,305 @@
+"""The Zenoh interface against a fake controller: queryables, publishers, set-points, config."""
+
+from __future__ import annotations
+
+import json
+import queue
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+
+from controller import zenoh_io
+from controller.commands import Move, Setpoint
+from tests.fakes_zenoh import FakeController, FakePose, ZCfg, free_port
+
+
+def _strict(data: bytes) -> Any:
+    def bad(name: str) -> Any:
+        raise AssertionError(f"non-finite {name} in JSON")
+
+    return json.loads(data, parse_constant=bad)
+
+
+class Rig:
+    """A daemon-side interface with a fake controller, and a client session to it."""
+
+    def __init__(self, fake: FakeController, iface: zenoh_io.ZenohInterface, client: Any) -> None:
+        self.fake = fake
+        self.iface = iface
+        self.client = client
+        self.prefix = iface.prefix
+
+    def get(self, suffix: str, payload: bytes | None = None, timeout: float = 5.0) -> Any:
+        """One query; returns ("ok", json) or ("err", json-or-text)."""
+        replies = list(self.client.get(f"{self.prefix}/{suffix}", payload=payload, timeout=timeout))
+        assert len(replies) == 1, replies
+        r = replies[0]
+        if r.ok is not None:
+            assert r.ok.encoding == zenoh.Encoding.APPLICATION_JSON
+            return "ok", _strict(r.ok.payload.to_bytes())
+        raw = r.err.payload.to_bytes()
+        try:
+            return "err", _strict(raw)
+        except ValueError:
+            return "err", raw.decode()
+
+    def subscribe(self, suffix: str) -> queue.Queue[bytes]:
+        q: queue.Queue[bytes] = queue.Queue()
+        self.client.declare_subscriber(
+            f"{self.prefix}/{suffix}", lambda s: q.put(s.payload.to_bytes())
+        )
+        return q
+
+
+@pytest.fixture
+def rig() -> Iterator[Rig]:
+    port = free_port()
+    fake = FakeController(rate_hz=100.0)
+    iface = zenoh_io.ZenohInterface(
+        ZCfg(listen=(f"tcp/127.0.0.1:{port}",)), fake, reply_timeout_s=1.0
+    )
+    iface.open()
+    fake.publisher = iface
+    fake.start()
+    client = zenoh.open(zenoh_io.client_config([f"tcp/127.0.0.1:{port}"]))
+    try:
+        yield Rig(fake, iface, client)
+    finally:
+        client.close()
+        fake.stop()
+        iface.close()
+
+
+def _wait(cond: Any, timeout_s: float = 3.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        assert time.monotonic() < deadline, "condition not met in time"
+        time.sleep(0.01)
+
+
+# ------------------------------------------------------------------------------ config
+
+
+def test_session_config_defaults_are_local_peer_without_scouting() -> None:
+    conf = zenoh_io.session_config(None)
+    assert json.loads(conf.get_json("mode")) == "peer"
+    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:7447"]
+    assert json.loads(conf.get_json("connect/endpoints")) == []
+    assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
+
+
+def test_session_config_fields_and_file_override(tmp_path: Path) -> None:
+    cfg = ZCfg(mode="client", listen=(), connect=("tcp/10.0.0.1:7447",))
+    conf = zenoh_io.session_config(cfg)
+    assert json.loads(conf.get_json("mode")) == "client"
+    assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/10.0.0.1:7447"]
+    f = tmp_path / "z.json5"
+    f.write_text('{ mode: "peer", listen: { endpoints: ["tcp/127.0.0.1:17447"] }, // c\n}')
+    conf = zenoh_io.session_config(
+        ZCfg(mode="client", listen=("tcp/127.0.0.1:1",), config_file=str(f))
+    )
+    assert json.loads(conf.get_json("mode")) == "peer"  # the file wins
+    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:17447"]
+    assert json.loads(conf.get_json("scouting/multicast/enabled")) is False  # filled in
+
+
+def test_example_tls_acl_file_is_a_valid_zenoh_config() -> None:
+    path = Path(__file__).resolve().parent.parent / "docs" / "zenoh-tls-acl.json5"
+    conf = zenoh.Config.from_file(str(path))
+    assert json.loads(conf.get_json("access_control/enabled")) is True
+    assert json.loads(conf.get_json("access_control/default_permission")) == "deny"
+    assert json.loads(conf.get_json("transport/link/tls/enable_mtls")) is True
+
+
+def test_dumps_never_writes_nan() -> None:
+    data = zenoh_io.dumps({"a": float("nan"), "b": [1.0, float("inf")], "c": (1, "x")})
+    assert _strict(data) == {"a": None, "b": [1.0, None], "c": [1, "x"]}
+
+
+# ------------------------------------------------------------------------------ queryables
+
+
+def test_status_carries_controller_status_and_put_statistics(rig: Rig) -> None:
+    _wait(lambda: rig.iface.poses_published > 20)
+    kind, st = rig.get("status")
+    assert kind == "ok"
+    assert st["state"] == "DISARMED"
+    assert st["loop"]["jitter_p99_s"] is None  # NaN became null
+    z = st["zenoh"]
+    assert z["prefix"] == "cablebot/test"
+    assert z["poses_published"] > 20
+    assert z["pose_put"]["p50_us"] > 0.0
+
+
+def test_commands_ok_and_refused(rig: Rig) -> None:
+    assert rig.get("cmd/move", b'{"position_m": [0, 0, 1]}') == (
+        "err",
+        {"error": "not allowed in DISARMED (needs HOLDING/MOVING)"},
+    )
+    assert rig.get("cmd/arm") == ("ok", {"ok": True, "state": "HOLDING"})
+    kind, reply = rig.get("cmd/move", b'{"position_m": [0.1, 0, 2], "speed_mps": 1.0}')
+    assert (kind, reply["ok"]) == ("ok", True)
+    _wait(lambda: rig.fake.state == "HOLDING" and rig.fake.position_m == (0.1, 0.0, 2.0))
+    assert rig.get("cmd/estop") == ("ok", {"ok": True, "state": "ESTOPPED"})
+    assert rig.get("cmd/reset") == ("ok", {"ok": True, "state": "DISARMED"})
+    assert rig.iface.stats()["commands"]["ok"] == 4
+    assert rig.iface.stats()["commands"]["refused"] == 1
+
+
+@pytest.mark.parametrize(
+    ("verb", "payload", "reason"),
+    [
+        ("move", b"{not json", "malformed JSON"),
+        ("move", b"[1, 2, 3]", "expected a JSON object"),
+        ("move", b"{}", "missing field(s): position_m"),
+        ("move", b'{"position_m": [0, 0, 1], "sped": 1}', "unknown field(s): sped"),
+        ("move", b'{"position_m": [NaN, 0, 1]}', "non-finite number NaN"),
+        ("move", b'{"position_m": ["NaN", 0, 1]}', "position_m[0]: expected a number"),
+        ("move", b'{"position_m": [0, 0, Infinity]}', "non-finite number Infinity"),
+        ("move", b'{"position_m": [0, 0]}', "position_m: expected [x, y, z]"),
+        ("move", b'{"position_m": [0, 0, 1], "speed_mps": -1}', "speed_mps: must be > 0"),
+        ("move", b'{"position_m": [5, 0, 1]}', "outside the workspace"),
+        ("path", b'{"points_m": []}', "points_m: expected a non-empty list"),
+        ("path", b'{"points_m": [[0, 0, 1], [0, 9, 1]]}', "points_m[1]: outside the workspace"),
+        ("home", b'{"position_m": [0, 0, true]}', "position_m[2]: expected a number"),
+        ("arm", b'{"now": true}', "unknown field(s): now"),
+    ],
+)
+def test_malformed_and_out_of_workspace_commands_change_nothing(
+    rig: Rig, verb: str, payload: bytes, reason: str
+) -> None:
+    before = (rig.fake.state, rig.fake.position_m)
+    kind, body = rig.get(f"cmd/{verb}", payload)
+    assert kind == "err"
+    assert reason in body["error"]
+    assert rig.fake.submitted == []  # rejected on the Zenoh thread, the loop never saw it
+    assert (rig.fake.state, rig.fake.position_m) == before
+
+
+def test_wildcard_command_query_is_refused(rig: Rig) -> None:
+    replies = list(rig.client.get(f"{rig.prefix}/cmd/*", timeout=3.0))
+    assert len(replies) == 8  # one per verb, all errors
+    for r in replies:
+        assert r.err is not None
+        assert "wildcard" in json.loads(r.err.payload.to_bytes())["error"]
+    assert rig.fake.submitted == []
+    assert rig.fake.state == "DISARMED"
+
+
+def test_reply_timeout_when_the_loop_does_not_answer(rig: Rig) -> None:
+    rig.fake.hang = True
+    t0 = time.monotonic()
+    kind, body = rig.get("cmd/stop")
+    assert kind == "err"
+    assert body == {"error": "timeout: the control loop did not answer"}
+    assert 0.9 <= time.monotonic() - t0 < 3.0
+    assert rig.iface.stats()["commands"]["timeout"] == 1
+
+
+def test_a_waiting_command_does_not_delay_estop(rig: Rig) -> None:
+    rig.fake.hang = True
+    import threading
+
+    slow = threading.Thread(target=rig.get, args=("cmd/stop",))
+    slow.start()
+    time.sleep(0.1)
+    rig.fake.hang = False
+    t0 = time.monotonic()
+    kind, _ = rig.get("cmd/estop")
+    assert kind == "ok"
+    assert time.monotonic() - t0 < 0.5
+    slow.join()
+
+
+# ------------------------------------------------------------------------------ publishers
+
+
+def test_pose_and_state_are_published(rig: Rig) -> None:
+    poses = rig.subscribe("pose")
+    states = rig.subscribe("state")
+    time.sleep(0.3)  # let the subscription propagate
+    sample = _strict(poses.get(timeout=3.0))
+    assert set(sample) == {
+        "seq",
+        "stamp_ns",
+        "position_m",
+        "cable_lengths_m",
+        "residual_m",
+        "valid",
+        "state",
+    }
+    assert sample["state"] == "DISARMED"
+    rig.get("cmd/arm")
+    st = _strict(states.get(timeout=3.0))
+    assert st["state"] == "HOLDING"
+    assert st["reason"] is None
+    assert abs(st["stamp_ns"] - time.time_ns()) < 5e9
+
+
+def test_publish_thread_mode_delivers_latest_samples() -> None:
+    port = free_port()
+    fake = FakeController()
+    iface = zenoh_io.ZenohInterface(
+        ZCfg(listen=(f"tcp/127.0.0.1:{port}",)), fake, publish_thread=True
+    )
+    iface.open()
+    client = zenoh.open(zenoh_io.client_config([f"tcp/127.0.0.1:{port}"]))
+    try:
+        got: queue.Queue[bytes] = queue.Queue()
+        client.declare_subscriber("cablebot/test/pose", lambda s: got.put(s.payload.to_bytes()))
+        time.sleep(0.3)
+        for i in range(1, 6):
+            iface.publish_pose(FakePose(i, time.time_ns(), (0.0, 0.0, float(i)), "HOLDING"))
+            time.sleep(0.02)
+        seqs = [_strict(got.get(timeout=3.0))["seq"] for _ in range(5)]
+        assert seqs == [1, 2, 3, 4, 5]
+    finally:
+        client.close()
+        iface.close()
+
+
+def test_liveliness_token_while_open(rig: Rig) -> None:
+    alive = list(rig.client.liveliness().get(f"{rig.prefix}/alive", timeout=2.0))
+    assert [str(r.ok.key_expr) for r in alive if r.ok is not None] == [f"{rig.prefix}/alive"]
+
+
+# ------------------------------------------------------------------------------ set-points
+
+
+def test_setpoints_good_and_bad(rig: Rig, caplog: pytest.LogCaptureFixture) -> None:
+    pub = rig.client.declare_publisher(f"{rig.prefix}/setpoint")
+    time.sleep(0.3)
+    pub.put(b'{"position_m": [0.1, 0.2, 1.5]}')
+    for bad in (b"{", b'{"position_m": [NaN, 0, 1]}', b'{"position": [0, 0, 1]}', b"[]"):
+        pub.put(bad)
+    pub.put(b'{"position_m": [0.3, 0.2, 1.5]}')
+    _wait(lambda: rig.iface.setpoints_ok + rig.iface.setpoints_bad == 6)
+    assert rig.fake.setpoints == [(0.1, 0.2, 1.5), (0.3, 0.2, 1.5)]
+    assert rig.iface.setpoints_bad == 4
+    # logged at most once per second, not once per bad sample
+    assert sum("bad set-point" in r.getMessage() for r in caplog.records) <= 2
+
+
+def test_open_fails_cleanly_when_the_port_is_taken() -> None:
+    port = free_port()
+    fake = FakeController()
+    first = zenoh_io.ZenohInterface(ZCfg(listen=(f"tcp/127.0.0.1:{port}",)), fake)
+    first.open()
+    try:
+        second = zenoh_io.ZenohInterface(ZCfg(listen=(f"tcp/127.0.0.1:{port}",)), fake)
+        with pytest.raises(zenoh.ZError):
+            second.open()
+        assert second.session is None
+    finally:
+        first.close()
+
+
+def test_precheck_uses_check_target_for_moves_and_paths() -> None:
+    iface = zenoh_io.ZenohInterface(ZCfg(), FakeController())
+    assert iface._precheck(Move((0.0, 0.0, 1.0))) is None
+    assert "outside" in str(iface._precheck(Move((0.0, 0.0, 9.0))))
+    assert iface._precheck(Setpoint((0.0, 0.0, 9.0))) is None  # streamed: the loop limits it
