@@ -13,11 +13,11 @@ Conventions
   (the paper's ``z_m``, eq. 12): a suspended robot can only pull.
 * A tangent (discriminant zero up to a shortfall of ``TANGENT_TOL_M``) is accepted and gives
   ``z`` at the anchor plane; beyond that the lengths cannot meet (eq. 17) and
-  ``UnreachableError`` names the cable that is too short and by how much.  For three spheres
-  the power of the radical line's closest point is the same for all three spheres
-  (eq. 17 holds for each of them at once), so the cable named is the one with the largest
-  shortfall, which is always the shortest of the three; ``shortfall_m`` is how much longer it
-  would have to be for the three spheres to touch.
+  ``UnreachableError`` names the cable to blame and by how much.  Eq. 17 singles out cable 1
+  only because the paper substitutes back into sphere 1; in fact the radical line misses all
+  three spheres at once.  So the error names the one cable whose length alone needs the
+  smallest change for the three spheres to meet (the others held), with ``shortfall_m`` > 0
+  when it is too short by that much (the usual case, eq. 17) and < 0 when it is too long.
 * Nothing here returns NaN or inf: inputs are checked and outputs are finite or an exception
   is raised (single pose) / the row is flagged invalid (batch).
 
@@ -54,7 +54,7 @@ import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, overload
+from typing import Any, NoReturn, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -95,7 +95,15 @@ TANGENT_TOL_M = 1e-9
 #: Gauss-Newton stops when the step is below this.
 GN_STEP_TOL_M = 1e-12
 #: Gauss-Newton iteration cap.
-GN_MAX_ITER = 6
+GN_MAX_ITER = 8
+#: Step halvings tried before a Gauss-Newton step is given up.
+GN_MAX_HALVINGS = 40
+#: A trial step is accepted when the cost (sum of squared residuals, m^2) does not grow by
+#: more than this fraction plus ``GN_COST_ABS_TOL``: rounding noise, not an overshoot.
+GN_COST_REL_TOL = 1e-9
+GN_COST_ABS_TOL = 1e-24
+#: J^T J determinant (sum of unit vectors' outer products) below which the fit stops.
+GN_DET_MIN = 1e-12
 
 # Module-level alias: one global lookup per call, and the operation-count test swaps it for a
 # counting square root.
@@ -114,16 +122,18 @@ class UnreachableError(KinematicsError):
     """The cable lengths cannot meet in one point (negative discriminant, eq. 17).
 
     ``cable`` is 1-based: the cable index in the geometry for ``fpk``, the sphere number
-    (1, 2, 3) for the bare three-spheres functions.  ``shortfall_m`` > 0 is how much longer
-    that cable would have to be for the spheres to touch.
+    (1, 2, 3) for the bare three-spheres functions.  ``shortfall_m`` is the smallest change
+    of that cable alone (others held) that lets the three spheres touch: > 0 means it is too
+    short by that much, < 0 too long.
     """
 
     def __init__(self, cable: int, shortfall_m: float, what: str = "cable") -> None:
         self.cable = cable
         self.shortfall_m = shortfall_m
         name = f"r{cable}" if what == "sphere" else f"cable {cable}"
+        how = "short" if shortfall_m >= 0.0 else "long"
         super().__init__(
-            f"lengths cannot meet: {name} is too short by {shortfall_m:.6g} m "
+            f"lengths cannot meet: {name} is too {how} by {abs(shortfall_m):.6g} m "
             "(negative discriminant, eq. 17)"
         )
 
@@ -140,6 +150,8 @@ class _EqualSeed:
     i1: int
     i2: int
     i3: int
+    tri: tuple[int, int, int]
+    centres: tuple[Vec3, Vec3, Vec3]
     x1: float
     y1: float
     zn: float
@@ -158,6 +170,8 @@ class _GeneralSeed:
     i1: int
     i2: int
     i3: int
+    tri: tuple[int, int, int]
+    centres: tuple[Vec3, Vec3, Vec3]
     x1: float
     y1: float
     z1: float
@@ -330,6 +344,8 @@ def _make_equal_seed(pts: Sequence[Vec3], tri: tuple[int, int, int]) -> _EqualSe
         i1=tri[0],
         i2=tri[1],
         i3=tri[2],
+        tri=tri,
+        centres=(pts[tri[0]], pts[tri[1]], pts[tri[2]]),
         x1=x1,
         y1=y1,
         zn=(z1 + z2 + z3) / 3.0,
@@ -353,6 +369,8 @@ def _make_general_seed(pts: Sequence[Vec3], tri: tuple[int, int, int]) -> _Gener
         i1=tri[0],
         i2=tri[1],
         i3=tri[2],
+        tri=tri,
+        centres=(pts[tri[0]], pts[tri[1]], pts[tri[2]]),
         x1=x1,
         y1=y1,
         z1=z1,
@@ -436,13 +454,51 @@ def ipk(geom: Geometry, position_m: Any) -> FloatArray:
 # --------------------------------------------------------------------------------------------
 
 
-def _unreachable(r1: float, r2: float, r3: float, power: float) -> tuple[int, float]:
-    """Which of three spheres (1-based) is too short, and by how much, for a radical-line power.
+def _is_tangent(r1: float, r2: float, r3: float, power: float) -> bool:
+    """Whether a negative discriminant is only a tangent (rounding), not a real miss.
 
-    ``power`` > 0 is the (equal) power of the radical line's closest point to the three
-    spheres, d_i^2 - r_i^2; the shortfall d_i - r_i is largest for the smallest r_i.
+    ``power`` > 0 is the (equal) power d_i^2 - r_i^2 of the radical line's closest point with
+    respect to the three spheres; the line misses sphere i by d_i - r_i.
     """
-    rs = (r1, r2, r3)
+    r = min(abs(r1), abs(r2), abs(r3))
+    return math.sqrt(r * r + power) - r <= TANGENT_TOL_M
+
+
+def _diagnose(
+    cs: Sequence[Sequence[float]], rs: Sequence[float], power: float
+) -> tuple[int, float]:
+    """Name the cable to blame when three spheres cannot meet, and by how much.
+
+    For each sphere k, with the other two lengths held, the lengths of k that meet them form
+    an interval [lo, hi] (distances from c_k to the other two spheres' intersection circle).
+    Returns the 1-based k needing the smallest change and that change: > 0 when it is too
+    short by that much, < 0 when too long.  If no single cable can fix it (two spheres are
+    disjoint whatever k does), names the shortest cable and its miss of the radical line.
+    """
+    best: tuple[float, int, float] | None = None
+    for k in range(3):
+        i, j = (k + 1) % 3, (k + 2) % 3
+        ci, cj, ck = cs[i], cs[j], cs[k]
+        vx, vy, vz = cj[0] - ci[0], cj[1] - ci[1], cj[2] - ci[2]
+        d = math.sqrt(vx * vx + vy * vy + vz * vz)
+        if d == 0.0:
+            continue
+        nx, ny, nz = vx / d, vy / d, vz / d
+        a = (d * d + rs[i] * rs[i] - rs[j] * rs[j]) / (2.0 * d)
+        rho2 = rs[i] * rs[i] - a * a
+        if rho2 < 0.0:
+            continue
+        rho = math.sqrt(rho2)
+        wx, wy, wz = ck[0] - ci[0] - a * nx, ck[1] - ci[1] - a * ny, ck[2] - ci[2] - a * nz
+        wn = wx * nx + wy * ny + wz * nz
+        wp = math.sqrt(max(wx * wx + wy * wy + wz * wz - wn * wn, 0.0))
+        lo, hi = math.hypot(wn, wp - rho), math.hypot(wn, wp + rho)
+        rk = rs[k]
+        change = lo - rk if rk < lo else (hi - rk if rk > hi else 0.0)
+        if best is None or abs(change) < best[0]:
+            best = (abs(change), k + 1, change)
+    if best is not None and best[2] != 0.0:
+        return best[1], best[2]
     k = min(range(3), key=lambda i: abs(rs[i]))
     r = abs(rs[k])
     return k + 1, math.sqrt(r * r + power) - r
@@ -489,9 +545,9 @@ def three_spheres_equal_height(
     # B^2 - 4C of eq. (12) divided by 4.
     disc = r1s - dx * dx - dy * dy
     if disc < 0.0:
-        cable, short = _unreachable(float(r1), float(r2), float(r3), -float(disc))
-        if short > TANGENT_TOL_M:
-            raise UnreachableError(cable, short, "sphere")
+        if not _is_tangent(float(r1), float(r2), float(r3), -float(disc)):
+            cable, change = _diagnose((c1, c2, c3), (r1, r2, r3), -float(disc))
+            raise UnreachableError(cable, change, "sphere")
         disc = 0.0 * disc
     return (x, y, zn - _sqrt(disc))
 
@@ -540,9 +596,10 @@ def three_spheres(
     qc = x0 * x0 + y0 * y0 - r1s
     disc = qb * qb - qa * qc
     if disc < 0.0:
-        cable, short = _unreachable(float(r1), float(r2), float(r3), -float(disc) / float(qa))
-        if short > TANGENT_TOL_M:
-            raise UnreachableError(cable, short, "sphere")
+        power = -float(disc) / float(qa)
+        if not _is_tangent(float(r1), float(r2), float(r3), power):
+            cable, change = _diagnose((c1, c2, c3), (r1, r2, r3), power)
+            raise UnreachableError(cable, change, "sphere")
         disc = 0.0 * disc
     sq = _sqrt(disc)
     if qb > 0.0:
@@ -571,8 +628,9 @@ class FpkResult:
 class FpkBatchResult:
     """A batch of FPK solutions; rows with ``valid`` False hold zeros, never NaN.
 
-    ``short_cable`` is, for rows whose seed triple cannot meet, the 1-based cable that is
-    too short (0 elsewhere) and ``shortfall_m`` by how much (0 elsewhere).
+    ``short_cable`` is, for rows whose seed triple cannot meet, the 1-based cable to blame
+    (0 elsewhere) and ``shortfall_m`` the change it needs, > 0 too short, < 0 too long (0
+    elsewhere); the same diagnosis as ``UnreachableError``.
     """
 
     position_m: FloatArray
@@ -581,6 +639,13 @@ class FpkBatchResult:
     seed_triple: tuple[int, int, int]
     short_cable: npt.NDArray[np.int64]
     shortfall_m: FloatArray
+
+
+def _raise_unreachable(
+    tri: tuple[int, int, int], centres: tuple[Vec3, Vec3, Vec3], rs: Vec3, power: float
+) -> NoReturn:
+    k, change = _diagnose(centres, rs, power)
+    raise UnreachableError(tri[k - 1] + 1, change)
 
 
 def _seed_equal(sd: _EqualSeed, r1: float, r2: float, r3: float) -> Vec3:
@@ -593,9 +658,8 @@ def _seed_equal(sd: _EqualSeed, r1: float, r2: float, r3: float) -> Vec3:
     dy = u * sd.f1 + v * sd.f2 + sd.dy0
     disc = s1 - dx * dx - dy * dy
     if disc < 0.0:
-        cable, short = _unreachable(float(r1), float(r2), float(r3), -float(disc))
-        if short > TANGENT_TOL_M:
-            raise UnreachableError((sd.i1, sd.i2, sd.i3)[cable - 1] + 1, short)
+        if not _is_tangent(r1, r2, r3, -disc):
+            _raise_unreachable(sd.tri, sd.centres, (r1, r2, r3), -disc)
         disc = 0.0 * disc
     return (sd.x1 + dx, sd.y1 + dy, sd.zn - _sqrt(disc))
 
@@ -611,9 +675,8 @@ def _seed_general(sd: _GeneralSeed, r1: float, r2: float, r3: float) -> Vec3:
     qc = x0 * x0 + y0 * y0 - s1
     disc = qb * qb - qc / sd.inv_a
     if disc < 0.0:
-        cable, short = _unreachable(float(r1), float(r2), float(r3), -float(disc) * sd.inv_a)
-        if short > TANGENT_TOL_M:
-            raise UnreachableError((sd.i1, sd.i2, sd.i3)[cable - 1] + 1, short)
+        if not _is_tangent(r1, r2, r3, -disc * sd.inv_a):
+            _raise_unreachable(sd.tri, sd.centres, (r1, r2, r3), -disc * sd.inv_a)
         disc = 0.0 * disc
     sq = _sqrt(disc)
     if qb > 0.0:
@@ -624,43 +687,58 @@ def _seed_general(sd: _GeneralSeed, r1: float, r2: float, r3: float) -> Vec3:
     return (sd.x1 + x0 + sd.wx * s, sd.y1 + y0 + sd.wy * s, sd.z1 + s)
 
 
-def _gauss_newton(
+def _normal_eq(
     anchors: tuple[Vec3, ...], lengths: Sequence[float], x: float, y: float, z: float
+) -> tuple[float, float, float, float, float, float, float, float, float, float]:
+    """Sum of squared residuals, J^T J (6 entries) and J^T r at (x, y, z)."""
+    a11 = a12 = a13 = a22 = a23 = a33 = g1 = g2 = g3 = cost = 0.0
+    for (ax, ay, az), ln in zip(anchors, lengths, strict=True):
+        dx = x - ax
+        dy = y - ay
+        dz = z - az
+        d = _sqrt(dx * dx + dy * dy + dz * dz)
+        res = d - ln
+        cost += res * res
+        t = 1.0 / d if d > 0.0 else 0.0
+        ux = dx * t
+        uy = dy * t
+        uz = dz * t
+        a11 += ux * ux
+        a12 += ux * uy
+        a13 += ux * uz
+        a22 += uy * uy
+        a23 += uy * uz
+        a33 += uz * uz
+        g1 += ux * res
+        g2 += uy * res
+        g3 += uz * res
+    return cost, a11, a12, a13, a22, a23, a33, g1, g2, g3
+
+
+def _gauss_newton(
+    anchors: tuple[Vec3, ...],
+    lengths: Sequence[float],
+    x: float,
+    y: float,
+    z: float,
+    z_mirror: float | None,
 ) -> tuple[float, float, float, float]:
     """Least-squares refinement over all cables from (x, y, z); returns x, y, z, RMS residual.
 
-    Minimises sum (|P - B_i| - L_i)^2 with Gauss-Newton, 3x3 normal equations solved in
-    closed form; stops when the step is below ``GN_STEP_TOL_M``.
+    Minimises sum (|P - B_i| - L_i)^2 with Gauss-Newton, the 3x3 normal equations solved in
+    closed form, the step halved until the cost does not increase (near the anchor plane the
+    problem is ill-conditioned in z and a full step can overshoot); stops when the step is
+    below ``GN_STEP_TOL_M``.  With all anchors at height ``z_mirror`` the cost is symmetric
+    about that plane, and a point above it is mirrored back to the lower solution.
     """
     n = len(anchors)
-    sumsq = 0.0
+    cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = _normal_eq(anchors, lengths, x, y, z)
     for _ in range(GN_MAX_ITER):
-        a11 = a12 = a13 = a22 = a23 = a33 = g1 = g2 = g3 = sumsq = 0.0
-        for (ax, ay, az), ln in zip(anchors, lengths, strict=True):
-            dx = x - ax
-            dy = y - ay
-            dz = z - az
-            d = _sqrt(dx * dx + dy * dy + dz * dz)
-            res = d - ln
-            sumsq += res * res
-            t = 1.0 / d
-            ux = dx * t
-            uy = dy * t
-            uz = dz * t
-            a11 += ux * ux
-            a12 += ux * uy
-            a13 += ux * uz
-            a22 += uy * uy
-            a23 += uy * uz
-            a33 += uz * uz
-            g1 += ux * res
-            g2 += uy * res
-            g3 += uz * res
         c11 = a22 * a33 - a23 * a23
         c12 = a13 * a23 - a12 * a33
         c13 = a12 * a23 - a13 * a22
         det = a11 * c11 + a12 * c12 + a13 * c13
-        if not det > 1e-12:  # cables (nearly) coplanar with P: keep the current estimate
+        if not det > GN_DET_MIN:  # cables (nearly) coplanar with P: keep the estimate
             break
         c22 = a11 * a33 - a13 * a13
         c23 = a12 * a13 - a11 * a23
@@ -669,19 +747,22 @@ def _gauss_newton(
         sx = (c11 * g1 + c12 * g2 + c13 * g3) * inv
         sy = (c12 * g1 + c22 * g2 + c23 * g3) * inv
         sz = (c13 * g1 + c23 * g2 + c33 * g3) * inv
-        x -= sx
-        y -= sy
-        z -= sz
+        allowed = cost + (GN_COST_REL_TOL * cost + GN_COST_ABS_TOL)
+        for _halving in range(GN_MAX_HALVINGS):
+            tx, ty, tz = x - sx, y - sy, z - sz
+            if z_mirror is not None and tz > z_mirror:
+                tz = 2.0 * z_mirror - tz
+            trial = _normal_eq(anchors, lengths, tx, ty, tz)
+            if trial[0] <= allowed:
+                break
+            sx, sy, sz = 0.5 * sx, 0.5 * sy, 0.5 * sz
+        else:
+            break  # no decrease along the step: at the minimum to rounding
+        x, y, z = tx, ty, tz
+        cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = trial
         if sx * sx + sy * sy + sz * sz < GN_STEP_TOL_M * GN_STEP_TOL_M:
-            # The step is below tolerance: the residuals at the new point differ from the
-            # ones just summed by less than the step; re-evaluating would not change them.
             break
-    else:
-        sumsq = 0.0
-        for (ax, ay, az), ln in zip(anchors, lengths, strict=True):
-            res = math.dist((x, y, z), (ax, ay, az)) - ln
-            sumsq += res * res
-    return x, y, z, _sqrt(sumsq / n)
+    return x, y, z, _sqrt(cost / n)
 
 
 def _fpk_one(geom: Geometry, lengths: Sequence[float]) -> FpkResult:
@@ -716,7 +797,8 @@ def _fpk_one(geom: Geometry, lengths: Sequence[float]) -> FpkResult:
         if res * res > worst:
             worst = res * res
     if worst > GN_STEP_TOL_M * GN_STEP_TOL_M:
-        x, y, z, rms = _gauss_newton(anchors, lengths, x, y, z)
+        mirror = sd.zn if geom.equal_heights and isinstance(sd, _EqualSeed) else None
+        x, y, z, rms = _gauss_newton(anchors, lengths, x, y, z, mirror)
     else:
         rms = _sqrt(sumsq / n)
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(rms)):
@@ -818,21 +900,19 @@ def _fpk_batch(geom: Geometry, lens: FloatArray) -> FpkBatchResult:
             pos[:, 1] = sd.y1 + y0 + sd.wy * s
             pos[:, 2] = sd.z1 + s
 
-        # Unreachable rows: the shortest of the three seed cables is the one named.
         short_cable = np.zeros(m, dtype=np.int64)
         shortfall = np.zeros(m, dtype=np.float64)
-        bad = power > 0.0
+        bad = (power > 0.0) & ok
         if np.any(bad):
             idx = np.nonzero(bad)[0]
             trio = np.stack([r1[idx], r2[idx], r3[idx]], axis=1)
-            k = np.argmin(trio, axis=1)
-            rmin = trio[np.arange(idx.size), k]
-            sf = np.sqrt(rmin * rmin + power[idx]) - rmin
-            really = sf > TANGENT_TOL_M
-            tri = np.array([sd.i1, sd.i2, sd.i3], dtype=np.int64)
-            short_cable[idx[really]] = tri[k[really]] + 1
-            shortfall[idx[really]] = sf[really]
-            ok[idx[really]] = False
+            rmin = np.min(np.abs(trio), axis=1)
+            real = np.sqrt(rmin * rmin + power[idx]) - rmin > TANGENT_TOL_M
+            idx, trio = idx[real], trio[real]
+            ok[idx] = False
+            k, change = _diagnose_batch(sd.centres, trio, power[idx])
+            short_cable[idx] = np.asarray(sd.tri, dtype=np.int64)[k - 1] + 1
+            shortfall[idx] = change
 
         residual = np.zeros(m, dtype=np.float64)
         if n > 3:
@@ -846,64 +926,154 @@ def _fpk_batch(geom: Geometry, lens: FloatArray) -> FpkBatchResult:
     return FpkBatchResult(pos, residual, ok, geom.seed_triple, short_cable, shortfall)
 
 
+def _diagnose_batch(
+    cs: tuple[Vec3, Vec3, Vec3], rs: FloatArray, power: FloatArray
+) -> tuple[npt.NDArray[np.int64], FloatArray]:
+    """Vectorised ``_diagnose`` over K rows of three lengths: (1-based k, change) per row."""
+    kk = rs.shape[0]
+    best = np.full(kk, np.inf)
+    best_k = np.zeros(kk, dtype=np.int64)
+    best_change = np.zeros(kk)
+    c = np.asarray(cs, dtype=np.float64)
+    for k in range(3):
+        i, j = (k + 1) % 3, (k + 2) % 3
+        v = c[j] - c[i]
+        d = float(np.sqrt(v @ v))
+        nv = v / d
+        ri, rj, rk = rs[:, i], rs[:, j], rs[:, k]
+        a = (d * d + ri * ri - rj * rj) / (2.0 * d)
+        rho2 = ri * ri - a * a
+        rho = np.sqrt(np.maximum(rho2, 0.0))
+        w = (c[k] - c[i])[None, :] - a[:, None] * nv[None, :]
+        wn = w @ nv
+        wp = np.sqrt(np.maximum(np.einsum("ij,ij->i", w, w) - wn * wn, 0.0))
+        lo, hi = np.hypot(wn, wp - rho), np.hypot(wn, wp + rho)
+        change = np.where(rk < lo, lo - rk, np.where(rk > hi, hi - rk, 0.0))
+        better = (rho2 >= 0.0) & (np.abs(change) < best)
+        best = np.where(better, np.abs(change), best)
+        best_k = np.where(better, k + 1, best_k)
+        best_change = np.where(better, change, best_change)
+    fallback = (best_k == 0) | (best_change == 0.0)
+    if np.any(fallback):
+        kmin = np.argmin(np.abs(rs), axis=1)
+        rmin = np.abs(rs[np.arange(kk), kmin])
+        best_k = np.where(fallback, kmin + 1, best_k)
+        best_change = np.where(fallback, np.sqrt(rmin * rmin + power) - rmin, best_change)
+    return best_k, best_change
+
+
 def _batch_refine(
     geom: Geometry, lens: FloatArray, pos: FloatArray, residual: FloatArray, ok: Any
 ) -> None:
-    """Vectorised Gauss-Newton over the rows that need it; updates pos and residual in place."""
-    anchors = geom.anchors_m
+    """Vectorised ``_gauss_newton`` over the rows that need it; updates pos and residual.
+
+    Columns are 1-D arrays and the loop over cables is in Python (N is small), so each
+    operation streams over the rows once.  Only rows whose other cables disagree with the
+    seed by more than ``GN_STEP_TOL_M`` are refined.
+    """
+    anchors = geom._anchors_t
     n = geom.n_cables
-    # Residuals at the seed (all cables); rows already consistent are done.
-    res = _residuals(anchors, pos, lens)
-    sumsq = np.einsum("ij,ij->i", res, res)
-    active = np.nonzero(ok & (np.max(np.abs(res), axis=1) > GN_STEP_TOL_M))[0]
+    sd = geom._seed
+    mirror = sd.zn if geom.equal_heights and isinstance(sd, _EqualSeed) else None
+    x = np.ascontiguousarray(pos[:, 0])
+    y = np.ascontiguousarray(pos[:, 1])
+    z = np.ascontiguousarray(pos[:, 2])
+    # Residuals of the cables outside the seed triple decide which rows need the fit.
+    seed_idx = (sd.i1, sd.i2, sd.i3)
+    worst = np.zeros(lens.shape[0])
+    sumsq = np.zeros(lens.shape[0])
+    for k in range(n):
+        if k in seed_idx:
+            continue
+        ax, ay, az = anchors[k]
+        r = np.sqrt((x - ax) ** 2 + (y - ay) ** 2 + (z - az) ** 2)
+        r -= lens[:, k]
+        r *= r
+        sumsq += r
+        np.maximum(worst, r, out=worst)
     np.sqrt(sumsq / n, out=residual)
-    first_active = active
+    active = np.nonzero(ok & (worst > GN_STEP_TOL_M * GN_STEP_TOL_M))[0]
+    if active.size == 0:
+        return
+    px, py, pz = x[active], y[active], z[active]
+    ln = np.ascontiguousarray(lens[active])
+    cols = [ln[:, k] for k in range(n)]
+    ne = _normal_eq_batch(anchors, cols, px, py, pz)
+    rows = np.arange(active.size)  # rows (of the active subset) still iterating
     tol2 = GN_STEP_TOL_M * GN_STEP_TOL_M
     for _ in range(GN_MAX_ITER):
-        if active.size == 0:
+        if rows.size == 0:
             break
-        p = pos[active]
-        ln = lens[active]
-        d = p[:, None, :] - anchors[None, :, :]  # (K, N, 3)
-        dist = np.sqrt(np.einsum("ijk,ijk->ij", d, d))
-        r = dist - ln
-        d /= dist[:, :, None]  # unit vectors: the Jacobian rows
-        jtj = np.einsum("ijk,ijl->ikl", d, d)
-        g = np.einsum("ijk,ij->ik", d, r)
-        step = _solve3(jtj, g)
-        p -= step
-        pos[active] = p
-        small = np.einsum("ij,ij->i", step, step) < tol2
-        active = active[~small]
-    # Residual at the final positions of every row that was refined.
-    refined = first_active
-    if refined.size:
-        r = _residuals(anchors, pos[refined], lens[refined])
-        residual[refined] = np.sqrt(np.einsum("ij,ij->i", r, r) / n)
+        cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = (v[rows] for v in ne)
+        c11 = a22 * a33 - a23 * a23
+        c12 = a13 * a23 - a12 * a33
+        c13 = a12 * a23 - a13 * a22
+        c22 = a11 * a33 - a13 * a13
+        c23 = a12 * a13 - a11 * a23
+        c33 = a11 * a22 - a12 * a12
+        det = a11 * c11 + a12 * c12 + a13 * c13
+        good = det > GN_DET_MIN
+        inv = np.where(good, 1.0 / np.where(good, det, 1.0), 0.0)
+        sx = (c11 * g1 + c12 * g2 + c13 * g3) * inv
+        sy = (c12 * g1 + c22 * g2 + c23 * g3) * inv
+        sz = (c13 * g1 + c23 * g2 + c33 * g3) * inv
+        # Step halving, per row, until the cost does not increase.
+        pending = np.arange(rows.size)[good]
+        done = ~good
+        for _halving in range(GN_MAX_HALVINGS):
+            if pending.size == 0:
+                break
+            r_ = rows[pending]
+            tx = px[r_] - sx[pending]
+            ty = py[r_] - sy[pending]
+            tz = pz[r_] - sz[pending]
+            if mirror is not None:
+                tz = np.where(tz > mirror, 2.0 * mirror - tz, tz)
+            trial = _normal_eq_batch(anchors, [c[r_] for c in cols], tx, ty, tz)
+            c0 = cost[pending]
+            accept = trial[0] <= c0 + (GN_COST_REL_TOL * c0 + GN_COST_ABS_TOL)
+            acc = r_[accept]
+            px[acc], py[acc], pz[acc] = tx[accept], ty[accept], tz[accept]
+            for dst, src in zip(ne, trial, strict=True):
+                dst[acc] = src[accept]
+            small = sx[pending] ** 2 + sy[pending] ** 2 + sz[pending] ** 2 < tol2
+            done[pending[accept & small]] = True
+            pending = pending[~accept]
+            sx[pending] *= 0.5
+            sy[pending] *= 0.5
+            sz[pending] *= 0.5
+        done[pending] = True  # no decrease along the step: at the minimum to rounding
+        rows = rows[~done]
+    pos[active, 0] = px
+    pos[active, 1] = py
+    pos[active, 2] = pz
+    residual[active] = np.sqrt(ne[0] / n)
 
 
-def _residuals(anchors: FloatArray, pos: FloatArray, lens: FloatArray) -> FloatArray:
-    d = pos[:, None, :] - anchors[None, :, :]
-    out: FloatArray = np.sqrt(np.einsum("ijk,ijk->ij", d, d)) - lens
-    return out
-
-
-def _solve3(a: FloatArray, g: FloatArray) -> FloatArray:
-    """Solve K symmetric 3x3 systems a x = g in closed form; singular rows give a zero step."""
-    a11, a12, a13 = a[:, 0, 0], a[:, 0, 1], a[:, 0, 2]
-    a22, a23, a33 = a[:, 1, 1], a[:, 1, 2], a[:, 2, 2]
-    c11 = a22 * a33 - a23 * a23
-    c12 = a13 * a23 - a12 * a33
-    c13 = a12 * a23 - a13 * a22
-    c22 = a11 * a33 - a13 * a13
-    c23 = a12 * a13 - a11 * a23
-    c33 = a11 * a22 - a12 * a12
-    det = a11 * c11 + a12 * c12 + a13 * c13
-    good = det > 1e-12
-    inv = np.where(good, 1.0 / np.where(good, det, 1.0), 0.0)
-    g1, g2, g3 = g[:, 0], g[:, 1], g[:, 2]
-    out = np.empty_like(g)
-    out[:, 0] = (c11 * g1 + c12 * g2 + c13 * g3) * inv
-    out[:, 1] = (c12 * g1 + c22 * g2 + c23 * g3) * inv
-    out[:, 2] = (c13 * g1 + c23 * g2 + c33 * g3) * inv
+def _normal_eq_batch(
+    anchors: tuple[Vec3, ...], cols: list[FloatArray], x: FloatArray, y: FloatArray, z: FloatArray
+) -> list[FloatArray]:
+    """Vectorised ``_normal_eq``: [cost, a11, a12, a13, a22, a23, a33, g1, g2, g3] per row."""
+    out = [np.zeros(x.shape[0]) for _ in range(10)]
+    cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = out
+    for (ax, ay, az), ln in zip(anchors, cols, strict=True):
+        dx = x - ax
+        dy = y - ay
+        dz = z - az
+        d = np.sqrt(dx * dx + dy * dy + dz * dz)
+        res = d - ln
+        cost += res * res
+        t = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0.0)
+        dx *= t
+        dy *= t
+        dz *= t
+        a11 += dx * dx
+        a12 += dx * dy
+        a13 += dx * dz
+        a22 += dy * dy
+        a23 += dy * dz
+        a33 += dz * dz
+        g1 += dx * res
+        g2 += dy * res
+        g3 += dz * res
     return out
