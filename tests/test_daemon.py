@@ -1,0 +1,142 @@
+"""The daemon as a process: `cablebot sim`, `cablebot run` and an observer over udp_multicast.
+
+Three processes on one host: the simulated ODrive nodes, the controller daemon and a Zenoh
+observer that arms, moves 1 m and watches the pose arrive within 1 mm. Then SIGTERM must end
+the daemon with exit code 0 within 2 s. A kill test SIGKILLs the daemon while it saves homing
+offsets: the state file must be the old or a new complete record, never a torn one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from controller.homing import load_offsets, parse_record
+from tests.daemon_procs import (
+    CABLEBOT,
+    OBSERVER,
+    Proc,
+    write_config,
+    zenoh_session,
+    zquery,
+)
+
+
+def _udp_bus() -> dict[str, Any]:
+    group = f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}"
+    return {
+        "interface": "udp_multicast",
+        "channel": group,
+        "options": {"port": random.randint(40000, 49000)},
+    }
+
+
+def run_three_processes(cfg: Path, info: dict[str, Any], slow: float = 1.0) -> None:
+    """Start sim and daemon, run the observer to completion, SIGTERM the daemon (asserted)."""
+    sim = Proc([*CABLEBOT, "sim", "--config", str(cfg)], "sim")
+    daemon: Proc | None = None
+    try:
+        sim.wait_line("READY", 20 * slow)
+        daemon = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "1"], "daemon")
+        daemon.wait_line("ready:", 20 * slow, stderr=True)
+        obs = Proc(
+            [sys.executable, "-c", OBSERVER, info["endpoint"], info["prefix"], str(slow)],
+            "observer",
+        )
+        try:
+            line = obs.wait_line("ARRIVED", 60 * slow)
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}\n{daemon.log()}\n{sim.log()}") from None
+        err_m = float(line.split()[1])
+        assert err_m < 1e-3
+        status = json.loads(obs.wait_line("STATUS", 10 * slow)[len("STATUS ") :])
+        assert status["state"] == "HOLDING"
+        assert status["loop"]["ticks"] > 100
+        assert status["bus"]["frames_rx"] > 100
+        assert obs.p.wait(10 * slow) == 0, obs.log()
+        poses = json.loads(obs.wait_line("POSE", 1)[len("POSE ") :])
+        assert poses["valid"] and len(poses["cable_lengths_m"]) == 4
+        # SIGTERM: stop, hold, close, exit 0 within 2 s.
+        t0 = time.monotonic()
+        daemon.p.send_signal(signal.SIGTERM)
+        rc = daemon.p.wait(10 * slow)
+        took = time.monotonic() - t0
+        assert rc == 0, daemon.log()
+        assert took < 2.0 * slow, f"exit took {took:.2f} s"
+        daemon.wait_line("stopped in", 2, stderr=True)
+    finally:
+        if daemon is not None:
+            daemon.kill()
+        assert sim.terminate() == 0, sim.log()
+
+
+@pytest.mark.slow
+def test_daemon_sim_observer_over_udp_multicast(tmp_path: Path) -> None:
+    cfg, info = write_config(tmp_path, _udp_bus())
+    run_three_processes(cfg, info)
+
+
+@pytest.mark.slow
+def test_sigkill_during_home_save_leaves_old_or_new_file(tmp_path: Path) -> None:
+    cfg, info = write_config(tmp_path, _udp_bus())
+    state_file: Path = info["state_file"]
+    sim = Proc([*CABLEBOT, "sim", "--config", str(cfg)], "sim")
+    try:
+        sim.wait_line("READY", 20)
+        sent: set[tuple[float, ...]] = set()
+        kills = 0
+        for round_ in range(3):
+            daemon = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "0"], "d")
+            try:
+                daemon.wait_line("ready:", 20, stderr=True)
+                session = zenoh_session(info["endpoint"])
+                # A first home that completes: the file exists before the kills start.
+                if round_ == 0:
+                    first = (0.0, 0.0, 2.0)
+                    r = zquery(session, f"{info['prefix']}/cmd/home", {"position_m": first})
+                    assert r.get("saved") is True, r
+                    sent.add(first)
+                stop = threading.Event()
+
+                def hammer(sess: Any = session, stop_ev: threading.Event = stop) -> None:
+                    i = 0
+                    while not stop_ev.is_set():
+                        p = (round(0.001 * (i % 500), 6), 0.0, 2.0)
+                        sent.add(p)
+                        zquery(sess, f"{info['prefix']}/cmd/home", {"position_m": p}, 2.0)
+                        i += 1
+
+                t = threading.Thread(target=hammer, daemon=True)
+                t.start()
+                time.sleep(0.3 + random.random() * 0.3)
+                daemon.p.send_signal(signal.SIGKILL)
+                daemon.p.wait(5)
+                kills += 1
+                stop.set()
+                t.join(5)
+                session.close()
+            finally:
+                daemon.kill()
+            data = load_offsets(state_file)  # raises on a torn or invalid file
+            assert data is not None
+            rec = parse_record(data, str(state_file), info["name"], [0, 1, 2, 3])
+            assert tuple(rec.home_position_m) in sent
+            assert all(math.isfinite(v) for v in rec.offsets_rev.values())
+        assert kills == 3
+        # A restart reloads the surviving offsets.
+        daemon = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "0"], "d")
+        try:
+            daemon.wait_line("homing offsets loaded", 20, stderr=True)
+        finally:
+            assert daemon.terminate() == 0, daemon.log()
+    finally:
+        sim.terminate()
