@@ -12,6 +12,7 @@ import can
 import pytest
 
 from drivers import cansimple as cs
+from drivers import rx_bench
 from drivers.base import NEVER_S, BusError, ReelDriver
 from drivers.bus import BusOpenError, open_bus
 from drivers.odrive import ODriveReels
@@ -248,6 +249,13 @@ def test_encoder_rtr_polling(buses: tuple[can.BusABC, can.BusABC]) -> None:
     assert drain(peer) == [cs.RemoteRequest(0, 9), cs.RemoteRequest(1, 9)]
     d.request_errors()
     assert drain(peer) == [cs.RemoteRequest(0, 3), cs.RemoteRequest(1, 3)]
+    clock = FakeClock()
+    d2 = ODriveReels(bus, (0,), encoder_rtr=True, encoder_rtr_period_s=0.01, clock=clock)
+    d2.poll()
+    d2.poll()  # same clock time: rate-limited, nothing sent
+    clock.now_s += 0.01
+    d2.poll()
+    assert drain(peer) == [cs.RemoteRequest(0, 9), cs.RemoteRequest(0, 9)]
     send(peer, cs.encode_get_error(1, 0x20, 0x20))
     time.sleep(0.01)
     d.poll()
@@ -262,6 +270,8 @@ def test_constructor_validation(buses: tuple[can.BusABC, can.BusABC]) -> None:
         ODriveReels(bus, [1, 1])
     with pytest.raises(ValueError, match="outside"):
         ODriveReels(bus, [64])
+    with pytest.raises(ValueError, match="encoder_rtr_period_s"):
+        ODriveReels(bus, [1], encoder_rtr_period_s=-1.0)
 
 
 def test_open_bus_errors_are_named() -> None:
@@ -271,6 +281,11 @@ def test_open_bus_errors_are_named() -> None:
         open_bus({"channel": "x"})
     bus = open_bus({"interface": "virtual", "channel": "cfg-test", "bitrate": 1_000_000})
     bus.shutdown()
+
+
+def test_rx_bench_runs() -> None:
+    assert rx_bench.pure_decode_rate(2000) > 0.0
+    assert rx_bench.poll_rate(2000) > 0.0
 
 
 def test_receive_path_throughput(buses: tuple[can.BusABC, can.BusABC]) -> None:
