@@ -22,7 +22,8 @@ from drivers import cansimple as cs
 from drivers.bus import open_bus
 from drivers.odrive import ODriveReels
 
-pytestmark = pytest.mark.vcan
+# Generous: under the emulated VM each step takes several times longer than on a host.
+pytestmark = [pytest.mark.vcan, pytest.mark.timeout(900)]
 
 REPO = Path(__file__).resolve().parents[1]
 # Node ids away from 0..3 so a stray process of another vcan test cannot answer for ours.
