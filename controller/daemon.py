@@ -33,6 +33,7 @@ log = logging.getLogger("cablebot.daemon")
 
 PR_SET_TIMERSLACK = 29
 TIMER_SLACK_NS = 1_000
+SWITCH_INTERVAL_S = 0.0005
 STOP_WAIT_S = 0.8
 """How long shutdown waits for a move to brake to a hold before stopping the loop."""
 
@@ -184,6 +185,7 @@ def run_daemon(
         log.error("configuration: %s", exc)
         return 2
     log.info("config: %s", _summary_text(cfg))
+    log.debug("config details: %s", cfg.summary())
 
     shutdown = threading.Event()
 
@@ -238,6 +240,9 @@ def run_daemon(
             log.exception("control loop crashed")
             shutdown.set()
 
+    # A woken loop thread waits for the GIL up to the switch interval (5 ms by default):
+    # shorten it so other Python threads (Zenoh callbacks, an in-process sim) yield sooner.
+    sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
     if cfg.loop.gc_freeze:
         gc.collect()
         gc.freeze()
@@ -278,9 +283,12 @@ def run_daemon(
             if ready is not None:
                 ready()
         now = time.monotonic()
-        if status_every_s > 0 and now >= next_status:
-            next_status = now + status_every_s
-            log.info("%s", status_line(controller.status()))
+        if now >= next_status:
+            next_status = now + (status_every_s if status_every_s > 0 else 5.0)
+            line = status_line(controller.status())
+            notifier.notify(f"STATUS={line}")
+            if status_every_s > 0:
+                log.info("%s", line)
         shutdown.wait(0.05)
 
     log.info("signal received: stopping motion and holding")
@@ -309,11 +317,19 @@ def _auto_arm(cfg: Any) -> bool:
 
 
 def _summary_text(cfg: Any) -> str:
-    fn = getattr(cfg, "summary", None)
-    if callable(fn):
-        s = fn()
-        return s if isinstance(s, str) else repr(s)
-    return repr(cfg)
+    """One line: robot, source, bus, rate, homing, Zenoh, sim."""
+    h = cfg.homing
+    homing = (
+        f"power-up pose {list(h.power_up_position_m)}"
+        if h.power_up_position_m is not None
+        else "no power-up pose"
+    ) + (f", state file {h.state_file}" if h.state_file else ", no state file")
+    return (
+        f"robot {cfg.name!r} from {cfg.source}: {len(cfg.reels)} reels (nodes "
+        f"{[r.node_id for r in cfg.reels]}) on {cfg.bus.interface} {cfg.bus.channel}; "
+        f"{cfg.loop.rate_hz:g} Hz; {homing}; Zenoh prefix {cfg.zenoh.prefix}; "
+        f"sim {'in-process' if cfg.sim.enabled else 'off'}"
+    )
 
 
 def _close_all(closers: list[tuple[str, Callable[[], object]]]) -> None:

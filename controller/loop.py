@@ -429,7 +429,7 @@ class Controller:
         except _Fault as f:
             self._fault(f.reason)
 
-        if not self._queue.empty():
+        if self._queue.queue:  # lock-free peek at the deque; get_nowait() takes the lock
             self._take_commands(readings, now_s)
 
         state = self.state

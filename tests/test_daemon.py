@@ -8,10 +8,12 @@ offsets: the state file must be the old or a new complete record, never a torn o
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import random
 import signal
+import socket
 import sys
 import threading
 import time
@@ -140,3 +142,39 @@ def test_sigkill_during_home_save_leaves_old_or_new_file(tmp_path: Path) -> None
             assert daemon.terminate() == 0, daemon.log()
     finally:
         sim.terminate()
+
+
+def test_sd_notify_ready_watchdog_status_and_sigint(tmp_path: Path) -> None:
+    """In-process sim (`[sim] enabled`, auto-armed): READY=1 once holding, WATCHDOG=1 pings,
+    STATUS= lines, and SIGINT exits 0 within 2 s."""
+    cfg, _info = write_config(
+        tmp_path, {"interface": "virtual", "channel": f"t-{random.random()}"}, sim_enabled=True
+    )
+    sock_path = str(tmp_path / "notify.sock")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(sock_path)
+    sock.settimeout(0.2)
+    env = {"NOTIFY_SOCKET": sock_path, "WATCHDOG_USEC": "200000"}
+    daemon = Proc([*CABLEBOT, "run", "--config", str(cfg)], "daemon", env=env)
+    got: list[str] = []
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            with contextlib.suppress(TimeoutError):
+                got.append(sock.recv(4096).decode())
+            if "READY=1" in got and got.count("WATCHDOG=1") >= 3:
+                break
+        assert "READY=1" in got, (got, daemon.log())
+        assert got.count("WATCHDOG=1") >= 3, got
+        statuses = [m for m in got if m.startswith("STATUS=")]
+        assert any("HOLDING" in m for m in statuses), statuses
+        # READY only once the robot holds (auto-arm of the simulated robot).
+        ready_at = got.index("READY=1")
+        assert any(m.startswith("STATUS=HOLDING") for m in got[:ready_at]), got[: ready_at + 1]
+        t0 = time.monotonic()
+        daemon.p.send_signal(signal.SIGINT)
+        assert daemon.p.wait(10) == 0, daemon.log()
+        assert time.monotonic() - t0 < 2.0
+    finally:
+        daemon.kill()
+        sock.close()
