@@ -395,6 +395,23 @@ def _floats(text: str, n: int) -> list[float]:
     return values
 
 
+def _option(text: str) -> tuple[str, Any]:
+    key, sep, raw = text.partition("=")
+    if not sep or not key:
+        raise SystemExit(f"--option needs KEY=VALUE, got {text!r}")
+    value: Any = raw
+    if raw.lower() in ("true", "false"):
+        value = raw.lower() == "true"
+    else:
+        for conv in (int, float):
+            try:
+                value = conv(raw)
+                break
+            except ValueError:
+                pass
+    return key, value
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """`python -m drivers.sim_odrive`: serve simulated axes on a bus until SIGTERM/SIGINT.
 
@@ -405,6 +422,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--channel", required=True, help="channel, e.g. vcan0 or a multicast group")
     p.add_argument("--bitrate", type=int, default=None)
     p.add_argument("--port", type=int, default=None, help="udp_multicast port")
+    p.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="further python-can interface keyword (repeatable); numbers and true/false parsed",
+    )
     p.add_argument("--nodes", default="0,1,2,3", help="comma-separated node ids")
     p.add_argument("--initial-rev", default="0", help="one value, or one per node")
     p.add_argument("--max-velocity-rps", type=float, default=20.0)
@@ -427,7 +451,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         for n, x in zip(nodes, initial, strict=True)
     ]
-    options: dict[str, Any] = {}
+    options: dict[str, Any] = dict(_option(o) for o in args.option)
     if args.port is not None:
         options["port"] = args.port
     stop = threading.Event()

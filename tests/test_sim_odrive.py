@@ -248,3 +248,14 @@ def test_bank_stops_within_bound() -> None:
     assert bank.stop(timeout_s=2.0)
     assert time.monotonic() - t0 < 2.0
     bus.shutdown()
+
+
+def test_process_option_parsing() -> None:
+    from drivers.sim_odrive import _option
+
+    assert _option("tty_baudrate=115200") == ("tty_baudrate", 115200)
+    assert _option("receive_own_messages=false") == ("receive_own_messages", False)
+    assert _option("hop_limit=1.5") == ("hop_limit", 1.5)
+    assert _option("serial=ABC") == ("serial", "ABC")
+    with pytest.raises(SystemExit):
+        _option("novalue")
