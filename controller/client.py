@@ -287,7 +287,7 @@ def cmd_simple(args: argparse.Namespace) -> int:
 def cmd_home(args: argparse.Namespace) -> int:
     """home X Y Z: declare the effector's current position."""
     try:
-        payload = {"position_m": _vec3(args.xyz, "home")}
+        payload = {"position_m": _vec3(_xyz(args), "home")}
     except InputError as exc:
         print(f"cablebot: {exc}", file=sys.stderr)
         return EXIT_REFUSED
@@ -297,7 +297,7 @@ def cmd_home(args: argparse.Namespace) -> int:
 def cmd_move(args: argparse.Namespace) -> int:
     """move X Y Z [--speed V] [--wait]: command a straight move (and follow it)."""
     try:
-        target = _vec3(args.xyz, "move")
+        target = _vec3(_xyz(args), "move")
         payload: dict[str, Any] = {"position_m": target}
         speed = _speed(args.speed)
         if speed is not None:
@@ -462,7 +462,7 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         p = sub.add_parser(verb, help=what)
         _common(p)
         if verb == "move":
-            p.add_argument("xyz", type=float, nargs=3, metavar=("X", "Y", "Z"))
+            _xyz_arguments(p)
         else:
             p.add_argument("file", metavar="FILE", help="JSON points or CSV x,y,z lines")
         p.add_argument("--speed", type=float, default=None, metavar="V", help="speed in m/s")
@@ -491,6 +491,18 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
 
     p = sub.add_parser("home", help="declare that the effector is now at X Y Z")
     _common(p)
-    p.add_argument("xyz", type=float, nargs=3, metavar=("X", "Y", "Z"))
+    _xyz_arguments(p)
     p.add_argument("--json", action="store_true", help="print the raw JSON reply")
     p.set_defaults(func=cmd_home)
+
+
+def _xyz_arguments(p: argparse.ArgumentParser) -> None:
+    # Three positionals rather than nargs=3 with a tuple metavar: argparse (3.11) crashes
+    # formatting some errors for the latter.
+    p.add_argument("x", type=float, metavar="X", help="x in m")
+    p.add_argument("y", type=float, metavar="Y", help="y in m")
+    p.add_argument("z", type=float, metavar="Z", help="z in m")
+
+
+def _xyz(args: argparse.Namespace) -> list[float]:
+    return [float(args.x), float(args.y), float(args.z)]
