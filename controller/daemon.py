@@ -34,7 +34,7 @@ log = logging.getLogger("cablebot.daemon")
 PR_SET_TIMERSLACK = 29
 TIMER_SLACK_NS = 1_000
 SWITCH_INTERVAL_S = 0.0005
-STOP_WAIT_S = 0.8
+STOP_WAIT_S = 1.4
 """How long shutdown waits for a move to brake to a hold before stopping the loop."""
 
 
@@ -224,6 +224,7 @@ def run_daemon(
         return 1
 
     stop_loop = threading.Event()
+    crashed = threading.Event()
     rt_report: list[str] = []
 
     def loop_main() -> None:
@@ -238,6 +239,7 @@ def run_daemon(
             )
         except Exception:
             log.exception("control loop crashed")
+            crashed.set()
             shutdown.set()
 
     # A woken loop thread waits for the GIL up to the switch interval (5 ms by default):
@@ -305,7 +307,7 @@ def run_daemon(
     _close_all(closers)
     notifier.close()
     log.info("stopped in %.3f s: %s", time.monotonic() - t0, status_line(final))
-    return 0
+    return 1 if crashed.is_set() else 0
 
 
 def _auto_arm(cfg: Any) -> bool:

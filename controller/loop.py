@@ -486,6 +486,12 @@ class Controller:
         if not all(map(math.isfinite, lengths)):
             self.pose_valid = False
             return
+        stale = self._stale_s
+        for r in readings:
+            if now_s - r.stamp_s > stale:
+                # Old encoder data is no pose (armed states have faulted on it already).
+                self.pose_valid = False
+                return
         try:
             res = kinematics.fpk(self.geometry, lengths)
         except kinematics.KinematicsError as exc:
@@ -518,6 +524,7 @@ class Controller:
         fresh = all(r.stamp_s >= self._arm_start_s for r in readings)
         if self._arm_rev is None and fresh:
             self._arm_rev = [r.position_rev for r in readings]
+            self.commanded_rev = self._arm_rev  # what a FAULT during arming keeps holding
         if self._arm_rev is not None:
             # Hold the motors where they were while they enter closed loop.
             self._send(self._arm_rev)

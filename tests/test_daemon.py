@@ -146,7 +146,7 @@ def test_sigkill_during_home_save_leaves_old_or_new_file(tmp_path: Path) -> None
 
 def test_sd_notify_ready_watchdog_status_and_sigint(tmp_path: Path) -> None:
     """In-process sim (`[sim] enabled`, auto-armed): READY=1 once holding, WATCHDOG=1 pings,
-    STATUS= lines, and SIGINT exits 0 within 2 s."""
+    STATUS= lines; SIGINT during a move brakes to a hold and exits 0 within 2 s."""
     cfg, _info = write_config(
         tmp_path, {"interface": "virtual", "channel": f"t-{random.random()}"}, sim_enabled=True
     )
@@ -171,10 +171,22 @@ def test_sd_notify_ready_watchdog_status_and_sigint(tmp_path: Path) -> None:
         # READY only once the robot holds (auto-arm of the simulated robot).
         ready_at = got.index("READY=1")
         assert any(m.startswith("STATUS=HOLDING") for m in got[:ready_at]), got[: ready_at + 1]
+        # Interrupt a move at full default speed: the daemon brakes to a hold, then exits.
+        session = zenoh_session(_info["endpoint"])
+        try:
+            r = zquery(session, f"{_info['prefix']}/cmd/move", {"position_m": [5.0, 0.0, 2.0]})
+            assert r.get("ok") is True, r
+            time.sleep(1.2)
+            st = zquery(session, f"{_info['prefix']}/status")
+            assert st["state"] == "MOVING", st
+        finally:
+            session.close()
         t0 = time.monotonic()
         daemon.p.send_signal(signal.SIGINT)
         assert daemon.p.wait(10) == 0, daemon.log()
         assert time.monotonic() - t0 < 2.0
+        last = daemon.wait_line("stopped in", 2, stderr=True)
+        assert ": HOLDING pose" in last, last
     finally:
         daemon.kill()
         sock.close()
