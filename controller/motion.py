@@ -87,7 +87,7 @@ class TrapezoidMove:
         dx = self.end_m[0] - self.start_m[0]
         dy = self.end_m[1] - self.start_m[1]
         dz = self.end_m[2] - self.start_m[2]
-        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        d = math.hypot(dx, dy, dz)  # no underflow for tiny distances
         self.distance_m = d
         if d == 0.0:
             self._unit: Vec3 = _ZERO
@@ -227,7 +227,7 @@ class MotionPlanner:
 
     def _speed(self) -> float:
         v = self._v
-        return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        return math.hypot(v[0], v[1], v[2])
 
     def _stop_point(self) -> Vec3:
         s = self._stop_speed
@@ -396,13 +396,13 @@ class MotionPlanner:
         ex = g[0] - p[0]
         ey = g[1] - p[1]
         ez = g[2] - p[2]
-        d = math.sqrt(ex * ex + ey * ey + ez * ez)
+        d = math.hypot(ex, ey, ez)
         # Desired velocity: toward the target at the fastest speed from which the discrete
         # braking sequence (speeds k*a*dt, k = n..1, semi-implicit Euler) still stops on it, and
         # never more than d/dt (land exactly) or max speed.
         if d > 0.0:
-            adt2 = a * dt_s * dt_s
-            n = math.sqrt(0.25 + 2.0 * d / adt2) - 0.5
+            x2 = 2.0 * d / (a * dt_s * dt_s)
+            n = x2 / (math.sqrt(0.25 + x2) + 0.5)  # = sqrt(1/4 + x2) - 1/2 without cancellation
             want = min(self.max_speed_mps, n * a * dt_s, d / dt_s)
             k = want / d
             wx, wy, wz = ex * k, ey * k, ez * k
@@ -411,7 +411,7 @@ class MotionPlanner:
         # Move the velocity toward the desired one by at most a*dt (keeps |v| <= max speed
         # because the new velocity lies on the segment between two vectors within the ball).
         cx, cy, cz = wx - v[0], wy - v[1], wz - v[2]
-        c = math.sqrt(cx * cx + cy * cy + cz * cz)
+        c = math.hypot(cx, cy, cz)
         dv_max = a * dt_s
         clipped = c > dv_max
         if clipped:
