@@ -39,13 +39,14 @@ Operation counts (add/subtract, multiply/divide, square root; measured by
 tests/test_kinematics.py by running the functions on a counting float type)
 --------------------------------------------------------------------------------------------
 * Paper: new simplified algorithm 25 / 31 / 1; original general algorithm 48 / 62 / 1.
-* ``three_spheres_equal_height`` (paper-faithful, everything from the centres each call,
-  eqs. 9-12 with the quadratic solved directly): 21 / 23 / 1.
+* ``three_spheres_equal_height`` (everything from the centres on each call: eqs. 7-12 with
+  the origin moved to the third centre, the factor 2 of eq. 9 folded into the determinant,
+  the quadratic of eq. 11 solved directly on the third sphere): 18 / 18 / 1.
 * Per-tick hoisted form used by ``fpk`` (anchor-only terms precomputed in ``Geometry``):
   11 / 9 / 1.
 * ``three_spheres`` (general, any heights, parametrised by z along the radical line, one
-  square root, numerically stable root choice): 40 / 47 / 1; its per-tick hoisted form used
-  by ``fpk`` for unequal heights: 17 / 21 / 1.
+  square root, numerically stable root choice): 31 / 37 / 1; its per-tick hoisted form used
+  by ``fpk`` for unequal heights: 16 / 18 / 1.
 """
 
 from __future__ import annotations
@@ -521,35 +522,34 @@ def three_spheres_equal_height(
     ``SingularGeometryError`` when the centres are collinear in plan view (eq. 14), and
     ``UnreachableError`` naming the sphere (r1/r2/r3) that is too short (eq. 17).
     """
-    x1, y1, zn = c1
+    x1, y1, z1 = c1
     x2, y2, z2 = c2
-    x3, y3, z3 = c3
-    if zn != z2 or zn != z3:
+    x3, y3, zn = c3
+    if zn != z1 or zn != z2:
         raise KinematicsError("centre heights differ; use three_spheres()")
-    a = 2.0 * (x3 - x1)
-    b = 2.0 * (y3 - y1)
-    d = 2.0 * (x3 - x2)
-    e = 2.0 * (y3 - y2)
+    # Eqs. (7)-(8) with the origin moved to c3 (the factor 2 of a, b, d, e folded into the
+    # determinant): a'x + b'y = c', d'x + e'y = f' for q = (x - x3, y - y3).
+    a = x1 - x3
+    b = y1 - y3
+    d = x2 - x3
+    e = y2 - y3
     r3s = r3 * r3
-    k3 = x3 * x3 + y3 * y3
-    r1s = r1 * r1
-    c = r1s - r3s - (x1 * x1 + y1 * y1) + k3
-    f = r2 * r2 - r3s - (x2 * x2 + y2 * y2) + k3
-    det = a * e - b * d
-    if det == 0.0:
-        raise SingularGeometryError("centres collinear in plan view (eq. 14)")
-    x = (c * e - b * f) / det
-    y = (a * f - c * d) / det
-    dx = x - x1
-    dy = y - y1
-    # B^2 - 4C of eq. (12) divided by 4.
-    disc = r1s - dx * dx - dy * dy
+    c = a * a + b * b - r1 * r1 + r3s
+    f = d * d + e * e - r2 * r2 + r3s
+    try:
+        inv = 0.5 / (a * e - b * d)  # eq. (13) / 4 is the determinant
+    except ZeroDivisionError:  # a zero-cost guard on the fast path (CPython >= 3.11)
+        raise SingularGeometryError("centres collinear in plan view (eq. 14)") from None
+    qx = (c * e - b * f) * inv  # eq. (10)
+    qy = (a * f - c * d) * inv
+    # Eqs. (11)-(12) on sphere 3: (B^2 - 4C) / 4.
+    disc = r3s - qx * qx - qy * qy
     if disc < 0.0:
         if not _is_tangent(float(r1), float(r2), float(r3), -float(disc)):
             cable, change = _diagnose((c1, c2, c3), (r1, r2, r3), -float(disc))
             raise UnreachableError(cable, change, "sphere")
         disc = 0.0 * disc
-    return (x, y, zn - _sqrt(disc))
+    return (x3 + qx, y3 + qy, zn - _sqrt(disc))
 
 
 def three_spheres(
@@ -665,7 +665,7 @@ def _seed_equal(sd: _EqualSeed, r1: float, r2: float, r3: float) -> Vec3:
 
 
 def _seed_general(sd: _GeneralSeed, r1: float, r2: float, r3: float) -> Vec3:
-    """Per-tick general algorithm with hoisted constants; 17 add, 21 mul, 1 sqrt."""
+    """Per-tick general algorithm with hoisted constants; 16 add, 18 mul, 1 sqrt."""
     s1 = r1 * r1
     h2 = 0.5 * (s1 - r2 * r2) + sd.q2
     h3 = 0.5 * (s1 - r3 * r3) + sd.q3
