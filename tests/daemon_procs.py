@@ -93,8 +93,9 @@ def write_config(
         "listen": [f"tcp/127.0.0.1:{port}"],
         "multicast_scouting": False,
     }
-    if faults:
-        data["faults"] = {**data["faults"], **faults}
+    # The host is shared and loaded: a starved simulator process must not look like a stale
+    # node here (the stale-node fault itself is tested in test_loop*.py).
+    data["faults"] = {**data["faults"], "stale_timeout_s": 0.25, **(faults or {})}
     path = tmp_path / f"{name}.toml"
     path.write_text(to_toml(data))
     info = {
