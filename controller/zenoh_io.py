@@ -12,10 +12,17 @@ Key space, under a configurable prefix (default `cablebot/default`):
 
 Threads: zenoh-python runs each declared callback on its own Python thread, so every verb has
 its own thread. A command waits there (bounded) for the loop's reply; a slow `home` never delays
-an `estop`. Publishing runs on the loop's thread: a declared publisher with congestion control
-DROP costs a few microseconds per put (measured, see `stats()`), so the tick never waits on the
-network. A "latest wins" publisher thread is available (`publish_thread=True`) but costs more on
-the tick (a lock and a wake-up) than the put itself; it is off by default.
+an `estop`.
+
+Publishing: the pose publisher uses congestion control DROP, so a put never waits on the
+network. But a put releases the GIL and must take it back, and in the daemon other Python
+threads (simulated nodes, Zenoh callbacks) hold it: measured in the daemon at 200 Hz on a loaded
+2-core machine, a put from the tick cost p50 80-180 us and p99 2.6-5.5 ms. So by default the
+tick only hands the sample to a publisher thread through a one-slot "latest wins" hand-off
+(tick cost p50 ~20 us, p99 ~0.75-1 ms, which is GIL pre-emption that any Python code sees); the
+thread encodes and puts it. A sample overwritten before the thread ran is counted
+(`pose_overwritten`), not queued. `publish_thread=False` (or the environment variable
+CABLEBOT_ZENOH_PUBLISH_THREAD=0) puts directly from the tick. `stats()` reports both costs.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ import concurrent.futures
 import json
 import logging
 import math
+import os
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -262,6 +270,8 @@ class ZenohInterface:
     `zcfg` is a `controller.config.ZenohConfig`-like object (prefix, mode, listen, connect,
     multicast_scouting, config_file); `controller` a `Controller`-like object. Nothing happens
     until `open()`. `reply_timeout_s` bounds how long a command waits for the loop.
+    `publish_thread` (default: the environment variable CABLEBOT_ZENOH_PUBLISH_THREAD if set,
+    else `zcfg.publish_thread` if present, else True) selects the publisher-thread hand-off.
     """
 
     def __init__(
@@ -270,19 +280,26 @@ class ZenohInterface:
         controller: ControllerLike,
         *,
         reply_timeout_s: float = 2.0,
-        publish_thread: bool = False,
+        publish_thread: bool | None = None,
     ) -> None:
         self.zcfg = zcfg
         self.controller = controller
         self.prefix = str(_get(zcfg, "prefix", DEFAULT_PREFIX)).rstrip("/")
         self.reply_timeout_s = reply_timeout_s
+        if publish_thread is None:
+            env = os.environ.get("CABLEBOT_ZENOH_PUBLISH_THREAD")
+            if env is not None:
+                publish_thread = env.strip().lower() not in ("", "0", "false", "no")
+            else:
+                publish_thread = bool(_get(zcfg, "publish_thread", True))
         self.publish_thread = publish_thread
         self.session: zenoh.Session | None = None
         self._pose_pub: zenoh.Publisher | None = None
         self._state_pub: zenoh.Publisher | None = None
         self._declared: list[Any] = []
         self._slot: _LatestSlot | None = None
-        self._put_ns = _Timings()
+        self._put_ns = _Timings()  # the put alone
+        self._tick_ns = _Timings()  # what publish_pose costs the tick (encode + put or hand-off)
         self._lock = threading.Lock()  # counters written from several Zenoh threads
         self.poses_published = 0
         self.pose_put_errors = 0
@@ -363,10 +380,12 @@ class ZenohInterface:
 
     def publish_pose(self, sample: PoseLike) -> None:
         """Publish one pose; never blocks on the network (congestion control DROP)."""
+        t0 = time.perf_counter_ns()
         if self._slot is not None:
             self._slot.offer(sample)
-            return
-        self._put_pose_bytes(sample.to_json_bytes())
+        else:
+            self._put_pose_bytes(sample.to_json_bytes())
+        self._tick_ns.add(time.perf_counter_ns() - t0)
 
     def _put_pose_bytes(self, data: bytes) -> None:
         pub = self._pose_pub
@@ -409,6 +428,7 @@ class ZenohInterface:
             "poses_published": self.poses_published,
             "pose_put_errors": self.pose_put_errors,
             "pose_put": self._put_ns.summary_us(),
+            "pose_publish_tick": self._tick_ns.summary_us(),
             "pose_overwritten": self._slot.overwritten if self._slot is not None else 0,
             "publish_thread": self.publish_thread,
             "states_published": self.states_published,
