@@ -19,9 +19,14 @@ path, e.g. ``config/desk.toml: reels[2].metres_per_rev: must be > 0, got -0.1``)
   0.1 mm resolution over the cable range in float32 motor turns (the ODrive CANSimple
   position type), and the power-up position (if any) is inside the limits.
 
-Deviations from the agreed API: none. Additions: `ReelConfig` is as agreed; `HomingConfig.
-state_file` is stored already expanded (``~`` and ``{name}`` replaced) so users need no
-helper; `RobotConfig.node_ids` and `RobotConfig.anchors_m` are convenience properties.
+Deviations from the agreed API: none. Additions (all with defaults, so nothing breaks):
+`LoopConfig.rt_priority` (int, 50), `LoopConfig.auto_arm` (bool | None; None = arm at start
+only with `sim.enabled`), `SimConfig.tick_s` (0.001 s), `BusConfig.as_mapping()` (for
+`drivers.bus.open_bus`), `RobotConfig.node_ids` / `RobotConfig.anchors_m` properties.
+`HomingConfig.state_file` is stored already expanded (``~`` and ``{name}`` replaced).
+In a file, `[limits]` is required with every key but `default_speed_mps` (a safe limit
+depends on the robot); all other sections are optional with the defaults of the dataclasses.
+`sim.enabled` defaults to true on the `virtual` bus (nothing else could answer there).
 """
 
 from __future__ import annotations
@@ -97,6 +102,10 @@ class LoopConfig:
     gc_freeze: bool = True
     publish_every: int = 1
     encoder_rtr: bool = False
+    rt_priority: int = 50
+    """SCHED_FIFO priority of the loop thread when `realtime` (1..99)."""
+    auto_arm: bool | None = None
+    """Arm at start-up; None = only when the reels are simulated in-process (`sim.enabled`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,6 +166,8 @@ class SimConfig:
     heartbeat_period_s: float = 0.1
     max_velocity_rps: float = 100.0
     max_accel_rps2: float = 400.0
+    tick_s: float = 0.001
+    """Time step of the simulated axes' dynamics."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -583,6 +594,8 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         gc_freeze=lt.boolean("gc_freeze", d_loop.gc_freeze),
         publish_every=lt.integer("publish_every", d_loop.publish_every, ge=1, le=100_000),
         encoder_rtr=lt.boolean("encoder_rtr", d_loop.encoder_rtr),
+        rt_priority=lt.integer("rt_priority", d_loop.rt_priority, ge=1, le=99),
+        auto_arm=lt.boolean("auto_arm", False) if lt.has("auto_arm") else None,
     )
     lt.finish(tuple(LoopConfig.__dataclass_fields__))
 
@@ -618,6 +631,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         ),
         max_velocity_rps=st.number("max_velocity_rps", d_sim.max_velocity_rps, gt=0.0),
         max_accel_rps2=st.number("max_accel_rps2", d_sim.max_accel_rps2, gt=0.0),
+        tick_s=st.number("tick_s", d_sim.tick_s, gt=0.0, le=0.1),
     )
     st.finish(tuple(SimConfig.__dataclass_fields__))
 

@@ -5,7 +5,8 @@ Everything here is deterministic and clock-free: the control loop calls
 set-point. The per-tick path uses plain Python floats and 3-tuples (no numpy, no allocation
 beyond a few tuples), so it costs a few microseconds.
 
-Behaviour (API as agreed for issue 5; deviations none):
+Behaviour (API as agreed for issue 5; no deviations; additions: `rest_point_m` (where a move
+that arrives now would start: check its first leg from there), `position_m`, `mode`):
 
 * `TrapezoidMove`: rest-to-rest straight line, accelerate at `max_accel_mps2`, cruise at
   `max_speed_mps`, decelerate; a triangular profile when the distance is too short to reach the
@@ -224,6 +225,20 @@ class MotionPlanner:
         if self._mode == _STOP:
             return self._stop_point()
         return self._p
+
+    @property
+    def rest_point_m(self) -> Vec3:
+        """Where the set-point would come to rest if `stop()` were called now (the start of
+        the first leg of a move or path that arrives now): position + v^2/(2 a) along v."""
+        if self._mode == _STOP:
+            return self._stop_point()
+        s = self._speed()
+        if s == 0.0:
+            return self._p
+        k = s / (2.0 * self.max_accel_mps2)  # distance / speed
+        v = self._v
+        p = self._p
+        return (p[0] + v[0] * k, p[1] + v[1] * k, p[2] + v[2] * k)
 
     def _speed(self) -> float:
         v = self._v

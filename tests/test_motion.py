@@ -214,6 +214,7 @@ def test_stop_is_exact_braking_distance() -> None:
         pl.advance(0.002)
     assert pl.velocity_mps == pytest.approx((2.0, 0, 0))
     x0 = pl.position_m[0]
+    assert pl.rest_point_m == pytest.approx((x0 + 2.0, 0, 2))
     pl.stop()
     assert pl.target_m == pytest.approx((x0 + 2.0, 0, 2))  # v^2 / 2a = 2 m
     n = 0
