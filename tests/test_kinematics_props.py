@@ -51,7 +51,7 @@ def layouts(draw: st.DrawFn, min_n: int = 3) -> Geometry:
     )
     assume(best > 0.05 * span2)
     geom = Geometry(pts)
-    assert geom.equal_heights == (equal or n == 0)
+    assert geom.equal_heights or not equal
     return geom
 
 
@@ -134,7 +134,9 @@ def test_residual_zero_when_consistent_and_grows_with_one_bad_cable(
     geom, p = gp
     k = which % geom.n_cables
     lengths = ipk(geom, p)
-    assert fpk(geom, lengths).residual_m < 1e-10
+    assert fpk(geom, lengths.tolist()).residual_m < 1e-10
+    # The linearisation below needs cables much longer than the largest bump (1 cm).
+    assume(float(lengths.min()) > 5.0)
     # Linearised prediction: one cable off by delta leaves an RMS residual of
     # delta * sqrt((1 - h_k) / N), h_k the leverage of cable k.
     u = (np.array(p) - geom.anchors_m) / lengths[:, None]
