@@ -5,7 +5,7 @@ Loads the configuration, opens the bus, starts the simulated ODrive nodes in-pro
 fixed-rate loop in its own thread and waits for SIGTERM/SIGINT. On a signal it stops any motion,
 leaves the motors holding, stops the loop, closes Zenoh and the bus and exits 0 (well within
 2 s). Logs go to stderr (no timestamps under journald). systemd `Type=notify`: READY=1 once the
-robot holds (auto-arm) or the loop runs, WATCHDOG=1 from the loop thread, STATUS=<state>.
+robot holds (auto-arm) or every reel has answered, WATCHDOG=1 from the loop thread, STATUS=<state>.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import contextlib
 import ctypes
 import gc
 import logging
+import math
 import os
 import signal
 import socket
@@ -230,6 +231,8 @@ def run_daemon(
     def loop_main() -> None:
         if cfg.loop.realtime:
             rt_report.append(set_realtime(int(getattr(cfg.loop, "rt_priority", 50))))
+        else:
+            rt_report.append("SCHED_OTHER (loop.realtime = false)")
         rt_report.append(set_timer_slack(TIMER_SLACK_NS))
         try:
             controller.run(
@@ -275,8 +278,8 @@ def run_daemon(
                 f"STATUS={state}" + (f" {controller.reason}" if controller.reason else "")
             )
         if not announced_ready and (
-            not want_arm
-            or state in (State.HOLDING.value, State.MOVING.value, State.FAULT.value)
+            (want_arm and state in (State.HOLDING.value, State.MOVING.value, State.FAULT.value))
+            or (not want_arm and all(math.isfinite(r.stamp_s) for r in driver.read()))
             or time.monotonic() > arm_deadline
         ):
             announced_ready = True
