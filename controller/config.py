@@ -438,6 +438,7 @@ _REEL_KEYS = (
 
 
 def _parse_reel(t: _Table) -> ReelConfig:
+    t.finish(_REEL_KEYS)
     node_id = t.integer("node_id", ge=0, le=63)
     anchor = t.vec3("anchor_m")
     assert anchor is not None
@@ -468,7 +469,6 @@ def _parse_reel(t: _Table) -> ReelConfig:
     else:
         buildup = t.number("spool_buildup_m_per_rev2", 0.0, ge=0.0)
     ref = t.number("reference_length_m", 0.0, ge=0.0)
-    t.finish(_REEL_KEYS)
     try:
         model = ReelModel(
             metres_per_rev=mpr,
@@ -525,6 +525,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     duplicate node id, unusable anchor geometry or failed cross-check.
     """
     top = _Table(data, "", source)
+    top.finish(("name", "reels", "bus", "loop", "limits", "faults", "homing", "zenoh", "sim"))
     name = top.string("name", "default")
     assert name is not None
     if not _NAME_RE.match(name):
@@ -563,6 +564,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
 
     # ---- bus
     b = top.sub("bus")
+    b.finish(("interface", "channel", "bitrate", "options"))
     interface = b.string("interface", "virtual")
     channel_raw = b.raw("channel") if b.has("channel") else "cablebot"
     if isinstance(channel_raw, bool) or not isinstance(channel_raw, str | int) or channel_raw == "":
@@ -581,12 +583,12 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
                 raise ConfigError(
                     source, f"bus.options.{reserved}", f"set it as bus.{reserved}, not in options"
                 )
-    b.finish(("interface", "channel", "bitrate", "options"))
     assert interface is not None
     bus = BusConfig(interface, str(channel_raw), bitrate, MappingProxyType(options))
 
     # ---- loop
     lt = top.sub("loop")
+    lt.finish(tuple(LoopConfig.__dataclass_fields__))
     d_loop = LoopConfig()
     loop = LoopConfig(
         rate_hz=lt.number("rate_hz", d_loop.rate_hz, ge=1.0, le=2000.0),
@@ -597,10 +599,10 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         rt_priority=lt.integer("rt_priority", d_loop.rt_priority, ge=1, le=99),
         auto_arm=lt.boolean("auto_arm", False) if lt.has("auto_arm") else None,
     )
-    lt.finish(tuple(LoopConfig.__dataclass_fields__))
 
     # ---- limits: no defaults in a file (a safe limit depends on the robot)
     mt = top.sub("limits")
+    mt.finish(tuple(LimitsConfig.__dataclass_fields__))
     if not top.has("limits"):
         raise ConfigError(source, "limits", "missing (every robot needs its own [limits])")
     max_speed = mt.number("max_speed_mps", required=True, gt=0.0)
@@ -615,13 +617,13 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         max_accel_mps2=mt.number("max_accel_mps2", required=True, gt=0.0),
         default_speed_mps=mt.number("default_speed_mps", max_speed, gt=0.0),
     )
-    mt.finish(tuple(LimitsConfig.__dataclass_fields__))
     _check_limits(limits, geometry, source)
     for i, r in enumerate(reels):
         _check_reel_range(r, i, limits, source)
 
     # ---- sim (needed before faults for the cross-check)
     st = top.sub("sim")
+    st.finish(tuple(SimConfig.__dataclass_fields__))
     d_sim = SimConfig()
     sim = SimConfig(
         enabled=st.boolean("enabled", bus.interface == "virtual"),
@@ -633,10 +635,10 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         max_accel_rps2=st.number("max_accel_rps2", d_sim.max_accel_rps2, gt=0.0),
         tick_s=st.number("tick_s", d_sim.tick_s, gt=0.0, le=0.1),
     )
-    st.finish(tuple(SimConfig.__dataclass_fields__))
 
     # ---- faults
     ft = top.sub("faults")
+    ft.finish(tuple(FaultConfig.__dataclass_fields__))
     d_f = FaultConfig()
     faults = FaultConfig(
         stale_timeout_s=ft.number("stale_timeout_s", d_f.stale_timeout_s, gt=0.0, le=10.0),
@@ -647,7 +649,6 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         tracking_max_m=ft.number("tracking_max_m", d_f.tracking_max_m, gt=0.0),
         arm_timeout_s=ft.number("arm_timeout_s", d_f.arm_timeout_s, gt=0.0, le=60.0),
     )
-    ft.finish(tuple(FaultConfig.__dataclass_fields__))
     period_s = 1.0 / loop.rate_hz
     if faults.stale_timeout_s < 2.0 * period_s:
         raise ft.error(
@@ -670,9 +671,9 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
 
     # ---- homing
     ht = top.sub("homing")
+    ht.finish(tuple(HomingConfig.__dataclass_fields__))
     pup = ht.vec3("power_up_position_m", required=False)
     state_file = ht.string("state_file", None)
-    ht.finish(tuple(HomingConfig.__dataclass_fields__))
     if pup is not None:
         problem = _point_problem(pup, limits, geometry)
         if problem:
@@ -688,6 +689,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
 
     # ---- zenoh
     zt = top.sub("zenoh")
+    zt.finish(tuple(ZenohConfig.__dataclass_fields__))
     prefix = zt.string("prefix", f"cablebot/{name}")
     assert prefix is not None
     if not _PREFIX_RE.match(prefix):
@@ -706,14 +708,12 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
                 raise zt.error(k, f"endpoint {ep!r} must look like 'tcp/HOST:PORT'")
     scouting = zt.boolean("multicast_scouting", False)
     zcfg = zt.string("config_file", None)
-    zt.finish(tuple(ZenohConfig.__dataclass_fields__))
     if zcfg is not None:
         zcfg = os.path.expanduser(zcfg)
         if not Path(zcfg).is_file():
             raise zt.error("config_file", f"no such file: {zcfg}")
     zenoh = ZenohConfig(prefix, mode, listen, connect, scouting, zcfg)
 
-    top.finish(("name", "reels", "bus", "loop", "limits", "faults", "homing", "zenoh", "sim"))
     return RobotConfig(
         name=name,
         reels=reels,
@@ -817,7 +817,9 @@ def paper_robot_data(name: str = "default") -> dict[str, Any]:
 
     Reels: 0.5 m of cable per drum turn (80 mm drum radius) behind a 10:1 gearbox, i.e.
     0.05 m per motor turn; the 99 m cable range (1..100 m) is 1980 motor turns, where one
-    float32 ULP is 2^-13 turn = 6.1 micrometres of cable (limit 0.1 mm). Raises nothing.
+    float32 ULP is 2^-13 turn = 6.1 micrometres of cable (limit 0.1 mm). The gearing cancels
+    out: the worst resolution is about range * 2^-23 (12 um for 99 m), so only cable ranges
+    beyond ~800 m fail the check. Raises nothing.
     """
     hl, hw, h = PAPER_LENGTH_M / 2.0, PAPER_WIDTH_M / 2.0, PAPER_HEIGHT_M
     anchors = [(-hl, -hw, h), (-hl, hw, h), (hl, hw, h), (hl, -hw, h)]
