@@ -33,6 +33,8 @@ from controller.states import State
 log = logging.getLogger("cablebot.daemon")
 
 PR_SET_TIMERSLACK = 29
+RT_PRIORITY = 50
+"""SCHED_FIFO priority of the loop thread (below the kernel's IRQ threads at 50 is usual)."""
 TIMER_SLACK_NS = 1_000
 SWITCH_INTERVAL_S = 0.0005
 STOP_WAIT_S = 1.4
@@ -87,10 +89,11 @@ class Notifier:
 # -------------------------------------------------------------------------------- real-time
 
 
-def set_realtime(priority: int) -> str:
-    """Try SCHED_FIFO at `priority` for the calling thread; return what happened, for the log."""
+def set_realtime(priority: int, tid: int = 0) -> str:
+    """Try SCHED_FIFO at `priority` for thread `tid` (0: the calling thread); return what
+    happened, for the log. Raises nothing."""
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
     except (OSError, AttributeError) as exc:
         return f"SCHED_FIFO {priority} not available ({exc}); running SCHED_OTHER"
     return f"SCHED_FIFO priority {priority}"
@@ -207,7 +210,18 @@ def run_daemon(
             closers.append(("sim bus", sim_bus.shutdown))
             bank = start_sim_bank(cfg, sim_bus)
             closers.append(("sim", bank.stop))
-            log.info("simulated ODrive nodes %s started in-process", [r.node_id for r in cfg.reels])
+            sim_rt = "SCHED_OTHER"
+            if cfg.loop.realtime:
+                # The simulated nodes stand in for hardware: a starved sim thread on a busy
+                # machine would look like a stale node. One step below the loop.
+                for t in threading.enumerate():
+                    if t.name == "sim-odrive" and t.native_id is not None:
+                        sim_rt = set_realtime(RT_PRIORITY - 1, t.native_id)
+            log.info(
+                "simulated ODrive nodes %s started in-process (%s)",
+                [r.node_id for r in cfg.reels],
+                sim_rt,
+            )
         node_ids = [r.node_id for r in cfg.reels]
         driver = ODriveReels(bus, node_ids, encoder_rtr=bool(cfg.loop.encoder_rtr))
         controller = Controller(cfg, driver)
@@ -230,7 +244,7 @@ def run_daemon(
 
     def loop_main() -> None:
         if cfg.loop.realtime:
-            rt_report.append(set_realtime(int(getattr(cfg.loop, "rt_priority", 50))))
+            rt_report.append(set_realtime(RT_PRIORITY))
         else:
             rt_report.append("SCHED_OTHER (loop.realtime = false)")
         rt_report.append(set_timer_slack(TIMER_SLACK_NS))
