@@ -294,3 +294,17 @@ def test_config_error_is_a_value_error_with_fields() -> None:
     assert isinstance(e, ConfigError)
     assert (e.source, e.key) == ("robot.toml", "reels[2].metres_per_rev")
     assert str(e) == "robot.toml: reels[2].metres_per_rev: must be > 0, got -0.1"
+
+
+def test_systemd_unit_is_type_notify_with_watchdog() -> None:
+    import configparser
+
+    unit = configparser.ConfigParser(strict=False, interpolation=None)
+    unit.optionxform = str  # type: ignore[assignment,method-assign]
+    unit.read(REPO / "config" / "cablebot.service")
+    svc = unit["Service"]
+    assert svc["Type"] == "notify"
+    assert svc["NotifyAccess"] == "main"
+    assert svc["WatchdogSec"] == "2s"
+    assert "cablebot run --config" in svc["ExecStart"]
+    assert unit["Install"]["WantedBy"] == "multi-user.target"
