@@ -46,6 +46,7 @@ def run_three_processes(cfg: Path, info: dict[str, Any], slow: float = 1.0) -> N
     """Start sim and daemon, run the observer to completion, SIGTERM the daemon (asserted)."""
     sim = Proc([*CABLEBOT, "sim", "--config", str(cfg)], "sim")
     daemon: Proc | None = None
+    obs: Proc | None = None
     try:
         sim.wait_line("READY", 20 * slow)
         daemon = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "1"], "daemon")
@@ -76,6 +77,8 @@ def run_three_processes(cfg: Path, info: dict[str, Any], slow: float = 1.0) -> N
         assert took < 2.0 * slow, f"exit took {took:.2f} s"
         daemon.wait_line("stopped in", 2, stderr=True)
     finally:
+        if obs is not None:
+            obs.kill()
         if daemon is not None:
             daemon.kill()
         assert sim.terminate() == 0, sim.log()
@@ -175,16 +178,16 @@ def test_sd_notify_ready_watchdog_status_and_sigint(tmp_path: Path) -> None:
         session = zenoh_session(_info["endpoint"])
         try:
             r = zquery(session, f"{_info['prefix']}/cmd/move", {"position_m": [5.0, 0.0, 2.0]})
-            assert r.get("ok") is True, r
+            assert r.get("ok") is True, (r, daemon.log())
             time.sleep(1.2)
             st = zquery(session, f"{_info['prefix']}/status")
-            assert st["state"] == "MOVING", st
+            assert st["state"] == "MOVING", (st.get("state"), st.get("reason"), daemon.log())
         finally:
             session.close()
         t0 = time.monotonic()
         daemon.p.send_signal(signal.SIGINT)
         assert daemon.p.wait(10) == 0, daemon.log()
-        assert time.monotonic() - t0 < 2.0
+        assert time.monotonic() - t0 < 2.0, daemon.log()
         last = daemon.wait_line("stopped in", 2, stderr=True)
         assert ": HOLDING pose" in last, last
     finally:
