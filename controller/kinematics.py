@@ -848,64 +848,74 @@ def fpk_batch(geom: Geometry, lengths_m: Any) -> FpkBatchResult:
 
 
 def _fpk_batch(geom: Geometry, lens: FloatArray) -> FpkBatchResult:
+    # Written for memory traffic, the cost of a batch: operations run in place on a few
+    # preallocated buffers, columns of ``lens`` are read as strided views (no transposed
+    # copy), and the positions live in a (3, M) buffer returned as its (M, 3) transpose.
     m, n = lens.shape
     sd = geom._seed
     with np.errstate(all="ignore"):
-        ok = np.all((lens > 0.0) & (lens < np.inf), axis=1)
-        r1 = lens[:, sd.i1]
-        r2 = lens[:, sd.i2]
-        r3 = lens[:, sd.i3]
-        pos = np.empty((m, 3), dtype=np.float64)
-        s1 = r1 * r1
-        if isinstance(sd, _EqualSeed):
-            s3 = r3 * r3
-            u = s1 - s3
-            v = r2 * r2
-            v -= s3
-            dx = u * sd.e1
-            dx += v * sd.e2
-            dx += sd.dx0
-            dy = u * sd.f1
-            dy += v * sd.f2
-            dy += sd.dy0
-            disc = s1 - dx * dx
-            disc -= dy * dy
-            power = -disc
-            np.add(dx, sd.x1, out=pos[:, 0])
-            np.add(dy, sd.y1, out=pos[:, 1])
-            np.maximum(disc, 0.0, out=disc)
-            np.sqrt(disc, out=disc)
-            np.subtract(sd.zn, disc, out=pos[:, 2])
+        # Fast check on the whole array; per-row checks only when it fails.
+        lo, total = lens.min(initial=np.inf), lens.sum()
+        if lo > 0.0 and math.isfinite(total):
+            ok = np.ones(m, dtype=bool)
         else:
-            h2 = s1 - r2 * r2
+            ok = np.all((lens > 0.0) & (lens < np.inf), axis=1)
+        c1, c2, c3 = lens[:, sd.i1], lens[:, sd.i2], lens[:, sd.i3]
+        xyz = np.empty((3, m), dtype=np.float64)
+        x, y, z = xyz[0], xyz[1], xyz[2]
+        buf_a = np.multiply(c1, c1)  # r1^2
+        buf_b = np.empty(m, dtype=np.float64)
+        if isinstance(sd, _EqualSeed):
+            np.multiply(c3, c3, out=buf_b)  # r3^2
+            np.subtract(buf_a, buf_b, out=z)  # u = r1^2 - r3^2
+            np.multiply(c2, c2, out=y)
+            np.subtract(y, buf_b, out=buf_b)  # v = r2^2 - r3^2
+            np.multiply(z, sd.e1, out=x)
+            x += np.multiply(buf_b, sd.e2, out=y)
+            x += sd.dx0  # dx
+            np.multiply(z, sd.f1, out=y)
+            y += np.multiply(buf_b, sd.f2, out=z)
+            y += sd.dy0  # dy
+            buf_a -= np.multiply(x, x, out=z)
+            buf_a -= np.multiply(y, y, out=z)  # disc = r1^2 - dx^2 - dy^2
+            x += sd.x1
+            y += sd.y1
+            np.negative(buf_a, out=buf_b)  # power of the radical line
+            np.maximum(buf_a, 0.0, out=buf_a)
+            np.sqrt(buf_a, out=buf_a)
+            np.subtract(sd.zn, buf_a, out=z)
+            power = buf_b
+        else:
+            h2 = buf_a - c2 * c2
             h2 *= 0.5
             h2 += sd.q2
-            h3 = s1 - r3 * r3
+            h3 = buf_a - c3 * c3
             h3 *= 0.5
             h3 += sd.q3
             x0 = h2 * sd.p1 + h3 * sd.p2
             y0 = h2 * sd.s1 + h3 * sd.s2
             qb = x0 * sd.wx + y0 * sd.wy
-            qc = x0 * x0 + y0 * y0 - s1
+            qc = x0 * x0 + y0 * y0 - buf_a
             disc = qb * qb - qc / sd.inv_a
             power = -disc * sd.inv_a
             sq = np.sqrt(np.maximum(disc, 0.0))
             den = sq - qb
-            s = np.where(
+            z[:] = np.where(
                 qb > 0.0,
                 -(qb + sq) * sd.inv_a,
                 np.where(den != 0.0, qc / np.where(den != 0.0, den, 1.0), 0.0),
             )
-            pos[:, 0] = sd.x1 + x0 + sd.wx * s
-            pos[:, 1] = sd.y1 + y0 + sd.wy * s
-            pos[:, 2] = sd.z1 + s
+            np.add(sd.x1 + x0, sd.wx * z, out=x)
+            np.add(sd.y1 + y0, sd.wy * z, out=y)
+            z += sd.z1
 
         short_cable = np.zeros(m, dtype=np.int64)
         shortfall = np.zeros(m, dtype=np.float64)
-        bad = (power > 0.0) & ok
-        if np.any(bad):
+        bad = power > 0.0
+        bad &= ok
+        if bad.any():
             idx = np.nonzero(bad)[0]
-            trio = np.stack([r1[idx], r2[idx], r3[idx]], axis=1)
+            trio = np.stack([c1[idx], c2[idx], c3[idx]], axis=1)
             rmin = np.min(np.abs(trio), axis=1)
             real = np.sqrt(rmin * rmin + power[idx]) - rmin > TANGENT_TOL_M
             idx, trio = idx[real], trio[real]
@@ -914,16 +924,22 @@ def _fpk_batch(geom: Geometry, lens: FloatArray) -> FpkBatchResult:
             short_cable[idx] = np.asarray(sd.tri, dtype=np.int64)[k - 1] + 1
             shortfall[idx] = change
 
-        residual = np.zeros(m, dtype=np.float64)
         if n > 3:
-            _batch_refine(geom, lens, pos, residual, ok)
+            residual = _batch_refine(geom, lens, x, y, z, ok, buf_a, buf_b)
+        else:
+            residual = np.zeros(m, dtype=np.float64)
 
-        ok &= np.all(np.isfinite(pos), axis=1) & np.isfinite(residual)
-        pos[~ok] = 0.0
-        residual[~ok] = 0.0
-        short_cable[ok] = 0
-        shortfall[ok] = 0.0
-    return FpkBatchResult(pos, residual, ok, geom.seed_triple, short_cable, shortfall)
+        np.add(x, y, out=buf_b)
+        buf_b += z
+        buf_b += residual
+        ok &= np.isfinite(buf_b)
+        if not ok.all():
+            bad = ~ok
+            xyz[:, bad] = 0.0
+            residual[bad] = 0.0
+            short_cable[ok] = 0
+            shortfall[ok] = 0.0
+    return FpkBatchResult(xyz.T, residual, ok, geom.seed_triple, short_cable, shortfall)
 
 
 def _diagnose_batch(
@@ -963,48 +979,78 @@ def _diagnose_batch(
 
 
 def _batch_refine(
-    geom: Geometry, lens: FloatArray, pos: FloatArray, residual: FloatArray, ok: Any
-) -> None:
-    """Vectorised ``_gauss_newton`` over the rows that need it; updates pos and residual.
+    geom: Geometry,
+    lens: FloatArray,
+    x: FloatArray,
+    y: FloatArray,
+    z: FloatArray,
+    ok: npt.NDArray[np.bool_],
+    t: FloatArray,
+    w: FloatArray,
+) -> FloatArray:
+    """Vectorised ``_gauss_newton``: refines x, y, z in place, returns the RMS residuals.
 
-    Columns are 1-D arrays and the loop over cables is in Python (N is small), so each
-    operation streams over the rows once.  Only rows whose other cables disagree with the
-    seed by more than ``GN_STEP_TOL_M`` are refined.
+    Only rows whose other cables disagree with the seed by more than ``GN_STEP_TOL_M`` are
+    refined; the working set is compacted only when at most half of it is still iterating.
+    ``t`` and ``w`` are scratch buffers of the batch's length.
     """
     anchors = geom._anchors_t
     n = geom.n_cables
     sd = geom._seed
     mirror = sd.zn if geom.equal_heights and isinstance(sd, _EqualSeed) else None
-    x = np.ascontiguousarray(pos[:, 0])
-    y = np.ascontiguousarray(pos[:, 1])
-    z = np.ascontiguousarray(pos[:, 2])
-    # Residuals of the cables outside the seed triple decide which rows need the fit.
     seed_idx = (sd.i1, sd.i2, sd.i3)
-    worst = np.zeros(lens.shape[0])
-    sumsq = np.zeros(lens.shape[0])
+    cols = [lens[:, k] for k in range(n)]
+    # The seed cables agree by construction; the others decide which rows need the fit.
+    sumsq: FloatArray | None = None
+    worst: FloatArray | None = None
     for k in range(n):
         if k in seed_idx:
             continue
         ax, ay, az = anchors[k]
-        r = np.sqrt((x - ax) ** 2 + (y - ay) ** 2 + (z - az) ** 2)
-        r -= lens[:, k]
-        r *= r
-        sumsq += r
-        np.maximum(worst, r, out=worst)
-    np.sqrt(sumsq / n, out=residual)
-    active = np.nonzero(ok & (worst > GN_STEP_TOL_M * GN_STEP_TOL_M))[0]
-    if active.size == 0:
-        return
-    px, py, pz = x[active], y[active], z[active]
-    ln = np.ascontiguousarray(lens[active])
-    cols = [ln[:, k] for k in range(n)]
-    ne = _normal_eq_batch(anchors, cols, px, py, pz)
-    rows = np.arange(active.size)  # rows (of the active subset) still iterating
+        np.subtract(x, ax, out=t)
+        t *= t
+        np.subtract(y, ay, out=w)
+        w *= w
+        t += w
+        np.subtract(z, az, out=w)
+        w *= w
+        t += w
+        np.sqrt(t, out=t)
+        t -= cols[k]
+        t *= t
+        if sumsq is None or worst is None:
+            sumsq = t.copy()
+            worst = t.copy()
+        else:
+            sumsq += t
+            np.maximum(worst, t, out=worst)
+    assert sumsq is not None and worst is not None  # n > 3
+    sumsq *= 1.0 / n
+    residual = np.sqrt(sumsq, out=sumsq)
+    need = worst > GN_STEP_TOL_M * GN_STEP_TOL_M
+    need &= ok
+    if not need.any():
+        return residual
+    active = np.nonzero(need)[0]
+
+    idx = active  # rows of the batch in the working set
+    px, py, pz = x[idx], y[idx], z[idx]
+    lc = [c[idx] for c in cols]
+    ne = _normal_eq_batch(anchors, lc, px, py, pz)
+    live = np.ones(idx.size, dtype=bool)
     tol2 = GN_STEP_TOL_M * GN_STEP_TOL_M
     for _ in range(GN_MAX_ITER):
-        if rows.size == 0:
+        if not live.any():
             break
-        cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = (v[rows] for v in ne)
+        if live.sum() * 2 <= live.size:  # compact the working set
+            x[idx], y[idx], z[idx] = px, py, pz
+            residual[idx] = np.sqrt(ne[0] / n)
+            keep = np.nonzero(live)[0]
+            idx, px, py, pz = idx[keep], px[keep], py[keep], pz[keep]
+            lc = [c[keep] for c in lc]
+            ne = [v[keep] for v in ne]
+            live = np.ones(idx.size, dtype=bool)
+        cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = ne
         c11 = a22 * a33 - a23 * a23
         c12 = a13 * a23 - a12 * a33
         c13 = a12 * a23 - a13 * a22
@@ -1012,42 +1058,46 @@ def _batch_refine(
         c23 = a12 * a13 - a11 * a23
         c33 = a11 * a22 - a12 * a12
         det = a11 * c11 + a12 * c12 + a13 * c13
-        good = det > GN_DET_MIN
-        inv = np.where(good, 1.0 / np.where(good, det, 1.0), 0.0)
+        live &= det > GN_DET_MIN
+        inv = np.divide(1.0, det, out=np.zeros_like(det), where=live)
         sx = (c11 * g1 + c12 * g2 + c13 * g3) * inv
         sy = (c12 * g1 + c22 * g2 + c23 * g3) * inv
         sz = (c13 * g1 + c23 * g2 + c33 * g3) * inv
-        # Step halving, per row, until the cost does not increase.
-        pending = np.arange(rows.size)[good]
-        done = ~good
+        allowed = cost + (GN_COST_REL_TOL * cost + GN_COST_ABS_TOL)
+        tx, ty, tz = px - sx, py - sy, pz - sz
+        if mirror is not None:
+            np.copyto(tz, 2.0 * mirror - tz, where=tz > mirror)
+        trial = _normal_eq_batch(anchors, lc, tx, ty, tz)
+        accept = live & (trial[0] <= allowed)
+        # Rows whose full step raised the cost: halve their step until it does not.
+        pend = np.nonzero(live & ~accept)[0]
         for _halving in range(GN_MAX_HALVINGS):
-            if pending.size == 0:
+            if pend.size == 0:
                 break
-            r_ = rows[pending]
-            tx = px[r_] - sx[pending]
-            ty = py[r_] - sy[pending]
-            tz = pz[r_] - sz[pending]
+            sx[pend] *= 0.5
+            sy[pend] *= 0.5
+            sz[pend] *= 0.5
+            hx, hy, hz = px[pend] - sx[pend], py[pend] - sy[pend], pz[pend] - sz[pend]
             if mirror is not None:
-                tz = np.where(tz > mirror, 2.0 * mirror - tz, tz)
-            trial = _normal_eq_batch(anchors, [c[r_] for c in cols], tx, ty, tz)
-            c0 = cost[pending]
-            accept = trial[0] <= c0 + (GN_COST_REL_TOL * c0 + GN_COST_ABS_TOL)
-            acc = r_[accept]
-            px[acc], py[acc], pz[acc] = tx[accept], ty[accept], tz[accept]
-            for dst, src in zip(ne, trial, strict=True):
-                dst[acc] = src[accept]
-            small = sx[pending] ** 2 + sy[pending] ** 2 + sz[pending] ** 2 < tol2
-            done[pending[accept & small]] = True
-            pending = pending[~accept]
-            sx[pending] *= 0.5
-            sy[pending] *= 0.5
-            sz[pending] *= 0.5
-        done[pending] = True  # no decrease along the step: at the minimum to rounding
-        rows = rows[~done]
-    pos[active, 0] = px
-    pos[active, 1] = py
-    pos[active, 2] = pz
-    residual[active] = np.sqrt(ne[0] / n)
+                np.copyto(hz, 2.0 * mirror - hz, where=hz > mirror)
+            sub = _normal_eq_batch(anchors, [c[pend] for c in lc], hx, hy, hz)
+            good = sub[0] <= allowed[pend]
+            gi = pend[good]
+            tx[gi], ty[gi], tz[gi] = hx[good], hy[good], hz[good]
+            for dst, src in zip(trial, sub, strict=True):
+                dst[gi] = src[good]
+            accept[gi] = True
+            pend = pend[~good]
+        live[pend] = False  # no decrease along the step: at the minimum to rounding
+        np.copyto(px, tx, where=accept)
+        np.copyto(py, ty, where=accept)
+        np.copyto(pz, tz, where=accept)
+        for dst, src in zip(ne, trial, strict=True):
+            np.copyto(dst, src, where=accept)
+        live &= ~(accept & (sx * sx + sy * sy + sz * sz < tol2))
+    x[idx], y[idx], z[idx] = px, py, pz
+    residual[idx] = np.sqrt(ne[0] / n)
+    return residual
 
 
 def _normal_eq_batch(
@@ -1056,17 +1106,22 @@ def _normal_eq_batch(
     """Vectorised ``_normal_eq``: [cost, a11, a12, a13, a22, a23, a33, g1, g2, g3] per row."""
     out = [np.zeros(x.shape[0]) for _ in range(10)]
     cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = out
+    dx, dy, dz = np.empty_like(x), np.empty_like(x), np.empty_like(x)
+    d, tmp = np.empty_like(x), np.empty_like(x)
     for (ax, ay, az), ln in zip(anchors, cols, strict=True):
-        dx = x - ax
-        dy = y - ay
-        dz = z - az
-        d = np.sqrt(dx * dx + dy * dy + dz * dz)
-        res = d - ln
+        np.subtract(x, ax, out=dx)
+        np.subtract(y, ay, out=dy)
+        np.subtract(z, az, out=dz)
+        np.multiply(dx, dx, out=d)
+        d += np.multiply(dy, dy, out=tmp)
+        d += np.multiply(dz, dz, out=tmp)
+        np.sqrt(d, out=d)
+        res = np.subtract(d, ln, out=tmp)
         cost += res * res
-        t = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0.0)
-        dx *= t
-        dy *= t
-        dz *= t
+        np.divide(1.0, d, out=d, where=d > 0.0)  # d == 0 only at an anchor: unit vector 0
+        dx *= d
+        dy *= d
+        dz *= d
         a11 += dx * dx
         a12 += dx * dy
         a13 += dx * dz
