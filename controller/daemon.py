@@ -34,7 +34,7 @@ log = logging.getLogger("cablebot.daemon")
 
 PR_SET_TIMERSLACK = 29
 RT_PRIORITY = 50
-"""SCHED_FIFO priority of the loop thread (below the kernel's IRQ threads at 50 is usual)."""
+"""Default SCHED_FIFO priority of the loop thread (`loop.rt_priority` overrides it)."""
 TIMER_SLACK_NS = 1_000
 SWITCH_INTERVAL_S = 0.0005
 STOP_WAIT_S = 1.4
@@ -216,7 +216,7 @@ def run_daemon(
                 # machine would look like a stale node. One step below the loop.
                 for t in threading.enumerate():
                     if t.name == "sim-odrive" and t.native_id is not None:
-                        sim_rt = set_realtime(RT_PRIORITY - 1, t.native_id)
+                        sim_rt = set_realtime(max(1, _rt_priority(cfg) - 1), t.native_id)
             log.info(
                 "simulated ODrive nodes %s started in-process (%s)",
                 [r.node_id for r in cfg.reels],
@@ -244,7 +244,7 @@ def run_daemon(
 
     def loop_main() -> None:
         if cfg.loop.realtime:
-            rt_report.append(set_realtime(RT_PRIORITY))
+            rt_report.append(set_realtime(_rt_priority(cfg)))
         else:
             rt_report.append("SCHED_OTHER (loop.realtime = false)")
         rt_report.append(set_timer_slack(TIMER_SLACK_NS))
@@ -333,6 +333,10 @@ def _auto_arm(cfg: Any) -> bool:
     if value is None:
         return bool(cfg.sim.enabled)
     return bool(value)
+
+
+def _rt_priority(cfg: Any) -> int:
+    return int(getattr(cfg.loop, "rt_priority", RT_PRIORITY))
 
 
 def _summary_text(cfg: Any) -> str:
