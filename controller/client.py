@@ -230,17 +230,20 @@ def load_path_file(path: str) -> dict[str, Any]:
             raise InputError(f"{path}: expected a list of points or an object")
     else:
         points: list[list[float]] = []
+        header_seen = False
         rows = csv.reader(io.StringIO(text.replace("\t", ",")))
         for n, row in enumerate(rows, start=1):
             cells = [c for part in row for c in part.split()]
             if not cells or cells[0].startswith("#"):
                 continue
             try:
-                points.append(_vec3([float(c) for c in cells], f"{path} line {n}"))
+                values = [float(c) for c in cells]
             except ValueError:
-                if not points and n == 1:
-                    continue  # a header line
+                if not points and not header_seen:
+                    header_seen = True  # a header line such as "x,y,z"
+                    continue
                 raise InputError(f"{path} line {n}: expected x,y,z, got {row}") from None
+            points.append(_vec3(values, f"{path} line {n}"))
         payload = {"points_m": points}
     from controller.commands import CommandError, parse_command
 

@@ -90,7 +90,10 @@ def _finite(value: Any, field: str) -> float:
     """Return `value` as a finite float or raise CommandError naming `field`."""
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise CommandError(f"{field}: expected a number, got {type(value).__name__}")
-    out = float(value)
+    try:
+        out = float(value)
+    except OverflowError:  # an integer beyond the float range
+        raise CommandError(f"{field}: must be a finite number, got an integer too large") from None
     if not math.isfinite(out):
         raise CommandError(f"{field}: must be a finite number, got {value!r}")
     return out
