@@ -47,6 +47,25 @@ tests/test_kinematics.py by running the functions on a counting float type)
 * ``three_spheres`` (general, any heights, parametrised by z along the radical line, one
   square root, numerically stable root choice): 31 / 37 / 1; its per-tick hoisted form used
   by ``fpk`` for unequal heights: 16 / 18 / 1.
+  Comparisons and the sign flips of the tangent / unreachable branches are not counted.
+
+Forward kinematics with more than three cables
+----------------------------------------------
+``fpk`` seeds from ``Geometry.seed_triple`` (the usable triple with the largest plan-view
+triangle; an equal-height one preferred among equals) with the simplified algorithm when its
+anchors share a height, the general one otherwise.  When the other cables agree with the seed
+to 1e-12 m (consistent lengths) that is the answer; otherwise Gauss-Newton minimises
+sum (|P - B_i| - L_i)^2 over all N cables (3x3 normal equations in closed form, step halving
+so the cost never rises, mirror to the lower side when all anchors share a height), stopping
+when the step is below 1e-12 m.  ``residual_m`` is the RMS of |P - B_i| - L_i.
+
+Speed design
+------------
+The single-pose path (``three_spheres*``, ``fpk`` on N lengths, ``ipk_point``) is pure
+Python floats with anchor-only terms precomputed in ``Geometry``: no numpy on scalars.
+The batch path (``fpk_batch``, ``ipk``) is numpy, vectorised over rows with no Python loop
+over rows, working in place on preallocated buffers; ``FpkBatchResult.position_m`` is the
+(M, 3) transpose of a (3, M) array (columns contiguous).
 """
 
 from __future__ import annotations
@@ -628,6 +647,9 @@ class FpkResult:
 class FpkBatchResult:
     """A batch of FPK solutions; rows with ``valid`` False hold zeros, never NaN.
 
+    ``position_m`` has shape (M, 3); it is a transposed view of a (3, M) array, so
+    ``position_m[:, 0]`` (all x) is contiguous.
+
     ``short_cable`` is, for rows whose seed triple cannot meet, the 1-based cable to blame
     (0 elsewhere) and ``shortfall_m`` the change it needs, > 0 too short, < 0 too long (0
     elsewhere); the same diagnosis as ``UnreachableError``.
@@ -770,9 +792,12 @@ def _fpk_one(geom: Geometry, lengths: Sequence[float]) -> FpkResult:
     n = geom.n_cables
     if len(lengths) != n:
         raise KinematicsError(f"expected {n} cable lengths, got {len(lengths)}")
-    for k, ln in enumerate(lengths):
-        if not (0.0 < ln < math.inf):
-            raise KinematicsError(f"cable {k + 1} length must be finite and > 0, got {ln!r}")
+    total = sum(lengths)
+    # total - total is NaN for any NaN or inf; the loop only runs to name the culprit.
+    if not (min(lengths) > 0.0 and total - total == 0.0):
+        for k, ln in enumerate(lengths):
+            if not (0.0 < ln < math.inf):
+                raise KinematicsError(f"cable {k + 1} length must be finite and > 0, got {ln!r}")
     r1, r2, r3 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3]
     if isinstance(sd, _EqualSeed):
         x, y, z = _seed_equal(sd, r1, r2, r3)
@@ -830,7 +855,7 @@ def fpk(geom: Geometry, lengths_m: Sequence[float] | FloatArray) -> FpkResult | 
         if lengths_m.ndim != 1:
             raise KinematicsError(f"lengths must have shape (N,) or (M, N), got {lengths_m.shape}")
         return _fpk_one(geom, lengths_m.tolist())
-    return _fpk_one(geom, [float(v) for v in lengths_m])
+    return _fpk_one(geom, list(map(float, lengths_m)))
 
 
 def fpk_batch(geom: Geometry, lengths_m: Any) -> FpkBatchResult:
@@ -1104,10 +1129,10 @@ def _normal_eq_batch(
     anchors: tuple[Vec3, ...], cols: list[FloatArray], x: FloatArray, y: FloatArray, z: FloatArray
 ) -> list[FloatArray]:
     """Vectorised ``_normal_eq``: [cost, a11, a12, a13, a22, a23, a33, g1, g2, g3] per row."""
-    out = [np.zeros(x.shape[0]) for _ in range(10)]
+    k = x.shape[0]
+    out = [np.zeros(k) for _ in range(10)]
     cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = out
-    dx, dy, dz = np.empty_like(x), np.empty_like(x), np.empty_like(x)
-    d, tmp = np.empty_like(x), np.empty_like(x)
+    dx, dy, dz, d, res, tmp = (np.empty(k) for _ in range(6))
     for (ax, ay, az), ln in zip(anchors, cols, strict=True):
         np.subtract(x, ax, out=dx)
         np.subtract(y, ay, out=dy)
@@ -1116,19 +1141,19 @@ def _normal_eq_batch(
         d += np.multiply(dy, dy, out=tmp)
         d += np.multiply(dz, dz, out=tmp)
         np.sqrt(d, out=d)
-        res = np.subtract(d, ln, out=tmp)
-        cost += res * res
+        np.subtract(d, ln, out=res)
+        cost += np.multiply(res, res, out=tmp)
         np.divide(1.0, d, out=d, where=d > 0.0)  # d == 0 only at an anchor: unit vector 0
         dx *= d
         dy *= d
         dz *= d
-        a11 += dx * dx
-        a12 += dx * dy
-        a13 += dx * dz
-        a22 += dy * dy
-        a23 += dy * dz
-        a33 += dz * dz
-        g1 += dx * res
-        g2 += dy * res
-        g3 += dz * res
+        a11 += np.multiply(dx, dx, out=tmp)
+        a12 += np.multiply(dx, dy, out=tmp)
+        a13 += np.multiply(dx, dz, out=tmp)
+        a22 += np.multiply(dy, dy, out=tmp)
+        a23 += np.multiply(dy, dz, out=tmp)
+        a33 += np.multiply(dz, dz, out=tmp)
+        g1 += np.multiply(dx, res, out=tmp)
+        g2 += np.multiply(dy, res, out=tmp)
+        g3 += np.multiply(dz, res, out=tmp)
     return out
