@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 import queue
+import shutil
+import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -303,3 +305,87 @@ def test_precheck_uses_check_target_for_moves_and_paths() -> None:
     assert iface._precheck(Move((0.0, 0.0, 1.0))) is None
     assert "outside" in str(iface._precheck(Move((0.0, 0.0, 9.0))))
     assert iface._precheck(Setpoint((0.0, 0.0, 9.0))) is None  # streamed: the loop limits it
+
+
+# ------------------------------------------------------------------------------ TLS + ACL
+
+
+def _openssl(*args: str, cwd: Path) -> None:
+    subprocess.run(["openssl", *args], cwd=cwd, check=True, capture_output=True, timeout=60)
+
+
+def _make_pki(d: Path) -> None:
+    """A CA, a server certificate for localhost, and client certificates (X.509 v3)."""
+    ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes"]
+    _openssl("req", "-x509", *ec, "-days", "2", "-subj", "/CN=test-ca", "-keyout", "ca.key",
+             "-out", "ca.pem", cwd=d)  # fmt: skip
+    (d / "server.ext").write_text("basicConstraints=CA:FALSE\nsubjectAltName=DNS:localhost\n")
+    (d / "client.ext").write_text("basicConstraints=CA:FALSE\nextendedKeyUsage=clientAuth\n")
+    for name, cn, ext in (
+        ("server", "localhost", "server.ext"),
+        ("operator", "cablebot-operator", "client.ext"),
+        ("viewer", "viewer", "client.ext"),
+    ):
+        _openssl("req", *ec, "-subj", f"/CN={cn}", "-keyout", f"{name}.key", "-out",
+                 f"{name}.csr", cwd=d)  # fmt: skip
+        _openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
+                 "-CAcreateserial", "-days", "2", "-extfile", ext, "-out", f"{name}.pem",
+                 cwd=d)  # fmt: skip
+
+
+def _client_file(d: Path, name: str | None) -> str:
+    tls: dict[str, Any] = {"root_ca_certificate": str(d / "ca.pem")}
+    if name is not None:
+        tls |= {
+            "enable_mtls": True,
+            "connect_private_key": str(d / f"{name}.key"),
+            "connect_certificate": str(d / f"{name}.pem"),
+        }
+    path = d / f"client-{name}.json5"
+    path.write_text(json.dumps({"transport": {"link": {"tls": tls}}}))
+    return str(path)
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command")
+def test_tls_acl_example_lets_only_the_operator_command(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from controller.cli import main
+
+    _make_pki(tmp_path)
+    port = free_port()
+    endpoint = f"tls/localhost:{port}"
+    # the documented file, with this test's certificate paths and port
+    doc = Path(__file__).resolve().parent.parent / "docs" / "zenoh-tls-acl.json5"
+    text = doc.read_text().replace("/etc/cablebot/tls", str(tmp_path))
+    text = text.replace("tls/0.0.0.0:7447", endpoint)
+    daemon_file = tmp_path / "daemon.json5"
+    daemon_file.write_text(text)
+    fake = FakeController().start()
+    iface = zenoh_io.ZenohInterface(
+        ZCfg(prefix="cablebot/tls", config_file=str(daemon_file)), fake, reply_timeout_s=1.0
+    )
+    iface.open()
+    fake.publisher = iface
+    common = ["--connect", endpoint, "--prefix", "cablebot/tls", "--timeout", "2"]
+    try:
+        # no client certificate: the TLS handshake fails, no session at all
+        code = main(["status", *common, "--zenoh-config", _client_file(tmp_path, None)])
+        assert code == 2
+        assert "cannot connect" in capsys.readouterr().err
+        # a valid certificate that is not the operator's: may watch, may not command
+        viewer = ["--zenoh-config", _client_file(tmp_path, "viewer")]
+        assert main(["status", *common, *viewer]) == 0
+        assert main(["pose", "--count", "3", "--json", *common, *viewer]) == 0
+        capsys.readouterr()
+        assert main(["arm", *common, *viewer]) == 2
+        assert "no cablebot daemon answered" in capsys.readouterr().err
+        assert fake.submitted == []
+        assert fake.state == "DISARMED"
+        # the operator commands
+        operator = ["--zenoh-config", _client_file(tmp_path, "operator")]
+        assert main(["arm", *common, *operator]) == 0
+        assert fake.state == "HOLDING"
+    finally:
+        fake.stop()
+        iface.close()
