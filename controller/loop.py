@@ -267,6 +267,8 @@ class Controller:
         self.pose_m: Vec3 | None = None
         self.residual_m: float | None = None
         self.pose_valid = False
+        self.pose_stamp_ns = 0
+        """Wall-clock arrival time of the newest encoder reading the pose came from."""
         self.setpoint_m: Vec3 | None = None
         """Set-point commanded on the last good tick (the hold set-point in FAULT)."""
         self.setpoint_lengths_m: tuple[float, ...] | None = None
@@ -483,10 +485,14 @@ class Controller:
             else:
                 self.pose_valid = False
                 return
+        newest_ns = 0
         for i, r in enumerate(readings):
+            if r.stamp_ns > newest_ns:
+                newest_ns = r.stamp_ns
             lengths[i] = (
                 self.reels[i].length_m(r.position_rev) if r.stamp_s > -math.inf else math.nan
             )
+        self.pose_stamp_ns = newest_ns
         if not all(map(math.isfinite, lengths)):
             self.pose_valid = False
             return
@@ -627,7 +633,7 @@ class Controller:
         self.seq += 1
         sample = PoseSample(
             self.seq,
-            self._wall_ns(),
+            self.pose_stamp_ns if self.pose_stamp_ns > 0 else self._wall_ns(),
             self.pose_m if valid else None,
             tuple(self.lengths_m),
             self.residual_m if valid else None,
@@ -714,7 +720,8 @@ class Controller:
             reason = self._check_target(cmd.position_m)
             if reason is not None:
                 raise CommandRefused(f"target {_fmt(cmd.position_m)}: {reason}")
-            start = self.setpoint_m
+            # A move that arrives while moving first brakes to a stop, then starts from there.
+            start = self.planner.rest_point_m if self.setpoint_m is not None else None
             if start is not None:
                 reason = self.limits.check_path([start, cmd.position_m])
                 if reason is not None:
@@ -730,7 +737,8 @@ class Controller:
                 reason = self._check_target(p)
                 if reason is not None:
                     raise CommandRefused(f"points_m[{i}] {_fmt(p)}: {reason}")
-            pts = ([self.setpoint_m] if self.setpoint_m is not None else []) + list(cmd.points_m)
+            start = self.planner.rest_point_m if self.setpoint_m is not None else None
+            pts = ([start] if start is not None else []) + list(cmd.points_m)
             reason = self.limits.check_path(pts)
             if reason is not None:
                 raise CommandRefused(f"path: {reason}")

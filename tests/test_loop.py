@@ -557,3 +557,25 @@ def test_run_keeps_absolute_deadlines_and_skips_missed_ticks() -> None:
     assert st["ticks"] == 30
     assert st["compute_max_s"] == pytest.approx(0.0001 + 2.5 * period, rel=1e-6)
     assert st["jitter_p50_s"] < 1e-5
+
+
+def test_pose_stamp_is_the_encoder_arrival_time_not_the_publish_time() -> None:
+    # The wall clock the controller sees runs 7 s ahead of the readings' stamps: the published
+    # stamp must be the newest reading's arrival (issue 6: "wall-clock time of the encoder
+    # readings it came from"), not the moment of publication.
+    cfg = make_config(loop={"rate_hz": RATE_HZ})
+    clock = FakeClock()
+    driver = FakeDriver([r.node_id for r in cfg.reels], clock, power_up_turns(cfg))
+    pub = RecordingPublisher()
+    ctl = Controller(
+        cfg, driver, pub, clock=clock, wall_clock_ns=lambda: clock.wall_ns() + 7_000_000_000
+    )
+    for _ in range(3):
+        clock.advance(DT)
+        ctl.tick(clock())
+    ctl.tick(clock())
+    newest = max(r.stamp_ns for r in driver.readings)
+    last = pub.poses[-1]
+    assert last.valid
+    assert last.stamp_ns == newest
+    assert abs(last.stamp_ns - clock.wall_ns()) < 1_000_000
