@@ -71,7 +71,7 @@ def rig() -> Iterator[Rig]:
     try:
         yield Rig(fake, iface, client)
     finally:
-        client.close()
+        client.close()  # type: ignore[no-untyped-call]
         fake.stop()
         iface.close()
 
@@ -260,7 +260,7 @@ def test_publish_thread_mode_delivers_latest_samples() -> None:
         seqs = [_strict(got.get(timeout=3.0))["seq"] for _ in range(5)]
         assert seqs == [1, 2, 3, 4, 5]
     finally:
-        client.close()
+        client.close()  # type: ignore[no-untyped-call]
         iface.close()
 
 
