@@ -114,6 +114,12 @@ SINGULAR_REL_TOL = 1e-6
 TANGENT_TOL_M = 1e-9
 #: Gauss-Newton stops when the step is below this.
 GN_STEP_TOL_M = 1e-12
+#: Rows per chunk of the batch FPK (its working set stays in cache).
+BATCH_CHUNK = 16384
+#: The batch fit stops once a step is under 1 um and the next one, predicted from the linear
+#: convergence rate, is under sqrt(BATCH_NEXT_TOL2) = 1e-10 m (one evaluation fewer than
+#: waiting for a 1e-12 m step; the positions agree with ``fpk`` to about 1e-11 m).
+BATCH_NEXT_TOL2 = 1e-20
 #: Gauss-Newton iteration cap.
 GN_MAX_ITER = 8
 #: Step halvings tried before a Gauss-Newton step is given up.
@@ -873,98 +879,125 @@ def fpk_batch(geom: Geometry, lengths_m: Any) -> FpkBatchResult:
 
 
 def _fpk_batch(geom: Geometry, lens: FloatArray) -> FpkBatchResult:
-    # Written for memory traffic, the cost of a batch: operations run in place on a few
-    # preallocated buffers, columns of ``lens`` are read as strided views (no transposed
-    # copy), and the positions live in a (3, M) buffer returned as its (M, 3) transpose.
+    # Memory traffic is the cost of a batch, so rows are processed in chunks that stay in
+    # cache, each with in-place operations on a few buffers; positions live in a (3, M)
+    # array returned as its (M, 3) transpose.
+    m = lens.shape[0]
+    xyz = np.empty((3, m), dtype=np.float64)
+    residual = np.zeros(m, dtype=np.float64)
+    ok = np.ones(m, dtype=bool)
+    short_cable = np.zeros(m, dtype=np.int64)
+    shortfall = np.zeros(m, dtype=np.float64)
+    with np.errstate(all="ignore"):
+        # One check on the whole array; per-row checks only where it fails.
+        checked = bool(lens.min(initial=np.inf) > 0.0) and math.isfinite(float(lens.sum()))
+        for s in range(0, m, BATCH_CHUNK):
+            e = min(m, s + BATCH_CHUNK)
+            _fpk_chunk(
+                geom,
+                lens[s:e],
+                xyz[:, s:e],
+                residual[s:e],
+                ok[s:e],
+                short_cable[s:e],
+                shortfall[s:e],
+                checked,
+            )
+    return FpkBatchResult(xyz.T, residual, ok, geom.seed_triple, short_cable, shortfall)
+
+
+def _fpk_chunk(
+    geom: Geometry,
+    lens: FloatArray,
+    xyz: FloatArray,
+    residual: FloatArray,
+    ok: npt.NDArray[np.bool_],
+    short_cable: npt.NDArray[np.int64],
+    shortfall: FloatArray,
+    checked: bool,
+) -> None:
+    """FPK of one chunk of rows, written into the given output views."""
     m, n = lens.shape
     sd = geom._seed
-    with np.errstate(all="ignore"):
-        # Fast check on the whole array; per-row checks only when it fails.
-        lo, total = lens.min(initial=np.inf), lens.sum()
-        if lo > 0.0 and math.isfinite(total):
-            ok = np.ones(m, dtype=bool)
-        else:
-            ok = np.all((lens > 0.0) & (lens < np.inf), axis=1)
-        c1, c2, c3 = lens[:, sd.i1], lens[:, sd.i2], lens[:, sd.i3]
-        xyz = np.empty((3, m), dtype=np.float64)
-        x, y, z = xyz[0], xyz[1], xyz[2]
-        buf_a = np.multiply(c1, c1)  # r1^2
-        buf_b = np.empty(m, dtype=np.float64)
-        if isinstance(sd, _EqualSeed):
-            np.multiply(c3, c3, out=buf_b)  # r3^2
-            np.subtract(buf_a, buf_b, out=z)  # u = r1^2 - r3^2
-            np.multiply(c2, c2, out=y)
-            np.subtract(y, buf_b, out=buf_b)  # v = r2^2 - r3^2
-            np.multiply(z, sd.e1, out=x)
-            x += np.multiply(buf_b, sd.e2, out=y)
-            x += sd.dx0  # dx
-            np.multiply(z, sd.f1, out=y)
-            y += np.multiply(buf_b, sd.f2, out=z)
-            y += sd.dy0  # dy
-            buf_a -= np.multiply(x, x, out=z)
-            buf_a -= np.multiply(y, y, out=z)  # disc = r1^2 - dx^2 - dy^2
-            x += sd.x1
-            y += sd.y1
-            np.negative(buf_a, out=buf_b)  # power of the radical line
-            np.maximum(buf_a, 0.0, out=buf_a)
-            np.sqrt(buf_a, out=buf_a)
-            np.subtract(sd.zn, buf_a, out=z)
-            power = buf_b
-        else:
-            h2 = buf_a - c2 * c2
-            h2 *= 0.5
-            h2 += sd.q2
-            h3 = buf_a - c3 * c3
-            h3 *= 0.5
-            h3 += sd.q3
-            x0 = h2 * sd.p1 + h3 * sd.p2
-            y0 = h2 * sd.s1 + h3 * sd.s2
-            qb = x0 * sd.wx + y0 * sd.wy
-            qc = x0 * x0 + y0 * y0 - buf_a
-            disc = qb * qb - qc / sd.inv_a
-            power = -disc * sd.inv_a
-            sq = np.sqrt(np.maximum(disc, 0.0))
-            den = sq - qb
-            z[:] = np.where(
-                qb > 0.0,
-                -(qb + sq) * sd.inv_a,
-                np.where(den != 0.0, qc / np.where(den != 0.0, den, 1.0), 0.0),
-            )
-            np.add(sd.x1 + x0, sd.wx * z, out=x)
-            np.add(sd.y1 + y0, sd.wy * z, out=y)
-            z += sd.z1
+    cols = lens.T.copy()  # (n, m), contiguous rows: one per cable
+    if not checked:
+        for c in cols:
+            ok &= c > 0.0  # also False for NaN
+            ok &= c < np.inf
+    c1, c2, c3 = cols[sd.i1], cols[sd.i2], cols[sd.i3]
+    x, y, z = xyz[0], xyz[1], xyz[2]
+    buf_a = np.multiply(c1, c1)  # r1^2
+    buf_b = np.empty(m, dtype=np.float64)
+    if isinstance(sd, _EqualSeed):
+        np.multiply(c3, c3, out=buf_b)  # r3^2
+        np.subtract(buf_a, buf_b, out=z)  # u = r1^2 - r3^2
+        np.multiply(c2, c2, out=y)
+        np.subtract(y, buf_b, out=buf_b)  # v = r2^2 - r3^2
+        np.multiply(z, sd.e1, out=x)
+        x += np.multiply(buf_b, sd.e2, out=y)
+        x += sd.dx0  # dx
+        np.multiply(z, sd.f1, out=y)
+        y += np.multiply(buf_b, sd.f2, out=z)
+        y += sd.dy0  # dy
+        buf_a -= np.multiply(x, x, out=z)
+        buf_a -= np.multiply(y, y, out=z)  # disc = r1^2 - dx^2 - dy^2
+        x += sd.x1
+        y += sd.y1
+        np.negative(buf_a, out=buf_b)  # power of the radical line
+        np.maximum(buf_a, 0.0, out=buf_a)
+        np.sqrt(buf_a, out=buf_a)
+        np.subtract(sd.zn, buf_a, out=z)
+        power = buf_b
+    else:
+        h2 = buf_a - c2 * c2
+        h2 *= 0.5
+        h2 += sd.q2
+        h3 = buf_a - c3 * c3
+        h3 *= 0.5
+        h3 += sd.q3
+        x0 = h2 * sd.p1 + h3 * sd.p2
+        y0 = h2 * sd.s1 + h3 * sd.s2
+        qb = x0 * sd.wx + y0 * sd.wy
+        qc = x0 * x0 + y0 * y0 - buf_a
+        disc = qb * qb - qc / sd.inv_a
+        power = -disc * sd.inv_a
+        sq = np.sqrt(np.maximum(disc, 0.0))
+        den = sq - qb
+        z[:] = np.where(
+            qb > 0.0,
+            -(qb + sq) * sd.inv_a,
+            np.where(den != 0.0, qc / np.where(den != 0.0, den, 1.0), 0.0),
+        )
+        np.add(sd.x1 + x0, sd.wx * z, out=x)
+        np.add(sd.y1 + y0, sd.wy * z, out=y)
+        z += sd.z1
 
-        short_cable = np.zeros(m, dtype=np.int64)
-        shortfall = np.zeros(m, dtype=np.float64)
-        bad = power > 0.0
-        bad &= ok
-        if bad.any():
-            idx = np.nonzero(bad)[0]
-            trio = np.stack([c1[idx], c2[idx], c3[idx]], axis=1)
-            rmin = np.min(np.abs(trio), axis=1)
-            real = np.sqrt(rmin * rmin + power[idx]) - rmin > TANGENT_TOL_M
-            idx, trio = idx[real], trio[real]
-            ok[idx] = False
-            k, change = _diagnose_batch(sd.centres, trio, power[idx])
-            short_cable[idx] = np.asarray(sd.tri, dtype=np.int64)[k - 1] + 1
-            shortfall[idx] = change
+    bad = power > 0.0
+    bad &= ok
+    if bad.any():
+        idx = np.nonzero(bad)[0]
+        trio = np.stack([c1[idx], c2[idx], c3[idx]], axis=1)
+        rmin = np.min(np.abs(trio), axis=1)
+        real = np.sqrt(rmin * rmin + power[idx]) - rmin > TANGENT_TOL_M
+        idx, trio = idx[real], trio[real]
+        ok[idx] = False
+        k, change = _diagnose_batch(sd.centres, trio, power[idx])
+        short_cable[idx] = np.asarray(sd.tri, dtype=np.int64)[k - 1] + 1
+        shortfall[idx] = change
 
-        if n > 3:
-            residual = _batch_refine(geom, lens, x, y, z, ok, buf_a, buf_b)
-        else:
-            residual = np.zeros(m, dtype=np.float64)
+    if n > 3:
+        _refine_chunk(geom, cols, lens, x, y, z, ok, residual)
 
-        np.add(x, y, out=buf_b)
-        buf_b += z
-        buf_b += residual
-        ok &= np.isfinite(buf_b)
-        if not ok.all():
-            bad = ~ok
-            xyz[:, bad] = 0.0
-            residual[bad] = 0.0
-            short_cable[ok] = 0
-            shortfall[ok] = 0.0
-    return FpkBatchResult(xyz.T, residual, ok, geom.seed_triple, short_cable, shortfall)
+    np.add(x, y, out=buf_b)
+    buf_b += z
+    buf_b += residual
+    ok &= np.isfinite(buf_b)
+    if not ok.all():
+        bad = ~ok
+        xyz[:, bad] = 0.0
+        residual[bad] = 0.0
+        short_cable[ok] = 0
+        shortfall[ok] = 0.0
 
 
 def _diagnose_batch(
@@ -1003,147 +1036,64 @@ def _diagnose_batch(
     return best_k, best_change
 
 
-def _batch_refine(
+def _refine_chunk(
     geom: Geometry,
+    cols: FloatArray,
     lens: FloatArray,
     x: FloatArray,
     y: FloatArray,
     z: FloatArray,
     ok: npt.NDArray[np.bool_],
-    t: FloatArray,
-    w: FloatArray,
-) -> FloatArray:
-    """Vectorised ``_gauss_newton``: refines x, y, z in place, returns the RMS residuals.
+    residual: FloatArray,
+) -> None:
+    """Vectorised Gauss-Newton over one chunk: refines x, y, z in place, fills ``residual``.
 
-    Only rows whose other cables disagree with the seed by more than ``GN_STEP_TOL_M`` are
-    refined; the working set is compacted only when at most half of it is still iterating.
-    ``t`` and ``w`` are scratch buffers of the batch's length.
+    Same fit as ``_gauss_newton``, arranged for few passes over memory: the first normal
+    equations reuse the residual check of the cables outside the seed triple, and for the
+    seed cables (which the seed meets exactly) need only their unit vectors.  A step of
+    under 1 um whose successor is predicted below 1e-10 m (linear convergence,
+    |s_k|^2 / |s_k-1|; see ``BATCH_NEXT_TOL2``) is taken without evaluating the cost
+    again.  Rows whose step would raise the cost (rare: near-tangent seeds) or that do not
+    converge in ``GN_MAX_ITER`` steps are finished by the scalar ``_gauss_newton`` (with
+    its step halving), a Python loop over those rows only.
     """
     anchors = geom._anchors_t
     n = geom.n_cables
     sd = geom._seed
     mirror = sd.zn if geom.equal_heights and isinstance(sd, _EqualSeed) else None
     seed_idx = (sd.i1, sd.i2, sd.i3)
-    cols = [lens[:, k] for k in range(n)]
-    # The seed cables agree by construction; the others decide which rows need the fit.
-    sumsq: FloatArray | None = None
-    worst: FloatArray | None = None
+    m = x.shape[0]
+    # Residuals of the cables outside the seed triple (the seed ones are met exactly).
+    cost = np.zeros(m)
+    worst = np.zeros(m)
+    tmp = np.empty(m)
+    saved = []
     for k in range(n):
         if k in seed_idx:
             continue
         ax, ay, az = anchors[k]
-        np.subtract(x, ax, out=t)
-        t *= t
-        np.subtract(y, ay, out=w)
-        w *= w
-        t += w
-        np.subtract(z, az, out=w)
-        w *= w
-        t += w
-        np.sqrt(t, out=t)
-        t -= cols[k]
-        t *= t
-        if sumsq is None or worst is None:
-            sumsq = t.copy()
-            worst = t.copy()
-        else:
-            sumsq += t
-            np.maximum(worst, t, out=worst)
-    assert sumsq is not None and worst is not None  # n > 3
-    sumsq *= 1.0 / n
-    residual = np.sqrt(sumsq, out=sumsq)
-    need = worst > GN_STEP_TOL_M * GN_STEP_TOL_M
-    need &= ok
-    if not need.any():
-        return residual
-    active = np.nonzero(need)[0]
-
-    idx = active  # rows of the batch in the working set
-    px, py, pz = x[idx], y[idx], z[idx]
-    lc = [c[idx] for c in cols]
-    ne = _normal_eq_batch(anchors, lc, px, py, pz)
-    live = np.ones(idx.size, dtype=bool)
-    tol2 = GN_STEP_TOL_M * GN_STEP_TOL_M
-    for _ in range(GN_MAX_ITER):
-        if not live.any():
-            break
-        if live.sum() * 2 <= live.size:  # compact the working set
-            x[idx], y[idx], z[idx] = px, py, pz
-            residual[idx] = np.sqrt(ne[0] / n)
-            keep = np.nonzero(live)[0]
-            idx, px, py, pz = idx[keep], px[keep], py[keep], pz[keep]
-            lc = [c[keep] for c in lc]
-            ne = [v[keep] for v in ne]
-            live = np.ones(idx.size, dtype=bool)
-        cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = ne
-        c11 = a22 * a33 - a23 * a23
-        c12 = a13 * a23 - a12 * a33
-        c13 = a12 * a23 - a13 * a22
-        c22 = a11 * a33 - a13 * a13
-        c23 = a12 * a13 - a11 * a23
-        c33 = a11 * a22 - a12 * a12
-        det = a11 * c11 + a12 * c12 + a13 * c13
-        live &= det > GN_DET_MIN
-        inv = np.divide(1.0, det, out=np.zeros_like(det), where=live)
-        sx = (c11 * g1 + c12 * g2 + c13 * g3) * inv
-        sy = (c12 * g1 + c22 * g2 + c23 * g3) * inv
-        sz = (c13 * g1 + c23 * g2 + c33 * g3) * inv
-        allowed = cost + (GN_COST_REL_TOL * cost + GN_COST_ABS_TOL)
-        tx, ty, tz = px - sx, py - sy, pz - sz
-        if mirror is not None:
-            np.copyto(tz, 2.0 * mirror - tz, where=tz > mirror)
-        trial = _normal_eq_batch(anchors, lc, tx, ty, tz)
-        accept = live & (trial[0] <= allowed)
-        # Rows whose full step raised the cost: halve their step until it does not.
-        pend = np.nonzero(live & ~accept)[0]
-        for _halving in range(GN_MAX_HALVINGS):
-            if pend.size == 0:
-                break
-            sx[pend] *= 0.5
-            sy[pend] *= 0.5
-            sz[pend] *= 0.5
-            hx, hy, hz = px[pend] - sx[pend], py[pend] - sy[pend], pz[pend] - sz[pend]
-            if mirror is not None:
-                np.copyto(hz, 2.0 * mirror - hz, where=hz > mirror)
-            sub = _normal_eq_batch(anchors, [c[pend] for c in lc], hx, hy, hz)
-            good = sub[0] <= allowed[pend]
-            gi = pend[good]
-            tx[gi], ty[gi], tz[gi] = hx[good], hy[good], hz[good]
-            for dst, src in zip(trial, sub, strict=True):
-                dst[gi] = src[good]
-            accept[gi] = True
-            pend = pend[~good]
-        live[pend] = False  # no decrease along the step: at the minimum to rounding
-        np.copyto(px, tx, where=accept)
-        np.copyto(py, ty, where=accept)
-        np.copyto(pz, tz, where=accept)
-        for dst, src in zip(ne, trial, strict=True):
-            np.copyto(dst, src, where=accept)
-        live &= ~(accept & (sx * sx + sy * sy + sz * sz < tol2))
-    x[idx], y[idx], z[idx] = px, py, pz
-    residual[idx] = np.sqrt(ne[0] / n)
-    return residual
-
-
-def _normal_eq_batch(
-    anchors: tuple[Vec3, ...], cols: list[FloatArray], x: FloatArray, y: FloatArray, z: FloatArray
-) -> list[FloatArray]:
-    """Vectorised ``_normal_eq``: [cost, a11, a12, a13, a22, a23, a33, g1, g2, g3] per row."""
-    k = x.shape[0]
-    out = [np.zeros(k) for _ in range(10)]
-    cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = out
-    dx, dy, dz, d, res, tmp = (np.empty(k) for _ in range(6))
-    for (ax, ay, az), ln in zip(anchors, cols, strict=True):
-        np.subtract(x, ax, out=dx)
-        np.subtract(y, ay, out=dy)
-        np.subtract(z, az, out=dz)
-        np.multiply(dx, dx, out=d)
+        dx, dy, dz = x - ax, y - ay, z - az
+        d = np.multiply(dx, dx)
         d += np.multiply(dy, dy, out=tmp)
         d += np.multiply(dz, dz, out=tmp)
         np.sqrt(d, out=d)
-        np.subtract(d, ln, out=res)
-        cost += np.multiply(res, res, out=tmp)
-        np.divide(1.0, d, out=d, where=d > 0.0)  # d == 0 only at an anchor: unit vector 0
+        res = d - cols[k]
+        np.multiply(res, res, out=tmp)
+        cost += tmp
+        np.maximum(worst, tmp, out=worst)
+        saved.append((dx, dy, dz, d, res))
+    np.divide(cost, n, out=residual)
+    np.sqrt(residual, out=residual)
+    tol2 = GN_STEP_TOL_M * GN_STEP_TOL_M
+    need = worst > tol2
+    need &= ok
+    if not need.any():
+        return  # consistent lengths: the seed is the fit
+
+    ne = [cost] + [np.zeros(m) for _ in range(9)]
+    _, a11, a12, a13, a22, a23, a33, g1, g2, g3 = ne
+    for dx, dy, dz, d, res in saved:
+        np.divide(1.0, d, out=d)
         dx *= d
         dy *= d
         dz *= d
@@ -1156,4 +1106,164 @@ def _normal_eq_batch(
         g1 += np.multiply(dx, res, out=tmp)
         g2 += np.multiply(dy, res, out=tmp)
         g3 += np.multiply(dz, res, out=tmp)
-    return out
+    _accumulate_jtj(ne, [anchors[k] for k in seed_idx], cols[list(seed_idx)], x, y, z)
+
+    if need.all():  # the usual noisy batch: no gathers
+        idx = np.arange(m)
+        px, py, pz, sub_cols = x, y, z, cols
+    else:
+        idx = np.nonzero(need)[0]
+        px, py, pz, sub_cols = x[idx], y[idx], z[idx], cols[:, idx]
+        ne = [v[idx] for v in ne]
+    prev2 = np.full(idx.size, np.inf)  # squared length of the previous step
+    slow: list[npt.NDArray[np.intp]] = []  # batch rows handed to the scalar fit
+    for _ in range(GN_MAX_ITER):
+        sx, sy, sz, solvable = _solve_normal(ne)
+        step2 = sx * sx + sy * sy + sz * sz
+        nx, ny, nz = px - sx, py - sy, pz - sz
+        if mirror is not None:
+            np.copyto(nz, 2.0 * mirror - nz, where=nz > mirror)
+        # Done without another evaluation: singular normal equations (keep the point) or a
+        # small step whose successor is predicted below tolerance.
+        fin = (step2 < 1e-12) & ((step2 <= tol2) | (step2 * step2 < BATCH_NEXT_TOL2 * prev2))
+        fin &= solvable
+        stuck = ~solvable
+        if fin.all():
+            x[idx], y[idx], z[idx] = nx, ny, nz
+            residual[idx] = np.sqrt(ne[0] / n)
+            idx = idx[:0]
+            break
+        for sel, (qx, qy, qz) in ((fin, (nx, ny, nz)), (stuck, (px, py, pz))):
+            if sel.any():
+                rows = idx[sel]
+                x[rows], y[rows], z[rows] = qx[sel], qy[sel], qz[sel]
+                residual[rows] = np.sqrt(ne[0][sel] / n)
+        cont = ~(fin | stuck)
+        if cont.all():  # the first step: nobody is done yet, no gathers
+            px, py, pz = nx, ny, nz
+            old_cost, prev2 = ne[0], step2
+        else:
+            go = np.nonzero(cont)[0]
+            if go.size == 0:
+                idx = idx[go]
+                break
+            idx, px, py, pz = idx[go], nx[go], ny[go], nz[go]
+            old_cost = ne[0][go]
+            sub_cols = sub_cols[:, go]
+            prev2 = step2[go]
+        ne = [np.zeros(idx.size) for _ in range(10)]
+        _accumulate(ne, list(anchors), sub_cols, px, py, pz, None)
+        worse = ne[0] > old_cost + (GN_COST_REL_TOL * old_cost + GN_COST_ABS_TOL)
+        if worse.any():
+            slow.append(idx[worse])
+            keep = np.nonzero(~worse)[0]
+            idx, px, py, pz = idx[keep], px[keep], py[keep], pz[keep]
+            sub_cols, prev2 = sub_cols[:, keep], prev2[keep]
+            ne = [v[keep] for v in ne]
+        if idx.size == 0:
+            break
+    if idx.size:  # not converged in GN_MAX_ITER steps
+        x[idx], y[idx], z[idx] = px, py, pz
+        slow.append(idx)
+    for rows in slow:
+        for r in rows.tolist():
+            sx_, sy_, sz_ = _seed_row(geom, lens[r])
+            fx, fy, fz, rms = _gauss_newton(anchors, lens[r].tolist(), sx_, sy_, sz_, mirror)
+            x[r], y[r], z[r], residual[r] = fx, fy, fz, rms
+
+
+def _seed_row(geom: Geometry, row: FloatArray) -> Vec3:
+    sd = geom._seed
+    r1, r2, r3 = float(row[sd.i1]), float(row[sd.i2]), float(row[sd.i3])
+    if isinstance(sd, _EqualSeed):
+        return _seed_equal(sd, r1, r2, r3)
+    return _seed_general(sd, r1, r2, r3)
+
+
+def _solve_normal(
+    ne: list[FloatArray],
+) -> tuple[FloatArray, FloatArray, FloatArray, npt.NDArray[np.bool_]]:
+    """Gauss-Newton steps from vectorised normal equations; zero where singular."""
+    _, a11, a12, a13, a22, a23, a33, g1, g2, g3 = ne
+    c11 = a22 * a33 - a23 * a23
+    c12 = a13 * a23 - a12 * a33
+    c13 = a12 * a23 - a13 * a22
+    c22 = a11 * a33 - a13 * a13
+    c23 = a12 * a13 - a11 * a23
+    c33 = a11 * a22 - a12 * a12
+    det = a11 * c11 + a12 * c12 + a13 * c13
+    solvable = det > GN_DET_MIN
+    inv = np.divide(1.0, det, out=np.zeros_like(det), where=solvable)
+    sx = (c11 * g1 + c12 * g2 + c13 * g3) * inv
+    sy = (c12 * g1 + c22 * g2 + c23 * g3) * inv
+    sz = (c13 * g1 + c23 * g2 + c33 * g3) * inv
+    return sx, sy, sz, solvable
+
+
+def _accumulate_jtj(
+    ne: list[FloatArray],
+    anchors: Sequence[Vec3],
+    cols: FloatArray,
+    x: FloatArray,
+    y: FloatArray,
+    z: FloatArray,
+) -> None:
+    """Add the J^T J terms of cables whose length is met exactly (u = (P - B) / L)."""
+    _, a11, a12, a13, a22, a23, a33, _, _, _ = ne
+    m = x.shape[0]
+    dx, dy, dz, inv, tmp = (np.empty(m) for _ in range(5))
+    for (ax, ay, az), ln in zip(anchors, cols, strict=True):
+        np.divide(1.0, ln, out=inv)
+        np.subtract(x, ax, out=dx)
+        dx *= inv
+        np.subtract(y, ay, out=dy)
+        dy *= inv
+        np.subtract(z, az, out=dz)
+        dz *= inv
+        a11 += np.multiply(dx, dx, out=tmp)
+        a12 += np.multiply(dx, dy, out=tmp)
+        a13 += np.multiply(dx, dz, out=tmp)
+        a22 += np.multiply(dy, dy, out=tmp)
+        a23 += np.multiply(dy, dz, out=tmp)
+        a33 += np.multiply(dz, dz, out=tmp)
+
+
+def _accumulate(
+    ne: list[FloatArray],
+    anchors: Sequence[Vec3],
+    cols: FloatArray,
+    x: FloatArray,
+    y: FloatArray,
+    z: FloatArray,
+    worst: FloatArray | None,
+) -> None:
+    """Add cost, J^T J and J^T r of the given cables; track the largest squared residual."""
+    cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = ne
+    m = x.shape[0]
+    dx, dy, dz, d, res, tmp = (np.empty(m) for _ in range(6))
+    for (ax, ay, az), ln in zip(anchors, cols, strict=True):
+        np.subtract(x, ax, out=dx)
+        np.subtract(y, ay, out=dy)
+        np.subtract(z, az, out=dz)
+        np.multiply(dx, dx, out=d)
+        d += np.multiply(dy, dy, out=tmp)
+        d += np.multiply(dz, dz, out=tmp)
+        np.sqrt(d, out=d)
+        np.subtract(d, ln, out=res)
+        np.multiply(res, res, out=tmp)
+        cost += tmp
+        if worst is not None:
+            np.maximum(worst, tmp, out=worst)
+        np.divide(1.0, d, out=d)  # d > 0: P is below the anchors
+        dx *= d
+        dy *= d
+        dz *= d
+        a11 += np.multiply(dx, dx, out=tmp)
+        a12 += np.multiply(dx, dy, out=tmp)
+        a13 += np.multiply(dx, dz, out=tmp)
+        a22 += np.multiply(dy, dy, out=tmp)
+        a23 += np.multiply(dy, dz, out=tmp)
+        a33 += np.multiply(dz, dz, out=tmp)
+        g1 += np.multiply(dx, res, out=tmp)
+        g2 += np.multiply(dy, res, out=tmp)
+        g3 += np.multiply(dz, res, out=tmp)

@@ -406,11 +406,12 @@ def test_batch_matches_single_with_noise(paper: Geometry) -> None:
         one = fpk(paper, lens[k])
         assert batch.position_m[k] == pytest.approx(one.position_m, abs=1e-9)
         assert batch.residual_m[k] == pytest.approx(one.residual_m, rel=1e-6, abs=1e-12)
-    # And the fit is a true least-squares minimum: the gradient J^T r vanishes.
+    # And the fit is a true least-squares minimum: the gradient J^T r vanishes (to the batch's
+    # stopping rule, a predicted remaining step of 1e-10 m).
     d = batch.position_m[:, None, :] - paper.anchors_m[None]
     dist = np.linalg.norm(d, axis=2)
     grad = np.einsum("ijk,ij->ik", d / dist[..., None], dist - lens)
-    assert np.max(np.abs(grad)) < 1e-12
+    assert np.max(np.abs(grad)) < 1e-10
 
 
 def test_residual_grows_with_one_perturbed_cable(paper: Geometry) -> None:
