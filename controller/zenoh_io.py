@@ -27,6 +27,7 @@ CABLEBOT_ZENOH_PUBLISH_THREAD=0) puts directly from the tick. `stats()` reports 
 
 from __future__ import annotations
 
+import collections
 import concurrent.futures
 import json
 import logging
@@ -227,15 +228,23 @@ class _RateLimitedLog:
 
 
 class _LatestSlot:
-    """A one-slot "latest wins" hand-off from the loop to a publisher thread."""
+    """Hand-off from the loop to a publisher thread: poses "latest wins", state changes queued.
 
-    def __init__(self, put: Callable[[bytes], None]) -> None:
-        self._put = put
+    State changes are rare and each one matters, so they queue (bounded) and are put before
+    the pending pose, keeping their order relative to the poses.
+    """
+
+    _MAX_STATES = 64
+
+    def __init__(self, put_pose: Callable[[bytes], None], put_state: Callable[[bytes], None]):
+        self._put_pose = put_pose
+        self._put_state = put_state
         self._cond = threading.Condition(threading.Lock())
         self._item: PoseLike | None = None
+        self._states: collections.deque[bytes] = collections.deque(maxlen=self._MAX_STATES)
         self._closed = False
         self.overwritten = 0
-        self._thread = threading.Thread(target=self._run, name="cablebot-pose-pub", daemon=True)
+        self._thread = threading.Thread(target=self._run, name="cablebot-zenoh-pub", daemon=True)
         self._thread.start()
 
     def offer(self, sample: PoseLike) -> None:
@@ -243,6 +252,11 @@ class _LatestSlot:
             if self._item is not None:
                 self.overwritten += 1
             self._item = sample
+            self._cond.notify()
+
+    def offer_state(self, data: bytes) -> None:
+        with self._cond:
+            self._states.append(data)
             self._cond.notify()
 
     def close(self) -> None:
@@ -254,16 +268,21 @@ class _LatestSlot:
     def _run(self) -> None:
         while True:
             with self._cond:
-                while self._item is None and not self._closed:
+                while self._item is None and not self._states and not self._closed:
                     self._cond.wait()
-                if self._closed:
-                    return
                 item, self._item = self._item, None
-            try:
-                if item is not None:
-                    self._put(item.to_json_bytes())
-            except Exception as exc:  # never let the publisher thread die
-                log.warning("pose put failed: %s", exc)
+                states = list(self._states)
+                self._states.clear()
+                closed = self._closed
+            try:  # never let the publisher thread die
+                for data in states:
+                    self._put_state(data)
+                if item is not None and not closed:
+                    self._put_pose(item.to_json_bytes())
+            except Exception as exc:
+                log.warning("publisher thread: put failed: %s", exc)
+            if closed:
+                return
 
 
 # --------------------------------------------------------------------------------------------
@@ -351,7 +370,7 @@ class ZenohInterface:
             self._declared.append(session.declare_subscriber(f"{p}/setpoint", self._on_setpoint))
             self._declared.append(session.liveliness().declare_token(f"{p}/alive"))
             if self.publish_thread:
-                self._slot = _LatestSlot(self._put_pose_bytes)
+                self._slot = _LatestSlot(self._put_pose_bytes, self._put_state_bytes)
         except Exception:
             self.close()
             raise
@@ -409,11 +428,18 @@ class ZenohInterface:
 
     def publish_state(self, state: str, reason: str | None, stamp_ns: int) -> None:
         """Publish a state change as `{"state", "reason", "stamp_ns"}` on `<prefix>/state`."""
+        data = dumps({"state": str(state), "reason": reason, "stamp_ns": int(stamp_ns)})
+        if self._slot is not None:
+            self._slot.offer_state(data)
+        else:
+            self._put_state_bytes(data)
+
+    def _put_state_bytes(self, data: bytes) -> None:
         pub = self._state_pub
         if pub is None:
             return
         try:
-            pub.put(dumps({"state": str(state), "reason": reason, "stamp_ns": int(stamp_ns)}))
+            pub.put(data)
             self.states_published += 1
         except Exception as exc:
             self._put_error_log.warning("state put failed: %s", exc)
@@ -501,8 +527,18 @@ class ZenohInterface:
             return
         except concurrent.futures.TimeoutError:
             self._count("timeout")
-            _reply_err(query, "timeout: the control loop did not answer")
-            return
+            if fut.cancel():  # the loop skips a cancelled future: the command will not run
+                _reply_err(query, "timeout: the control loop did not answer; command cancelled")
+                return
+            # The loop took it just now: its outcome is worth a short wait.
+            try:
+                reply = fut.result(timeout=self.reply_timeout_s)
+            except CommandRefused as exc:
+                _reply_err(query, str(exc))
+                return
+            except concurrent.futures.TimeoutError:
+                _reply_err(query, "timeout: the control loop took the command but did not answer")
+                return
         self._count("ok")
         query.reply(key, dumps(reply), encoding=JSON)
 

@@ -93,6 +93,7 @@ class FakeController:
         self.speed_mps = 0.5
         self.seq = 0
         self.hang = False  # never resolve futures (reply timeout test)
+        self.paused = False  # queue commands but do not take them (cancellation test)
         self.submitted: list[Command] = []
         self.setpoints: list[tuple[float, ...]] = []
         self._queue: queue.Queue[tuple[Command, concurrent.futures.Future[dict[str, Any]]]] = (
@@ -169,11 +170,13 @@ class FakeController:
 
     def tick(self, dt: float) -> None:
         """Take commands, advance the motion, publish a pose."""
-        while True:
+        while not self.paused:
             try:
                 cmd, fut = self._queue.get_nowait()
             except queue.Empty:
                 break
+            if not fut.set_running_or_notify_cancel():
+                continue  # cancelled by the interface after a reply timeout: never run it
             try:
                 fut.set_result(self._execute(cmd))
             except CommandRefused as exc:

@@ -197,9 +197,20 @@ def test_reply_timeout_when_the_loop_does_not_answer(rig: Rig) -> None:
     t0 = time.monotonic()
     kind, body = rig.get("cmd/stop")
     assert kind == "err"
-    assert body == {"error": "timeout: the control loop did not answer"}
+    assert body == {"error": "timeout: the control loop did not answer; command cancelled"}
     assert 0.9 <= time.monotonic() - t0 < 3.0
     assert rig.iface.stats()["commands"]["timeout"] == 1
+
+
+def test_a_timed_out_command_is_cancelled_and_never_runs(rig: Rig) -> None:
+    rig.fake.paused = True
+    kind, body = rig.get("cmd/arm")
+    assert kind == "err"
+    assert body == {"error": "timeout: the control loop did not answer; command cancelled"}
+    rig.fake.paused = False
+    time.sleep(0.2)  # many ticks
+    assert rig.fake.state == "DISARMED"
+    assert rig.get("cmd/arm") == ("ok", {"ok": True, "state": "HOLDING"})
 
 
 def test_a_waiting_command_does_not_delay_estop(rig: Rig) -> None:
@@ -242,23 +253,38 @@ def test_pose_and_state_are_published(rig: Rig) -> None:
     assert abs(st["stamp_ns"] - time.time_ns()) < 5e9
 
 
-def test_publish_thread_mode_delivers_latest_samples() -> None:
+@pytest.mark.parametrize("threaded", [True, False])
+def test_both_publish_modes_deliver_poses_and_every_state_in_order(threaded: bool) -> None:
     port = free_port()
     fake = FakeController()
     iface = zenoh_io.ZenohInterface(
-        ZCfg(listen=(f"tcp/127.0.0.1:{port}",)), fake, publish_thread=True
+        ZCfg(listen=(f"tcp/127.0.0.1:{port}",)), fake, publish_thread=threaded
     )
     iface.open()
     client = zenoh.open(zenoh_io.client_config([f"tcp/127.0.0.1:{port}"]))
     try:
-        got: queue.Queue[bytes] = queue.Queue()
-        client.declare_subscriber("cablebot/test/pose", lambda s: got.put(s.payload.to_bytes()))
+        got: queue.Queue[tuple[str, bytes]] = queue.Queue()
+        for what in ("pose", "state"):
+            client.declare_subscriber(
+                f"cablebot/test/{what}",
+                lambda s, what=what: got.put((what, s.payload.to_bytes())),
+            )
         time.sleep(0.3)
         for i in range(1, 6):
+            iface.publish_state(f"S{i}", None if i % 2 else "why", i)
             iface.publish_pose(FakePose(i, time.time_ns(), (0.0, 0.0, float(i)), "HOLDING"))
             time.sleep(0.02)
-        seqs = [_strict(got.get(timeout=3.0))["seq"] for _ in range(5)]
-        assert seqs == [1, 2, 3, 4, 5]
+        rx = [got.get(timeout=3.0) for _ in range(10)]
+        states = [_strict(d) for w, d in rx if w == "state"]
+        assert [s["state"] for s in states] == ["S1", "S2", "S3", "S4", "S5"]
+        assert [s["reason"] for s in states] == [None, "why", None, "why", None]
+        assert [s["stamp_ns"] for s in states] == [1, 2, 3, 4, 5]
+        assert [_strict(d)["seq"] for w, d in rx if w == "pose"] == [1, 2, 3, 4, 5]
+        st = iface.stats()
+        assert st["publish_thread"] is threaded
+        assert st["poses_published"] == 5
+        assert st["states_published"] == 5
+        assert st["pose_publish_tick"]["p50_us"] > 0.0
     finally:
         client.close()  # type: ignore[no-untyped-call]
         iface.close()
