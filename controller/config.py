@@ -132,6 +132,7 @@ class FaultConfig:
     residual_max_m: float = 0.02
     tracking_max_m: float = 0.25
     arm_timeout_s: float = 2.0
+    bus_error_timeout_s: float = 0.05
 
 
 @dataclass(frozen=True, slots=True)
@@ -648,6 +649,9 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         residual_max_m=ft.number("residual_max_m", d_f.residual_max_m, gt=0.0),
         tracking_max_m=ft.number("tracking_max_m", d_f.tracking_max_m, gt=0.0),
         arm_timeout_s=ft.number("arm_timeout_s", d_f.arm_timeout_s, gt=0.0, le=60.0),
+        bus_error_timeout_s=ft.number(
+            "bus_error_timeout_s", d_f.bus_error_timeout_s, ge=0.0, le=10.0
+        ),
     )
     period_s = 1.0 / loop.rate_hz
     if faults.stale_timeout_s < 2.0 * period_s:
@@ -844,6 +848,7 @@ def paper_robot_data(name: str = "default") -> dict[str, Any]:
             "residual_max_m": 0.02,
             "tracking_max_m": 0.25,
             "arm_timeout_s": 2.0,
+            "bus_error_timeout_s": 0.05,
         },
         "homing": {"power_up_position_m": [0.0, 0.0, 2.0]},
         "sim": {"enabled": True},

@@ -235,6 +235,8 @@ class Controller:
         self._residual_max_m = float(f.residual_max_m)
         self._tracking_max_m = float(f.tracking_max_m)
         self._arm_timeout_s = float(f.arm_timeout_s)
+        self._bus_err_timeout_s = float(getattr(f, "bus_error_timeout_s", 0.0))
+        self._bus_err_since_s: float | None = None
 
         self._base_reels: tuple[ReelModel, ...] = tuple(r.reel for r in cfg.reels)
         self.reels: list[ReelModel] = list(self._base_reels)
@@ -429,8 +431,9 @@ class Controller:
             be = drv.stats.bus_errors
             if be != self._bus_errors_seen:
                 self._bus_errors_seen = be
-                if state in ARMED_STATES or state is State.ARMING:
-                    raise _Fault(f"bus_error: {drv.stats.last_error}")
+                self._bus_errors_persist(now_s, state)
+            else:
+                self._bus_err_since_s = None
             self._solve_pose(readings, now_s)
         except _Fault as f:
             self._fault(f.reason)
@@ -454,6 +457,20 @@ class Controller:
 
         if self.ticks % self.publish_every == 0:
             self._publish_pose()
+
+    def _bus_errors_persist(self, now_s: float, state: State) -> None:
+        """New bus errors this tick: fault (when armed or arming) once they have gone on for
+        `faults.bus_error_timeout_s`. One lost frame at the loop rate is harmless (the ODrive
+        keeps its last set-point), a bus-off or a dead link is not."""
+        since = self._bus_err_since_s
+        if since is None:
+            self._bus_err_since_s = since = now_s
+        if (state in ARMED_STATES or state is State.ARMING) and (
+            now_s - since >= self._bus_err_timeout_s
+        ):
+            raise _Fault(
+                f"bus_error: {self.driver.stats.last_error} (failing for {now_s - since:.3f} s)"
+            )
 
     def _check_axes(self, readings: Sequence[AxisReading], now_s: float) -> None:
         stale = self._stale_s
@@ -613,8 +630,9 @@ class Controller:
                 raise _Fault(f"nan_setpoint: {list(rev)}")
         try:
             self.driver.command(rev)
-        except BusError as exc:
-            raise _Fault(f"bus_error: {exc}") from None
+        except BusError:
+            # Counted in driver.stats.bus_errors; the next tick faults if they persist.
+            pass
         except ValueError as exc:
             raise _Fault(f"nan_setpoint: driver refused: {exc}") from None
 

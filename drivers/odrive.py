@@ -127,7 +127,11 @@ class ODriveReels:
                 break
             handled += 1
             if msg.is_error_frame:
-                self._count("error_frame", decode_error=False)
+                # SocketCAN error frame: bus-off, controller or protocol trouble. A bus error
+                # for the loop (which faults when they persist), not a dropped data frame.
+                self._count_bus_error(f"CAN error frame 0x{msg.arbitration_id:x}")
+                errs = self._stats.errors_by_kind
+                errs["error_frame"] = errs.get("error_frame", 0) + 1
                 continue
             m = decode(msg.arbitration_id, msg.data, msg.is_remote_frame, msg.is_extended_id)
             mtype = type(m)

@@ -346,10 +346,29 @@ def test_tracking_error_fault() -> None:
     _assert_fault_holds(rig, "tracking_error", rig.driver.commands[-1])
 
 
+def test_one_lost_frame_is_counted_not_a_fault() -> None:
+    rig = _armed_rig()  # faults.bus_error_timeout_s = 0.05 s: 25 ticks at 500 Hz
+    rig.driver.fail_bus("ENOBUFS")
+    rig.tick()
+    rig.driver.raise_on_command = None
+    rig.tick(30)
+    assert rig.ctl.state is State.HOLDING
+    assert rig.ctl.status()["bus"]["bus_errors"] == 1
+
+
+def test_bus_error_immediate_fault_when_timeout_zero() -> None:
+    rig = _armed_rig(bus_error_timeout_s=0.0)
+    rig.driver.fail_bus("bus-off")
+    rig.tick(2)
+    _assert_fault_holds(rig, "bus_error")
+
+
 def test_bus_error_fault_keeps_trying_to_hold() -> None:
     rig = _armed_rig()
     rig.driver.fail_bus("bus-off")
-    rig.tick()
+    rig.tick(20)  # 40 ms of failing sends: still inside the 50 ms window
+    assert rig.ctl.state is State.HOLDING
+    rig.tick(10)
     _assert_fault_holds(rig, "bus_error")
     assert "bus-off" in str(rig.ctl.reason)
     rig.tick(5)

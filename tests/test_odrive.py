@@ -174,6 +174,20 @@ def test_receive_error_never_escapes_poll() -> None:
     assert d.stats.last_error is not None and "adapter unplugged" in d.stats.last_error
 
 
+def test_can_error_frame_is_a_bus_error(buses: tuple[can.BusABC, can.BusABC]) -> None:
+    drv_bus, peer = buses
+    d = ODriveReels(drv_bus, NODES)
+    # SocketCAN reports bus-off as an error frame with CAN_ERR_BUSOFF (0x40) in its id.
+    peer.send(can.Message(arbitration_id=0x40, is_error_frame=True, dlc=8, data=bytes(8)))
+    deadline = time.monotonic() + 2.0
+    while d.stats.bus_errors == 0 and time.monotonic() < deadline:
+        d.poll()
+    assert d.stats.bus_errors == 1
+    assert d.stats.last_error is not None and "error frame 0x40" in d.stats.last_error
+    assert d.stats.errors_by_kind.get("error_frame") == 1
+    assert d.stats.decode_errors == 0
+
+
 def test_send_error_raises_bus_error_after_trying_every_axis() -> None:
     fake = ExplodingBus()
     d = ODriveReels(cast(Any, fake), NODES)
