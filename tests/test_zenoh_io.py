@@ -264,11 +264,12 @@ def test_both_publish_modes_deliver_poses_and_every_state_in_order(threaded: boo
     client = zenoh.open(zenoh_io.client_config([f"tcp/127.0.0.1:{port}"]))
     try:
         got: queue.Queue[tuple[str, bytes]] = queue.Queue()
+
+        def collector(what: str) -> Any:
+            return lambda s: got.put((what, s.payload.to_bytes()))
+
         for what in ("pose", "state"):
-            client.declare_subscriber(
-                f"cablebot/test/{what}",
-                lambda s, what=what: got.put((what, s.payload.to_bytes())),
-            )
+            client.declare_subscriber(f"cablebot/test/{what}", collector(what))
         time.sleep(0.3)
         for i in range(1, 6):
             iface.publish_state(f"S{i}", None if i % 2 else "why", i)
