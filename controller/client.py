@@ -176,16 +176,37 @@ def format_status(st: dict[str, Any]) -> str:
         )
     z = st.get("zenoh")
     if z:
-        put = z.get("pose_put", {})
+        put = z.get("pose_put") or {}
+        tick = z.get("pose_publish_tick") or {}
+        cmds = z.get("commands") or {}
         lines.append(
-            f"zenoh      {z.get('mode')} {z.get('listen')} poses {z.get('poses_published')}"
-            f" put p50 {put.get('p50_us')} us p99 {put.get('p99_us')} us"
+            f"zenoh      {z.get('mode')} {', '.join(z.get('listen') or [])}, prefix"
+            f" {z.get('prefix')}; poses {z.get('poses_published')}, put p50/p99"
+            f" {_us(put.get('p50_us'))}/{_us(put.get('p99_us'))}, tick cost p50/p99"
+            f" {_us(tick.get('p50_us'))}/{_us(tick.get('p99_us'))}"
+        )
+        lines.append(
+            "commands   "
+            + ", ".join(f"{k} {v}" for k, v in cmds.items())
+            + f"; set-points ok {(z.get('setpoints') or {}).get('ok')}"
+            f" bad {(z.get('setpoints') or {}).get('bad')}"
+        )
+    cfg = st.get("config")
+    if isinstance(cfg, dict) and "name" in cfg:
+        loop_cfg = cfg.get("loop") or {}
+        lines.append(
+            f"config     robot {cfg.get('name')!r} from {cfg.get('source')},"
+            f" {len(cfg.get('reels') or [])} reels, loop {loop_cfg.get('rate_hz')} Hz"
         )
     return "\n".join(lines)
 
 
 def _ms(v: Any) -> str:
     return "-" if v is None else f"{float(v) * 1e3:.2f} ms"
+
+
+def _us(v: Any) -> str:
+    return "-" if v is None else f"{float(v):.0f} us"
 
 
 # --------------------------------------------------------------------------------------------
