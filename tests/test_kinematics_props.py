@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from controller.kinematics import (
     Geometry,
     SingularGeometryError,
+    UnreachableError,
     footprint_contains,
     fpk,
     fpk_batch,
@@ -189,3 +190,25 @@ def test_footprint_margin(gp: tuple[Geometry, tuple[float, float, float]], margi
     # hull.equations: n . p + c <= 0 inside, n unit outward.
     dist = -(hull.equations[:, :2] @ np.array([x, y]) + hull.equations[:, 2])
     assert inside == bool(np.all(dist >= margin - 1e-9)) or abs(dist.min() - margin) < 1e-9
+
+
+@FAST
+@given(geom_and_point(min_n=4, min_depth_m=0.05), st.integers(0, 2**32 - 1))
+def test_batch_agrees_with_single_on_noisy_lengths(
+    gp: tuple[Geometry, tuple[float, float, float]], seed: int
+) -> None:
+    geom, p = gp
+    rng = np.random.default_rng(seed)
+    noisy = ipk(geom, p) + rng.normal(0.0, 1e-3, (8, geom.n_cables))
+    batch = fpk_batch(geom, noisy)
+    for k in range(noisy.shape[0]):
+        try:
+            one = fpk(geom, noisy[k].tolist())
+        except UnreachableError as exc:
+            assert not batch.valid[k]
+            assert batch.short_cable[k] == exc.cable
+            assert batch.shortfall_m[k] == pytest.approx(exc.shortfall_m, rel=1e-6, abs=1e-9)
+            continue
+        assert batch.valid[k]
+        assert batch.position_m[k] == pytest.approx(one.position_m, abs=1e-9)
+        assert batch.residual_m[k] == pytest.approx(one.residual_m, rel=1e-6, abs=1e-12)
