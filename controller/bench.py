@@ -29,18 +29,21 @@ Method
   stamping, 90 % encoder estimates and 10 % heartbeats for 4 axes.
 * `loop`: for each rate a fresh process (`python -m controller.bench loop`, daemon-like: it
   imports only what the daemon imports) starts four simulated ODrive nodes in another process
-  (`drivers.sim_odrive.run_sim` with `controller.sim_cmd.sim_axes`, as `cablebot sim` does) on a
-  udp_multicast bus of its own (random group and port), builds the bus, `ODriveReels`,
-  `Controller` and `ZenohInterface` the way `controller.daemon.run_daemon` does (that function
-  offers no builder to reuse), sets the same switch interval, GC freeze, timer slack and
-  scheduling, and runs `Controller.run` (the daemon's loop itself) in a thread. The robot is
-  armed and moved back and forth (1 m/s, all four cables changing), so every tick does the
-  full work: poll, FPK, planner, limits, IPK, four Set_Input_Pos frames, one pose put. A fault
-  (e.g. a simulator starved on a loaded machine) is counted and shown, then reset and re-armed
-  so the run goes on. The
-  loop's own jitter and compute rings are read every 0.1 s, so the percentiles cover every tick
-  of the measured window (not only the ring's last 4096); `ticks` and `overruns` are the
-  loop's counters over the window. Fractions are of the period.
+  (`drivers.sim_odrive.run_sim` with `controller.sim_cmd.sim_axes`, as `cablebot sim` does, at
+  SCHED_FIFO one below the loop when permitted: they stand in for hardware, which a busy host
+  does not slow down) on a udp_multicast bus of its own (random group and port), builds the
+  bus, `ODriveReels`, `Controller` and `ZenohInterface` the way `controller.daemon.run_daemon`
+  does (that function offers no builder to reuse), sets the same switch interval, GC freeze,
+  timer slack and scheduling, and runs `Controller.run` (the daemon's loop itself) in a thread.
+  The robot is armed and moved back and forth (1 m/s, all four cables changing), so every tick
+  does the full work: poll, FPK, planner, limits, IPK, four Set_Input_Pos frames, one pose put
+  (`publish_every` 1). A fault (e.g. a simulator starved on a loaded machine) is counted and
+  shown, then reset and re-armed so the run goes on. The loop's own jitter and compute rings
+  are read every 0.1 s, so the percentiles cover every tick of the measured window (not only
+  the ring's last 4096); `ticks` and `overruns` are the loop's counters over the window.
+  Fractions are of the period. Note that udp_multicast delivers the daemon's own frames back to
+  it (python-can cannot filter them), so each tick also receives its four Set_Input_Pos frames,
+  which SocketCAN would not deliver.
 * `zenoh_put_us`: the median of `ZenohInterface`'s own timing of `publish_pose` (encode +
   put) over the last 4096 ticks of the 1 kHz run, i.e. in the loop, with a subscriber attached.
 * `e2e_p50_us` / `e2e_p99_us` (1 kHz run): the simulated node's process records
@@ -518,6 +521,7 @@ class _RecordingBus:
 
 def role_sim(config: str, log: str) -> int:
     """Helper process: the config's simulated nodes (as `cablebot sim`), logging encoder sends."""
+    from controller.daemon import set_realtime
     from controller.sim_cmd import sim_axes
     from drivers.bus import open_bus
     from drivers.sim_odrive import run_sim
@@ -525,11 +529,14 @@ def role_sim(config: str, log: str) -> int:
     cfg = _load_cfg(config)
     stop = threading.Event()
     _on_term(stop)
+    # The nodes stand in for hardware, which a busy host does not slow down: like the daemon's
+    # in-process simulator, run one priority below the loop when permitted.
+    sched = set_realtime(int(getattr(cfg.loop, "rt_priority", 50)) - 1)
     b = cfg.bus
     bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
     rec = _RecordingBus(bus)
     try:
-        print("READY", flush=True)
+        print(f"READY {sched}", flush=True)
         run_sim(rec, sim_axes(cfg), stop, tick_s=float(getattr(cfg.sim, "tick_s", 0.001)))  # type: ignore[arg-type]
     finally:
         bus.shutdown()
