@@ -122,6 +122,8 @@ def test_recorder_records_rows_forwards_and_drops_past_capacity() -> None:
     assert [int(c) for c in rows[:, 9]] == [0, 3, 2]  # DISARMED, MOVING, HOLDING
     assert rows[2, 10:].tolist() == [4.0, 2.0, 3.0, 4.0]
     assert rec.last_time_s() == 10.004
+    assert np.array_equal(rec.rows(1), rows[1:], equal_nan=True)
+    assert rec.rows(3).shape == (0, 14) and rec.rows(99).shape == (0, 14)
 
 
 def test_recorder_survives_a_failing_inner_publisher() -> None:
@@ -187,8 +189,7 @@ def test_summary_numbers_and_final_line() -> None:
     assert s.length_min_m[0] == pytest.approx(float(run.lengths_m[:, 0].min()))
     lines = demo.format_summary(run, s, 1e-3)
     assert lines[-1] == (
-        "max settled FPK error: 0.2500 mm (12 points; agrees with the commanded circle "
-        "within 1 mm)"
+        "max settled FPK error: 0.2500 mm (12 points; agrees with the commanded circle within 1 mm)"
     )
     bad = demo.format_summary(run, demo.summarize(_synthetic_run(2e-3)), 1e-3)
     assert "DISAGREES" in bad[-1]
@@ -244,9 +245,7 @@ def test_demo_circle_short_form_runs_and_draws(tmp_path: Path) -> None:
         "--plot",
         str(img),
     ]
-    proc = subprocess.run(
-        cmd, cwd=REPO, capture_output=True, text=True, timeout=140, check=False
-    )
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=140, check=False)
     out = proc.stdout
     assert proc.returncode == 0, f"exit {proc.returncode}\n{out}\n{proc.stderr}"
 
