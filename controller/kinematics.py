@@ -1108,63 +1108,85 @@ def _refine_chunk(
         g3 += np.multiply(dz, res, out=tmp)
     _accumulate_jtj(ne, [anchors[k] for k in seed_idx], cols[list(seed_idx)], x, y, z)
 
-    if need.all():  # the usual noisy batch: no gathers
-        idx = np.arange(m)
-        px, py, pz, sub_cols = x, y, z, cols
-    else:
+    # Two modes: "full" works on whole-chunk arrays with a mask of rows still iterating
+    # (no gathers; the usual noisy batch converges in two steps), "compact" on gathered
+    # rows once few remain.
+    act = need
+    full = True
+    idx = np.arange(m)
+    px, py, pz, sub_cols = x, y, z, cols
+    prev2 = np.full(m, np.inf)  # squared length of the previous step
+    slow: list[npt.NDArray[np.intp]] = []  # chunk rows handed to the scalar fit
+    if np.count_nonzero(need) * 4 < m:
+        full = False
         idx = np.nonzero(need)[0]
         px, py, pz, sub_cols = x[idx], y[idx], z[idx], cols[:, idx]
         ne = [v[idx] for v in ne]
-    prev2 = np.full(idx.size, np.inf)  # squared length of the previous step
-    slow: list[npt.NDArray[np.intp]] = []  # batch rows handed to the scalar fit
+        prev2 = prev2[idx]
+        act = np.ones(idx.size, dtype=bool)
     for _ in range(GN_MAX_ITER):
         sx, sy, sz, solvable = _solve_normal(ne)
         step2 = sx * sx + sy * sy + sz * sz
         nx, ny, nz = px - sx, py - sy, pz - sz
         if mirror is not None:
-            np.copyto(nz, 2.0 * mirror - nz, where=nz > mirror)
+            # Reflect points above the mirror plane (masked ufuncs are slow; this is not).
+            nz -= mirror
+            np.abs(nz, out=nz)
+            np.subtract(mirror, nz, out=nz)
         # Done without another evaluation: singular normal equations (keep the point) or a
         # small step whose successor is predicted below tolerance.
         fin = (step2 < 1e-12) & ((step2 <= tol2) | (step2 * step2 < BATCH_NEXT_TOL2 * prev2))
         fin &= solvable
+        fin &= act
         stuck = ~solvable
-        if fin.all():
-            x[idx], y[idx], z[idx] = nx, ny, nz
-            residual[idx] = np.sqrt(ne[0] / n)
-            idx = idx[:0]
-            break
-        for sel, (qx, qy, qz) in ((fin, (nx, ny, nz)), (stuck, (px, py, pz))):
-            if sel.any():
-                rows = idx[sel]
-                x[rows], y[rows], z[rows] = qx[sel], qy[sel], qz[sel]
-                residual[rows] = np.sqrt(ne[0][sel] / n)
-        cont = ~(fin | stuck)
-        if cont.all():  # the first step: nobody is done yet, no gathers
-            px, py, pz = nx, ny, nz
-            old_cost, prev2 = ne[0], step2
+        stuck &= act
+        done = fin | stuck
+        if full:
+            if done.any():
+                x[...] = np.where(fin, nx, x)
+                y[...] = np.where(fin, ny, y)
+                z[...] = np.where(fin, nz, z)
+                residual[...] = np.where(done, np.sqrt(ne[0] / n), residual)
+            act = act & ~done
+            left = int(np.count_nonzero(act))
+            if left == 0:
+                break
+            if left * 4 < m:  # few left: gather them
+                full = False
+                idx = np.nonzero(act)[0]
+                px, py, pz = nx[idx], ny[idx], nz[idx]
+                old_cost, prev2 = ne[0][idx], step2[idx]
+                sub_cols = cols[:, idx]
+                act = np.ones(idx.size, dtype=bool)
+            else:
+                px, py, pz = nx, ny, nz
+                old_cost, prev2 = ne[0], step2
         else:
-            go = np.nonzero(cont)[0]
+            if done.any():
+                rows = idx[fin]
+                x[rows], y[rows], z[rows] = nx[fin], ny[fin], nz[fin]
+                rows = idx[done]
+                residual[rows] = np.sqrt(ne[0][done] / n)
+            go = np.nonzero(~done)[0]
             if go.size == 0:
-                idx = idx[go]
+                idx = idx[:0]
                 break
             idx, px, py, pz = idx[go], nx[go], ny[go], nz[go]
-            old_cost = ne[0][go]
+            old_cost, prev2 = ne[0][go], step2[go]
             sub_cols = sub_cols[:, go]
-            prev2 = step2[go]
+            act = np.ones(idx.size, dtype=bool)
         ne = [np.zeros(idx.size) for _ in range(10)]
         _accumulate(ne, list(anchors), sub_cols, px, py, pz, None)
         worse = ne[0] > old_cost + (GN_COST_REL_TOL * old_cost + GN_COST_ABS_TOL)
+        worse &= act
         if worse.any():
             slow.append(idx[worse])
-            keep = np.nonzero(~worse)[0]
-            idx, px, py, pz = idx[keep], px[keep], py[keep], pz[keep]
-            sub_cols, prev2 = sub_cols[:, keep], prev2[keep]
-            ne = [v[keep] for v in ne]
-        if idx.size == 0:
-            break
-    if idx.size:  # not converged in GN_MAX_ITER steps
-        x[idx], y[idx], z[idx] = px, py, pz
-        slow.append(idx)
+            act = act & ~worse
+            if not act.any():
+                idx = idx[:0]
+                break
+    else:
+        slow.append(idx[act])  # not converged in GN_MAX_ITER steps
     for rows in slow:
         for r in rows.tolist():
             sx_, sy_, sz_ = _seed_row(geom, lens[r])
@@ -1193,7 +1215,8 @@ def _solve_normal(
     c33 = a11 * a22 - a12 * a12
     det = a11 * c11 + a12 * c12 + a13 * c13
     solvable = det > GN_DET_MIN
-    inv = np.divide(1.0, det, out=np.zeros_like(det), where=solvable)
+    inv = np.reciprocal(det)
+    inv[~solvable] = 0.0
     sx = (c11 * g1 + c12 * g2 + c13 * g3) * inv
     sy = (c12 * g1 + c22 * g2 + c23 * g3) * inv
     sz = (c13 * g1 + c23 * g2 + c33 * g3) * inv
