@@ -154,13 +154,10 @@ def status_line(st: dict[str, Any]) -> str:
     )
 
 
-def _open_zenoh(cfg: Any, controller: Any) -> Any | None:
-    """The Zenoh interface if its module is importable, else None (the loop publishes nothing)."""
-    try:
-        from controller import zenoh_io
-    except ImportError as exc:
-        log.warning("Zenoh interface unavailable (%s); publishing nothing", exc)
-        return None
+def _open_zenoh(cfg: Any, controller: Any) -> Any:
+    """Open the Zenoh interface; raises whatever Zenoh raises (e.g. the port is taken)."""
+    from controller import zenoh_io
+
     iface = zenoh_io.ZenohInterface(cfg.zenoh, controller)
     iface.open()
     return iface
@@ -225,14 +222,17 @@ def run_daemon(
         node_ids = [r.node_id for r in cfg.reels]
         driver = ODriveReels(bus, node_ids, encoder_rtr=bool(cfg.loop.encoder_rtr))
         controller = Controller(cfg, driver)
+        # A robot nobody can watch or stop over the network must not start: nothing is armed
+        # yet, so failing here is safe (and systemd reports it).
         try:
             iface = _open_zenoh(cfg, controller)
         except Exception as exc:
-            log.error("Zenoh interface failed to open: %s; publishing nothing", exc)
-            iface = None
-        if iface is not None:
-            controller.publisher = iface
-            closers.append(("zenoh", iface.close))
+            raise RuntimeError(
+                f"Zenoh interface failed to open on {list(cfg.zenoh.listen)}: {exc} "
+                "(is another cablebot daemon running? set [zenoh] listen)"
+            ) from exc
+        controller.publisher = iface
+        closers.append(("zenoh", iface.close))
     except Exception as exc:
         log.error("start-up failed: %s", exc)
         _close_all(closers)

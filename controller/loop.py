@@ -712,6 +712,14 @@ class Controller:
             names = "/".join(s.value for s in states)
             raise CommandRefused(f"not allowed in {self.state.value} (needs {names})")
 
+    def check_target(self, p: Sequence[float]) -> str | None:
+        """Why `p` is not an allowed target (workspace, cable lengths), or None if it is.
+
+        Reads only the immutable limits and geometry: safe from any thread (the Zenoh interface
+        refuses out-of-workspace commands with it before they reach the queue).
+        """
+        return self._check_target(p)
+
     def _check_target(self, p: Sequence[float]) -> str | None:
         if len(p) != 3 or not all(math.isfinite(float(v)) for v in p):
             return f"non-finite position {list(p)}"

@@ -193,3 +193,22 @@ def test_sd_notify_ready_watchdog_status_and_sigint(tmp_path: Path) -> None:
     finally:
         daemon.kill()
         sock.close()
+
+
+def test_daemon_refuses_to_start_when_its_zenoh_port_is_taken(tmp_path: Path) -> None:
+    # A robot that nobody can watch or stop over the network must not run: the daemon exits 1
+    # at start-up (nothing armed yet) with the reason, instead of running unreachable.
+    cfg, info = write_config(tmp_path, _udp_bus(), sim_enabled=True)
+    port = int(info["endpoint"].rsplit(":", 1)[1])
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", port))
+        s.listen()
+        d = Proc([*CABLEBOT, "run", "--config", str(cfg)], "daemon")
+        try:
+            d.wait_line("Zenoh interface failed to open", 30, stderr=True)
+            rc = d.p.wait(timeout=30)
+        finally:
+            d.p.kill()
+    err = "\n".join(d.err)
+    assert rc == 1, err
+    assert "ARMING" not in err and "HOLDING" not in err
