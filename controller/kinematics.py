@@ -116,10 +116,10 @@ TANGENT_TOL_M = 1e-9
 GN_STEP_TOL_M = 1e-12
 #: Rows per chunk of the batch FPK (its working set stays in cache).
 BATCH_CHUNK = 16384
-#: The batch fit stops once a step is under 1 um and the next one, predicted from the linear
-#: convergence rate, is under sqrt(BATCH_NEXT_TOL2) = 1e-10 m (one evaluation fewer than
-#: waiting for a 1e-12 m step; the positions agree with ``fpk`` to about 1e-11 m).
-BATCH_NEXT_TOL2 = 1e-20
+#: Gauss-Newton also stops once a step is under 1 um and the next one, predicted from the
+#: linear convergence rate (|s_k|^2 / |s_k-1|), is under sqrt(GN_NEXT_TOL2) = 1e-10 m: one
+#: evaluation fewer than waiting for a 1e-12 m step, for a difference of about 1e-11 m.
+GN_NEXT_TOL2 = 1e-20
 #: Gauss-Newton iteration cap.
 GN_MAX_ITER = 8
 #: Step halvings tried before a Gauss-Newton step is given up.
@@ -743,6 +743,46 @@ def _normal_eq(
     return cost, a11, a12, a13, a22, a23, a33, g1, g2, g3
 
 
+def _normal_eq_at_seed(
+    anchors: tuple[Vec3, ...],
+    lengths: Sequence[float],
+    x: float,
+    y: float,
+    z: float,
+    exact: tuple[int, int, int],
+) -> tuple[float, float, float, float, float, float, float, float, float, float]:
+    """``_normal_eq`` at the seed point, which meets the cables ``exact`` by construction.
+
+    Their residual is zero and their unit vector is (P - B) / L: no square root needed.
+    """
+    a11 = a12 = a13 = a22 = a23 = a33 = g1 = g2 = g3 = cost = 0.0
+    for k, ((ax, ay, az), ln) in enumerate(zip(anchors, lengths, strict=True)):
+        dx = x - ax
+        dy = y - ay
+        dz = z - az
+        if k in exact:
+            t = 1.0 / ln
+            res = 0.0
+        else:
+            d = _sqrt(dx * dx + dy * dy + dz * dz)
+            res = d - ln
+            cost += res * res
+            t = 1.0 / d if d > 0.0 else 0.0
+        ux = dx * t
+        uy = dy * t
+        uz = dz * t
+        a11 += ux * ux
+        a12 += ux * uy
+        a13 += ux * uz
+        a22 += uy * uy
+        a23 += uy * uz
+        a33 += uz * uz
+        g1 += ux * res
+        g2 += uy * res
+        g3 += uz * res
+    return cost, a11, a12, a13, a22, a23, a33, g1, g2, g3
+
+
 def _gauss_newton(
     anchors: tuple[Vec3, ...],
     lengths: Sequence[float],
@@ -750,17 +790,25 @@ def _gauss_newton(
     y: float,
     z: float,
     z_mirror: float | None,
+    start: tuple[float, float, float, float, float, float, float, float, float, float]
+    | None = None,
 ) -> tuple[float, float, float, float]:
     """Least-squares refinement over all cables from (x, y, z); returns x, y, z, RMS residual.
 
     Minimises sum (|P - B_i| - L_i)^2 with Gauss-Newton, the 3x3 normal equations solved in
     closed form, the step halved until the cost does not increase (near the anchor plane the
-    problem is ill-conditioned in z and a full step can overshoot); stops when the step is
-    below ``GN_STEP_TOL_M``.  With all anchors at height ``z_mirror`` the cost is symmetric
-    about that plane, and a point above it is mirrored back to the lower solution.
+    problem is ill-conditioned in z and a full step can overshoot).  Stops when the step is
+    below ``GN_STEP_TOL_M``, or is under 1 um with the next one predicted below 1e-10 m
+    (``GN_NEXT_TOL2``).  With all anchors at height ``z_mirror`` the cost is symmetric about
+    that plane, and a point above it is mirrored back to the lower solution.  ``start`` is
+    ``_normal_eq`` at (x, y, z) when the caller has it.
     """
     n = len(anchors)
-    cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = _normal_eq(anchors, lengths, x, y, z)
+    if start is None:
+        start = _normal_eq(anchors, lengths, x, y, z)
+    cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = start
+    prev2 = math.inf
+    tol2 = GN_STEP_TOL_M * GN_STEP_TOL_M
     for _ in range(GN_MAX_ITER):
         c11 = a22 * a33 - a23 * a23
         c12 = a13 * a23 - a12 * a33
@@ -775,6 +823,14 @@ def _gauss_newton(
         sx = (c11 * g1 + c12 * g2 + c13 * g3) * inv
         sy = (c12 * g1 + c22 * g2 + c23 * g3) * inv
         sz = (c13 * g1 + c23 * g2 + c33 * g3) * inv
+        step2 = sx * sx + sy * sy + sz * sz
+        if step2 < 1e-12 and (step2 <= tol2 or step2 * step2 < GN_NEXT_TOL2 * prev2):
+            # Converged: take this last small step without evaluating again.
+            x, y, z = x - sx, y - sy, z - sz
+            if z_mirror is not None and z > z_mirror:
+                z = 2.0 * z_mirror - z
+            break
+        prev2 = step2
         allowed = cost + (GN_COST_REL_TOL * cost + GN_COST_ABS_TOL)
         for _halving in range(GN_MAX_HALVINGS):
             tx, ty, tz = x - sx, y - sy, z - sz
@@ -788,8 +844,6 @@ def _gauss_newton(
             break  # no decrease along the step: at the minimum to rounding
         x, y, z = tx, ty, tz
         cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = trial
-        if sx * sx + sy * sy + sz * sz < GN_STEP_TOL_M * GN_STEP_TOL_M:
-            break
     return x, y, z, _sqrt(cost / n)
 
 
@@ -829,7 +883,8 @@ def _fpk_one(geom: Geometry, lengths: Sequence[float]) -> FpkResult:
             worst = res * res
     if worst > GN_STEP_TOL_M * GN_STEP_TOL_M:
         mirror = sd.zn if geom.equal_heights and isinstance(sd, _EqualSeed) else None
-        x, y, z, rms = _gauss_newton(anchors, lengths, x, y, z, mirror)
+        start = _normal_eq_at_seed(anchors, lengths, x, y, z, (sd.i1, sd.i2, sd.i3))
+        x, y, z, rms = _gauss_newton(anchors, lengths, x, y, z, mirror, start)
     else:
         rms = _sqrt(sumsq / n)
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(rms)):
@@ -1052,7 +1107,7 @@ def _refine_chunk(
     equations reuse the residual check of the cables outside the seed triple, and for the
     seed cables (which the seed meets exactly) need only their unit vectors.  A step of
     under 1 um whose successor is predicted below 1e-10 m (linear convergence,
-    |s_k|^2 / |s_k-1|; see ``BATCH_NEXT_TOL2``) is taken without evaluating the cost
+    |s_k|^2 / |s_k-1|; see ``GN_NEXT_TOL2``) is taken without evaluating the cost
     again.  Rows whose step would raise the cost (rare: near-tangent seeds) or that do not
     converge in ``GN_MAX_ITER`` steps are finished by the scalar ``_gauss_newton`` (with
     its step halving), a Python loop over those rows only.
@@ -1135,7 +1190,7 @@ def _refine_chunk(
             np.subtract(mirror, nz, out=nz)
         # Done without another evaluation: singular normal equations (keep the point) or a
         # small step whose successor is predicted below tolerance.
-        fin = (step2 < 1e-12) & ((step2 <= tol2) | (step2 * step2 < BATCH_NEXT_TOL2 * prev2))
+        fin = (step2 < 1e-12) & ((step2 <= tol2) | (step2 * step2 < GN_NEXT_TOL2 * prev2))
         fin &= solvable
         fin &= act
         stuck = ~solvable
