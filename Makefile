@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-unit test-vcan bench lint venv clean
+.PHONY: run test test-unit test-vcan bench lint venv clean docs-images
 
 venv: $(STAMP)
 
@@ -34,6 +34,11 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check controller drivers tests
 	$(VENV)/bin/ruff format --check controller drivers tests
 	$(VENV)/bin/mypy
+
+# The README's pictures (docs/img/circle-*.png): the paper's circle, example (c), on the simulated
+# paper robot through the whole stack; about 4 minutes.
+docs-images: $(STAMP)
+	$(VENV)/bin/cablebot demo circle --plot docs/img
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
