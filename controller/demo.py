@@ -358,6 +358,11 @@ def run_circle(
         )
     if not (math.isfinite(spec.settle_s) and spec.settle_s >= 0.0):
         raise ValueError(f"settle time must be >= 0, got {spec.settle_s!r}")
+    from controller.limits import Limits
+
+    reason = Limits(lim, cfg.geometry).check_path(points)
+    if reason is not None:
+        raise ValueError(f"the circle leaves the robot's limits: {reason}")
     motion_s = estimate_duration_s(points, speed, float(lim.max_accel_mps2))
     rate_hz = float(cfg.loop.rate_hz)
     expect_s = motion_s + spec.steps * (spec.settle_s + 0.05) + 5.0

@@ -195,6 +195,13 @@ def test_summary_numbers_and_final_line() -> None:
     assert "DISAGREES" in bad[-1]
 
 
+def test_plot_needs_matplotlib(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    with pytest.raises(ImportError):
+        demo.plot_circle(_synthetic_run(0.0), tmp_path)
+    assert not list(tmp_path.iterdir())
+
+
 def test_demo_config_is_virtual_sim_without_state_file() -> None:
     cfg = load_config(REPO / "config" / "paper-acre.toml")
     d = demo.demo_config(cfg, channel="chan-x", zenoh_listen="tcp/127.0.0.1:40001")
@@ -206,6 +213,13 @@ def test_demo_config_is_virtual_sim_without_state_file() -> None:
     assert d.geometry is cfg.geometry and d.reels == cfg.reels
     strict = demo.demo_config(cfg, channel="c", zenoh_listen=None, strict_faults=True)
     assert strict.faults == cfg.faults and strict.zenoh.listen == ()
+
+
+def test_circle_outside_the_limits_is_refused_before_anything_starts() -> None:
+    with pytest.raises(ValueError, match=r"path point 3: .* outside the anchors' plan-view"):
+        demo.run_circle(load_config(None), demo.CircleSpec(radius_m=30.0, steps=8))
+    with pytest.raises(ValueError, match="max_speed_mps"):
+        demo.run_circle(load_config(None), demo.CircleSpec(speed_mps=5.0))
 
 
 def test_estimated_duration_matches_trapezoids() -> None:
