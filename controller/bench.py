@@ -521,7 +521,7 @@ class _RecordingBus:
 
 def role_sim(config: str, log: str) -> int:
     """Helper process: the config's simulated nodes (as `cablebot sim`), logging encoder sends."""
-    from controller.daemon import set_realtime
+    from controller.daemon import RT_PRIORITY, set_realtime
     from controller.sim_cmd import sim_axes
     from drivers.bus import open_bus
     from drivers.sim_odrive import run_sim
@@ -531,7 +531,7 @@ def role_sim(config: str, log: str) -> int:
     _on_term(stop)
     # The nodes stand in for hardware, which a busy host does not slow down: like the daemon's
     # in-process simulator, run one priority below the loop when permitted.
-    sched = set_realtime(int(getattr(cfg.loop, "rt_priority", 50)) - 1)
+    sched = set_realtime(max(1, int(getattr(cfg.loop, "rt_priority", RT_PRIORITY)) - 1))
     b = cfg.bus
     bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
     rec = _RecordingBus(bus)
@@ -643,7 +643,13 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
     """
     from controller import zenoh_io
     from controller.commands import Arm, Move, Reset
-    from controller.daemon import SWITCH_INTERVAL_S, TIMER_SLACK_NS, set_realtime, set_timer_slack
+    from controller.daemon import (
+        RT_PRIORITY,
+        SWITCH_INTERVAL_S,
+        TIMER_SLACK_NS,
+        set_realtime,
+        set_timer_slack,
+    )
     from controller.loop import Controller
     from controller.states import State
     from drivers.bus import open_bus
@@ -680,7 +686,7 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
 
         def loop_main() -> None:
             if cfg.loop.realtime:
-                rt_report.append(set_realtime(int(getattr(cfg.loop, "rt_priority", 50))))
+                rt_report.append(set_realtime(int(getattr(cfg.loop, "rt_priority", RT_PRIORITY))))
             rt_report.append(set_timer_slack(TIMER_SLACK_NS))
             controller.run(stop_loop)
 
