@@ -339,6 +339,7 @@ def run_circle(
     """
     from controller.commands import Arm, Disarm, Home
     from controller.commands import Path as PathCmd
+    from controller.limits import Limits
     from controller.loop import Controller, NullPublisher
     from controller.motion import circle_path
     from controller.sim_cmd import start_sim_bank
@@ -358,8 +359,6 @@ def run_circle(
         )
     if not (math.isfinite(spec.settle_s) and spec.settle_s >= 0.0):
         raise ValueError(f"settle time must be >= 0, got {spec.settle_s!r}")
-    from controller.limits import Limits
-
     reason = Limits(lim, cfg.geometry).check_path(points)
     if reason is not None:
         raise ValueError(f"the circle leaves the robot's limits: {reason}")
@@ -903,6 +902,9 @@ def cmd_circle(args: argparse.Namespace) -> int:
     except (DemoError, ValueError) as exc:
         print(f"cablebot demo: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print("cablebot demo: interrupted", file=sys.stderr)
+        return 130
     for note in run.notes:
         say(f"note: {note}")
     if run.dropped_rows:
