@@ -21,6 +21,20 @@ _MODULES: tuple[str, ...] = (
 )
 
 
+def add_xyz_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the positional X Y Z arguments (metres) to a subcommand's parser."""
+    # Three positionals rather than nargs=3 with a tuple metavar: argparse (3.11) crashes
+    # formatting some errors for the latter.
+    p.add_argument("x", type=float, metavar="X", help="x in m")
+    p.add_argument("y", type=float, metavar="Y", help="y in m")
+    p.add_argument("z", type=float, metavar="Z", help="z in m")
+
+
+def xyz_from_args(args: argparse.Namespace) -> list[float]:
+    """The [x, y, z] given with `add_xyz_arguments`."""
+    return [float(args.x), float(args.y), float(args.z)]
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser with every registered subcommand."""
     parser = argparse.ArgumentParser(

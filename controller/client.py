@@ -22,6 +22,8 @@ from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
+from controller.cli import add_xyz_arguments, xyz_from_args
+
 EXIT_OK = 0
 EXIT_REFUSED = 1
 EXIT_ABSENT = 2
@@ -311,7 +313,7 @@ def cmd_simple(args: argparse.Namespace) -> int:
 def cmd_home(args: argparse.Namespace) -> int:
     """home X Y Z: declare the effector's current position."""
     try:
-        payload = {"position_m": _vec3(_xyz(args), "home")}
+        payload = {"position_m": _vec3(xyz_from_args(args), "home")}
     except InputError as exc:
         print(f"cablebot: {exc}", file=sys.stderr)
         return EXIT_REFUSED
@@ -321,7 +323,7 @@ def cmd_home(args: argparse.Namespace) -> int:
 def cmd_move(args: argparse.Namespace) -> int:
     """move X Y Z [--speed V] [--wait]: command a straight move (and follow it)."""
     try:
-        target = _vec3(_xyz(args), "move")
+        target = _vec3(xyz_from_args(args), "move")
         payload: dict[str, Any] = {"position_m": target}
         speed = _speed(args.speed)
         if speed is not None:
@@ -486,7 +488,7 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         p = sub.add_parser(verb, help=what)
         _common(p)
         if verb == "move":
-            _xyz_arguments(p)
+            add_xyz_arguments(p)
         else:
             p.add_argument("file", metavar="FILE", help="JSON points or CSV x,y,z lines")
         p.add_argument("--speed", type=float, default=None, metavar="V", help="speed in m/s")
@@ -515,18 +517,6 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
 
     p = sub.add_parser("home", help="declare that the effector is now at X Y Z")
     _common(p)
-    _xyz_arguments(p)
+    add_xyz_arguments(p)
     p.add_argument("--json", action="store_true", help="print the raw JSON reply")
     p.set_defaults(func=cmd_home)
-
-
-def _xyz_arguments(p: argparse.ArgumentParser) -> None:
-    # Three positionals rather than nargs=3 with a tuple metavar: argparse (3.11) crashes
-    # formatting some errors for the latter.
-    p.add_argument("x", type=float, metavar="X", help="x in m")
-    p.add_argument("y", type=float, metavar="Y", help="y in m")
-    p.add_argument("z", type=float, metavar="Z", help="z in m")
-
-
-def _xyz(args: argparse.Namespace) -> list[float]:
-    return [float(args.x), float(args.y), float(args.z)]

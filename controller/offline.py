@@ -18,6 +18,8 @@ import math
 import sys
 from typing import Any
 
+from controller.cli import add_xyz_arguments
+
 EXIT_OK = 0
 EXIT_ERROR = 1
 
@@ -125,7 +127,7 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     """Register `ipk` and `fpk`."""
     p = sub.add_parser("ipk", help="cable lengths for a position (offline, no daemon)")
     p.add_argument("--config", default=None, metavar="FILE", help="robot TOML (default built-in)")
-    _xyz_arguments(p)
+    add_xyz_arguments(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(
         "--no-limits", action="store_true", help="do not check the point against the workspace"
@@ -137,15 +139,3 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     p.add_argument("lengths", type=float, nargs="+", metavar="L", help="lengths in m, reel order")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_fpk)
-
-
-def _xyz_arguments(p: argparse.ArgumentParser) -> None:
-    # Three positionals rather than nargs=3 with a tuple metavar: argparse (3.11) crashes
-    # formatting some errors for the latter.
-    p.add_argument("x", type=float, metavar="X", help="x in m")
-    p.add_argument("y", type=float, metavar="Y", help="y in m")
-    p.add_argument("z", type=float, metavar="Z", help="z in m")
-
-
-def _xyz(args: argparse.Namespace) -> list[float]:
-    return [float(args.x), float(args.y), float(args.z)]
