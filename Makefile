@@ -19,7 +19,10 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	exec $(VENV)/bin/cablebot run
 
-test: test-unit test-vcan
+# Both halves always run (a unit failure does not hide the vcan result); fails if either failed.
+test: $(STAMP)
+	@rc=0; $(MAKE) --no-print-directory test-unit || rc=1; \
+	$(MAKE) --no-print-directory test-vcan || rc=1; exit $$rc
 
 test-unit: $(STAMP)
 	$(PY) -m pytest -m "not vcan" -q
