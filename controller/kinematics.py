@@ -266,6 +266,7 @@ class Geometry:
         "anchor_height_min_m",
         "anchors_m",
         "equal_heights",
+        "footprint_m",
         "height_tol_m",
         "n_cables",
         "seed_triple",
@@ -282,6 +283,7 @@ class Geometry:
     triples: tuple[tuple[int, int, int], ...]
     seed_triple: tuple[int, int, int]
     seed_uses_simplified: bool
+    footprint_m: tuple[tuple[float, float], ...]
     _anchors_t: tuple[Vec3, ...]
     _seed: _EqualSeed | _GeneralSeed
     _hull_edges: tuple[tuple[float, float, float], ...]
@@ -350,6 +352,8 @@ class Geometry:
         )
 
         hull = _convex_hull([(p[0], p[1]) for p in pts])
+        # The anchors' plan-view convex hull, counter-clockwise (x, y) vertices.
+        self.footprint_m = tuple(hull)
         edges: list[tuple[float, float, float]] = []
         for k in range(len(hull)):
             (ax, ay), (bx, by) = hull[k], hull[(k + 1) % len(hull)]

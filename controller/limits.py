@@ -26,28 +26,6 @@ Vec3 = tuple[float, float, float]
 TOL_M = 1e-9
 
 
-def _hull(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
-    """Counter-clockwise convex hull (monotone chain), collinear points dropped."""
-    pts = sorted(set(points))
-    if len(pts) < 3:
-        return pts
-
-    def cross(o: tuple[float, float], a: tuple[float, float], b: tuple[float, float]) -> float:
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-    lower: list[tuple[float, float]] = []
-    for p in pts:
-        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0.0:
-            lower.pop()
-        lower.append(p)
-    upper: list[tuple[float, float]] = []
-    for p in reversed(pts):
-        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0.0:
-            upper.pop()
-        upper.append(p)
-    return lower[:-1] + upper[:-1]
-
-
 class Limits:
     """All limits of one robot (see the module docstring). Raises ValueError if the shrunk
     polygon would be empty or the z band inverted (config validation prevents both)."""
@@ -69,7 +47,7 @@ class Limits:
         self.cfg = cfg
         anchors = [(float(a[0]), float(a[1]), float(a[2])) for a in geometry.anchors_m.tolist()]
         self._anchors: tuple[Vec3, ...] = tuple(anchors)
-        hull = _hull([(a[0], a[1]) for a in anchors])
+        hull = geometry.footprint_m
         self.polygon_m: tuple[tuple[float, float], ...] = tuple(hull)
         edges: list[tuple[float, float, float]] = []
         for k in range(len(hull)):
