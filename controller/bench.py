@@ -41,12 +41,13 @@ Method
   shown, then reset and re-armed so the run goes on. The loop's own jitter and compute rings
   are read every 0.1 s, so the percentiles cover every tick of the measured window (not only
   the ring's last 4096); `ticks` and `overruns` are the loop's counters over the window.
-  Fractions are of the period. Note that udp_multicast delivers the daemon's own frames back to
-  it (python-can cannot filter them), so each tick also receives its four Set_Input_Pos frames,
-  which SocketCAN would not deliver.
+  Fractions are of the period. Each loop figure is the median over 3 runs per rate (1 with
+  `--quick`), the rates interleaved (500, 1000, 500, ...). Note that udp_multicast delivers
+  the daemon's own frames back to it (python-can cannot filter them), so each tick also
+  receives its four Set_Input_Pos frames, which SocketCAN would not deliver.
 * `zenoh_put_us`: the median of `ZenohInterface`'s own timing of `publish_pose` (encode +
-  put) over the last 4096 ticks of the 1 kHz run, i.e. in the loop, with a subscriber attached.
-* `e2e_p50_us` / `e2e_p99_us` (1 kHz run): the simulated node's process records
+  put) over the last 4096 ticks of a 1 kHz run, i.e. in the loop, with a subscriber attached.
+* `e2e_p50_us` / `e2e_p99_us` (1 kHz runs): the simulated node's process records
   `time.time_ns()` just before `bus.send` of every encoder frame (node, float32 position); a
   Zenoh subscriber in a third process records `time.time_ns()` when each pose arrives. Every
   process is on this host, so CLOCK_REALTIME is shared. Matching is by value, not by time:
@@ -105,10 +106,11 @@ class Plan:
     decode_repeats: int
     decode_frames: int
     loop_seconds: float
+    loop_runs: int
 
 
-FULL = Plan(501, 400, 15, 32, 5, 1_000_000, 5, 50_000, 10.0)
-QUICK = Plan(101, 400, 5, 16, 3, 1_000_000, 3, 20_000, 2.0)
+FULL = Plan(501, 400, 15, 32, 5, 1_000_000, 5, 50_000, 10.0, 3)
+QUICK = Plan(101, 400, 5, 16, 3, 1_000_000, 3, 20_000, 2.0, 1)
 
 LENGTH_NOISE_M = 1e-3
 """Standard deviation of the noise put on the cable lengths for `fpk4` and the batch."""
@@ -775,6 +777,7 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
         "seconds": (t1_ns - t0_ns) / 1e9,
         "ticks": ticks,
         "overruns": overruns,
+        "overrun_frac": overruns / max(ticks, 1),
         "skipped": skipped,
         "jitter_p50_frac": percentile(jitter.values, 0.50) / period_s,
         "jitter_p99_frac": percentile(jitter.values, 0.99) / period_s,
@@ -864,6 +867,31 @@ def match_e2e(
         "after_publish_us": after_pub,
         "unmatched": unmatched,
     }
+
+
+_SUMMED = ("faults", "e2e_n", "e2e_unmatched", "stat_samples", "stat_lost", "moves", "frames_rx")
+
+
+def merge_runs(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """One figure set from several `loop_once` results: the median of each number (counts in
+    `_SUMMED` are summed, fault reasons joined); `runs` says how many. Raises ValueError on
+    no runs."""
+    if not runs:
+        raise ValueError("no loop runs to merge")
+    out: dict[str, Any] = {"runs": len(runs)}
+    for key, first in runs[0].items():
+        values = [r[key] for r in runs]
+        if key in _SUMMED:
+            out[key] = sum(values)
+        elif key == "fault_reasons":
+            out[key] = sorted({x for v in values for x in v})[:5]
+        elif isinstance(first, bool) or not isinstance(first, int | float):
+            out[key] = first
+        elif isinstance(first, int):
+            out[key] = int(statistics.median_low(values))
+        else:
+            out[key] = _median(values)
+    return out
 
 
 def role_loop(rate_hz: float, seconds: float, out: str) -> int:
@@ -1073,17 +1101,20 @@ def measure(
         ),
     )
 
-    loops: dict[str, dict[str, Any]] = {}
-    for rate in LOOP_RATES_HZ:
-        log(f"loop at {rate} Hz for {p.loop_seconds:g} s ...")
-        loops[str(rate)] = lp = bench_loop(rate, p.loop_seconds)
-        for reason in lp["fault_reasons"]:
-            log(f"  fault at {rate} Hz: {reason}")
+    runs: dict[str, list[dict[str, Any]]] = {str(rate): [] for rate in LOOP_RATES_HZ}
+    for k in range(p.loop_runs):
+        for rate in LOOP_RATES_HZ:  # rates interleaved, so load drifts hit both alike
+            log(f"loop at {rate} Hz for {p.loop_seconds:g} s (run {k + 1}/{p.loop_runs}) ...")
+            lp = bench_loop(rate, p.loop_seconds)
+            runs[str(rate)].append(lp)
+            for reason in lp["fault_reasons"]:
+                log(f"  fault at {rate} Hz: {reason}")
+    loops = {rate: merge_runs(rs) for rate, rs in runs.items()}
     for rate in LOOP_RATES_HZ:
         lp = loops[str(rate)]
         at_1k = rate == 1000
-        n = f"{lp['stat_samples']} ticks"
-        over_frac = lp["overruns"] / max(lp["ticks"], 1)
+        n = f"median of {lp['runs']} runs of {lp['seconds']:.1f} s"
+        over_frac = lp["overrun_frac"]
         rows += [
             Row(
                 f"loop.{rate}.faults",
@@ -1093,7 +1124,7 @@ def measure(
                 lp["faults"] == 0,
                 "; ".join(lp["fault_reasons"])[:60],
             ),
-            Row(f"loop.{rate}.ticks", lp["ticks"], "", "", None, f"{lp['seconds']:.1f} s"),
+            Row(f"loop.{rate}.ticks", lp["ticks"], "", "", None, n),
             Row(
                 f"loop.{rate}.overruns",
                 lp["overruns"],
@@ -1130,12 +1161,12 @@ def measure(
             "us",
             "",
             None,
-            f"{k5['e2e_n']} frames; p99 {k5['e2e_p99_us']:.0f}",
+            f"median of {k5['runs']} runs; p99 {k5['e2e_p99_us']:.0f}",
         )
     )
     k1 = loops[str(E2E_RATE_HZ)]
     e2e_target = 1e6 / E2E_RATE_HZ + E2E_MARGIN_US
-    e2e_n = f"{k1['e2e_n']} frames"
+    e2e_n = f"median of {k1['runs']} runs, {k1['e2e_n']} frames"
     rows += [
         Row(
             "zenoh_put_us",
@@ -1143,7 +1174,7 @@ def measure(
             "us",
             "",
             None,
-            f"median of {k1['zenoh_put_n']} loop puts",
+            f"median of {k1['runs']} runs of {min(k1['zenoh_put_n'], 4096)} loop puts",
         ),
         Row(
             "e2e_p50_us",
@@ -1212,6 +1243,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         base.decode_repeats,
         base.decode_frames,
         args.loop_seconds if args.loop_seconds is not None else base.loop_seconds,
+        base.loop_runs,
     )
 
     t_start = time.monotonic()

@@ -161,3 +161,29 @@ def test_format_table_marks_missed() -> None:
     assert lines[0].split() == ["figure", "value", "unit", "target", "result", "repeats"]
     assert "PASS" in lines[2] and "MISSED" in lines[3] and lines[3].endswith("<--")
     assert "12,345" in lines[4]
+
+
+def test_merge_runs_medians_and_sums() -> None:
+    runs = [
+        {"ticks": 10, "jitter_p99_frac": 0.3, "faults": 1, "fault_reasons": ["b"], "note": "x"},
+        {"ticks": 30, "jitter_p99_frac": 0.1, "faults": 0, "fault_reasons": [], "note": "y"},
+        {
+            "ticks": 20,
+            "jitter_p99_frac": 0.2,
+            "faults": 2,
+            "fault_reasons": ["a", "b"],
+            "note": "z",
+        },
+    ]
+    got = bench.merge_runs(runs)
+    assert got == {
+        "runs": 3,
+        "ticks": 20,
+        "jitter_p99_frac": 0.2,
+        "faults": 3,
+        "fault_reasons": ["a", "b"],
+        "note": "x",
+    }
+    assert isinstance(got["ticks"], int)
+    with pytest.raises(ValueError):
+        bench.merge_runs([])
