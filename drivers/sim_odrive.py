@@ -7,10 +7,27 @@ thread; `run_sim` is the same loop for a process (`python -m drivers.sim_odrive 
 
 Behaviour mirrored from firmware 0.6: IDLE until CLOSED_LOOP_CONTROL is requested; entering
 closed loop is refused while an axis error is active and holds the current position
-(input_pos := position); in closed loop with POSITION_CONTROL the position tracks input_pos with a
-trapezoidal (velocity- and acceleration-limited) motion; Estop drops to IDLE and latches
-ESTOP_REQUESTED; Clear_Errors clears the error. In IDLE the simulated reel is braked: its position
-stays where it is (a real unpowered reel under cable tension would not; that is outside the model).
+(input_pos := position, input_vel := 0); Estop drops to IDLE and latches ESTOP_REQUESTED;
+Clear_Errors clears the error. In IDLE the simulated reel is braked: its position stays where it
+is (a real unpowered reel under cable tension would not; that is outside the model).
+
+Motion model (POSITION_CONTROL with INPUT_MODE_PASSTHROUGH, the firmware's cascaded loop):
+Set_Input_Pos sets input_pos and input_vel (its Vel_FF field), and the velocity command is
+
+    vel_cmd = clamp(input_vel + pos_gain * (input_pos - position), -vel_limit, +vel_limit)
+
+(ODrive docs, control.md: "vel_cmd = pos_error * pos_gain + vel_feedforward"; pos_gain default
+20 (rev/s)/rev). The velocity loop and the current loop are modelled as an ideal velocity
+response limited by the motor's torque, i.e. the velocity moves toward vel_cmd by at most
+`max_accel_rps2 * dt` (no first-order lag: the real velocity loop's bandwidth, hundreds of Hz, is
+far above the position loop's 20 rad/s). So a streamed set-point with the right feed-forward is
+tracked with a lag of about one command period's worth of motion, a set-point without
+feed-forward with the steady lag velocity / pos_gain, and a big step overshoots when braking needs
+more than `max_accel_rps2` (as a current-limited drive does). In VELOCITY_CONTROL the velocity
+command is input_vel (Set_Input_Vel). The dynamics are integrated in sub-steps of at most
+`MAX_SUBSTEP_S` so a late `step` (a stalled thread) cannot make the discrete P loop unstable.
+At rest (no feed-forward, within `REST_SNAP_REV` of input_pos, velocity below
+`REST_SNAP_RPS`) the position snaps onto input_pos, so a settled axis reports input_pos exactly.
 
 Fault injection for tests: `silence(True)` (no frames in or out), `set_axis_error(code)` (disarm
 with that error, reported by heartbeat), `send_corrupt()` (a wrong-length encoder frame),
@@ -39,6 +56,14 @@ from drivers.bus import open_bus
 
 _NAN_ENCODER = struct.pack("<ff", math.nan, 0.0)
 
+DEFAULT_POS_GAIN = 20.0
+"""Firmware 0.6 default `controller.config.pos_gain`, (rev/s)/rev."""
+MAX_SUBSTEP_S = 0.001
+"""Longest integration step of the axis dynamics (a longer `step` is split)."""
+_MAX_SUBSTEPS = 10_000
+REST_SNAP_REV = 1e-9
+REST_SNAP_RPS = 1e-6
+
 
 class SimODriveAxis:
     """One simulated ODrive axis; thread-safe (an internal lock guards every method)."""
@@ -52,11 +77,13 @@ class SimODriveAxis:
         max_accel_rps2: float = 200.0,
         encoder_period_s: float = 0.01,
         heartbeat_period_s: float = 0.1,
+        pos_gain: float = DEFAULT_POS_GAIN,
     ) -> None:
         """Create an IDLE axis at `initial_position_rev`.
 
-        Raises ValueError on a node id outside 0..63, a non-finite position, or a non-positive
-        limit or period.
+        `max_velocity_rps` is the drive's vel_limit, `max_accel_rps2` its torque-limited
+        acceleration, `pos_gain` the position loop gain in (rev/s)/rev. Raises ValueError on a
+        node id outside 0..63, a non-finite position, or a non-positive limit, gain or period.
         """
         if not 0 <= node_id <= cs.MAX_NODE_ID:
             raise ValueError(f"node id {node_id} is outside 0..63")
@@ -67,6 +94,7 @@ class SimODriveAxis:
             ("max_accel_rps2", max_accel_rps2),
             ("encoder_period_s", encoder_period_s),
             ("heartbeat_period_s", heartbeat_period_s),
+            ("pos_gain", pos_gain),
         ):
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be finite and > 0, got {value!r}")
@@ -75,6 +103,7 @@ class SimODriveAxis:
         self.max_accel_rps2 = max_accel_rps2
         self.encoder_period_s = encoder_period_s
         self.heartbeat_period_s = heartbeat_period_s
+        self.pos_gain = pos_gain
         self.position_rev = float(initial_position_rev)
         self.velocity_rps = 0.0
         self.input_pos_rev = self.position_rev
@@ -164,6 +193,7 @@ class SimODriveAxis:
             assert isinstance(msg, cs.SetInputPos)
             self.commands_received += 1
             self.input_pos_rev = msg.input_pos_rev
+            self.input_vel_rps = msg.vel_ff_rps
         elif t is cs.SetAxisState:
             assert isinstance(msg, cs.SetAxisState)
             if msg.requested_state == cs.AxisState.CLOSED_LOOP_CONTROL:
@@ -172,6 +202,7 @@ class SimODriveAxis:
                 else:
                     if self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
                         self.input_pos_rev = self.position_rev  # hold where the reel is
+                        self.input_vel_rps = 0.0
                     self.axis_state = cs.AxisState.CLOSED_LOOP_CONTROL
                     self.procedure_result = 0
             elif msg.requested_state == cs.AxisState.IDLE:
@@ -236,33 +267,43 @@ class SimODriveAxis:
     def _move(self, dt: float) -> None:
         if self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
             return
-        a = self.max_accel_rps2
+        if (
+            self.velocity_rps == 0.0
+            and self.input_vel_rps == 0.0
+            and (
+                self.control_mode == cs.ControlMode.VELOCITY_CONTROL
+                or self.position_rev == self.input_pos_rev
+            )
+        ):
+            return  # at rest on the set-point: nothing to integrate
+        n = min(_MAX_SUBSTEPS, math.ceil(dt / MAX_SUBSTEP_S))
+        h = dt / n
+        for _ in range(n):
+            self._substep(h)
+
+    def _substep(self, h: float) -> None:
+        """One integration step of the cascaded loop (see the module docstring)."""
         vmax = self.max_velocity_rps
+        dv_max = self.max_accel_rps2 * h
         v = self.velocity_rps
-        if self.control_mode == cs.ControlMode.POSITION_CONTROL:
-            err = self.input_pos_rev - self.position_rev
-            if err == 0.0 and v == 0.0:
-                return
-            sign = 1.0 if err > 0.0 else -1.0
-            # Largest speed at the end of this step from which braking at `a` (integrated the
-            # same trapezoidal way) still stops at the target: solves v² + a·dt·v = 2a·remaining.
-            remaining = abs(err) - 0.5 * v * sign * dt
-            h = 0.5 * a * dt
-            v_stop = -h + math.sqrt(h * h + 2.0 * a * remaining) if remaining > 0.0 else 0.0
-            target_v = sign * min(vmax, v_stop)
-        elif self.control_mode == cs.ControlMode.VELOCITY_CONTROL:
-            err = 0.0
-            target_v = max(-vmax, min(vmax, self.input_vel_rps))
+        mode = self.control_mode
+        if mode == cs.ControlMode.POSITION_CONTROL:
+            vel_cmd = self.input_vel_rps + self.pos_gain * (self.input_pos_rev - self.position_rev)
+        elif mode == cs.ControlMode.VELOCITY_CONTROL:
+            vel_cmd = self.input_vel_rps
         else:
-            err = 0.0
-            target_v = 0.0
-        v_new = v + max(-a * dt, min(a * dt, target_v - v))
-        p_new = self.position_rev + 0.5 * (v + v_new) * dt
-        if err != 0.0:
-            left = self.input_pos_rev - p_new
-            if left * err <= 0.0 or (abs(left) < 1e-9 and abs(v_new) <= a * dt):
-                p_new = self.input_pos_rev  # arrived (float rounding would leave a crumb)
-                v_new = 0.0
+            vel_cmd = 0.0
+        vel_cmd = max(-vmax, min(vmax, vel_cmd))
+        v_new = v + max(-dv_max, min(dv_max, vel_cmd - v))
+        p_new = self.position_rev + 0.5 * (v + v_new) * h
+        if (
+            mode == cs.ControlMode.POSITION_CONTROL
+            and self.input_vel_rps == 0.0
+            and abs(self.input_pos_rev - p_new) <= REST_SNAP_REV
+            and abs(v_new) <= REST_SNAP_RPS
+        ):
+            p_new = self.input_pos_rev  # settled (the exponential approach never ends exactly)
+            v_new = 0.0
         self.position_rev = p_new
         self.velocity_rps = v_new
 
@@ -433,6 +474,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--initial-rev", default="0", help="one value, or one per node")
     p.add_argument("--max-velocity-rps", type=float, default=20.0)
     p.add_argument("--max-accel-rps2", type=float, default=200.0)
+    p.add_argument(
+        "--pos-gain", type=float, default=DEFAULT_POS_GAIN, help="position gain, (rev/s)/rev"
+    )
     p.add_argument("--encoder-period-s", type=float, default=0.01)
     p.add_argument("--heartbeat-period-s", type=float, default=0.1)
     p.add_argument("--tick-s", type=float, default=0.001)
@@ -446,6 +490,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             initial_position_rev=x,
             max_velocity_rps=args.max_velocity_rps,
             max_accel_rps2=args.max_accel_rps2,
+            pos_gain=args.pos_gain,
             encoder_period_s=args.encoder_period_s,
             heartbeat_period_s=args.heartbeat_period_s,
         )

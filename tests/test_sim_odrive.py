@@ -61,26 +61,133 @@ def test_state_machine_and_hold_on_entry() -> None:
     assert axis.axis_state == cs.AxisState.IDLE
 
 
-def test_trapezoidal_motion_respects_limits_and_arrives() -> None:
-    vmax, amax = 10.0, 50.0
-    axis = SimODriveAxis(1, max_velocity_rps=vmax, max_accel_rps2=amax)
-    arm(axis)
-    axis.handle(cs.SetInputPos(1, 20.0, 0.0, 0.0))
+def _step_response(
+    axis: SimODriveAxis, target_rev: float, limit_s: float = 10.0
+) -> tuple[float, list[float], list[float]]:
+    """Command `target_rev` (no feed-forward) and step until the axis sits on it."""
+    axis.handle(cs.SetInputPos(axis.node_id, target_rev, 0.0, 0.0))
     positions = [axis.position_rev]
     velocities = [axis.velocity_rps]
     t = 0.0
-    while axis.position_rev != 20.0 and t < 5.0:
+    while not (axis.position_rev == target_rev and axis.velocity_rps == 0.0) and t < limit_s:
         axis.step(DT)
         t += DT
         positions.append(axis.position_rev)
         velocities.append(axis.velocity_rps)
+    return t, positions, velocities
+
+
+def test_position_step_respects_velocity_and_accel_limits_and_arrives() -> None:
+    # A big step with the accel limit binding while braking (a > pos_gain * v only below
+    # 2.5 rev/s here): the cascaded loop brakes late and overshoots, as a current-limited drive
+    # does, then settles exactly on the target.
+    vmax, amax = 10.0, 50.0
+    axis = SimODriveAxis(1, max_velocity_rps=vmax, max_accel_rps2=amax)
+    arm(axis)
+    t, positions, velocities = _step_response(axis, 20.0)
     assert axis.position_rev == 20.0 and axis.velocity_rps == 0.0
-    # theory: d/vmax + vmax/a = 2.0 + 0.2 s
-    assert t == pytest.approx(2.2, abs=0.005)
+    assert t > 2.2  # the time-optimal trapezoid (d/vmax + vmax/a) is a lower bound
+    assert t < 4.0
     assert max(abs(v) for v in velocities) <= vmax + 1e-9
     accel = [(b - a) / DT for a, b in itertools.pairwise(velocities)]
     assert max(abs(x) for x in accel) <= amax + 1e-6
+    overshoot = max(positions) - 20.0
+    assert 0.0 < overshoot <= vmax * vmax / (2.0 * amax)
+
+
+def test_position_loop_is_proportional_without_overshoot_when_braking_is_feasible() -> None:
+    # amax >= pos_gain * vmax: the velocity follows pos_gain * error at once, so the approach
+    # is the P loop's exponential, error(t) = error(0) * exp(-pos_gain t), with no overshoot.
+    gain = 20.0
+    axis = SimODriveAxis(1, max_velocity_rps=10.0, max_accel_rps2=400.0, pos_gain=gain)
+    arm(axis)
+    axis.handle(cs.SetInputPos(1, 0.25, 0.0, 0.0))  # 0.25 rev: gain * error = 5 rev/s < vmax
+    run(axis, 0.05)  # the first 0.4 ms are acceleration-limited
+    e0 = 0.25 - axis.position_rev
+    run(axis, 0.1)
+    e1 = 0.25 - axis.position_rev
+    assert e1 / e0 == pytest.approx(math.exp(-gain * 0.1), rel=0.05)  # 1 ms integration
+    t, positions, _ = _step_response(axis, 0.25)
+    assert axis.position_rev == 0.25 and t < 1.5
     assert all(b >= a for a, b in itertools.pairwise(positions))  # no overshoot
+
+
+def _ramp_lag(vel_ff: bool, v_rps: float = 30.0, period_s: float = 0.002) -> float:
+    """Stream a ramp (accelerating at 300 rev/s^2, then cruising at v_rps) as Set_Input_Pos
+    every `period_s`, as the control loop does; return the lag at the end of cruise."""
+    axis = SimODriveAxis(2, max_velocity_rps=100.0, max_accel_rps2=400.0)
+    arm(axis)
+    p = v = 0.0
+    lag = math.nan
+    for _ in range(600):
+        v = min(v_rps, v + 300.0 * period_s)
+        p += v * period_s
+        axis.handle(cs.SetInputPos(2, p, v if vel_ff else 0.0, 0.0))
+        for _ in range(round(period_s / DT)):
+            axis.step(DT)
+        lag = p - axis.position_rev
+    return lag
+
+
+def test_ramp_with_velocity_feed_forward_has_small_steady_lag() -> None:
+    v, period = 30.0, 0.002
+    with_ff = _ramp_lag(True, v, period)
+    without = _ramp_lag(False, v, period)
+    # Without feed-forward the P loop needs error = v / pos_gain to run at v.
+    assert without == pytest.approx(v / 20.0, rel=0.05)
+    # With it, only the set-point's hold between commands remains: within one period of motion.
+    assert abs(with_ff) <= v * period
+    assert abs(with_ff) < 0.05 * without
+
+
+def test_feed_forward_without_new_set_points_stops_a_bounded_distance_ahead() -> None:
+    # The last set-point keeps its feed-forward (no watchdog, like firmware): the reel runs on
+    # until pos_gain * error cancels it, i.e. it stops vel_ff / pos_gain past input_pos.
+    axis = SimODriveAxis(0, max_velocity_rps=100.0, max_accel_rps2=400.0)
+    arm(axis)
+    axis.handle(cs.SetInputPos(0, 0.0, 10.0, 0.0))
+    run(axis, 1.0)
+    assert axis.position_rev == pytest.approx(10.0 / 20.0, abs=1e-6)
+    assert abs(axis.velocity_rps) < 1e-6
+    axis.handle(cs.SetInputPos(0, 0.0, 0.0, 0.0))  # feed-forward off: back onto the set-point
+    run(axis, 2.0)
+    assert axis.position_rev == 0.0 and axis.velocity_rps == 0.0
+
+
+def test_late_step_is_integrated_stably() -> None:
+    # A stalled simulation thread calls step(0.3): pos_gain * dt = 6 would make one explicit
+    # step of the P loop diverge; the sub-steps keep it the same motion as 300 steps of 1 ms.
+    slow = SimODriveAxis(0, max_velocity_rps=100.0, max_accel_rps2=400.0)
+    fast = SimODriveAxis(0, max_velocity_rps=100.0, max_accel_rps2=400.0)
+    for axis in (slow, fast):
+        arm(axis)
+        axis.handle(cs.SetInputPos(0, 1.0, 0.0, 0.0))
+    for _ in range(3):
+        slow.step(0.3)
+    run(fast, 0.9)
+    assert slow.position_rev == pytest.approx(fast.position_rev, abs=1e-9)
+    assert abs(1.0 - slow.position_rev) < 1e-6
+
+
+def test_closed_loop_entry_clears_a_stale_feed_forward() -> None:
+    axis = SimODriveAxis(0, initial_position_rev=2.0)
+    axis.handle(cs.SetInputPos(0, 5.0, 3.0, 0.0))  # while IDLE: stored, nothing moves
+    arm(axis)
+    assert axis.input_pos_rev == 2.0 and axis.input_vel_rps == 0.0
+    run(axis, 0.2)
+    assert axis.position_rev == 2.0
+
+
+def test_velocity_control_mode() -> None:
+    axis = SimODriveAxis(0, max_velocity_rps=5.0, max_accel_rps2=50.0)
+    axis.handle(cs.SetControllerMode(0, cs.ControlMode.VELOCITY_CONTROL, 1))
+    axis.handle(cs.SetAxisState(0, 8))
+    axis.handle(cs.SetInputVel(0, 8.0, 0.0))
+    run(axis, 0.5)
+    assert axis.velocity_rps == pytest.approx(5.0)  # vel_limit
+    axis.handle(cs.SetInputVel(0, 0.0, 0.0))
+    run(axis, 0.5)
+    assert axis.velocity_rps == 0.0
 
 
 def test_estop_latches_error_and_blocks_closed_loop_until_cleared() -> None:
@@ -137,6 +244,8 @@ def test_axis_validation() -> None:
         SimODriveAxis(0, max_velocity_rps=0.0)
     with pytest.raises(ValueError, match="initial_position_rev"):
         SimODriveAxis(0, initial_position_rev=math.nan)
+    with pytest.raises(ValueError, match="pos_gain"):
+        SimODriveAxis(0, pos_gain=-1.0)
 
 
 # --- bank + driver on a virtual bus ----------------------------------------------------------
@@ -184,6 +293,12 @@ def test_in_process_arm_command_read_back(rig: tuple[SimODriveBank, ODriveReels]
         ),
     )
     assert [a.position_rev for a in bank.axes] == targets
+    # Set_Input_Pos carries the velocity feed-forward (int16, 0.001 rev/s) to the axis.
+    driver.command(targets, [1.5, -2.25, 0.0, 0.001])
+    assert poll_until(driver, lambda: bank.axes[1].input_vel_rps != 0.0)
+    assert [a.input_vel_rps for a in bank.axes] == pytest.approx([1.5, -2.25, 0.0, 0.001])
+    driver.command(targets)
+    assert poll_until(driver, lambda: all(a.input_vel_rps == 0.0 for a in bank.axes))
     assert driver.stats.decode_errors == 0 and driver.stats.bus_errors == 0
     driver.disarm()
     assert poll_until(driver, lambda: all(x.axis_state == 1 for x in r))
