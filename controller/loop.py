@@ -6,6 +6,18 @@ queued commands, advance the motion planner, check the limits, solve the set-poi
 lengths by IPK, check the cable speeds, command the motors and publish the pose. `run` calls
 `tick` against absolute deadlines on the monotonic clock.
 
+Velocity feed-forward: every set-point goes out with the motor velocity that follows it, so an
+ODrive in position control + passthrough (vel_cmd = vel_ff + pos_gain * position error) tracks a
+moving set-point without the steady lag velocity / pos_gain. The set-point velocity v (the
+planner's) maps to cable length rates dL_i/dt = u_i . v, with u_i the unit vector from anchor i to
+the set-point, and to motor rev/s through the reel model's slope at the commanded turns. It is
+zero while holding and in FAULT (the hold re-sends the last good position with no feed-forward).
+
+Stalls: the planner advances by the elapsed time, but by at most `MAX_PLANNER_DT_PERIODS` loop
+periods per tick. After a CPU stall the motion therefore resumes where it was (it runs a little
+slower in wall time) instead of jumping ahead by the whole gap, which the reels could not follow
+and which would trip the cable-speed check; `status()["loop"]["dt_clamped"]` counts such ticks.
+
 Threading: the loop thread calls `tick`/`run` and is the only one that touches the driver.
 Other threads (Zenoh, the daemon) use `submit`, `submit_setpoint`, `request_estop` and
 `status`, which are thread-safe.
@@ -57,6 +69,8 @@ AXIS_CLOSED_LOOP = 8
 """ODrive AxisState CLOSED_LOOP_CONTROL."""
 
 COMMAND_QUEUE_SIZE = 32
+MAX_PLANNER_DT_PERIODS = 4.0
+"""The planner advances at most this many loop periods per tick (see the module docstring)."""
 STATS_WINDOW = 4096
 """Ticks kept in the jitter / compute-time ring buffers."""
 _MAX_COMMANDS_PER_TICK = 8
@@ -219,7 +233,11 @@ class Controller:
         self.node_ids = node_ids
         self.n = len(node_ids)
         self.geometry = cfg.geometry
+        self._anchors: tuple[tuple[float, float, float], ...] = tuple(
+            (float(a[0]), float(a[1]), float(a[2])) for a in self.geometry.anchors_m
+        )
         self.period_s = 1.0 / float(cfg.loop.rate_hz)
+        self._max_plan_dt_s = MAX_PLANNER_DT_PERIODS * self.period_s
         self.publish_every = max(1, int(getattr(cfg.loop, "publish_every", 1)))
         self.limits = Limits(cfg.limits, self.geometry)
         self._default_speed_mps = min(
@@ -276,6 +294,11 @@ class Controller:
         self.setpoint_lengths_m: tuple[float, ...] | None = None
         self.commanded_rev: list[float] | None = None
         """Last good motor set-points; re-sent every tick in FAULT."""
+        self.commanded_ff_rps: list[float] = [0.0] * self.n
+        """Velocity feed-forward sent with the last set-point (motor rev/s)."""
+        self._zero_ff: tuple[float, ...] = (0.0,) * self.n
+        self.dt_clamped = 0
+        """Ticks whose planner step was cut to MAX_PLANNER_DT_PERIODS periods (stalls)."""
         self._arm_start_s = 0.0
         self._arm_rev: list[float] | None = None
         self._last_tick_s: float | None = None
@@ -395,6 +418,7 @@ class Controller:
         if self.state in (State.ARMING, State.HOLDING, State.MOVING):
             self._set_state(State.FAULT, reason)
             self.planner_hold()
+            self.commanded_ff_rps = list(self._zero_ff)  # the hold has no feed-forward
 
     def planner_hold(self) -> None:
         """Put the planner on hold at the last good set-point (no further motion)."""
@@ -584,6 +608,9 @@ class Controller:
         self.setpoint_lengths_m = None
 
     def _tick_armed(self, dt: float) -> None:
+        if dt > self._max_plan_dt_s:
+            dt = self._max_plan_dt_s  # after a stall: resume, do not jump (module docstring)
+            self.dt_clamped += 1
         target = self._stream_target
         if target is not None:
             self._stream_target = None
@@ -616,20 +643,49 @@ class Controller:
                 raise _Fault(f"cable_speed: {reason}")
         reels = self.reels
         rev = [reels[i].position_rev(lengths[i]) for i in range(self.n)]
-        self._send(rev)
+        ff = self._velocity_ff(sp, self.planner.velocity_mps, lengths, rev)
+        self._send(rev, ff)
         self.commanded_rev = rev
+        self.commanded_ff_rps = ff
         self.setpoint_m = sp
         self.setpoint_lengths_m = lengths
         if self.state is State.MOVING and not self.planner.moving:
             self._set_state(State.HOLDING)
 
-    def _send(self, rev: Sequence[float]) -> None:
-        """Command motor turns; a non-finite value or a bus error faults instead."""
+    def _velocity_ff(
+        self, sp: Vec3, v_mps: Vec3, lengths: Sequence[float], rev: Sequence[float]
+    ) -> list[float]:
+        """Motor velocity feed-forward (rev/s) for set-point `sp` moving at `v_mps`.
+
+        `lengths` are the cable lengths at `sp` (IPK), `rev` the motor turns commanded for them.
+        dL_i/dt = (sp - anchor_i) . v / L_i, then rev/s through reel i's slope at `rev[i]`.
+        Raises _Fault if a value comes out non-finite (it cannot for a checked set-point).
+        """
+        vx, vy, vz = v_mps
+        if vx == 0.0 and vy == 0.0 and vz == 0.0:
+            return list(self._zero_ff)
+        x, y, z = sp
+        reels = self.reels
+        out = []
+        for i, (ax, ay, az) in enumerate(self._anchors):
+            rate = ((x - ax) * vx + (y - ay) * vy + (z - az) * vz) / lengths[i]
+            try:
+                w = reels[i].velocity_rps(rev[i], rate)
+            except ValueError:  # reel slope zero (spool fully paid out): no usable feed-forward
+                w = 0.0
+            if not math.isfinite(w):
+                raise _Fault(f"nan_setpoint: velocity feed-forward of cable {i + 1} is {w!r}")
+            out.append(w)
+        return out
+
+    def _send(self, rev: Sequence[float], ff: Sequence[float] | None = None) -> None:
+        """Command motor turns with velocity feed-forward `ff` (rev/s; None = zero); a
+        non-finite value or a bus error faults instead."""
         for v in rev:
             if not math.isfinite(v):
                 raise _Fault(f"nan_setpoint: {list(rev)}")
         try:
-            self.driver.command(rev)
+            self.driver.command(rev, ff if ff is not None else self._zero_ff)
         except BusError:
             # Counted in driver.stats.bus_errors; the next tick faults if they persist.
             pass
@@ -637,12 +693,13 @@ class Controller:
             raise _Fault(f"nan_setpoint: driver refused: {exc}") from None
 
     def _hold_last(self) -> None:
-        """In FAULT: keep sending the last good set-point so the motors hold the load."""
+        """In FAULT: keep sending the last good set-point, with zero velocity feed-forward, so
+        the motors hold the load."""
         rev = self.commanded_rev
         if rev is None:
             return
         try:
-            self.driver.command(rev)
+            self.driver.command(rev, self._zero_ff)
         except Exception:  # already in FAULT; keep trying every tick
             self.hold_failures += 1
 
@@ -914,6 +971,7 @@ class Controller:
                 "compute_p50_s": c["p50"],
                 "compute_p99_s": c["p99"],
                 "compute_max_s": c["max"],
+                "dt_clamped": self.dt_clamped,
             },
             "stream": {"refused": self.stream_refused, "last_refusal": self.stream_last_refusal},
             "bus": {
@@ -922,6 +980,7 @@ class Controller:
                 "decode_errors": bs.decode_errors,
                 "dropped": bs.dropped,
                 "bus_errors": bs.bus_errors,
+                "ff_clamped": getattr(bs, "ff_clamped", 0),
                 "last_error": bs.last_error,
                 "errors_by_kind": dict(bs.errors_by_kind),
             },

@@ -6,10 +6,12 @@ import itertools
 import json
 import math
 import pathlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from controller import kinematics
 from controller.commands import (
@@ -23,12 +25,30 @@ from controller.commands import (
     Reset,
     Stop,
 )
-from controller.loop import Controller, PoseSample
+from controller.loop import MAX_PLANNER_DT_PERIODS, Controller, PoseSample
 from controller.states import State
+from drivers.reel import ReelModel
 from tests.fakes import FakeClock, FakeDriver, RecordingPublisher, make_config, power_up_turns
 
 RATE_HZ = 500.0
 DT = 1.0 / RATE_HZ
+
+
+class FFDriver(FakeDriver):
+    """A FakeDriver that also records the velocity feed-forward sent with every command."""
+
+    def __init__(self, *args: Any, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self.ffs: list[tuple[float, ...] | None] = []
+
+    def command(
+        self, positions_rev: Sequence[float], velocity_ff_rps: Sequence[float] | None = None
+    ) -> None:
+        if velocity_ff_rps is not None:
+            assert len(velocity_ff_rps) == len(self.node_ids)
+            assert all(math.isfinite(v) for v in velocity_ff_rps)
+        super().command(positions_rev, velocity_ff_rps)
+        self.ffs.append(None if velocity_ff_rps is None else tuple(velocity_ff_rps))
 
 
 class Rig:
@@ -39,7 +59,7 @@ class Rig:
         self.clock = FakeClock()
         ids = [r.node_id for r in self.cfg.reels]
         turns = power_up_turns(self.cfg) if homed else [0.0] * len(ids)
-        self.driver = FakeDriver(ids, self.clock, turns)
+        self.driver = FFDriver(ids, self.clock, turns)
         self.pub = RecordingPublisher()
         self.ctl = Controller(
             self.cfg,
@@ -60,6 +80,10 @@ class Rig:
                 State.MOVING,
             ):
                 self.setpoints.append(self.ctl.setpoint_m)
+
+    def state(self) -> State:
+        """The controller's state (a call, so mypy does not narrow it across ticks)."""
+        return self.ctl.state
 
     def do(self, cmd: Any, ticks: int = 1) -> dict[str, Any]:
         fut = self.ctl.submit(cmd)
@@ -97,7 +121,9 @@ def _dist(a: Any, b: Any) -> float:
     return math.dist(tuple(a), tuple(b))
 
 
-def _target(rig: Rig, dx: float = 1.0, dy: float = 0.0, dz: float = 0.0) -> tuple[float, ...]:
+def _target(
+    rig: Rig, dx: float = 1.0, dy: float = 0.0, dz: float = 0.0
+) -> tuple[float, float, float]:
     s = rig.start
     return (s[0] + dx, s[1] + dy, s[2] + dz)
 
@@ -118,7 +144,7 @@ def test_arming_sequence_holds_current_pose() -> None:
     rig.until(lambda: rig.ctl.state is State.HOLDING, 10)
     assert rig.pub.state_names() == ["ARMING", "HOLDING"]
     # The hold set-point is the measured pose and the motors are told to stay where they are.
-    assert _dist(rig.ctl.setpoint_m, rig.start) < 1e-6  # type: ignore[arg-type]
+    assert _dist(rig.ctl.setpoint_m, rig.start) < 1e-6
     rig.tick(5)
     for got, want in zip(rig.driver.commands[-1], power_up_turns(rig.cfg), strict=True):
         assert got == pytest.approx(want, abs=1e-9)
@@ -147,7 +173,7 @@ def test_move_arrives_within_1mm_and_respects_limits() -> None:
     assert n > 10
     rig.tick(3)
     assert _dist(rig.ctl.pose_m, target) < 1e-3
-    assert _dist(rig.ctl.setpoint_m, target) < 1e-9  # type: ignore[arg-type]
+    assert _dist(rig.ctl.setpoint_m, target) < 1e-9
     vmax = rig.cfg.limits.default_speed_mps
     amax = rig.cfg.limits.max_accel_mps2
     pts = rig.setpoints
@@ -207,7 +233,7 @@ def test_streamed_setpoints_are_rate_limited() -> None:
     rig.ctl.submit_setpoint((1e6, 0.0, 0.0))
     rig.ctl.submit_setpoint((math.nan, 0.0, 0.0))
     rig.tick(3)
-    assert rig.ctl.state is State.HOLDING
+    assert rig.state() is State.HOLDING
     assert rig.ctl.stream_refused == 1  # latest wins: only the NaN one was seen
     assert rig.ctl.stream_last_refusal is not None
 
@@ -237,7 +263,7 @@ def test_out_of_workspace_and_state_refusals_leave_state_unchanged() -> None:
     assert "points_m[1]" in reason
     assert "not allowed in HOLDING" in rig.refused(Arm())
     assert rig.ctl.state is State.HOLDING
-    assert _dist(rig.ctl.setpoint_m, s) < 1e-6  # type: ignore[arg-type]
+    assert _dist(rig.ctl.setpoint_m, s) < 1e-6
     assert len(rig.driver.commands) > n_cmds  # still holding
 
 
@@ -342,7 +368,7 @@ def test_tracking_error_fault() -> None:
     rig.driver.follow = False  # the motors stop following: the pose stays behind
     rig.do(Move(_target(rig, 1.0)))
     rig.until(lambda: rig.ctl.state is State.FAULT, 2000)
-    assert _dist(rig.ctl.setpoint_m, rig.start) > 0.02  # type: ignore[arg-type]
+    assert _dist(rig.ctl.setpoint_m, rig.start) > 0.02
     _assert_fault_holds(rig, "tracking_error", rig.driver.commands[-1])
 
 
@@ -400,7 +426,7 @@ def test_commands_refused_in_fault_until_reset() -> None:
     assert rig.do(Reset())["state"] == "DISARMED"
     assert rig.driver.calls[-1] == "disarm"
     rig.arm()
-    assert rig.ctl.state is State.HOLDING
+    assert rig.state() is State.HOLDING
 
 
 def test_estop_disarms_at_once_from_any_state() -> None:
@@ -412,17 +438,17 @@ def test_estop_disarms_at_once_from_any_state() -> None:
     fut = rig.ctl.submit(Estop())
     rig.tick()
     assert fut.result(timeout=0)["state"] == "ESTOPPED"
-    assert rig.ctl.state is State.ESTOPPED and rig.driver.calls[-1] == "estop"
+    assert rig.state() is State.ESTOPPED and rig.driver.calls[-1] == "estop"
     assert len(rig.driver.commands) == n  # not a single set-point after the e-stop
     rig.tick(10)
     assert len(rig.driver.commands) == n
     assert "not allowed in ESTOPPED" in rig.refused(Arm())
     rig.do(Reset())
-    assert rig.ctl.state is State.DISARMED
+    assert rig.state() is State.DISARMED
     # E-stop also works while disarmed and in FAULT.
     rig.ctl.submit(Estop())
     rig.tick()
-    assert rig.ctl.state is State.ESTOPPED
+    assert rig.state() is State.ESTOPPED
 
 
 def test_estop_is_not_refused_when_the_queue_is_full() -> None:
@@ -595,6 +621,105 @@ def test_pose_stamp_is_the_encoder_arrival_time_not_the_publish_time() -> None:
     ctl.tick(clock())
     newest = max(r.stamp_ns for r in driver.readings)
     last = pub.poses[-1]
-    assert last.valid
+    assert isinstance(last, PoseSample) and last.valid
     assert last.stamp_ns == newest
     assert abs(last.stamp_ns - clock.wall_ns()) < 1_000_000
+
+
+# ------------------------------------------------------------------------ feed-forward, stalls
+
+
+def _zero_ff(ff: tuple[float, ...] | None) -> bool:
+    return ff is None or all(v == 0.0 for v in ff)
+
+
+def test_velocity_feed_forward_is_the_rate_of_the_commanded_turns() -> None:
+    rig = _armed_rig()
+    drv = rig.driver
+    assert drv.ffs and all(_zero_ff(f) for f in drv.ffs)  # arming and holding: none
+    target = _target(rig, 8.0, 3.0, 1.0)
+    rig.do(Move(target, speed_mps=rig.cfg.limits.max_speed_mps))
+    first = len(drv.commands)
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    cmds = drv.commands[first:]
+    ffs = drv.ffs[first:]
+    assert _zero_ff(ffs[-1])  # arrived: holding again
+    peak = 0.0
+    for k in range(1, len(cmds) - 2):
+        ff = ffs[k]
+        assert ff is not None
+        for i in range(rig.ctl.n):
+            rate = (cmds[k + 1][i] - cmds[k - 1][i]) / (2.0 * DT)  # central difference
+            # 0.02 rev/s = 1 mm/s of cable: the difference's error at the trapezoid's corners
+            assert ff[i] == pytest.approx(rate, abs=0.02), (k, i)
+            peak = max(peak, abs(ff[i]))
+    assert peak > 20.0  # really at speed: 2 m/s is 40 rev/s along a cable
+
+
+def test_feed_forward_is_zero_in_the_fault_hold() -> None:
+    rig = _armed_rig()
+    rig.do(Move(_target(rig, 5.0), speed_mps=2.0))
+    rig.tick(500)
+    assert rig.ctl.state is State.MOVING and not _zero_ff(rig.driver.ffs[-1])
+    rig.driver.axis_error[rig.ctl.node_ids[2]] = 0x800
+    rig.tick()
+    n = len(rig.driver.commands)
+    _assert_fault_holds(rig, "axis_error", rig.driver.commands[-1])
+    assert all(_zero_ff(f) for f in rig.driver.ffs[n - 1 :])
+    assert rig.ctl.commanded_ff_rps == [0.0] * rig.ctl.n
+
+
+def test_cpu_stall_moves_the_set_point_at_most_a_few_periods() -> None:
+    rig = _armed_rig()
+    vmax = rig.cfg.limits.max_speed_mps
+    rig.do(Move(_target(rig, 10.0), speed_mps=vmax))
+    rig.until(lambda: math.dist(rig.ctl.planner.velocity_mps, (0, 0, 0)) >= vmax - 1e-9)
+    before = rig.ctl.setpoint_m
+    rig.clock.advance(0.3 - DT)  # the loop thread did not run for 300 ms
+    rig.tick()
+    assert rig.ctl.state is State.MOVING, rig.ctl.reason  # no cable_speed or other fault
+    step = _dist(rig.ctl.setpoint_m, before)
+    assert step == pytest.approx(vmax * MAX_PLANNER_DT_PERIODS * DT, rel=1e-6)
+    assert rig.ctl.dt_clamped == 1 and rig.ctl.status()["loop"]["dt_clamped"] == 1
+    rig.tick(10)  # ordinary ticks again: one period each
+    assert rig.ctl.dt_clamped == 1
+    assert _dist(rig.ctl.setpoint_m, before) == pytest.approx(vmax * 14 * DT, rel=1e-6)
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert _dist(rig.ctl.pose_m, _target(rig, 10.0)) < 1e-3
+
+
+_AXIS = st.floats(-30.0, 30.0)
+_VEL = st.floats(-2.0, 2.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    p=st.tuples(_AXIS, st.floats(-20.0, 20.0), st.floats(0.5, 6.0)),
+    v=st.tuples(_VEL, _VEL, _VEL),
+    buildup=st.floats(0.0, 1e-3),
+    direction=st.sampled_from([1, -1]),
+)
+def test_feed_forward_is_the_derivative_of_ipk_through_the_reels(
+    p: tuple[float, float, float],
+    v: tuple[float, float, float],
+    buildup: float,
+    direction: int,
+) -> None:
+    cfg = make_config(loop={"rate_hz": RATE_HZ})
+    ctl = Controller(cfg, FakeDriver([r.node_id for r in cfg.reels], FakeClock()))
+    ctl.reels = [
+        ReelModel(0.5, 10.0, direction, spool_buildup_m_per_rev2=buildup, reference_length_m=40.0)
+        for _ in cfg.reels
+    ]
+    lengths = kinematics.ipk_point(cfg.geometry, p)
+    rev = [m.position_rev(L) for m, L in zip(ctl.reels, lengths, strict=True)]
+    ff = ctl._velocity_ff(p, v, lengths, rev)
+    h = 1e-4  # central difference of turns along the motion (exact to ~h^2)
+    ahead = (p[0] + v[0] * h, p[1] + v[1] * h, p[2] + v[2] * h)
+    behind = (p[0] - v[0] * h, p[1] - v[1] * h, p[2] - v[2] * h)
+    la = kinematics.ipk_point(cfg.geometry, ahead)
+    lb = kinematics.ipk_point(cfg.geometry, behind)
+    for i, m in enumerate(ctl.reels):
+        want = (m.position_rev(la[i]) - m.position_rev(lb[i])) / (2.0 * h)
+        assert ff[i] == pytest.approx(want, rel=1e-5, abs=1e-6)
+        assert math.isfinite(ff[i])
