@@ -857,8 +857,8 @@ def plot_circle(run: CircleRun, out_dir: Path, summary: CircleSummary | None = N
     fig.text(
         0.45,
         0.012,
-        "While moving, the reels trail the set-point (positions are commanded without velocity "
-        "feed-forward);\nspikes are delays of the shared CPU. "
+        "While moving, the set-points carry velocity feed-forward: the reels follow within "
+        "millimetres;\nspikes are delays of the shared CPU. "
         f"Values below {floor:g} mm are drawn at {floor:g} mm.",
         **note_kw,
     )
