@@ -834,8 +834,11 @@ def _gauss_newton(
         sz = (c13 * g1 + c23 * g2 + c33 * g3) * inv
         step2 = sx * sx + sy * sy + sz * sz
         if step2 < 1e-12 and (step2 <= tol2 or step2 * step2 < GN_NEXT_TOL2 * prev2):
-            # Converged: take this last small step without evaluating again.
+            # Converged: take this last small step without evaluating again. The cost at the
+            # new point is the Gauss-Newton model's |r - J s|^2 = cost - g.s (exact to second
+            # order in a sub-micrometre step), so the residual belongs to the returned point.
             x, y, z = x - sx, y - sy, z - sz
+            cost = max(0.0, cost - (g1 * sx + g2 * sy + g3 * sz))
             if z_mirror is not None and z > z_mirror:
                 z = 2.0 * z_mirror - z
             break
@@ -1210,7 +1213,7 @@ def _refine_chunk(
                 x[...] = np.where(fin, nx, x)
                 y[...] = np.where(fin, ny, y)
                 z[...] = np.where(fin, nz, z)
-                residual[...] = np.where(done, np.sqrt(ne[0] / n), residual)
+                residual[...] = np.where(done, np.sqrt(_cost_after(ne, sx, sy, sz) / n), residual)
             act = act & ~done
             left = int(np.count_nonzero(act))
             if left == 0:
@@ -1230,7 +1233,7 @@ def _refine_chunk(
                 rows = idx[fin]
                 x[rows], y[rows], z[rows] = nx[fin], ny[fin], nz[fin]
                 rows = idx[done]
-                residual[rows] = np.sqrt(ne[0][done] / n)
+                residual[rows] = np.sqrt(_cost_after(ne, sx, sy, sz)[done] / n)
             go = np.nonzero(~done)[0]
             if go.size == 0:
                 idx = idx[:0]
@@ -1264,6 +1267,16 @@ def _seed_row(geom: Geometry, row: FloatArray) -> Vec3:
     if isinstance(sd, _EqualSeed):
         return _seed_equal(sd, r1, r2, r3)
     return _seed_general(sd, r1, r2, r3)
+
+
+def _cost_after(ne: list[FloatArray], sx: FloatArray, sy: FloatArray, sz: FloatArray) -> FloatArray:
+    """Cost after the Gauss-Newton step s (model |r - J s|^2 = cost - g.s), never below 0.
+
+    Where the step is zero (singular rows) this is the cost itself.
+    """
+    post = ne[0] - (ne[7] * sx + ne[8] * sy + ne[9] * sz)
+    np.maximum(post, 0.0, out=post)
+    return post
 
 
 def _solve_normal(
