@@ -214,6 +214,16 @@ def ensure_state(d: Daemon, state: str) -> None:
     while d.status()["state"] != state:
         assert time.monotonic() < deadline, d.proc.log()
         time.sleep(0.05)
+    if state == "HOLDING":
+        # The reels' position loops settle exponentially after a move: wait until the measured
+        # pose sits on the set-point, so "unchanged" comparisons see the robot at rest.
+        while True:
+            st = d.status()
+            pos, sp = st["pose"]["position_m"], st["setpoint_m"]
+            if pos is not None and sp is not None and math.dist(pos, sp) < 2e-5:
+                break
+            assert time.monotonic() < deadline, (st, d.proc.log())
+            time.sleep(0.05)
 
 
 # ------------------------------------------------------------------------------ rate, schema, move
