@@ -219,9 +219,12 @@ class CircleRun:
     notes: list[str] = field(default_factory=list)
 
 
-SETTLE_WINDOW_S = 0.03
-SETTLE_TOL_M = 1e-5
-"""Settled: after the hold, the FPK position moved less than this over the last window."""
+SETTLE_WINDOW_S = 0.1
+SETTLE_TOL_M = 1e-6
+"""Settled: after the hold, the FPK position moved less than this over the last window. The
+reels' position loops settle exponentially (time constant 1 / pos_gain = 50 ms), so this is in
+effect "the float32 encoder readings stopped changing for two time constants", i.e. the reels
+sit on their set-points to within a float32 step."""
 
 
 def free_tcp_port() -> int:
