@@ -61,8 +61,10 @@ Method
   length changes from one received pose to the next, a new encoder frame of that node has
   reached a pose; its latency is the pose's arrival minus the send time of the latest frame of
   that node carrying exactly that value sent before the arrival. Assumption: while the robot
-  moves, consecutive encoder values of a node differ (true at 1 m/s: about 40 float32 steps per
-  frame), so "latest frame with that value" is the frame that produced the change. Frames
+  moves, consecutive encoder values of a node differ (at cruise they are hundreds of float32
+  steps apart), so "latest frame with that value" is the frame that produced the change; only
+  at the very start and end of a move can two frames 2 ms apart repeat a value, and only if the
+  second is sent before the pose arrives does it shorten that sample. Frames
   superseded before any tick used them produce no pose and no sample; a pose dropped by Zenoh
   makes the next pose count, as the subscriber saw it.
 """
