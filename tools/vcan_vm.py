@@ -557,6 +557,10 @@ def run_in_vm(pytest_args: list[str]) -> int:
         return 1
     rc = int(rc_file.read_text().strip() or "1")
     log(f"VM: boot {boot_s:.1f} s, whole run {elapsed_s:.1f} s, guest pytest exit {rc}")
+    if rc == 0:
+        shutil.rmtree(outdir, ignore_errors=True)
+    else:
+        log(f"kept for inspection: {outdir}/guest.log")
     return rc
 
 
