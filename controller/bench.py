@@ -651,19 +651,9 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
     Raises BenchError when a helper fails, the robot cannot be armed or faults, or no
     end-to-end sample was matched.
     """
-    from controller import zenoh_io
     from controller.commands import Arm, Move, Reset
-    from controller.daemon import (
-        RT_PRIORITY,
-        SWITCH_INTERVAL_S,
-        TIMER_SLACK_NS,
-        set_realtime,
-        set_timer_slack,
-    )
-    from controller.loop import Controller
+    from controller.daemon import Stack, build_stack, start_loop
     from controller.states import State
-    from drivers.bus import open_bus
-    from drivers.odrive import ODriveReels
 
     zport = free_tcp_port()
     data = loop_config_data(rate_hz, zport)
@@ -674,7 +664,7 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
     sub_log = workdir / f"sub-{int(rate_hz)}.json"
     period_s = 1.0 / float(rate_hz)
     children: list[_Child] = []
-    closers: list[Callable[[], object]] = []
+    stack: Stack | None = None
     stop_loop = threading.Event()
     thread: threading.Thread | None = None
     try:
@@ -688,30 +678,12 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
         sim.wait_line("READY", CHILD_START_TIMEOUT_S)
         sim_sched = next((ln[6:] for ln in sim.out if ln.startswith("READY ")), "")
 
-        # As controller.daemon.run_daemon builds them.
-        b = cfg.bus
-        bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
-        closers.append(bus.shutdown)
-        driver = ODriveReels(bus, [r.node_id for r in cfg.reels], encoder_rtr=cfg.loop.encoder_rtr)
-        controller = Controller(cfg, driver)
-        iface = zenoh_io.ZenohInterface(cfg.zenoh, controller)
-        iface.open()
-        closers.append(iface.close)
-        controller.publisher = iface
-        rt_report: list[str] = []
-
-        def loop_main() -> None:
-            if cfg.loop.realtime:
-                rt_report.append(set_realtime(int(getattr(cfg.loop, "rt_priority", RT_PRIORITY))))
-            rt_report.append(set_timer_slack(TIMER_SLACK_NS))
-            controller.run(stop_loop)
-
-        sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
-        if cfg.loop.gc_freeze:
-            gc.collect()
-            gc.freeze()
-        thread = threading.Thread(target=loop_main, name="cablebot-loop", daemon=True)
-        thread.start()
+        # The daemon's own builder and loop thread (bus, driver, Controller, Zenoh; SCHED_FIFO,
+        # timer slack, switch interval, gc freeze).
+        stack = build_stack(cfg)
+        controller, driver, iface = stack.controller, stack.driver, stack.zenoh
+        assert iface is not None  # build_stack(zenoh=True) raises rather than give None
+        thread, rt_report = start_loop(stack, stop_loop)
 
         endpoint = f"tcp/127.0.0.1:{zport}"
         sub = _Child(
@@ -773,9 +745,8 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
         stop_loop.set()
         for c in reversed(children):
             c.stop()
-        for close in reversed(closers):
-            with contextlib.suppress(Exception):
-                close()
+        if stack is not None:
+            stack.close()
 
     if not jitter.values or not compute.values:
         raise BenchError("no loop statistics were collected")

@@ -23,6 +23,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -154,13 +155,125 @@ def status_line(st: dict[str, Any]) -> str:
     )
 
 
-def _open_zenoh(cfg: Any, controller: Any) -> Any:
-    """Open the Zenoh interface; raises whatever Zenoh raises (e.g. the port is taken)."""
-    from controller import zenoh_io
+@dataclass
+class Stack:
+    """A robot's running pieces, built by `build_stack` as `cablebot run` builds them."""
 
-    iface = zenoh_io.ZenohInterface(cfg.zenoh, controller)
-    iface.open()
-    return iface
+    cfg: Any
+    bus: Any
+    driver: Any
+    controller: Any
+    zenoh: Any | None
+    closers: list[tuple[str, Callable[[], object]]] = field(default_factory=list)
+
+    def close(self) -> None:
+        """Close Zenoh, the simulated nodes and the buses (newest first); never raises."""
+        _close_all(self.closers)
+        self.closers = []
+
+
+def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> Stack:
+    """Open the bus, start in-process simulated nodes when `cfg.sim.enabled` (initialised from
+    `sim_cfg`, default `cfg`), create the ODrive driver, the Controller and, with `zenoh`, the
+    Zenoh interface as the controller's publisher.
+
+    Raises whatever fails (bus, simulated nodes, Zenoh: e.g. its port is taken) after closing
+    what was opened.
+    """
+    from controller.loop import Controller
+    from controller.sim_cmd import start_sim_bank
+    from drivers.bus import open_bus
+    from drivers.odrive import ODriveReels
+
+    closers: list[tuple[str, Callable[[], object]]] = []
+    b = cfg.bus
+    try:
+        bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
+        closers.append(("bus", bus.shutdown))
+        if cfg.sim.enabled:
+            # python-can `virtual` buses only hear other bus objects: the sim gets its own.
+            sim_bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
+            closers.append(("sim bus", sim_bus.shutdown))
+            bank = start_sim_bank(sim_cfg if sim_cfg is not None else cfg, sim_bus)
+            closers.append(("sim", bank.stop))
+            sim_rt = "SCHED_OTHER"
+            if cfg.loop.realtime:
+                # The simulated nodes stand in for hardware: a starved sim thread on a busy
+                # machine would look like a stale node. One step below the loop.
+                for t in threading.enumerate():
+                    if t.name == "sim-odrive" and t.native_id is not None:
+                        sim_rt = set_realtime(max(1, _rt_priority(cfg) - 1), t.native_id)
+            log.info(
+                "simulated ODrive nodes %s started in-process (%s)",
+                [r.node_id for r in cfg.reels],
+                sim_rt,
+            )
+        driver = ODriveReels(
+            bus, [r.node_id for r in cfg.reels], encoder_rtr=bool(cfg.loop.encoder_rtr)
+        )
+        controller = Controller(cfg, driver)
+        iface = None
+        if zenoh:
+            from controller import zenoh_io
+
+            iface = zenoh_io.ZenohInterface(cfg.zenoh, controller)
+            try:
+                iface.open()
+            except Exception as exc:
+                raise RuntimeError(
+                    f"Zenoh interface failed to open on {list(cfg.zenoh.listen)}: {exc} "
+                    "(is another cablebot daemon running? set [zenoh] listen)"
+                ) from exc
+            closers.append(("zenoh", iface.close))
+            controller.publisher = iface
+    except BaseException:
+        _close_all(closers)
+        raise
+    return Stack(cfg, bus, driver, controller, iface, closers)
+
+
+def start_loop(
+    stack: Stack,
+    stop: threading.Event,
+    *,
+    on_watchdog: Callable[[], None] | None = None,
+    watchdog_period_s: float = 0.0,
+    on_crash: Callable[[BaseException], None] | None = None,
+) -> tuple[threading.Thread, list[str]]:
+    """Run `stack.controller.run(stop)` in a loop thread, as the daemon does: SCHED_FIFO and a
+    1 us timer slack for that thread (with `loop.realtime`), a short GIL switch interval, and
+    the garbage collector frozen after start-up (`loop.gc_freeze`).
+
+    Returns the thread and a list that the thread fills with the scheduling it obtained.
+    If the loop raises, it is logged and `on_crash` is called from the loop thread; nothing
+    is raised.
+    """
+    cfg = stack.cfg
+    controller = stack.controller
+    report: list[str] = []
+
+    def loop_main() -> None:
+        if cfg.loop.realtime:
+            report.append(set_realtime(_rt_priority(cfg)))
+        else:
+            report.append("SCHED_OTHER (loop.realtime = false)")
+        report.append(set_timer_slack(TIMER_SLACK_NS))
+        try:
+            controller.run(stop, on_watchdog=on_watchdog, watchdog_period_s=watchdog_period_s)
+        except BaseException as exc:
+            log.exception("control loop crashed")
+            if on_crash is not None:
+                on_crash(exc)
+
+    # A woken loop thread waits for the GIL up to the switch interval (5 ms by default):
+    # shorten it so other Python threads (Zenoh callbacks, an in-process sim) yield sooner.
+    sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+    if cfg.loop.gc_freeze:
+        gc.collect()
+        gc.freeze()
+    thread = threading.Thread(target=loop_main, name="cablebot-loop", daemon=True)
+    thread.start()
+    return thread, report
 
 
 def run_daemon(
@@ -175,10 +288,6 @@ def run_daemon(
     Raises nothing for configuration or bus errors: they are logged and give exit code 2 / 1.
     """
     from controller.config import ConfigError, load_config
-    from controller.loop import Controller
-    from controller.sim_cmd import start_sim_bank
-    from drivers.bus import open_bus
-    from drivers.odrive import ODriveReels
 
     try:
         cfg = load_config(config)
@@ -197,76 +306,30 @@ def run_daemon(
     signal.signal(signal.SIGINT, on_signal)
 
     notifier = Notifier()
-    closers: list[tuple[str, Callable[[], object]]] = []
-    b = cfg.bus
     try:
-        bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
-        closers.append(("bus", bus.shutdown))
-        if cfg.sim.enabled:
-            sim_bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
-            closers.append(("sim bus", sim_bus.shutdown))
-            bank = start_sim_bank(cfg, sim_bus)
-            closers.append(("sim", bank.stop))
-            sim_rt = "SCHED_OTHER"
-            if cfg.loop.realtime:
-                # The simulated nodes stand in for hardware: a starved sim thread on a busy
-                # machine would look like a stale node. One step below the loop.
-                for t in threading.enumerate():
-                    if t.name == "sim-odrive" and t.native_id is not None:
-                        sim_rt = set_realtime(max(1, _rt_priority(cfg) - 1), t.native_id)
-            log.info(
-                "simulated ODrive nodes %s started in-process (%s)",
-                [r.node_id for r in cfg.reels],
-                sim_rt,
-            )
-        node_ids = [r.node_id for r in cfg.reels]
-        driver = ODriveReels(bus, node_ids, encoder_rtr=bool(cfg.loop.encoder_rtr))
-        controller = Controller(cfg, driver)
+        stack = build_stack(cfg)
+    except Exception as exc:
         # A robot nobody can watch or stop over the network must not start: nothing is armed
         # yet, so failing here is safe (and systemd reports it).
-        try:
-            iface = _open_zenoh(cfg, controller)
-        except Exception as exc:
-            raise RuntimeError(
-                f"Zenoh interface failed to open on {list(cfg.zenoh.listen)}: {exc} "
-                "(is another cablebot daemon running? set [zenoh] listen)"
-            ) from exc
-        controller.publisher = iface
-        closers.append(("zenoh", iface.close))
-    except Exception as exc:
         log.error("start-up failed: %s", exc)
-        _close_all(closers)
         return 1
+    controller = stack.controller
+    driver = stack.driver
 
     stop_loop = threading.Event()
     crashed = threading.Event()
-    rt_report: list[str] = []
 
-    def loop_main() -> None:
-        if cfg.loop.realtime:
-            rt_report.append(set_realtime(_rt_priority(cfg)))
-        else:
-            rt_report.append("SCHED_OTHER (loop.realtime = false)")
-        rt_report.append(set_timer_slack(TIMER_SLACK_NS))
-        try:
-            controller.run(
-                stop_loop,
-                on_watchdog=lambda: notifier.notify("WATCHDOG=1"),
-                watchdog_period_s=notifier.watchdog_period_s,
-            )
-        except Exception:
-            log.exception("control loop crashed")
-            crashed.set()
-            shutdown.set()
+    def on_crash(exc: BaseException) -> None:
+        crashed.set()
+        shutdown.set()
 
-    # A woken loop thread waits for the GIL up to the switch interval (5 ms by default):
-    # shorten it so other Python threads (Zenoh callbacks, an in-process sim) yield sooner.
-    sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
-    if cfg.loop.gc_freeze:
-        gc.collect()
-        gc.freeze()
-    thread = threading.Thread(target=loop_main, name="cablebot-loop", daemon=True)
-    thread.start()
+    thread, rt_report = start_loop(
+        stack,
+        stop_loop,
+        on_watchdog=lambda: notifier.notify("WATCHDOG=1"),
+        watchdog_period_s=notifier.watchdog_period_s,
+        on_crash=on_crash,
+    )
     log.info(
         "control loop at %.0f Hz (%s)",
         cfg.loop.rate_hz,
@@ -321,7 +384,7 @@ def run_daemon(
     stop_loop.set()
     thread.join(0.5)
     final = controller.status()
-    _close_all(closers)
+    stack.close()
     notifier.close()
     log.info("stopped in %.3f s: %s", time.monotonic() - t0, status_line(final))
     return 1 if crashed.is_set() else 0
