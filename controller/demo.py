@@ -342,13 +342,11 @@ def run_circle(
     """
     from controller.commands import Arm, Disarm, Home
     from controller.commands import Path as PathCmd
+    from controller.daemon import Stack, build_stack, start_loop
     from controller.limits import Limits
-    from controller.loop import Controller, NullPublisher
+    from controller.loop import NullPublisher
     from controller.motion import circle_path
-    from controller.sim_cmd import start_sim_bank
     from controller.states import State
-    from drivers.bus import open_bus
-    from drivers.odrive import ODriveReels
 
     say = progress if progress is not None else (lambda s: None)
     points = circle_path(spec.radius_m, spec.centre_m, spec.z_m, spec.steps)
@@ -395,7 +393,7 @@ def run_circle(
             + " (--strict-faults keeps the config's)"
         )
 
-    closers: list[tuple[str, Callable[[], object]]] = []
+    stack: Stack | None = None
     notes: list[str] = []
     stop_loop = threading.Event()
     crashed: list[BaseException] = []
@@ -404,14 +402,9 @@ def run_circle(
     try:
         # The simulated reels power up with the effector at the circle's start.
         sim_cfg = replace(dcfg, homing=replace(dcfg.homing, power_up_position_m=start))
-        sim_bus = open_bus("virtual", channel)
-        closers.append(("sim bus", sim_bus.shutdown))
-        bank = start_sim_bank(sim_cfg, sim_bus)
-        closers.append(("sim", bank.stop))
-        bus = open_bus("virtual", channel)
-        closers.append(("bus", bus.shutdown))
-        driver = ODriveReels(bus, dcfg.node_ids, encoder_rtr=bool(dcfg.loop.encoder_rtr))
-        controller = Controller(dcfg, driver)
+        # The daemon's own builder; Zenoh is optional here (opened below, or not at all).
+        stack = build_stack(dcfg, zenoh=False, sim_cfg=sim_cfg)
+        controller = stack.controller
 
         inner: Any = NullPublisher()
         zenoh_text = "off (--no-zenoh)"
@@ -426,7 +419,7 @@ def run_circle(
                 notes.append(f"Zenoh {zenoh_text}")
             else:
                 inner = iface
-                closers.append(("zenoh", iface.close))
+                stack.closers.append(("zenoh", iface.close))
                 zenoh_text = f"{endpoint}, key {dcfg.zenoh.prefix}/pose"
         say(f"Zenoh: {zenoh_text}")
         if not isinstance(inner, NullPublisher):
@@ -434,20 +427,8 @@ def run_circle(
         recorder = Recorder(controller, len(dcfg.reels), capacity, inner)
         controller.publisher = recorder
 
-        def loop_main() -> None:
-            try:
-                controller.run(stop_loop)
-            except BaseException as exc:  # reported by the main thread
-                crashed.append(exc)
-
-        # As the daemon does: let the loop thread get the GIL back quickly; freeze what exists
-        # so garbage collections stay short.
-        sys.setswitchinterval(min(old_switch, 0.0005))
-        if dcfg.loop.gc_freeze:
-            gc.collect()
-            gc.freeze()
-        thread = threading.Thread(target=loop_main, name="cablebot-loop", daemon=True)
-        thread.start()
+        # As the daemon runs it (its loop thread, switch interval and gc freeze).
+        thread, _sched = start_loop(stack, stop_loop, on_crash=crashed.append)
 
         def fault() -> str | None:
             if crashed:
@@ -536,11 +517,8 @@ def run_circle(
             thread.join(2.0)
         sys.setswitchinterval(old_switch)
         gc.unfreeze()
-        for name, close in reversed(closers):
-            try:
-                close()
-            except Exception as exc:
-                log.warning("closing %s: %s", name, exc)
+        if stack is not None:
+            stack.close()
 
     n = len(cfg.reels)
     i0 = settled[0]
