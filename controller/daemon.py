@@ -392,14 +392,14 @@ def run_daemon(
 
 def _auto_arm(cfg: Any) -> bool:
     """`loop.auto_arm` if the config has it, else arm by itself only on the simulated robot."""
-    value = getattr(cfg.loop, "auto_arm", None)
+    value = cfg.loop.auto_arm
     if value is None:
         return bool(cfg.sim.enabled)
     return bool(value)
 
 
 def _rt_priority(cfg: Any) -> int:
-    return int(getattr(cfg.loop, "rt_priority", RT_PRIORITY))
+    return int(cfg.loop.rt_priority)
 
 
 def _summary_text(cfg: Any) -> str:

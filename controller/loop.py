@@ -57,6 +57,7 @@ from controller.commands import (
     Stop,
     Vec3,
 )
+from controller.config import RobotConfig
 from controller.limits import Limits
 from controller.motion import MotionPlanner
 from controller.states import ARMED_STATES, State, check_transition
@@ -212,7 +213,7 @@ class Controller:
 
     def __init__(
         self,
-        cfg: Any,
+        cfg: RobotConfig,
         driver: ReelDriver,
         publisher: Publisher | None = None,
         *,
@@ -238,10 +239,10 @@ class Controller:
         )
         self.period_s = 1.0 / float(cfg.loop.rate_hz)
         self._max_plan_dt_s = MAX_PLANNER_DT_PERIODS * self.period_s
-        self.publish_every = max(1, int(getattr(cfg.loop, "publish_every", 1)))
+        self.publish_every = max(1, int(cfg.loop.publish_every))
         self.limits = Limits(cfg.limits, self.geometry)
         self._default_speed_mps = min(
-            float(getattr(cfg.limits, "default_speed_mps", cfg.limits.max_speed_mps)),
+            float(cfg.limits.default_speed_mps),
             float(cfg.limits.max_speed_mps),
         )
         self.planner = MotionPlanner(
@@ -253,7 +254,7 @@ class Controller:
         self._residual_max_m = float(f.residual_max_m)
         self._tracking_max_m = float(f.tracking_max_m)
         self._arm_timeout_s = float(f.arm_timeout_s)
-        self._bus_err_timeout_s = float(getattr(f, "bus_error_timeout_s", 0.0))
+        self._bus_err_timeout_s = float(f.bus_error_timeout_s)
         self._bus_err_since_s: float | None = None
 
         self._base_reels: tuple[ReelModel, ...] = tuple(r.reel for r in cfg.reels)
@@ -980,11 +981,11 @@ class Controller:
                 "decode_errors": bs.decode_errors,
                 "dropped": bs.dropped,
                 "bus_errors": bs.bus_errors,
-                "ff_clamped": getattr(bs, "ff_clamped", 0),
+                "ff_clamped": bs.ff_clamped,
                 "last_error": bs.last_error,
                 "errors_by_kind": dict(bs.errors_by_kind),
             },
-            "config": _summary(self.cfg),
+            "config": self.cfg.summary(),
         }
 
     # ---------------------------------------------------------------- the fixed-rate loop
@@ -1068,13 +1069,3 @@ def _finite_or_none(x: float) -> float | None:
 
 def _fmt(p: Sequence[float]) -> str:
     return "[" + ", ".join(f"{float(v):.4f}" for v in p) + "]"
-
-
-def _summary(cfg: Any) -> Any:
-    fn = getattr(cfg, "summary", None)
-    if callable(fn):
-        try:
-            return fn()
-        except Exception as exc:
-            return {"error": str(exc)}
-    return {"name": getattr(cfg, "name", None)}
