@@ -285,6 +285,9 @@ class Controller:
 
         # Per-tick working values (the last tick's).
         self.lengths_m: list[float] = [math.nan] * self.n
+        self._fpk_lengths_m: list[float] = [math.nan] * self.n
+        """The lengths the current pose was solved from (NaN: none yet)."""
+        self.fpk_solves = 0
         self.pose_m: Vec3 | None = None
         self.residual_m: float | None = None
         self.pose_valid = False
@@ -544,28 +547,42 @@ class Controller:
                 # Old encoder data is no pose (armed states have faulted on it already).
                 self.pose_valid = False
                 return
-        try:
-            res = kinematics.fpk(self.geometry, lengths)
-        except kinematics.KinematicsError as exc:
-            self.pose_valid = False
-            if self.state is not State.DISARMED:
-                raise _Fault(f"fpk_unreachable: {exc}") from None
-            return
-        pos = res.position_m
-        self.pose_m = (float(pos[0]), float(pos[1]), float(pos[2]))
-        self.residual_m = float(res.residual_m)
-        ok = all(map(math.isfinite, self.pose_m)) and math.isfinite(self.residual_m)
+        pose = self.pose_m
+        residual = self.residual_m
+        if (
+            pose is None
+            or residual is None
+            or not self.pose_valid
+            or lengths != self._fpk_lengths_m
+        ):
+            # New encoder data (at 1 kHz with 2 ms broadcasts, every other tick has none):
+            # solve; otherwise the pose of the same lengths is the one already solved.
+            try:
+                res = kinematics.fpk(self.geometry, lengths)
+            except kinematics.KinematicsError as exc:
+                self.pose_valid = False
+                if self.state is not State.DISARMED:
+                    raise _Fault(f"fpk_unreachable: {exc}") from None
+                return
+            pos = res.position_m
+            pose = (float(pos[0]), float(pos[1]), float(pos[2]))
+            residual = float(res.residual_m)
+            self.pose_m = pose
+            self.residual_m = residual
+            self._fpk_lengths_m[:] = lengths
+            self.fpk_solves += 1
+        ok = all(map(math.isfinite, pose)) and math.isfinite(residual)
         self.pose_valid = ok
         if not ok:
             raise _Fault("fpk_unreachable: non-finite solution")
-        if self.residual_m > self._residual_max_m and self.state is not State.DISARMED:
+        if residual > self._residual_max_m and self.state is not State.DISARMED:
             raise _Fault(
-                f"residual: {self.residual_m * 1e3:.1f} mm > {self._residual_max_m * 1e3:.1f} mm"
+                f"residual: {residual * 1e3:.1f} mm > {self._residual_max_m * 1e3:.1f} mm"
                 " (slack or slipped cable)"
             )
         sp = self.setpoint_m
         if sp is not None and self.state in ARMED_STATES:
-            p = self.pose_m
+            p = pose
             err = math.sqrt((p[0] - sp[0]) ** 2 + (p[1] - sp[1]) ** 2 + (p[2] - sp[2]) ** 2)
             if err > self._tracking_max_m:
                 raise _Fault(

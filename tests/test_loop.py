@@ -723,3 +723,20 @@ def test_feed_forward_is_the_derivative_of_ipk_through_the_reels(
         want = (m.position_rev(la[i]) - m.position_rev(lb[i])) / (2.0 * h)
         assert ff[i] == pytest.approx(want, rel=1e-5, abs=1e-6)
         assert math.isfinite(ff[i])
+
+
+def test_fpk_is_solved_only_when_the_encoder_lengths_change() -> None:
+    rig = _armed_rig()
+    solves, ticks = rig.ctl.fpk_solves, rig.ctl.ticks
+    rig.tick(50)  # holding: the fake reels report the same turns every tick
+    assert rig.ctl.ticks == ticks + 50
+    assert rig.ctl.fpk_solves == solves
+    pose = rig.ctl.pose_m
+    assert pose is not None and _dist(pose, rig.start) < 1e-6
+    # A cable that slips is seen at once: new lengths are solved, the residual check faults.
+    rig.driver.follow = False
+    rig.driver.readings[1].position_rev += 2.0
+    rig.tick()
+    assert rig.ctl.fpk_solves == solves + 1
+    assert rig.ctl.state is State.FAULT
+    assert rig.ctl.reason is not None and rig.ctl.reason.startswith("residual:")
