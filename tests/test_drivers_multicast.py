@@ -3,14 +3,9 @@
 from __future__ import annotations
 
 import math
-import os
 import random
-import subprocess
-import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
-from pathlib import Path
+from collections.abc import Iterator
 
 import can
 import pytest
@@ -18,53 +13,10 @@ import pytest
 from drivers import cansimple as cs
 from drivers.bus import open_bus
 from drivers.odrive import ODriveReels
+from tests.sim_procs import poll_until, start_sim, stop_sim
 
-REPO = Path(__file__).resolve().parents[1]
 NODES = (0, 1, 2, 3)
 INITIAL_REV = (0.0, 1.0, -2.0, 0.5)
-
-
-def start_sim(args: list[str], ready_timeout_s: float = 30.0) -> subprocess.Popen[str]:
-    """Start `python -m drivers.sim_odrive ARGS` and wait (bounded) for its READY line."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "drivers.sim_odrive", *args],
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-    line: list[str] = []
-    reader = threading.Thread(
-        target=lambda: line.append(proc.stdout.readline() if proc.stdout else "")
-    )
-    reader.daemon = True
-    reader.start()
-    reader.join(ready_timeout_s)
-    if not line or not line[0].startswith("READY"):
-        proc.kill()
-        _, err = proc.communicate(timeout=10)
-        raise AssertionError(f"sim process not ready within {ready_timeout_s} s: {line!r} {err}")
-    return proc
-
-
-def stop_sim(proc: subprocess.Popen[str]) -> None:
-    proc.terminate()
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(timeout=10)
-
-
-def poll_until(driver: ODriveReels, cond: Callable[[], bool], timeout_s: float = 20.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        driver.poll()
-        if cond():
-            return True
-        time.sleep(0.002)
-    return False
 
 
 def multicast_channel() -> tuple[str, int]:

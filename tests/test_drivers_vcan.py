@@ -6,14 +6,9 @@ Python is several times slower: every deadline is scaled by the `slow_factor` fi
 
 from __future__ import annotations
 
-import os
 import statistics
-import subprocess
-import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
-from pathlib import Path
+from collections.abc import Iterator
 
 import can
 import pytest
@@ -21,58 +16,14 @@ import pytest
 from drivers import cansimple as cs
 from drivers.bus import open_bus
 from drivers.odrive import ODriveReels
+from tests.sim_procs import poll_until, start_sim, stop_sim
 
 # Generous: under the emulated VM each step takes several times longer than on a host.
 pytestmark = [pytest.mark.vcan, pytest.mark.timeout(900)]
 
-REPO = Path(__file__).resolve().parents[1]
 # Node ids away from 0..3 so a stray process of another vcan test cannot answer for ours.
 NODES = (20, 21, 22, 23)
 INITIAL_REV = (0.0, 1.0, -2.0, 0.5)
-
-
-def start_sim(args: list[str], ready_timeout_s: float) -> subprocess.Popen[str]:
-    """Start `python -m drivers.sim_odrive ARGS`; wait (bounded) for its READY line."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "drivers.sim_odrive", *args],
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )
-    line: list[str] = []
-    reader = threading.Thread(
-        target=lambda: line.append(proc.stdout.readline() if proc.stdout else ""), daemon=True
-    )
-    reader.start()
-    reader.join(ready_timeout_s)
-    if not line or not line[0].startswith("READY"):
-        proc.kill()
-        _, err = proc.communicate(timeout=30)
-        raise AssertionError(
-            f"sim process not ready within {ready_timeout_s:.0f} s: {line!r} {err}"
-        )
-    return proc
-
-
-def stop_sim(proc: subprocess.Popen[str]) -> None:
-    proc.terminate()
-    try:
-        proc.wait(timeout=30)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(timeout=30)
-
-
-def poll_until(driver: ODriveReels, cond: Callable[[], bool], timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        driver.poll()
-        if cond():
-            return True
-        time.sleep(0.001)
-    return False
 
 
 @pytest.fixture
@@ -139,7 +90,7 @@ def test_vcan_arm_command_read_back(
             wait_s,
         )
     finally:
-        stop_sim(proc)
+        stop_sim(proc, 30.0)
     assert proc.returncode == 0
 
 
@@ -172,4 +123,4 @@ def test_vcan_rtr_round_trip(
             f"{statistics.median(rtts) * 1e3:.2f} ms, max {max(rtts) * 1e3:.2f} ms"
         )
     finally:
-        stop_sim(proc)
+        stop_sim(proc, 30.0)
