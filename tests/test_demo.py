@@ -24,6 +24,7 @@ from controller import demo
 from controller.config import load_config, paper_robot_data
 from controller.kinematics import Geometry, ipk
 from controller.loop import PoseSample
+from tests.daemon_procs import to_toml
 
 REPO = Path(__file__).resolve().parents[1]
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -32,31 +33,9 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # --------------------------------------------------------------------------------- helpers
 
 
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {v!r} as TOML")
-
-
 def write_toml(data: dict[str, Any], path: Path) -> None:
-    """Write the paper-robot-shaped mapping (scalars, tables, [[reels]]) as TOML."""
-    lines = [f"{k} = {_toml_value(v)}" for k, v in data.items() if not isinstance(v, dict | list)]
-    for k, v in data.items():
-        if isinstance(v, dict):
-            lines.append(f"\n[{k}]")
-            lines += [f"{kk} = {_toml_value(vv)}" for kk, vv in v.items()]
-    for k, v in data.items():
-        if isinstance(v, list) and v and isinstance(v[0], dict):
-            for item in v:
-                lines.append(f"\n[[{k}]]")
-                lines += [f"{kk} = {_toml_value(vv)}" for kk, vv in item.items()]
-    path.write_text("\n".join(lines) + "\n")
+    """Write a robot mapping as TOML (the cross-process tests' writer)."""
+    path.write_text(to_toml(data))
 
 
 def png_size(path: Path) -> tuple[int, int]:
