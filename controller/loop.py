@@ -817,36 +817,10 @@ class Controller:
     ) -> dict[str, Any]:
         S = State  # noqa: N806
         if isinstance(cmd, Move):
-            self._refuse_unless(S.HOLDING, S.MOVING)
-            reason = self._check_target(cmd.position_m)
-            if reason is not None:
-                raise CommandRefused(f"target {_fmt(cmd.position_m)}: {reason}")
-            # A move that arrives while moving first brakes to a stop, then starts from there.
-            start = self.planner.rest_point_m if self.setpoint_m is not None else None
-            if start is not None:
-                reason = self.limits.check_path([start, cmd.position_m])
-                if reason is not None:
-                    raise CommandRefused(f"path: {reason}")
-            speed = self._speed(cmd.speed_mps)
-            self.planner.move_to(cmd.position_m, speed)
-            if self.state is S.HOLDING:
-                self._set_state(S.MOVING, "move")
+            speed = self._start_motion([cmd.position_m], cmd.speed_mps, "move")
             return {"ok": True, "target_m": list(cmd.position_m), "speed_mps": speed}
         if isinstance(cmd, Path):
-            self._refuse_unless(S.HOLDING, S.MOVING)
-            for i, p in enumerate(cmd.points_m):
-                reason = self._check_target(p)
-                if reason is not None:
-                    raise CommandRefused(f"points_m[{i}] {_fmt(p)}: {reason}")
-            start = self.planner.rest_point_m if self.setpoint_m is not None else None
-            pts = ([start] if start is not None else []) + list(cmd.points_m)
-            reason = self.limits.check_path(pts)
-            if reason is not None:
-                raise CommandRefused(f"path: {reason}")
-            speed = self._speed(cmd.speed_mps)
-            self.planner.follow_path(cmd.points_m, speed)
-            if self.state is S.HOLDING:
-                self._set_state(S.MOVING, "path")
+            speed = self._start_motion(cmd.points_m, cmd.speed_mps, "path")
             return {"ok": True, "points": len(cmd.points_m), "speed_mps": speed}
         if isinstance(cmd, Stop):
             if self.state in (S.HOLDING, S.MOVING):
@@ -879,6 +853,29 @@ class Controller:
         if isinstance(cmd, Home):
             return self._execute_home(cmd, readings, now_s)
         raise CommandRefused(f"unsupported command {type(cmd).__name__}")
+
+    def _start_motion(self, points: Sequence[Vec3], speed_mps: float | None, verb: str) -> float:
+        """Check a move or path and start it; returns its speed. A move is a one-point path.
+
+        Raises CommandRefused (nothing changed) in the wrong state, for a point outside the
+        limits, or for a leg that leaves them, the first leg starting where the set-point will
+        come to rest (a motion that arrives while moving first brakes to a stop).
+        """
+        self._refuse_unless(State.HOLDING, State.MOVING)
+        for i, p in enumerate(points):
+            reason = self._check_target(p)
+            if reason is not None:
+                where = "target" if verb == "move" else f"points_m[{i}]"
+                raise CommandRefused(f"{where} {_fmt(p)}: {reason}")
+        start = self.planner.rest_point_m if self.setpoint_m is not None else None
+        reason = self.limits.check_path(([start] if start is not None else []) + list(points))
+        if reason is not None:
+            raise CommandRefused(f"path: {reason}")
+        speed = self._speed(speed_mps)
+        self.planner.follow_path(points, speed)
+        if self.state is State.HOLDING:
+            self._set_state(State.MOVING, verb)
+        return speed
 
     def _disarm(self, why: str) -> None:
         try:
