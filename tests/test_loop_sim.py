@@ -91,7 +91,10 @@ class SimRig:
 
 @pytest.fixture
 def rig() -> Iterator[SimRig]:
-    r = SimRig()
+    # Real threads on a shared host: a 110 ms stall of the simulated nodes' thread was seen to
+    # trip the default 50 ms stale window mid-move. The stale-node fault's timing is tested
+    # with the fake clock in test_loop.py; here a silent node must still be named (0.5 s).
+    r = SimRig(stale_timeout_s=0.5, heartbeat_timeout_s=1.0)
     yield r
     r.close()
 
