@@ -54,23 +54,41 @@ Forward kinematics with more than three cables
 ``fpk`` seeds from ``Geometry.seed_triple`` (the usable triple with the largest plan-view
 triangle; an equal-height one preferred among equals) with the simplified algorithm when its
 anchors share a height, the general one otherwise.  When the other cables agree with the seed
-to 1e-12 m (consistent lengths) that is the answer; otherwise Gauss-Newton minimises
-sum (|P - B_i| - L_i)^2 over all N cables (3x3 normal equations in closed form, step halving
-so the cost never rises, mirror to the lower side when all anchors share a height), stopping
-when the step is below 1e-12 m or is below 1 um with the next step predicted (linear
-convergence) below 1e-10 m; with 1 mm of length noise that is two steps.  ``fpk`` and
-``fpk_batch`` follow the same rule and agree to ~1e-11 m.  ``residual_m`` is the RMS of
-|P - B_i| - L_i over all N cables.
+to 1e-12 m (consistent lengths) that is the answer.  Otherwise it minimises
+sum (|P - B_i| - L_i)^2 over all N cables, in the seed cables' length space: the unknowns are
+the seed cables' fitted lengths q, P(q) is their three-spheres point, so those three cables
+are met exactly and only the others are linearised.  This is what makes it fast: the fit
+converges in about two steps, where Gauss-Newton in P needs three or four (near the anchor
+plane, where z is poorly determined, many more).
+
+* Four anchors at one height (the usual rig; ``_Planar4``): the fit is one scalar equation
+  for a Lagrange multiplier, solved by a closed-form first step and one Newton step, to
+  1e-12 m.
+* Otherwise (``_fit_scalar``): Gauss-Newton in q, two steps, then until the step is below
+  1e-12 m or below 1 um with the next predicted (linear convergence) below 1e-10 m.  With a
+  tilted seed triple, the seed's mirror image in the triple's plane also meets the three
+  spheres; when it is below every anchor and the other cables agree with it better, the fit
+  starts there.
+* Whatever these cannot vouch for (a step raising the cost, fitted lengths whose spheres miss,
+  no convergence; rare) is finished by Gauss-Newton in P with step halving (``_gauss_newton``,
+  which also mirrors to the lower side when all anchors share a height).
+
+``fpk`` and ``fpk_batch`` compute the same fit and agree to ~1e-12 m; rows the batch's
+vectorised steps give up on go through the scalar code.  ``residual_m`` is the RMS of
+|P - B_i| - L_i over all N cables at the returned point.
 
 Speed design
 ------------
 The single-pose path (``three_spheres*``, ``fpk`` on N lengths, ``ipk_point``) is pure
 Python floats with anchor-only terms precomputed in ``Geometry``: no numpy on scalars.
 The batch path (``fpk_batch``, ``ipk``) is numpy, vectorised over rows, in chunks of
-``BATCH_CHUNK`` rows so the working set stays in cache, operating in place; masked ufuncs
-(``where=``) are avoided (about 20x slower than plain ones).  Only rows whose step would
-raise the cost or that do not converge (rare: near-tangent seeds) are finished one by one by
-the scalar fit.  ``FpkBatchResult.position_m`` is the (M, 3) transpose of a (3, M) array.
+``BATCH_CHUNK`` rows so the working set stays in cache, operating in place on preallocated
+buffers (a fresh array per operation doubles the cost of the cheap ones); masked ufuncs
+(``where=``) and 2-D fancy indexing are avoided (several times slower than plain ones).  For
+four anchors at one height everything up to the square roots is linear in the squared
+lengths, so two matrix products, read straight from the row-major input, replace most of
+the element-wise work.  ``FpkBatchResult.position_m`` is the (M, 3) transpose of a (3, M)
+array.
 """
 
 from __future__ import annotations
@@ -130,9 +148,11 @@ GN_MAX_ITER = 8
 #: Step halvings tried before a Gauss-Newton step is given up.
 GN_MAX_HALVINGS = 40
 #: A trial step is accepted when the cost (sum of squared residuals, m^2) does not grow by
-#: more than this fraction plus ``GN_COST_ABS_TOL``: rounding noise, not an overshoot.
+#: more than this fraction plus ``GN_COST_ROUND_M`` * sqrt(cost): rounding noise, not an
+#: overshoot.  Each residual |P - B| - L carries a rounding error of about 1e-16 of the cable
+#: length, so near the minimum the cost wobbles by about 2 * sqrt(N * cost) * that error.
 GN_COST_REL_TOL = 1e-9
-GN_COST_ABS_TOL = 1e-24
+GN_COST_ROUND_M = 1e-11
 #: J^T J determinant (sum of unit vectors' outer products) below which the fit stops.
 GN_DET_MIN = 1e-12
 
@@ -217,6 +237,113 @@ class _GeneralSeed:
     inv_a: float  # 1 / (1 + wx^2 + wy^2)
 
 
+@dataclass(frozen=True, slots=True)
+class _Fit:
+    """Constants of the least-squares fit in cable-length space (see ``_fit_scalar``).
+
+    For each cable j outside the seed triple, the gradient k_j of its length |P - B_j| with
+    respect to the seed cables' lengths (P moving so that it stays on the three spheres) is
+    k_ji = L_i * det(D_i) / (d_j * det(D)), D the rows P - C_i of the triple's anchors and D_i
+    the same with row i replaced by P - B_j.  Each determinant is linear in P: a . P + b.
+    When B_j lies in the triple's plane the ratio is its barycentric coordinate c_ji, a
+    constant, and k_ji = c_ji * L_i / d_j (no division by det(D), which vanishes in that
+    plane).
+    """
+
+    others: tuple[int, ...]  # cables outside the seed triple (0-based)
+    anchors: tuple[Vec3, ...]  # their anchors
+    bary: tuple[Vec3 | None, ...]  # barycentric coordinates, or None: use ``num``
+    num: tuple[tuple[tuple[float, float, float, float], ...] | None, ...]  # (ax, ay, az, b) per i
+    den: tuple[float, float, float, float]  # det(D) = den . (x, y, z, 1)
+    den_min: float  # |det(D)| below this (P within 1 um of the triple's plane): no fit here
+    general: bool  # some k_j needs det(D)
+    # Unit normal (n_z > 0) and a point of a tilted triple's plane (None when level): the
+    # three spheres also meet at the seed's mirror image in that plane, which can be the
+    # robot's position (above the plane yet below every anchor).
+    tilt: tuple[Vec3, Vec3] | None
+
+
+@dataclass(frozen=True, slots=True)
+class _Planar4:
+    """Four anchors at one height: the least-squares fit is one scalar equation.
+
+    The fourth anchor is the barycentric combination B4 = sum c_i B_i of the seed triple's, so
+    for any point on the three spheres |P - B4|^2 = sum c_i q_i^2 + m0 (q_i its distances to
+    the triple, m0 = |B4|^2 - sum c_i |B_i|^2).  The fit minimises
+    sum (q_i - L_i)^2 + (d - L4)^2 subject to d^2 = sum c_i q_i^2 + m0, whose Lagrange
+    conditions give q_i = L_i / (1 + lam c_i), d = L4 / (1 - lam) and, for the multiplier,
+    phi(lam) = sum c_i L_i^2 / (1 + lam c_i)^2 + m0 - L4^2 / (1 - lam)^2 = 0, strictly
+    decreasing between its poles.  Newton from lam = 0 gives
+    lam_1 = (D2 - L4^2) / (2 (A + L4^2)) with D2 = sum c_i L_i^2 + m0 and A = sum c_i^2 L_i^2;
+    one more Newton step is taken and measured.  The cost is
+    lam^2 (sum c_i^2 q_i^2 + d^2), and P = P(q) is the three-spheres point of the fitted
+    lengths (exact: no linearisation in P at all, which is what makes two steps enough).
+
+    For the batch everything before the square roots is linear in the squared lengths: one
+    matrix product (``series``) on the four squared lengths gives the seed's X, Y (in the
+    frame of the seed's first anchor: X = x - x1, Y = y - y1, depth W = zn - z), Q1, L4^2
+    and the Taylor coefficients of phi and phi' in lam; another (``point``) on the fitted
+    lengths' squares gives the fitted point's X, Y and A.
+    """
+
+    c: Vec3  # barycentric coordinates of the fourth anchor
+    m0: float
+    curv: float  # bound on |phi'' / (2 phi')|: Newton's error is curv * step^2
+    lam_max: float  # |lam| up to which the batch's series for phi is exact to rounding
+    x1: float
+    y1: float
+    zn: float
+    tri: tuple[int, int, int]
+    k4: int
+    series: FloatArray  # (12, 4) on all four squared lengths, see ``_fpk_chunk_p4``
+    series_bias: tuple[float, float, float]  # added to the rows X, Y, r0
+    point: FloatArray  # (3, 3) on the seed cables' squared lengths: X, Y, A
+
+
+def _make_planar4(pts: Sequence[Vec3], sd: _EqualSeed, fit: _Fit) -> _Planar4 | None:
+    if len(fit.others) != 1 or fit.bary[0] is None:
+        return None
+    if any(pts[k][2] != sd.zn for k in (*sd.tri, fit.others[0])):
+        return None  # the identity for D2 needs the fourth anchor exactly at the seed's height
+    c1, c2, c3 = fit.bary[0]
+    b4 = fit.anchors[0]
+    m0 = -sum(ck * math.dist(pts[k], b4) ** 2 for ck, k in zip((c1, c2, c3), sd.tri, strict=True))
+    rx = (sd.e1, sd.e2, -(sd.e1 + sd.e2), sd.dx0)
+    ry = (sd.f1, sd.f2, -(sd.f1 + sd.f2), sd.dy0)
+    k4 = fit.others[0]
+    # Rows over (L_1^2 .. L_4^2) in cable order: X, Y, Q1, T = L4^2, then phi's Taylor
+    # coefficients r_n = (n + 1) ((-1)^n S_(n+1) - T) (S_k = sum c_i^k Q_i; r0 also gets m0)
+    # and phi''s, p_n = (n + 1) r_(n+1).
+    series = np.zeros((12, 4), dtype=np.float64)
+    for i, (col, ci) in enumerate(zip(sd.tri, (c1, c2, c3), strict=True)):
+        series[0, col], series[1, col] = rx[i], ry[i]
+        if i == 0:
+            series[2, col] = 1.0
+        for k in range(5):
+            series[4 + k, col] = (k + 1) * (-1.0) ** k * ci ** (k + 1)
+    series[3, k4] = 1.0
+    for k in range(5):
+        series[4 + k, k4] = -(k + 1.0)
+    for k in range(1, 4):
+        series[8 + k] = (k + 1) * series[4 + k + 1]
+    point = np.array([rx[:3], ry[:3], (c1 * c1, c2 * c2, c3 * c3)], dtype=np.float64)
+    cmax = max(1.0, abs(c1), abs(c2), abs(c3))
+    return _Planar4(
+        (c1, c2, c3),
+        m0,
+        3.0 * cmax,
+        1e-3 / cmax,
+        sd.x1,
+        sd.y1,
+        sd.zn,
+        sd.tri,
+        k4,
+        series,
+        (sd.dx0, sd.dy0, m0),
+        point,
+    )
+
+
 def _plan_cross(a: Sequence[float], b: Sequence[float], c: Sequence[float]) -> float:
     """(x3-x1)(y3-y2) - (y3-y1)(x3-x2): eq. 13 divided by 4 (twice the signed plan area)."""
     return (c[0] - a[0]) * (c[1] - b[1]) - (c[1] - a[1]) * (c[0] - b[0])
@@ -260,7 +387,9 @@ class Geometry:
 
     __slots__ = (
         "_anchors_t",
+        "_fit",
         "_hull_edges",
+        "_p4",
         "_seed",
         "anchor_height_max_m",
         "anchor_height_min_m",
@@ -286,6 +415,8 @@ class Geometry:
     footprint_m: tuple[tuple[float, float], ...]
     _anchors_t: tuple[Vec3, ...]
     _seed: _EqualSeed | _GeneralSeed
+    _fit: _Fit
+    _p4: _Planar4 | None
     _hull_edges: tuple[tuple[float, float, float], ...]
 
     def __init__(self, anchors_m: Any, height_tol_m: float = HEIGHT_TOL_M) -> None:
@@ -349,6 +480,12 @@ class Geometry:
             _make_equal_seed(pts, seed)
             if self.seed_uses_simplified
             else _make_general_seed(pts, seed)
+        )
+        self._fit = _make_fit(pts, seed, height_tol_m)
+        self._p4 = (
+            _make_planar4(pts, self._seed, self._fit)
+            if isinstance(self._seed, _EqualSeed)
+            else None
         )
 
         hull = _convex_hull([(p[0], p[1]) for p in pts])
@@ -418,6 +555,53 @@ def _make_general_seed(pts: Sequence[Vec3], tri: tuple[int, int, int]) -> _Gener
         wx=wx,
         wy=wy,
         inv_a=1.0 / (1.0 + wx * wx + wy * wy),
+    )
+
+
+def _det_plane(c: Sequence[Vec3]) -> tuple[float, float, float, float]:
+    """(ax, ay, az, b) with det[P - c0; P - c1; P - c2] = a . P + b for every P."""
+    (x0, y0, z0), (x1, y1, z1), (x2, y2, z2) = c
+    ux, uy, uz = x2 - x0, y2 - y0, z2 - z0
+    vx, vy, vz = x2 - x1, y2 - y1, z2 - z1
+    ax, ay, az = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    return ax, ay, az, -(ax * x2 + ay * y2 + az * z2)
+
+
+def _make_fit(pts: Sequence[Vec3], tri: tuple[int, int, int], height_tol_m: float) -> _Fit:
+    cs = [pts[k] for k in tri]
+    den = _det_plane(cs)
+    norm = math.sqrt(den[0] * den[0] + den[1] * den[1] + den[2] * den[2])
+    sg = 1.0 if den[2] > 0.0 else -1.0
+    others = tuple(k for k in range(len(pts)) if k not in tri)
+    bary: list[Vec3 | None] = []
+    num: list[tuple[tuple[float, float, float, float], ...] | None] = []
+    for j in others:
+        bj = pts[j]
+        off_plane_m = abs(den[0] * bj[0] + den[1] * bj[1] + den[2] * bj[2] + den[3]) / norm
+        if off_plane_m <= height_tol_m:
+            # Plan-view barycentric coordinates (the triple is not collinear in plan view).
+            (x1, y1, _), (x2, y2, _), (x3, y3, _) = cs
+            det = (x1 - x3) * (y2 - y3) - (x2 - x3) * (y1 - y3)
+            c1 = ((bj[0] - x3) * (y2 - y3) - (x2 - x3) * (bj[1] - y3)) / det
+            c2 = ((x1 - x3) * (bj[1] - y3) - (bj[0] - x3) * (y1 - y3)) / det
+            bary.append((c1, c2, 1.0 - c1 - c2))
+            num.append(None)
+        else:
+            bary.append(None)
+            num.append(
+                tuple(_det_plane([bj if m == i else cs[m] for m in range(3)]) for i in range(3))
+            )
+    return _Fit(
+        others=others,
+        anchors=tuple(pts[j] for j in others),
+        bary=tuple(bary),
+        num=tuple(num),
+        den=den,
+        den_min=1e-6 * norm,
+        general=any(b is None for b in bary),
+        tilt=None
+        if den[0] == 0.0 and den[1] == 0.0
+        else ((den[0] / norm * sg, den[1] / norm * sg, den[2] / norm * sg), cs[0]),
     )
 
 
@@ -752,46 +936,6 @@ def _normal_eq(
     return cost, a11, a12, a13, a22, a23, a33, g1, g2, g3
 
 
-def _normal_eq_at_seed(
-    anchors: tuple[Vec3, ...],
-    lengths: Sequence[float],
-    x: float,
-    y: float,
-    z: float,
-    exact: tuple[int, int, int],
-) -> tuple[float, float, float, float, float, float, float, float, float, float]:
-    """``_normal_eq`` at the seed point, which meets the cables ``exact`` by construction.
-
-    Their residual is zero and their unit vector is (P - B) / L: no square root needed.
-    """
-    a11 = a12 = a13 = a22 = a23 = a33 = g1 = g2 = g3 = cost = 0.0
-    for k, ((ax, ay, az), ln) in enumerate(zip(anchors, lengths, strict=True)):
-        dx = x - ax
-        dy = y - ay
-        dz = z - az
-        if k in exact:
-            t = 1.0 / ln
-            res = 0.0
-        else:
-            d = _sqrt(dx * dx + dy * dy + dz * dz)
-            res = d - ln
-            cost += res * res
-            t = 1.0 / d if d > 0.0 else 0.0
-        ux = dx * t
-        uy = dy * t
-        uz = dz * t
-        a11 += ux * ux
-        a12 += ux * uy
-        a13 += ux * uz
-        a22 += uy * uy
-        a23 += uy * uz
-        a33 += uz * uz
-        g1 += ux * res
-        g2 += uy * res
-        g3 += uz * res
-    return cost, a11, a12, a13, a22, a23, a33, g1, g2, g3
-
-
 def _gauss_newton(
     anchors: tuple[Vec3, ...],
     lengths: Sequence[float],
@@ -843,7 +987,7 @@ def _gauss_newton(
                 z = 2.0 * z_mirror - z
             break
         prev2 = step2
-        allowed = cost + (GN_COST_REL_TOL * cost + GN_COST_ABS_TOL)
+        allowed = cost + (GN_COST_REL_TOL * cost + GN_COST_ROUND_M * _sqrt(cost))
         for _halving in range(GN_MAX_HALVINGS):
             tx, ty, tz = x - sx, y - sy, z - sz
             if z_mirror is not None and tz > z_mirror:
@@ -857,6 +1001,180 @@ def _gauss_newton(
         x, y, z = tx, ty, tz
         cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = trial
     return x, y, z, _sqrt(cost / n)
+
+
+def _others_scalar(
+    anchors: tuple[Vec3, ...], lo: Sequence[float], x: float, y: float, z: float
+) -> tuple[list[float], list[float], float, float]:
+    """Distances and residuals of the cables outside the seed triple; their sum and max of
+    squared residuals."""
+    ds: list[float] = []
+    fs: list[float] = []
+    sumsq = worst = 0.0
+    for (ax, ay, az), ln in zip(anchors, lo, strict=True):
+        dx = x - ax
+        dy = y - ay
+        dz = z - az
+        d = _sqrt(dx * dx + dy * dy + dz * dz)
+        res = d - ln
+        ds.append(d)
+        fs.append(res)
+        sq = res * res
+        sumsq += sq
+        if sq > worst:
+            worst = sq
+    return ds, fs, sumsq, worst
+
+
+def _fit_planar4(
+    p4: _Planar4, sd: _EqualSeed, lengths: Sequence[float], k4: int, cost0: float
+) -> tuple[float, float, float, float] | None:
+    """The fit for four anchors at one height (see ``_Planar4``); None when it cannot vouch
+    for the result (multiplier near a pole, Newton not converged, the fitted lengths' spheres
+    missing each other, or a cost above the seed's ``cost0``)."""
+    l1, l2, l3, l4 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3], lengths[k4]
+    c1, c2, c3 = p4.c
+    a1, a2, a3 = c1 * l1 * l1, c2 * l2 * l2, c3 * l3 * l3
+    t = l4 * l4
+    lam = (a1 + a2 + a3 + p4.m0 - t) / (2.0 * (c1 * a1 + c2 * a2 + c3 * a3 + t))
+    w1, w2, w3 = 1.0 / (1.0 + lam * c1), 1.0 / (1.0 + lam * c2), 1.0 / (1.0 + lam * c3)
+    v = 1.0 / (1.0 - lam)
+    b1, b2, b3 = a1 * w1 * w1, a2 * w2 * w2, a3 * w3 * w3
+    tv = t * v * v
+    step = (b1 + b2 + b3 + p4.m0 - tv) / (
+        2.0 * (c1 * b1 * w1 + c2 * b2 * w2 + c3 * b3 * w3 + tv * v)
+    )
+    lam += step
+    big = max(l1, l2, l3, l4)
+    if not (abs(lam) * p4.curv <= 0.75 and big * p4.curv * step * step <= GN_STEP_TOL_M):
+        return None
+    q1, q2, q3 = l1 / (1.0 + lam * c1), l2 / (1.0 + lam * c2), l3 / (1.0 + lam * c3)
+    d = l4 / (1.0 - lam)
+    try:
+        x, y, z = _seed_equal(sd, q1, q2, q3)
+    except UnreachableError:
+        return None
+    cost = lam * lam * (c1 * c1 * q1 * q1 + c2 * c2 * q2 * q2 + c3 * c3 * q3 * q3 + d * d)
+    if not cost <= cost0 + (GN_COST_REL_TOL * cost0 + GN_COST_ROUND_M * _sqrt(cost0)):
+        return None
+    return x, y, z, _sqrt(cost * 0.25)
+
+
+def _mirror(tilt: tuple[Vec3, Vec3], x: float, y: float, z: float) -> Vec3:
+    """(x, y, z) reflected in the plane of ``tilt`` (unit normal, point)."""
+    (nx, ny, nz), (cx, cy, cz) = tilt
+    t = 2.0 * ((x - cx) * nx + (y - cy) * ny + (z - cz) * nz)
+    return x - t * nx, y - t * ny, z - t * nz
+
+
+def _fit_scalar(
+    geom: Geometry, lengths: Sequence[float], x: float, y: float, z: float
+) -> tuple[float, float, float, float]:
+    """Least-squares fit over all cables from the seed (x, y, z); returns x, y, z, RMS residual.
+
+    Gauss-Newton in cable-length space: the unknowns are the residuals s of the three seed
+    cables, P(s) the three-spheres point for their lengths L + s, and the other cables'
+    residuals f_j(s) = |P(s) - B_j| - L_j; the cost |s|^2 + sum f_j^2 is the usual sum of
+    squared length mismatches.  The three seed cables' residuals are linear in s, so only
+    the N - 3 others are linearised (gradient k_j, see ``_Fit``), and each step lands exactly
+    on the three spheres: from the seed this converges to 1e-10 m in two steps where
+    Gauss-Newton in P needs three or four.  One step is, for N = 4,
+    s' = k (k . s - f) / (1 + |k|^2) (Sherman-Morrison), else the 3x3 normal equations.
+    Stops like ``_gauss_newton``.  When a step would raise the cost, leaves the three spheres'
+    domain or P is within 1 um of the seed triple's plane (unequal heights), it returns
+    ``_gauss_newton`` from the seed instead (step halving, robust near the anchor plane).
+    """
+    fit = geom._fit
+    sd = geom._seed
+    n = geom.n_cables
+    lo = [lengths[j] for j in fit.others]
+    ds, fs, cost, worst = _others_scalar(fit.anchors, lo, x, y, z)
+    tol2 = GN_STEP_TOL_M * GN_STEP_TOL_M
+    if worst <= tol2:  # consistent lengths (the usual case): the seed is the fit
+        return x, y, z, _sqrt(cost / n)
+    if geom._p4 is not None and isinstance(sd, _EqualSeed):
+        done = _fit_planar4(geom._p4, sd, lengths, fit.others[0], cost)
+        if done is not None:
+            return done
+    if fit.tilt is not None:
+        mx, my, mz = _mirror(fit.tilt, x, y, z)
+        # Only a mirror image below every anchor is a place the robot can hang (above them,
+        # with noisy lengths on a poorly conditioned layout, it can even fit better).
+        if mz < geom.anchor_height_min_m and _others_scalar(fit.anchors, lo, mx, my, mz)[2] < cost:
+            # The other cables side with the mirror image: fit from there, in P.
+            return _gauss_newton(geom._anchors_t, lengths, mx, my, mz, None)
+    l1, l2, l3 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3]
+    x0, y0, z0 = x, y, z
+    s1 = s2 = s3 = 0.0
+    prev2 = math.inf
+    ax0, ay0, az0, b0 = fit.den
+    for it in range(GN_MAX_ITER):
+        p1, p2, p3 = l1 + s1, l2 + s2, l3 + s3
+        inv_den = 0.0
+        if fit.general:
+            den = ax0 * x + ay0 * y + az0 * z + b0
+            if not abs(den) > fit.den_min:
+                break
+            inv_den = 1.0 / den
+        # Gradients k_j of the other cables' lengths, and the step's normal equations
+        # (I + sum k k^T) s' = sum k (k . s - f).
+        m11 = m22 = m33 = 1.0
+        m12 = m13 = m23 = r1 = r2 = r3 = 0.0
+        k1 = k2 = k3 = g = 0.0
+        for d, f, bary, num in zip(ds, fs, fit.bary, fit.num, strict=True):
+            t = 1.0 / d
+            if bary is not None:
+                k1, k2, k3 = bary[0] * t * p1, bary[1] * t * p2, bary[2] * t * p3
+            else:
+                assert num is not None
+                t *= inv_den
+                (a1, b1, c1, e1), (a2, b2, c2, e2), (a3, b3, c3, e3) = num
+                k1 = (a1 * x + b1 * y + c1 * z + e1) * t * p1
+                k2 = (a2 * x + b2 * y + c2 * z + e2) * t * p2
+                k3 = (a3 * x + b3 * y + c3 * z + e3) * t * p3
+            g = k1 * s1 + k2 * s2 + k3 * s3 - f
+            m11 += k1 * k1
+            m12 += k1 * k2
+            m13 += k1 * k3
+            m22 += k2 * k2
+            m23 += k2 * k3
+            m33 += k3 * k3
+            r1 += k1 * g
+            r2 += k2 * g
+            r3 += k3 * g
+        if len(ds) == 1:  # Sherman-Morrison: s' = k g / (1 + |k|^2)
+            c = g / (m11 + m22 + m33 - 2.0)
+            t1, t2, t3 = k1 * c, k2 * c, k3 * c
+        else:
+            c11 = m22 * m33 - m23 * m23
+            c12 = m13 * m23 - m12 * m33
+            c13 = m12 * m23 - m13 * m22
+            c22 = m11 * m33 - m13 * m13
+            c23 = m12 * m13 - m11 * m23
+            c33 = m11 * m22 - m12 * m12
+            inv = 1.0 / (m11 * c11 + m12 * c12 + m13 * c13)  # det >= 1: I + a PSD matrix
+            t1 = (c11 * r1 + c12 * r2 + c13 * r3) * inv
+            t2 = (c12 * r1 + c22 * r2 + c23 * r3) * inv
+            t3 = (c13 * r1 + c23 * r2 + c33 * r3) * inv
+        try:
+            if isinstance(sd, _EqualSeed):
+                nx, ny, nz = _seed_equal(sd, l1 + t1, l2 + t2, l3 + t3)
+            else:
+                nx, ny, nz = _seed_general(sd, l1 + t1, l2 + t2, l3 + t3)
+        except UnreachableError:
+            break
+        ds, fs, fsq, _ = _others_scalar(fit.anchors, lo, nx, ny, nz)
+        new_cost = t1 * t1 + t2 * t2 + t3 * t3 + fsq
+        if not new_cost <= cost + (GN_COST_REL_TOL * cost + GN_COST_ROUND_M * _sqrt(cost)):
+            break
+        step2 = (nx - x) * (nx - x) + (ny - y) * (ny - y) + (nz - z) * (nz - z)
+        x, y, z, s1, s2, s3, cost = nx, ny, nz, t1, t2, t3, new_cost
+        # Always two steps (the batch takes them on whole chunks without a test between).
+        if it and (step2 <= tol2 or (step2 < 1e-12 and step2 * step2 < GN_NEXT_TOL2 * prev2)):
+            return x, y, z, _sqrt(cost / n)
+        prev2 = step2
+    mirror = sd.zn if geom.equal_heights and isinstance(sd, _EqualSeed) else None
+    return _gauss_newton(geom._anchors_t, lengths, x0, y0, z0, mirror)
 
 
 def _fpk_one(geom: Geometry, lengths: Sequence[float]) -> FpkResult:
@@ -878,27 +1196,7 @@ def _fpk_one(geom: Geometry, lengths: Sequence[float]) -> FpkResult:
     tri = geom.seed_triple
     if n == 3:
         return FpkResult((x, y, z), 0.0, tri)
-    # Consistent lengths (the usual case): the other cables already agree, skip the fit.
-    anchors = geom._anchors_t
-    sumsq = 0.0
-    worst = 0.0
-    for k in range(n):
-        if k == sd.i1 or k == sd.i2 or k == sd.i3:
-            continue
-        ax, ay, az = anchors[k]
-        dx = x - ax
-        dy = y - ay
-        dz = z - az
-        res = _sqrt(dx * dx + dy * dy + dz * dz) - lengths[k]
-        sumsq += res * res
-        if res * res > worst:
-            worst = res * res
-    if worst > GN_STEP_TOL_M * GN_STEP_TOL_M:
-        mirror = sd.zn if geom.equal_heights and isinstance(sd, _EqualSeed) else None
-        start = _normal_eq_at_seed(anchors, lengths, x, y, z, (sd.i1, sd.i2, sd.i3))
-        x, y, z, rms = _gauss_newton(anchors, lengths, x, y, z, mirror, start)
-    else:
-        rms = _sqrt(sumsq / n)
+    x, y, z, rms = _fit_scalar(geom, lengths, x, y, z)
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(rms)):
         raise KinematicsError("FPK produced a non-finite result")  # defensive, not expected
     return FpkResult((x, y, z), rms, tri)
@@ -955,22 +1253,39 @@ def _fpk_batch(geom: Geometry, lens: FloatArray) -> FpkBatchResult:
     ok = np.ones(m, dtype=bool)
     short_cable = np.zeros(m, dtype=np.int64)
     shortfall = np.zeros(m, dtype=np.float64)
+    work: dict[int, _Work] = {}
     with np.errstate(all="ignore"):
         # One check on the whole array; per-row checks only where it fails.
         checked = bool(lens.min(initial=np.inf) > 0.0) and math.isfinite(float(lens.sum()))
         for s in range(0, m, BATCH_CHUNK):
             e = min(m, s + BATCH_CHUNK)
-            _fpk_chunk(
-                geom,
-                lens[s:e],
-                xyz[:, s:e],
-                residual[s:e],
-                ok[s:e],
-                short_cable[s:e],
-                shortfall[s:e],
-                checked,
-            )
+            args = (lens[s:e], xyz[:, s:e], residual[s:e], ok[s:e], short_cable[s:e])
+            if geom._p4 is not None:
+                if e - s not in work:
+                    work[e - s] = _Work(e - s)
+                _fpk_chunk_p4(geom, geom._p4, *args, shortfall[s:e], checked, work[e - s])
+            else:
+                _fpk_chunk(geom, *args, shortfall[s:e], checked)
     return FpkBatchResult(xyz.T, residual, ok, geom.seed_triple, short_cable, shortfall)
+
+
+class _Work:
+    """Preallocated buffers of ``_fpk_chunk_p4`` for chunks of m rows.
+
+    (A fresh array per operation would double the cost of the cheap ones.)
+    """
+
+    __slots__ = ("act", "lam", "q", "qq", "r", "rp", "sq", "t1", "t2", "t3", "zeros")
+
+    def __init__(self, m: int) -> None:
+        self.sq = np.empty((m, 4), dtype=np.float64)  # squared lengths, row-major like the input
+        self.r = np.empty((12, m), dtype=np.float64)  # the rows of _Planar4.series
+        self.q = np.empty((3, m), dtype=np.float64)  # fitted lengths of the seed cables
+        self.qq = np.empty((3, m), dtype=np.float64)  # their squares
+        self.rp = np.empty((3, m), dtype=np.float64)  # X, Y, A of the fitted point
+        self.lam, self.t1, self.t2, self.t3 = (np.empty(m, dtype=np.float64) for _ in range(4))
+        self.zeros = np.zeros(m, dtype=np.float64)
+        self.act = np.empty(m, dtype=bool)
 
 
 def _fpk_chunk(
@@ -984,7 +1299,7 @@ def _fpk_chunk(
     checked: bool,
 ) -> None:
     """FPK of one chunk of rows, written into the given output views."""
-    m, n = lens.shape
+    n = lens.shape[1]
     sd = geom._seed
     cols = lens.T.copy()  # (n, m), contiguous rows: one per cable
     if not checked:
@@ -993,78 +1308,204 @@ def _fpk_chunk(
             ok &= c < np.inf
     c1, c2, c3 = cols[sd.i1], cols[sd.i2], cols[sd.i3]
     x, y, z = xyz[0], xyz[1], xyz[2]
-    buf_a = np.multiply(c1, c1)  # r1^2
-    buf_b = np.empty(m, dtype=np.float64)
-    if isinstance(sd, _EqualSeed):
-        np.multiply(c3, c3, out=buf_b)  # r3^2
-        np.subtract(buf_a, buf_b, out=z)  # u = r1^2 - r3^2
-        np.multiply(c2, c2, out=y)
-        np.subtract(y, buf_b, out=buf_b)  # v = r2^2 - r3^2
-        np.multiply(z, sd.e1, out=x)
-        x += np.multiply(buf_b, sd.e2, out=y)
-        x += sd.dx0  # dx
-        np.multiply(z, sd.f1, out=y)
-        y += np.multiply(buf_b, sd.f2, out=z)
-        y += sd.dy0  # dy
-        buf_a -= np.multiply(x, x, out=z)
-        buf_a -= np.multiply(y, y, out=z)  # disc = r1^2 - dx^2 - dy^2
-        x += sd.x1
-        y += sd.y1
-        np.negative(buf_a, out=buf_b)  # power of the radical line
-        np.maximum(buf_a, 0.0, out=buf_a)
-        np.sqrt(buf_a, out=buf_a)
-        np.subtract(sd.zn, buf_a, out=z)
-        power = buf_b
-    else:
-        h2 = buf_a - c2 * c2
-        h2 *= 0.5
-        h2 += sd.q2
-        h3 = buf_a - c3 * c3
-        h3 *= 0.5
-        h3 += sd.q3
-        x0 = h2 * sd.p1 + h3 * sd.p2
-        y0 = h2 * sd.s1 + h3 * sd.s2
-        qb = x0 * sd.wx + y0 * sd.wy
-        qc = x0 * x0 + y0 * y0 - buf_a
-        disc = qb * qb - qc / sd.inv_a
-        power = -disc * sd.inv_a
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        den = sq - qb
-        z[:] = np.where(
-            qb > 0.0,
-            -(qb + sq) * sd.inv_a,
-            np.where(den != 0.0, qc / np.where(den != 0.0, den, 1.0), 0.0),
-        )
-        np.add(sd.x1 + x0, sd.wx * z, out=x)
-        np.add(sd.y1 + y0, sd.wy * z, out=y)
-        z += sd.z1
+    power = _seed_cols(sd, c1, c2, c3, x, y, z)
 
     bad = power > 0.0
     bad &= ok
     if bad.any():
-        idx = np.nonzero(bad)[0]
-        trio = np.stack([c1[idx], c2[idx], c3[idx]], axis=1)
-        rmin = np.min(np.abs(trio), axis=1)
-        real = np.sqrt(rmin * rmin + power[idx]) - rmin > TANGENT_TOL_M
-        idx, trio = idx[real], trio[real]
-        ok[idx] = False
-        k, change = _diagnose_batch(sd.centres, trio, power[idx])
-        short_cable[idx] = np.asarray(sd.tri, dtype=np.int64)[k - 1] + 1
-        shortfall[idx] = change
-
+        _mark_unreachable(sd, lens, np.nonzero(bad)[0], power, ok, short_cable, shortfall)
     if n > 3:
         _refine_chunk(geom, cols, lens, x, y, z, ok, residual)
+    _zero_invalid(xyz, residual, ok, short_cable, shortfall)
 
-    np.add(x, y, out=buf_b)
-    buf_b += z
-    buf_b += residual
-    ok &= np.isfinite(buf_b)
+
+def _mark_unreachable(
+    sd: _EqualSeed | _GeneralSeed,
+    lens: FloatArray,
+    idx: npt.NDArray[np.intp],
+    power: FloatArray,
+    ok: npt.NDArray[np.bool_],
+    short_cable: npt.NDArray[np.int64],
+    shortfall: FloatArray,
+) -> None:
+    """Rows ``idx`` whose seed spheres miss (power > 0): invalid, with the cable to blame,
+    unless the miss is only a tangent."""
+    trio = lens[idx][:, list(sd.tri)]
+    rmin = np.min(np.abs(trio), axis=1)
+    real = np.sqrt(rmin * rmin + power[idx]) - rmin > TANGENT_TOL_M
+    idx, trio = idx[real], trio[real]
+    ok[idx] = False
+    k, change = _diagnose_batch(sd.centres, trio, power[idx])
+    short_cable[idx] = np.asarray(sd.tri, dtype=np.int64)[k - 1] + 1
+    shortfall[idx] = change
+
+
+def _zero_invalid(
+    xyz: FloatArray,
+    residual: FloatArray,
+    ok: npt.NDArray[np.bool_],
+    short_cable: npt.NDArray[np.int64],
+    shortfall: FloatArray,
+) -> None:
+    """Rows with a non-finite result become invalid; invalid rows hold zeros, valid rows no
+    diagnosis."""
+    buf = np.add(xyz[0], xyz[1])
+    buf += xyz[2]
+    buf += residual
+    ok &= np.isfinite(buf)
     if not ok.all():
         bad = ~ok
         xyz[:, bad] = 0.0
         residual[bad] = 0.0
         short_cable[ok] = 0
         shortfall[ok] = 0.0
+
+
+def _fpk_chunk_p4(
+    geom: Geometry,
+    p4: _Planar4,
+    lens: FloatArray,
+    xyz: FloatArray,
+    residual: FloatArray,
+    ok: npt.NDArray[np.bool_],
+    short_cable: npt.NDArray[np.int64],
+    shortfall: FloatArray,
+    checked: bool,
+    w: _Work,
+) -> None:
+    """``_fpk_chunk`` for four anchors at one height: ``_fit_planar4``, vectorised.
+
+    One matrix product on the squared lengths (read in place, row-major) gives the seed's
+    X, Y, Q1, L4^2 and the Taylor coefficients of phi and phi' in lam, which are exact to
+    rounding for |lam| <= ``lam_max`` (the next term is below 1e-13 of phi's scale);
+    lam_1 = -r0 / r1, then one Newton step on the series.  The fitted lengths' point comes
+    from a second product.  Rows ``_fit_planar4`` would give up on (and rows beyond
+    ``lam_max``: cables disagreeing by centimetres) are finished by ``_fit_scalar``.
+    """
+    x, y, z = xyz[0], xyz[1], xyz[2]
+    t1, t2, t3, act = w.t1, w.t2, w.t3, w.act
+    if not checked:
+        for c in lens.T:
+            ok &= c > 0.0  # also False for NaN
+            ok &= c < np.inf
+    np.multiply(lens, lens, out=w.sq)
+    r = np.matmul(p4.series, w.sq.T, out=w.r)
+    bx, by, b0 = p4.series_bias
+    r[0] += bx
+    r[1] += by
+    r[4] += b0
+    sx, sy, q1, tt, r0, r1, r2, r3, r4, p1, p2, p3 = r
+    # Seeds whose spheres miss (power = X^2 + Y^2 - Q1 > 0) beyond a tangent: invalid rows.
+    power = np.multiply(sx, sx, out=t2)
+    power += np.multiply(sy, sy, out=t3)
+    power -= q1
+    bad = power > 0.0
+    bad &= ok
+    if bad.any():
+        _mark_unreachable(geom._seed, lens, np.nonzero(bad)[0], power, ok, short_cable, shortfall)
+    # The seed's fourth cable: D2 = r0 + T.
+    np.add(r0, tt, out=t1)
+    np.sqrt(t1, out=t1)
+    l4 = lens[:, p4.k4]
+    t1 -= l4  # f at the seed
+    root = np.abs(t1, out=t1)  # sqrt of the seed's cost
+    np.greater(root, GN_STEP_TOL_M, out=act)
+    act &= ok
+    if not act.any():  # consistent lengths: the seed is the fit
+        np.negative(power, out=z)
+        np.maximum(z, w.zeros, out=z)
+        np.sqrt(z, out=z)
+        np.subtract(p4.zn, z, out=z)
+        np.add(sx, p4.x1, out=x)
+        np.add(sy, p4.y1, out=y)
+        np.multiply(root, 0.5, out=residual)
+        _zero_invalid(xyz, residual, ok, short_cable, shortfall)
+        return
+    # lam_1 = -r0 / r1, then a Newton step: phi(lam_1) = lam_1^2 (r2 + lam_1 (r3 + lam_1 r4)).
+    lam = np.divide(r0, r1, out=w.lam)
+    np.negative(lam, out=lam)
+    lam *= act  # rows needing no fit (or unusable) keep lam = 0: the seed
+    np.multiply(r4, lam, out=t2)
+    t2 += r3
+    t2 *= lam
+    t2 += r2
+    t2 *= lam
+    t2 *= lam  # phi(lam_1)
+    np.multiply(p3, lam, out=t3)
+    t3 += p2
+    t3 *= lam
+    t3 += p1
+    t3 *= lam
+    t3 += r1  # phi'(lam_1)
+    step = np.divide(t2, t3, out=t2)
+    lam -= step
+    big = float(lens.max(initial=0.0))
+    np.multiply(step, step, out=t3)
+    slow = t3 > GN_STEP_TOL_M / (big * p4.curv)
+    slow |= np.abs(lam, out=t3) > p4.lam_max
+    # The fitted lengths q_i = L_i / (1 + lam c_i) and their point.
+    q = w.q
+    for i, (col, ci) in enumerate(zip(p4.tri, p4.c, strict=True)):
+        np.multiply(lam, ci, out=q[i])
+        q[i] += 1.0
+        np.divide(lens[:, col], q[i], out=q[i])
+    np.multiply(q, q, out=w.qq)
+    rp = np.matmul(p4.point, w.qq, out=w.rp)
+    rp[0] += bx
+    rp[1] += by
+    px, py, aa = rp
+    disc = np.multiply(px, px, out=t3)
+    np.subtract(w.qq[0], disc, out=disc)
+    disc -= np.multiply(py, py, out=z)
+    np.maximum(disc, w.zeros, out=z)  # an array of zeros: 5x faster than the scalar 0.0
+    np.sqrt(z, out=z)
+    np.subtract(p4.zn, z, out=z)
+    np.add(px, p4.x1, out=x)
+    np.add(py, p4.y1, out=y)
+    # cost = lam^2 (A + d^2) with d = L4 / (1 - lam); rows at the seed keep f^2.
+    d = np.subtract(1.0, lam, out=w.q[0])
+    np.divide(l4, d, out=d)
+    d *= d
+    d += aa
+    d *= lam
+    d *= lam
+    np.logical_not(act, out=w.act)
+    np.multiply(root, root, out=t2)  # the seed's cost
+    d += np.multiply(t2, w.act, out=w.q[1])
+    np.multiply(d, 0.25, out=residual)
+    np.sqrt(residual, out=residual)
+    # The cost may not exceed the seed's (beyond rounding).
+    t2 *= 1.0 + GN_COST_REL_TOL
+    t2 += np.multiply(root, GN_COST_ROUND_M, out=w.q[1])
+    slow |= ~(d <= t2)  # also NaN
+    np.logical_not(w.act, out=w.act)  # back to "needs a fit"
+    miss = disc < 0.0
+    miss &= w.act
+    if miss.any():  # the fitted lengths' spheres miss, beyond a tangent: the scalar fit
+        rows = np.nonzero(miss)[0]
+        qr = w.qq[0][rows]
+        slow[rows[np.sqrt(qr - disc[rows]) - np.sqrt(qr) > TANGENT_TOL_M]] = True
+    slow &= w.act
+    slow &= ok
+    if slow.any():
+        _finish_slow(geom, lens, x, y, z, residual, [np.nonzero(slow)[0]])
+    _zero_invalid(xyz, residual, ok, short_cable, shortfall)
+
+
+def _finish_slow(
+    geom: Geometry,
+    lens: FloatArray,
+    x: FloatArray,
+    y: FloatArray,
+    z: FloatArray,
+    residual: FloatArray,
+    slow: list[npt.NDArray[np.intp]],
+) -> None:
+    """Rows the vectorised steps gave up on: ``_fit_scalar`` from the seed, one by one."""
+    for rows in slow:
+        for r in rows.tolist():
+            sx, sy, sz = _seed_row(geom, lens[r])
+            x[r], y[r], z[r], residual[r] = _fit_scalar(geom, lens[r].tolist(), sx, sy, sz)
 
 
 def _diagnose_batch(
@@ -1103,6 +1544,204 @@ def _diagnose_batch(
     return best_k, best_change
 
 
+def _seed_cols(
+    sd: _EqualSeed | _GeneralSeed,
+    c1: FloatArray,
+    c2: FloatArray,
+    c3: FloatArray,
+    x: FloatArray,
+    y: FloatArray,
+    z: FloatArray,
+) -> FloatArray:
+    """Vectorised seed (``_seed_equal`` / ``_seed_general``) into x, y, z; returns the power.
+
+    The power of the radical line is > 0 where the three spheres miss each other (the
+    discriminant, clamped to 0 for the point, is its negative).
+    """
+    m = x.shape[0]
+    buf_a = np.multiply(c1, c1)  # r1^2
+    buf_b = np.empty(m, dtype=np.float64)
+    if isinstance(sd, _EqualSeed):
+        np.multiply(c3, c3, out=buf_b)  # r3^2
+        np.subtract(buf_a, buf_b, out=z)  # u = r1^2 - r3^2
+        np.multiply(c2, c2, out=y)
+        np.subtract(y, buf_b, out=buf_b)  # v = r2^2 - r3^2
+        np.multiply(z, sd.e1, out=x)
+        x += np.multiply(buf_b, sd.e2, out=y)
+        x += sd.dx0  # dx
+        np.multiply(z, sd.f1, out=y)
+        y += np.multiply(buf_b, sd.f2, out=z)
+        y += sd.dy0  # dy
+        buf_a -= np.multiply(x, x, out=z)
+        buf_a -= np.multiply(y, y, out=z)  # disc = r1^2 - dx^2 - dy^2
+        x += sd.x1
+        y += sd.y1
+        np.negative(buf_a, out=buf_b)  # power of the radical line
+        np.maximum(buf_a, 0.0, out=buf_a)
+        np.sqrt(buf_a, out=buf_a)
+        np.subtract(sd.zn, buf_a, out=z)
+        return buf_b
+    h2 = buf_a - c2 * c2
+    h2 *= 0.5
+    h2 += sd.q2
+    h3 = buf_a - c3 * c3
+    h3 *= 0.5
+    h3 += sd.q3
+    x0 = h2 * sd.p1 + h3 * sd.p2
+    y0 = h2 * sd.s1 + h3 * sd.s2
+    qb = x0 * sd.wx + y0 * sd.wy
+    qc = x0 * x0 + y0 * y0 - buf_a
+    disc = qb * qb - qc / sd.inv_a
+    power: FloatArray = -disc * sd.inv_a
+    sq = np.sqrt(np.maximum(disc, 0.0))
+    den = sq - qb
+    z[:] = np.where(
+        qb > 0.0,
+        -(qb + sq) * sd.inv_a,
+        np.where(den != 0.0, qc / np.where(den != 0.0, den, 1.0), 0.0),
+    )
+    np.add(sd.x1 + x0, sd.wx * z, out=x)
+    np.add(sd.y1 + y0, sd.wy * z, out=y)
+    z += sd.z1
+    return power
+
+
+def _others_cols(
+    anchors: tuple[Vec3, ...], lo: list[FloatArray], x: FloatArray, y: FloatArray, z: FloatArray
+) -> tuple[list[FloatArray], list[FloatArray], FloatArray]:
+    """Vectorised ``_others_scalar``: distances, residuals and sum of squared residuals."""
+    ds: list[FloatArray] = []
+    fs: list[FloatArray] = []
+    tmp = np.empty_like(x)
+    cost = np.zeros_like(x)
+    for (ax, ay, az), ln in zip(anchors, lo, strict=True):
+        d = np.subtract(x, ax)
+        d *= d
+        np.subtract(y, ay, out=tmp)
+        tmp *= tmp
+        d += tmp
+        np.subtract(z, az, out=tmp)
+        tmp *= tmp
+        d += tmp
+        np.sqrt(d, out=d)
+        f = np.subtract(d, ln)
+        cost += np.multiply(f, f, out=tmp)
+        ds.append(d)
+        fs.append(f)
+    return ds, fs, cost
+
+
+def _lin(c: tuple[float, float, float, float], x: FloatArray, y: FloatArray, z: FloatArray) -> Any:
+    """c . (x, y, z, 1), vectorised, skipping zero coefficients."""
+    out = np.full_like(x, c[3])
+    for k, v in zip(c[:3], (x, y, z), strict=True):
+        if k != 0.0:
+            out += k * v
+    return out
+
+
+def _step_cols(
+    geom: Geometry,
+    lt: tuple[FloatArray, FloatArray, FloatArray],
+    lo: list[FloatArray],
+    s: tuple[FloatArray, FloatArray, FloatArray] | None,
+    px: FloatArray,
+    py: FloatArray,
+    pz: FloatArray,
+    ds: list[FloatArray],
+    fs: list[FloatArray],
+) -> tuple[Any, ...]:
+    """One vectorised step of ``_fit_scalar`` from s (None: the seed, s = 0) at P.
+
+    Returns the new s (3 arrays), the new point (3 arrays), the power of its three spheres,
+    the other cables' distances and residuals there, the new cost and a mask of rows whose
+    gradient could not be formed (P in the seed triple's plane; None when never).
+    """
+    fit = geom._fit
+    if s is None:
+        p1, p2, p3 = lt
+    else:
+        p1, p2, p3 = lt[0] + s[0], lt[1] + s[1], lt[2] + s[2]
+    den_bad = None
+    inv_den: Any = None
+    if fit.general:
+        den = _lin(fit.den, px, py, pz)
+        den_bad = ~(np.abs(den) > fit.den_min)
+        inv_den = np.reciprocal(den)
+    one = len(fs) == 1
+    mm: list[Any] = [1.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0]  # m11 m12 m13 m22 m23 m33 r1-3
+    t1: Any = None
+    t2: Any = None
+    t3: Any = None
+    for d, f, bary, num in zip(ds, fs, fit.bary, fit.num, strict=True):
+        t = np.reciprocal(d)
+        if bary is not None:
+            k1 = np.multiply(t, bary[0])
+            k1 *= p1
+            k2 = np.multiply(t, bary[1])
+            k2 *= p2
+            k3 = np.multiply(t, bary[2])
+            k3 *= p3
+        else:
+            assert num is not None
+            t *= inv_den
+            k1 = _lin(num[0], px, py, pz)
+            k1 *= t
+            k1 *= p1
+            k2 = _lin(num[1], px, py, pz)
+            k2 *= t
+            k2 *= p2
+            k3 = _lin(num[2], px, py, pz)
+            k3 *= t
+            k3 *= p3
+        if s is None:
+            g = np.negative(f)
+        else:
+            g = k1 * s[0]
+            g += k2 * s[1]
+            g += k3 * s[2]
+            g -= f
+        if one:  # Sherman-Morrison: s' = k g / (1 + |k|^2)
+            q = np.multiply(k1, k1)
+            q += k2 * k2
+            q += k3 * k3
+            q += 1.0
+            np.divide(g, q, out=g)
+            k1 *= g
+            k2 *= g
+            k3 *= g
+            t1, t2, t3 = k1, k2, k3
+        else:
+            mm[0] = mm[0] + k1 * k1
+            mm[1] = mm[1] + k1 * k2
+            mm[2] = mm[2] + k1 * k3
+            mm[3] = mm[3] + k2 * k2
+            mm[4] = mm[4] + k2 * k3
+            mm[5] = mm[5] + k3 * k3
+            mm[6] = mm[6] + k1 * g
+            mm[7] = mm[7] + k2 * g
+            mm[8] = mm[8] + k3 * g
+    if not one:
+        m11, m12, m13, m22, m23, m33, r1, r2, r3 = mm
+        c11 = m22 * m33 - m23 * m23
+        c12 = m13 * m23 - m12 * m33
+        c13 = m12 * m23 - m13 * m22
+        c22 = m11 * m33 - m13 * m13
+        c23 = m12 * m13 - m11 * m23
+        c33 = m11 * m22 - m12 * m12
+        inv = 1.0 / (m11 * c11 + m12 * c12 + m13 * c13)
+        t1 = (c11 * r1 + c12 * r2 + c13 * r3) * inv
+        t2 = (c12 * r1 + c22 * r2 + c23 * r3) * inv
+        t3 = (c13 * r1 + c23 * r2 + c33 * r3) * inv
+    nx, ny, nz = np.empty_like(px), np.empty_like(px), np.empty_like(px)
+    power = _seed_cols(geom._seed, lt[0] + t1, lt[1] + t2, lt[2] + t3, nx, ny, nz)
+    nds, nfs, cost = _others_cols(fit.anchors, lo, nx, ny, nz)
+    cost += t1 * t1
+    cost += t2 * t2
+    cost += t3 * t3
+    return (t1, t2, t3), nx, ny, nz, power, nds, nfs, cost, den_bad
+
+
 def _refine_chunk(
     geom: Geometry,
     cols: FloatArray,
@@ -1113,152 +1752,148 @@ def _refine_chunk(
     ok: npt.NDArray[np.bool_],
     residual: FloatArray,
 ) -> None:
-    """Vectorised Gauss-Newton over one chunk: refines x, y, z in place, fills ``residual``.
-
-    Same fit as ``_gauss_newton``, arranged for few passes over memory: the first normal
-    equations reuse the residual check of the cables outside the seed triple, and for the
-    seed cables (which the seed meets exactly) need only their unit vectors.  A step of
-    under 1 um whose successor is predicted below 1e-10 m (linear convergence,
-    |s_k|^2 / |s_k-1|; see ``GN_NEXT_TOL2``) is taken without evaluating the cost
-    again.  Rows whose step would raise the cost (rare: near-tangent seeds) or that do not
-    converge in ``GN_MAX_ITER`` steps are finished by the scalar ``_gauss_newton`` (with
-    its step halving), a Python loop over those rows only.
-    """
-    anchors = geom._anchors_t
-    n = geom.n_cables
+    """Vectorised ``_fit_scalar`` over one chunk: refines x, y, z in place, fills ``residual``."""
+    fit = geom._fit
     sd = geom._seed
-    mirror = sd.zn if geom.equal_heights and isinstance(sd, _EqualSeed) else None
-    seed_idx = (sd.i1, sd.i2, sd.i3)
+    n = geom.n_cables
     m = x.shape[0]
-    # Residuals of the cables outside the seed triple (the seed ones are met exactly).
-    cost = np.zeros(m)
-    worst = np.zeros(m)
-    tmp = np.empty(m)
-    saved = []
-    for k in range(n):
-        if k in seed_idx:
-            continue
-        ax, ay, az = anchors[k]
-        dx, dy, dz = x - ax, y - ay, z - az
-        d = np.multiply(dx, dx)
-        d += np.multiply(dy, dy, out=tmp)
-        d += np.multiply(dz, dz, out=tmp)
-        np.sqrt(d, out=d)
-        res = d - cols[k]
-        np.multiply(res, res, out=tmp)
-        cost += tmp
-        np.maximum(worst, tmp, out=worst)
-        saved.append((dx, dy, dz, d, res))
-    np.divide(cost, n, out=residual)
-    np.sqrt(residual, out=residual)
-    tol2 = GN_STEP_TOL_M * GN_STEP_TOL_M
-    need = worst > tol2
-    need &= ok
-    if not need.any():
+    lt = (cols[sd.i1], cols[sd.i2], cols[sd.i3])
+    lo = [cols[j] for j in fit.others]
+    ds, fs, cost = _others_cols(fit.anchors, lo, x, y, z)
+    root = np.sqrt(cost)  # sqrt of the cost, for the rounding allowance and the residual
+    np.multiply(root, 1.0 / math.sqrt(n), out=residual)
+    act = np.zeros(m, dtype=bool)
+    for f in fs:
+        act |= np.abs(f) > GN_STEP_TOL_M
+    act &= ok
+    if not act.any():
         return  # consistent lengths: the seed is the fit
+    slow: list[npt.NDArray[np.intp]] = []
+    if fit.tilt is not None:
+        (nx, ny, nz), (cx, cy, cz) = fit.tilt
+        t = (x - cx) * nx + (y - cy) * ny + (z - cz) * nz
+        t *= 2.0
+        mz = z - t * nz
+        mcost = _others_cols(fit.anchors, lo, x - t * nx, y - t * ny, mz)[2]
+        flip = (mcost < cost) & act & (mz < geom.anchor_height_min_m)
+        if flip.any():  # the mirror image is the better start: the scalar fit
+            slow.append(np.nonzero(flip)[0])
+            act &= ~flip
+    # Rows that need no fit take a zero step (their f set to 0), so full-chunk steps leave
+    # them where they are.
+    for f in fs:
+        f *= act
+    state = _State(None, lt, lo, None, x, y, z, ds, fs, cost, root, np.full(m, np.inf), act)
+    _iterate_cols(geom, lens, x, y, z, residual, state, 0, slow)
 
-    ne = [cost] + [np.zeros(m) for _ in range(9)]
-    _, a11, a12, a13, a22, a23, a33, g1, g2, g3 = ne
-    for dx, dy, dz, d, res in saved:
-        np.divide(1.0, d, out=d)
-        dx *= d
-        dy *= d
-        dz *= d
-        a11 += np.multiply(dx, dx, out=tmp)
-        a12 += np.multiply(dx, dy, out=tmp)
-        a13 += np.multiply(dx, dz, out=tmp)
-        a22 += np.multiply(dy, dy, out=tmp)
-        a23 += np.multiply(dy, dz, out=tmp)
-        a33 += np.multiply(dz, dz, out=tmp)
-        g1 += np.multiply(dx, res, out=tmp)
-        g2 += np.multiply(dy, res, out=tmp)
-        g3 += np.multiply(dz, res, out=tmp)
-    _accumulate_jtj(ne, [anchors[k] for k in seed_idx], cols[list(seed_idx)], x, y, z)
 
-    # Two modes: "full" works on whole-chunk arrays with a mask of rows still iterating
-    # (no gathers; the usual noisy batch converges in two steps), "compact" on gathered
-    # rows once few remain.
-    act = need
-    full = True
-    idx = np.arange(m)
-    px, py, pz, sub_cols = x, y, z, cols
-    prev2 = np.full(m, np.inf)  # squared length of the previous step
-    slow: list[npt.NDArray[np.intp]] = []  # chunk rows handed to the scalar fit
-    if np.count_nonzero(need) * 4 < m:
-        full = False
-        idx = np.nonzero(need)[0]
-        px, py, pz, sub_cols = x[idx], y[idx], z[idx], cols[:, idx]
-        ne = [v[idx] for v in ne]
-        prev2 = prev2[idx]
-        act = np.ones(idx.size, dtype=bool)
-    for _ in range(GN_MAX_ITER):
-        sx, sy, sz, solvable = _solve_normal(ne)
-        step2 = sx * sx + sy * sy + sz * sz
-        nx, ny, nz = px - sx, py - sy, pz - sz
-        if mirror is not None:
-            # Reflect points above the mirror plane (masked ufuncs are slow; this is not).
-            nz -= mirror
-            np.abs(nz, out=nz)
-            np.subtract(mirror, nz, out=nz)
-        # Done without another evaluation: singular normal equations (keep the point) or a
-        # small step whose successor is predicted below tolerance.
-        fin = (step2 < 1e-12) & ((step2 <= tol2) | (step2 * step2 < GN_NEXT_TOL2 * prev2))
-        fin &= solvable
-        fin &= act
-        stuck = ~solvable
-        stuck &= act
-        done = fin | stuck
-        if full:
-            if done.any():
-                x[...] = np.where(fin, nx, x)
-                y[...] = np.where(fin, ny, y)
-                z[...] = np.where(fin, nz, z)
-                residual[...] = np.where(done, np.sqrt(_cost_after(ne, sx, sy, sz) / n), residual)
-            act = act & ~done
-            left = int(np.count_nonzero(act))
-            if left == 0:
-                break
-            if left * 4 < m:  # few left: gather them
-                full = False
-                idx = np.nonzero(act)[0]
-                px, py, pz = nx[idx], ny[idx], nz[idx]
-                old_cost, prev2 = ne[0][idx], step2[idx]
-                sub_cols = cols[:, idx]
-                act = np.ones(idx.size, dtype=bool)
-            else:
-                px, py, pz = nx, ny, nz
-                old_cost, prev2 = ne[0], step2
-        else:
-            if done.any():
-                rows = idx[fin]
-                x[rows], y[rows], z[rows] = nx[fin], ny[fin], nz[fin]
-                rows = idx[done]
-                residual[rows] = np.sqrt(_cost_after(ne, sx, sy, sz)[done] / n)
-            go = np.nonzero(~done)[0]
-            if go.size == 0:
-                idx = idx[:0]
-                break
-            idx, px, py, pz = idx[go], nx[go], ny[go], nz[go]
-            old_cost, prev2 = ne[0][go], step2[go]
-            sub_cols = sub_cols[:, go]
-            act = np.ones(idx.size, dtype=bool)
-        ne = [np.zeros(idx.size) for _ in range(10)]
-        _accumulate(ne, list(anchors), sub_cols, px, py, pz, None)
-        worse = ne[0] > old_cost + (GN_COST_REL_TOL * old_cost + GN_COST_ABS_TOL)
+@dataclass(slots=True)
+class _State:
+    """Rows still iterating in ``_iterate_cols``: their chunk rows (None: all) and values."""
+
+    idx: npt.NDArray[np.intp] | None
+    lt: tuple[FloatArray, FloatArray, FloatArray]
+    lo: list[FloatArray]
+    s: tuple[FloatArray, FloatArray, FloatArray] | None
+    px: FloatArray
+    py: FloatArray
+    pz: FloatArray
+    ds: list[FloatArray]
+    fs: list[FloatArray]
+    cost: FloatArray
+    root: FloatArray
+    prev2: FloatArray
+    act: npt.NDArray[np.bool_] | None = None  # None: all rows of the arrays
+
+
+def _iterate_cols(
+    geom: Geometry,
+    lens: FloatArray,
+    x: FloatArray,
+    y: FloatArray,
+    z: FloatArray,
+    residual: FloatArray,
+    st: _State,
+    first: int,
+    slow: list[npt.NDArray[np.intp]],
+) -> None:
+    """Steps ``first``.. of ``_fit_scalar``, vectorised over the rows of ``st``.
+
+    Whole-chunk arrays (no gathers) while more than a quarter of the rows iterate, gathered
+    rows after.  Converged rows are written to x, y, z, ``residual``.  Rows that
+    ``_fit_scalar`` would hand to ``_gauss_newton`` (a step that raises the cost, leaves the
+    spheres' domain or meets the seed triple's plane, or no convergence in ``GN_MAX_ITER``
+    steps; rare) join ``slow`` and are finished by ``_fit_scalar`` itself, one by one.
+    """
+    n = geom.n_cables
+    tol2 = GN_STEP_TOL_M * GN_STEP_TOL_M
+    idx = st.idx
+    act = st.act if st.act is not None else np.ones(st.px.shape[0], dtype=bool)
+    s, px, py, pz, ds, fs = st.s, st.px, st.py, st.pz, st.ds, st.fs
+    cost, root, prev2, sub_lt, sub_lo = st.cost, st.root, st.prev2, st.lt, st.lo
+    for it in range(first, GN_MAX_ITER):
+        if px.shape[0] == 0:
+            break
+        s_new, nx, ny, nz, power, nds, nfs, ncost, den_bad = _step_cols(
+            geom, sub_lt, sub_lo, s, px, py, pz, ds, fs
+        )
+        allowed = cost * (1.0 + GN_COST_REL_TOL)
+        allowed += GN_COST_ROUND_M * root
+        worse = ~(ncost <= allowed)  # also NaN
+        if den_bad is not None:
+            worse |= den_bad
+        miss = power > 0.0
+        if miss.any():  # the step left the spheres' domain, beyond a tangent
+            rows = np.nonzero(miss)[0]
+            r3 = [np.abs(s_new[i][rows] + sub_lt[i][rows]) for i in range(3)]
+            rmin = np.minimum(np.minimum(r3[0], r3[1]), r3[2])
+            far = np.sqrt(rmin * rmin + power[rows]) - rmin > TANGENT_TOL_M
+            worse[rows[far]] = True
         worse &= act
+        step2 = np.subtract(nx, px)
+        step2 *= step2
+        tmp = np.subtract(ny, py)
+        tmp *= tmp
+        step2 += tmp
+        np.subtract(nz, pz, out=tmp)
+        tmp *= tmp
+        step2 += tmp
+        if it == 0:
+            conv = np.zeros(act.shape, dtype=bool)
+        else:
+            conv = step2 < 1e-12
+            conv &= (step2 <= tol2) | (step2 * step2 < GN_NEXT_TOL2 * prev2)
+            conv &= act
+            conv &= ~worse
+        if conv.any():
+            rows_c = np.nonzero(conv)[0]
+            out_rows = rows_c if idx is None else idx[rows_c]
+            x[out_rows], y[out_rows], z[out_rows] = nx[rows_c], ny[rows_c], nz[rows_c]
+            residual[out_rows] = np.sqrt(ncost[rows_c] * (1.0 / n))
         if worse.any():
-            slow.append(idx[worse])
-            act = act & ~worse
-            if not act.any():
-                idx = idx[:0]
-                break
+            rows_w = np.nonzero(worse)[0]
+            slow.append(rows_w if idx is None else idx[rows_w])
+        act &= ~conv
+        act &= ~worse
+        left = np.nonzero(act)[0]
+        if left.size == 0:
+            break
+        s, px, py, pz, ds, fs, cost, prev2 = s_new, nx, ny, nz, nds, nfs, ncost, step2
+        root = np.sqrt(cost)
+        if left.size * 4 < act.size:  # few left: gather them
+            idx = left if idx is None else idx[left]
+            s = (s[0][left], s[1][left], s[2][left])
+            px, py, pz = px[left], py[left], pz[left]
+            ds = [d[left] for d in ds]
+            fs = [f[left] for f in fs]
+            cost, root, prev2 = cost[left], root[left], prev2[left]
+            sub_lt = (sub_lt[0][left], sub_lt[1][left], sub_lt[2][left])
+            sub_lo = [c[left] for c in sub_lo]
+            act = np.ones(left.size, dtype=bool)
     else:
-        slow.append(idx[act])  # not converged in GN_MAX_ITER steps
-    for rows in slow:
-        for r in rows.tolist():
-            sx_, sy_, sz_ = _seed_row(geom, lens[r])
-            fx, fy, fz, rms = _gauss_newton(anchors, lens[r].tolist(), sx_, sy_, sz_, mirror)
-            x[r], y[r], z[r], residual[r] = fx, fy, fz, rms
+        left = np.nonzero(act)[0]
+        slow.append(left if idx is None else idx[left])  # not converged in GN_MAX_ITER steps
+    _finish_slow(geom, lens, x, y, z, residual, slow)
 
 
 def _seed_row(geom: Geometry, row: FloatArray) -> Vec3:
@@ -1267,103 +1902,3 @@ def _seed_row(geom: Geometry, row: FloatArray) -> Vec3:
     if isinstance(sd, _EqualSeed):
         return _seed_equal(sd, r1, r2, r3)
     return _seed_general(sd, r1, r2, r3)
-
-
-def _cost_after(ne: list[FloatArray], sx: FloatArray, sy: FloatArray, sz: FloatArray) -> FloatArray:
-    """Cost after the Gauss-Newton step s (model |r - J s|^2 = cost - g.s), never below 0.
-
-    Where the step is zero (singular rows) this is the cost itself.
-    """
-    post = ne[0] - (ne[7] * sx + ne[8] * sy + ne[9] * sz)
-    np.maximum(post, 0.0, out=post)
-    return post
-
-
-def _solve_normal(
-    ne: list[FloatArray],
-) -> tuple[FloatArray, FloatArray, FloatArray, npt.NDArray[np.bool_]]:
-    """Gauss-Newton steps from vectorised normal equations; zero where singular."""
-    _, a11, a12, a13, a22, a23, a33, g1, g2, g3 = ne
-    c11 = a22 * a33 - a23 * a23
-    c12 = a13 * a23 - a12 * a33
-    c13 = a12 * a23 - a13 * a22
-    c22 = a11 * a33 - a13 * a13
-    c23 = a12 * a13 - a11 * a23
-    c33 = a11 * a22 - a12 * a12
-    det = a11 * c11 + a12 * c12 + a13 * c13
-    solvable = det > GN_DET_MIN
-    inv = np.reciprocal(det)
-    inv[~solvable] = 0.0
-    sx = (c11 * g1 + c12 * g2 + c13 * g3) * inv
-    sy = (c12 * g1 + c22 * g2 + c23 * g3) * inv
-    sz = (c13 * g1 + c23 * g2 + c33 * g3) * inv
-    return sx, sy, sz, solvable
-
-
-def _accumulate_jtj(
-    ne: list[FloatArray],
-    anchors: Sequence[Vec3],
-    cols: FloatArray,
-    x: FloatArray,
-    y: FloatArray,
-    z: FloatArray,
-) -> None:
-    """Add the J^T J terms of cables whose length is met exactly (u = (P - B) / L)."""
-    _, a11, a12, a13, a22, a23, a33, _, _, _ = ne
-    m = x.shape[0]
-    dx, dy, dz, inv, tmp = (np.empty(m) for _ in range(5))
-    for (ax, ay, az), ln in zip(anchors, cols, strict=True):
-        np.divide(1.0, ln, out=inv)
-        np.subtract(x, ax, out=dx)
-        dx *= inv
-        np.subtract(y, ay, out=dy)
-        dy *= inv
-        np.subtract(z, az, out=dz)
-        dz *= inv
-        a11 += np.multiply(dx, dx, out=tmp)
-        a12 += np.multiply(dx, dy, out=tmp)
-        a13 += np.multiply(dx, dz, out=tmp)
-        a22 += np.multiply(dy, dy, out=tmp)
-        a23 += np.multiply(dy, dz, out=tmp)
-        a33 += np.multiply(dz, dz, out=tmp)
-
-
-def _accumulate(
-    ne: list[FloatArray],
-    anchors: Sequence[Vec3],
-    cols: FloatArray,
-    x: FloatArray,
-    y: FloatArray,
-    z: FloatArray,
-    worst: FloatArray | None,
-) -> None:
-    """Add cost, J^T J and J^T r of the given cables; track the largest squared residual."""
-    cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = ne
-    m = x.shape[0]
-    dx, dy, dz, d, res, tmp = (np.empty(m) for _ in range(6))
-    for (ax, ay, az), ln in zip(anchors, cols, strict=True):
-        np.subtract(x, ax, out=dx)
-        np.subtract(y, ay, out=dy)
-        np.subtract(z, az, out=dz)
-        np.multiply(dx, dx, out=d)
-        d += np.multiply(dy, dy, out=tmp)
-        d += np.multiply(dz, dz, out=tmp)
-        np.sqrt(d, out=d)
-        np.subtract(d, ln, out=res)
-        np.multiply(res, res, out=tmp)
-        cost += tmp
-        if worst is not None:
-            np.maximum(worst, tmp, out=worst)
-        np.divide(1.0, d, out=d)  # d > 0: P is below the anchors
-        dx *= d
-        dy *= d
-        dz *= d
-        a11 += np.multiply(dx, dx, out=tmp)
-        a12 += np.multiply(dx, dy, out=tmp)
-        a13 += np.multiply(dx, dz, out=tmp)
-        a22 += np.multiply(dy, dy, out=tmp)
-        a23 += np.multiply(dy, dz, out=tmp)
-        a33 += np.multiply(dz, dz, out=tmp)
-        g1 += np.multiply(dx, res, out=tmp)
-        g2 += np.multiply(dy, res, out=tmp)
-        g3 += np.multiply(dz, res, out=tmp)

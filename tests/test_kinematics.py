@@ -314,6 +314,25 @@ def test_general_unequal_heights_hits_the_point() -> None:
         assert three_spheres(cs[0], cs[1], cs[2], *r) == pytest.approx(p, abs=1e-10)
 
 
+def test_point_above_a_tilted_seed_plane_is_found_by_the_other_cables() -> None:
+    # Found by hypothesis: the seed triple (anchors 1, 3, 4) is tilted, and P, 0.5 m below
+    # the lowest anchor, lies above its plane.  The three spheres' lower solution is then P's
+    # mirror image; the fourth cable tells them apart.
+    geom = Geometry([[0.0, 1.0, 2.0], [3.0, 0.0, 2.0], [1.0, -1.0, 2.0], [-3.0, 0.0, 3.0]])
+    p = (3.0, 0.0, 1.5)
+    a = geom.anchors_m[list(geom.seed_triple)].tolist()
+    r = [math.dist(p, c) for c in a]
+    mirror = three_spheres(a[0], a[1], a[2], *r)
+    assert math.dist(mirror, p) > 0.3
+    assert mirror[2] < p[2]
+    lengths = ipk(geom, p)
+    assert fpk(geom, lengths).position_m == pytest.approx(p, abs=1e-9)
+    batch = fpk_batch(geom, np.vstack([lengths, lengths + 1e-4]))
+    assert batch.valid.all()
+    assert batch.position_m[0] == pytest.approx(p, abs=1e-9)
+    assert batch.position_m[1] == pytest.approx(fpk(geom, lengths + 1e-4).position_m, abs=1e-9)
+
+
 def test_lower_solution_is_below_a_tilted_centre_plane() -> None:
     # Steeply tilted centre plane: the other intersection is the mirror image.
     cs = [(0.0, 0.0, 0.0), (10.0, 0.0, 10.0), (0.0, 10.0, 0.0)]
@@ -412,6 +431,84 @@ def test_batch_matches_single_with_noise(paper: Geometry) -> None:
     dist = np.linalg.norm(d, axis=2)
     grad = np.einsum("ijk,ij->ik", d / dist[..., None], dist - lens)
     assert np.max(np.abs(grad)) < 1e-10
+
+
+def _assert_batch_is_single(geom: Geometry, lens: np.ndarray) -> FpkBatchResult:
+    """Every row of fpk_batch equals fpk on that row (or its UnreachableError / refusal)."""
+    batch = fpk_batch(geom, lens)
+    for k in range(lens.shape[0]):
+        try:
+            one = fpk(geom, lens[k])
+        except UnreachableError as exc:
+            assert not batch.valid[k]
+            assert batch.short_cable[k] == exc.cable
+            assert batch.shortfall_m[k] == pytest.approx(exc.shortfall_m, rel=1e-6, abs=1e-9)
+            continue
+        except KinematicsError:
+            assert not batch.valid[k]
+            assert batch.short_cable[k] == 0
+            continue
+        assert batch.valid[k], k
+        assert batch.position_m[k] == pytest.approx(one.position_m, abs=1e-9), k
+        assert batch.residual_m[k] == pytest.approx(one.residual_m, rel=1e-6, abs=1e-12), k
+    return batch
+
+
+def test_planar_batch_every_kind_of_row_across_a_chunk_boundary(paper: Geometry) -> None:
+    # Four anchors at one height take the batch's planar path (a matrix product and one
+    # Newton step on the multiplier); rows it cannot vouch for go to the scalar fit.
+    assert paper._p4 is not None
+    rng = np.random.default_rng(7)
+    m = kin.BATCH_CHUNK + 40
+    pts = np.column_stack(
+        [rng.uniform(-38, 38, m), rng.uniform(-23, 23, m), rng.uniform(-30.0, 7.0, m)]
+    )
+    lens = ipk(paper, pts)
+    lens[::2] += rng.normal(0.0, 1e-3, (len(lens[::2]), 4))  # noisy; odd rows consistent
+    lens[3, 3] += 0.5  # a slack cable: beyond the multiplier's series, the scalar fit
+    lens[5, 1] = 5.0  # far too short: the seed triple cannot meet
+    lens[7, 0] = math.nan
+    lens[m - 1, 2] = -2.0  # the last, partial chunk has an invalid row too
+    lens[m - 3, 3] += 2e-2
+    # Only a sample of rows through the scalar fpk (it is the slow side of this test).
+    rows = np.r_[0:60, kin.BATCH_CHUNK - 30 : m]
+    batch = _assert_batch_is_single(paper, lens[rows])
+    assert batch.valid.sum() == rows.size - 3
+    full = fpk_batch(paper, lens)
+    assert np.array_equal(full.position_m[rows], batch.position_m)
+    assert np.array_equal(full.residual_m[rows], batch.residual_m)
+    good = full.valid & (np.arange(m) % 2 == 1)
+    good[[3, 5, 7, m - 1, m - 3]] = False  # the rows made inconsistent above
+    assert np.max(np.abs(full.position_m[good] - pts[good])) < 1e-9
+
+
+def test_planar_fit_is_the_least_squares_minimum_on_an_irregular_quad() -> None:
+    from scipy.optimize import least_squares
+
+    geom = Geometry([(-31.0, -12.0, 9.5), (3.0, 27.0, 9.5), (44.0, 8.0, 9.5), (17.0, -30.0, 9.5)])
+    assert geom._p4 is not None and geom._p4.m0 != 0.0
+    assert max(abs(c) for c in geom._p4.c) != 1.0
+    rng = np.random.default_rng(3)
+    pts = np.column_stack(
+        [rng.uniform(-10, 20, 50), rng.uniform(-10, 10, 50), rng.uniform(-20.0, 8.0, 50)]
+    )
+    lens = ipk(geom, pts) + rng.normal(0.0, 5e-3, (50, 4))
+    batch = _assert_batch_is_single(geom, lens)
+    assert batch.valid.all()
+    for k in range(50):
+
+        def res(q: np.ndarray, k: int = k) -> np.ndarray:
+            out: np.ndarray = np.linalg.norm(q - geom.anchors_m, axis=1) - lens[k]
+            return out
+
+        # The minimum to rounding: the gradient J^T r vanishes.  (scipy stops earlier, with
+        # gradients near 1e-9, hence the looser comparison with its point.)
+        d = batch.position_m[k] - geom.anchors_m
+        dist = np.linalg.norm(d, axis=1)
+        assert np.max(np.abs((d / dist[:, None]).T @ (dist - lens[k]))) < 1e-12
+        sol = least_squares(res, pts[k], xtol=1e-15, ftol=1e-15, gtol=1e-15)
+        assert batch.position_m[k] == pytest.approx(sol.x, abs=1e-7)
+        assert batch.residual_m[k] == pytest.approx(math.sqrt(float(np.mean(sol.fun**2))), rel=1e-6)
 
 
 def test_residual_grows_with_one_perturbed_cable(paper: Geometry) -> None:
