@@ -413,26 +413,6 @@ def test_batch_reports_invalid_rows(paper: Geometry) -> None:
     assert res.position_m[5] == pytest.approx(pts[1], abs=1e-9)
 
 
-def test_batch_matches_single_with_noise(paper: Geometry) -> None:
-    rng = np.random.default_rng(1)
-    pts = np.column_stack(
-        [rng.uniform(-35, 35, 300), rng.uniform(-20, 20, 300), rng.uniform(-10, 5, 300)]
-    )
-    lens = ipk(paper, pts) + rng.normal(0.0, 2e-3, (300, 4))
-    batch = fpk_batch(paper, lens)
-    assert batch.valid.all()
-    for k in range(300):
-        one = fpk(paper, lens[k])
-        assert batch.position_m[k] == pytest.approx(one.position_m, abs=1e-9)
-        assert batch.residual_m[k] == pytest.approx(one.residual_m, rel=1e-6, abs=1e-12)
-    # And the fit is a true least-squares minimum: the gradient J^T r vanishes (to the batch's
-    # stopping rule, a predicted remaining step of 1e-10 m).
-    d = batch.position_m[:, None, :] - paper.anchors_m[None]
-    dist = np.linalg.norm(d, axis=2)
-    grad = np.einsum("ijk,ij->ik", d / dist[..., None], dist - lens)
-    assert np.max(np.abs(grad)) < 1e-10
-
-
 def _assert_batch_is_single(geom: Geometry, lens: np.ndarray) -> FpkBatchResult:
     """Every row of fpk_batch equals fpk on that row (or its UnreachableError / refusal)."""
     batch = fpk_batch(geom, lens)
@@ -452,6 +432,22 @@ def _assert_batch_is_single(geom: Geometry, lens: np.ndarray) -> FpkBatchResult:
         assert batch.position_m[k] == pytest.approx(one.position_m, abs=1e-9), k
         assert batch.residual_m[k] == pytest.approx(one.residual_m, rel=1e-6, abs=1e-12), k
     return batch
+
+
+def test_batch_matches_single_with_noise(paper: Geometry) -> None:
+    rng = np.random.default_rng(1)
+    pts = np.column_stack(
+        [rng.uniform(-35, 35, 300), rng.uniform(-20, 20, 300), rng.uniform(-10, 5, 300)]
+    )
+    lens = ipk(paper, pts) + rng.normal(0.0, 2e-3, (300, 4))
+    batch = _assert_batch_is_single(paper, lens)
+    assert batch.valid.all()
+    # And the fit is a true least-squares minimum: the gradient J^T r vanishes (to the batch's
+    # stopping rule, a predicted remaining step of 1e-10 m).
+    d = batch.position_m[:, None, :] - paper.anchors_m[None]
+    dist = np.linalg.norm(d, axis=2)
+    grad = np.einsum("ijk,ij->ik", d / dist[..., None], dist - lens)
+    assert np.max(np.abs(grad)) < 1e-10
 
 
 def test_planar_batch_every_kind_of_row_across_a_chunk_boundary(paper: Geometry) -> None:
