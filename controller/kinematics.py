@@ -74,8 +74,10 @@ plane, where z is poorly determined, many more).
   which also mirrors to the lower side when all anchors share a height).
 
 ``fpk`` and ``fpk_batch`` compute the same fit and agree to ~1e-12 m; rows the batch's
-vectorised steps give up on go through the scalar code.  ``residual_m`` is the RMS of
-|P - B_i| - L_i over all N cables at the returned point.
+vectorised steps give up on go through the scalar code.  (Within about a millimetre of the
+plane of level anchors they may differ by up to ~1e-6 m: there z = zn - sqrt(disc) turns a
+rounding difference of 1e-12 m^2 in disc into 1e-6 m, and the lengths fix z no better.)
+``residual_m`` is the RMS of |P - B_i| - L_i over all N cables at the returned point.
 
 Speed design
 ------------
@@ -1275,7 +1277,22 @@ class _Work:
     (A fresh array per operation would double the cost of the cheap ones.)
     """
 
-    __slots__ = ("act", "lam", "q", "qq", "r", "rp", "sq", "t1", "t2", "t3", "zeros")
+    __slots__ = (
+        "act",
+        "d",
+        "idle",
+        "lam",
+        "q",
+        "qq",
+        "r",
+        "rp",
+        "sq",
+        "t1",
+        "t2",
+        "t3",
+        "t4",
+        "zeros",
+    )
 
     def __init__(self, m: int) -> None:
         self.sq = np.empty((m, 4), dtype=np.float64)  # squared lengths, row-major like the input
@@ -1283,9 +1300,12 @@ class _Work:
         self.q = np.empty((3, m), dtype=np.float64)  # fitted lengths of the seed cables
         self.qq = np.empty((3, m), dtype=np.float64)  # their squares
         self.rp = np.empty((3, m), dtype=np.float64)  # X, Y, A of the fitted point
-        self.lam, self.t1, self.t2, self.t3 = (np.empty(m, dtype=np.float64) for _ in range(4))
+        self.lam, self.d, self.t1, self.t2, self.t3, self.t4 = (
+            np.empty(m, dtype=np.float64) for _ in range(6)
+        )
         self.zeros = np.zeros(m, dtype=np.float64)
-        self.act = np.empty(m, dtype=bool)
+        self.act = np.empty(m, dtype=bool)  # rows needing a fit
+        self.idle = np.empty(m, dtype=bool)  # the others
 
 
 def _fpk_chunk(
@@ -1463,30 +1483,28 @@ def _fpk_chunk_p4(
     np.add(px, p4.x1, out=x)
     np.add(py, p4.y1, out=y)
     # cost = lam^2 (A + d^2) with d = L4 / (1 - lam); rows at the seed keep f^2.
-    d = np.subtract(1.0, lam, out=w.q[0])
-    np.divide(l4, d, out=d)
-    d *= d
-    d += aa
-    d *= lam
-    d *= lam
-    np.logical_not(act, out=w.act)
-    np.multiply(root, root, out=t2)  # the seed's cost
-    d += np.multiply(t2, w.act, out=w.q[1])
-    np.multiply(d, 0.25, out=residual)
+    cost = np.subtract(1.0, lam, out=w.d)
+    np.divide(l4, cost, out=cost)
+    cost *= cost
+    cost += aa
+    cost *= lam
+    cost *= lam
+    seed_cost = np.multiply(root, root, out=t2)
+    np.logical_not(act, out=w.idle)
+    cost += np.multiply(seed_cost, w.idle, out=w.t4)
+    np.multiply(cost, 0.25, out=residual)
     np.sqrt(residual, out=residual)
     # The cost may not exceed the seed's (beyond rounding).
-    t2 *= 1.0 + GN_COST_REL_TOL
-    t2 += np.multiply(root, GN_COST_ROUND_M, out=w.q[1])
-    slow |= ~(d <= t2)  # also NaN
-    np.logical_not(w.act, out=w.act)  # back to "needs a fit"
+    seed_cost *= 1.0 + GN_COST_REL_TOL
+    seed_cost += np.multiply(root, GN_COST_ROUND_M, out=w.t4)
+    slow |= ~(cost <= seed_cost)  # also NaN
     miss = disc < 0.0
-    miss &= w.act
+    miss &= act
     if miss.any():  # the fitted lengths' spheres miss, beyond a tangent: the scalar fit
         rows = np.nonzero(miss)[0]
-        qr = w.qq[0][rows]
-        slow[rows[np.sqrt(qr - disc[rows]) - np.sqrt(qr) > TANGENT_TOL_M]] = True
-    slow &= w.act
-    slow &= ok
+        rmin = np.min(np.abs(q[:, rows]), axis=0)  # as _is_tangent
+        slow[rows[np.sqrt(rmin * rmin - disc[rows]) - rmin > TANGENT_TOL_M]] = True
+    slow &= act
     if slow.any():
         _finish_slow(geom, lens, x, y, z, residual, [np.nonzero(slow)[0]])
     _zero_invalid(xyz, residual, ok, short_cable, shortfall)
