@@ -1215,9 +1215,9 @@ def fpk(geom: Geometry, lengths_m: Sequence[float] | FloatArray) -> FpkResult | 
 
     ``lengths_m`` of shape (N,) gives an ``FpkResult``; shape (M, N) dispatches to
     ``fpk_batch``.  The seed is the geometry's ``seed_triple`` solved with the simplified
-    algorithm when its anchors share a height, the general one otherwise; for N > 3 a
-    Gauss-Newton least-squares fit over all cables follows (skipped when the other cables
-    already agree to 1e-12 m).  ``residual_m`` is the RMS cable-length mismatch.
+    algorithm when its anchors share a height, the general one otherwise; for N > 3 the
+    least-squares fit over all cables follows (see the module docstring; skipped when the
+    other cables already agree to 1e-12 m).  ``residual_m`` is the RMS cable-length mismatch.
     Raises ``KinematicsError`` for a wrong count or non-finite / non-positive lengths and
     ``UnreachableError`` (naming the 1-based cable and shortfall) when the seed triple
     cannot meet.
