@@ -24,21 +24,25 @@ test: $(STAMP)
 	@rc=0; $(MAKE) --no-print-directory test-unit || rc=1; \
 	$(MAKE) --no-print-directory test-vcan || rc=1; exit $$rc
 
+# tools/offhost_guard.py wraps the suites and the bench: it fails the run if any UDP (a
+# udp_multicast CAN frame, Zenoh scouting) left this host through a non-loopback interface.
+GUARD := $(PY) tools/offhost_guard.py --
+
 test-unit: $(STAMP)
-	$(PY) -m pytest -m "not vcan" -q
+	$(GUARD) $(PY) -m pytest -m "not vcan" -q
 
 # Real-SocketCAN tests (pytest -m vcan): natively when this kernel has vcan0 (or can make it),
 # else inside a virtme-ng VM (tools + kernel cached in ~/.cache/cablebot, installed on first use
 # without root), else a loud skip (a failure under CI=true). See tools/vcan_vm.py.
 test-vcan: $(STAMP)
-	$(PY) tools/vcan_vm.py test
+	$(GUARD) $(PY) tools/vcan_vm.py test
 
 # Idempotent: apt-get the missing VM packages (as root), the virtme-ng venv, the Debian kernel.
 vcan-tools:
 	$(PYTHON) tools/vcan_vm.py tools --apt
 
 bench: $(STAMP)
-	$(VENV)/bin/cablebot bench
+	$(GUARD) $(VENV)/bin/cablebot bench
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check controller drivers tests

@@ -4,6 +4,12 @@
 `open_bus("udp_multicast", "239.74.0.1", port=43113)`, `open_bus({"interface": "pcan",
 "channel": "PCAN_USBBUS1", "bitrate": 500000})`: every further keyword goes to the interface
 unchanged, so new interfaces need no code here. One bus per robot, passed into the drivers.
+
+udp_multicast stays on this host unless told otherwise: python-can's own default multicast TTL
+(`hop_limit`) is 1, which sends every CAN frame out of the default network interface onto the
+local network. Here `hop_limit` defaults to 0 (delivered between processes on this host only; a
+TTL of 0 never reaches a wire). A configuration that sets `hop_limit` itself, for a deliberate
+bus across hosts, keeps its value. python-can offers no option to pin the outgoing interface.
 """
 
 from __future__ import annotations
@@ -18,6 +24,10 @@ from drivers.base import DriverError
 # Interfaces whose bit rate is set outside python-can (or that have none): a configured bitrate is
 # not passed to them, so one config file works on a real bus and on these.
 _NO_BITRATE = frozenset({"virtual", "udp_multicast", "socketcan"})
+
+#: The multicast TTL cablebot gives a udp_multicast bus whose configuration does not set one:
+#: 0 keeps every frame on this host.
+HOST_ONLY_HOP_LIMIT = 0
 
 
 class BusOpenError(DriverError):
@@ -38,7 +48,8 @@ def open_bus(
     only to interfaces that set it themselves (not socketcan, whose bit rate belongs to
     `ip link`, nor virtual/udp_multicast). Raises BusOpenError (with interface and channel in
     the message) if the interface is unknown or the bus cannot be opened, and ValueError on a
-    malformed configuration.
+    malformed configuration. A udp_multicast bus gets `hop_limit=0` (host-only) unless
+    `hop_limit` is given.
     """
     if isinstance(interface, Mapping):
         cfg = dict(interface)
@@ -56,6 +67,8 @@ def open_bus(
     kwargs: dict[str, Any] = dict(options)
     if bitrate is not None and name not in _NO_BITRATE:
         kwargs["bitrate"] = bitrate
+    if name == "udp_multicast":
+        kwargs.setdefault("hop_limit", HOST_ONLY_HOP_LIMIT)
     try:
         bus = can.Bus(interface=name, channel=channel, **kwargs)
     except (can.CanError, OSError, ImportError, ValueError, TypeError, NotImplementedError) as exc:
