@@ -14,6 +14,7 @@ bus across hosts, keeps its value. python-can offers no option to pin the outgoi
 
 from __future__ import annotations
 
+import errno
 from collections.abc import Mapping
 from typing import Any
 
@@ -72,8 +73,36 @@ def open_bus(
     try:
         bus = can.Bus(interface=name, channel=channel, **kwargs)
     except (can.CanError, OSError, ImportError, ValueError, TypeError, NotImplementedError) as exc:
+        hint = _hint(name, channel, exc)
         raise BusOpenError(
             f"cannot open CAN bus interface={name!r} channel={channel!r}: "
-            f"{type(exc).__name__}: {exc}"
+            f"{type(exc).__name__}: {exc}" + (f". {hint}" if hint else "")
         ) from exc
     return bus
+
+
+def _hint(name: str, channel: object, exc: BaseException) -> str:
+    """What a person can do about a bus that would not open (empty when nothing useful)."""
+    errno_ = getattr(exc, "errno", None)
+    cause = exc.__cause__ or exc.__context__
+    if errno_ is None and cause is not None:
+        errno_ = getattr(cause, "errno", None)
+    if name == "socketcan":
+        if errno_ == errno.EAFNOSUPPORT:
+            return (
+                "This kernel has no SocketCAN (AF_CAN). On a machine with a CAN adapter load the "
+                "driver (`sudo modprobe can_raw`); without CAN hardware run the simulated robot "
+                '(`cablebot run` without --config) or set [bus] interface = "udp_multicast"'
+            )
+        if errno_ == errno.ENODEV:
+            return (
+                f"No interface {channel!r}: bring it up with "
+                f"`sudo ip link set {channel} up type can bitrate 1000000` "
+                f"(or `sudo ip link add dev {channel} type vcan && sudo ip link set up {channel}` "
+                "for a virtual one)"
+            )
+        if errno_ == errno.ENETDOWN:
+            return f"{channel!r} is down: `sudo ip link set {channel} up type can bitrate 1000000`"
+    if isinstance(exc, ImportError | NotImplementedError) or "unknown interface" in str(exc):
+        return f"python-can's interfaces are: {', '.join(sorted(can.interfaces.VALID_INTERFACES))}"
+    return ""

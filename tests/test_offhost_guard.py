@@ -19,7 +19,6 @@ from pathlib import Path
 
 import pytest
 
-from drivers.bus import HOST_ONLY_HOP_LIMIT, open_bus
 from tests.conftest import running_under_ci
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -57,20 +56,6 @@ def test_udp_destination_parses_ipv4_and_ipv6_and_ignores_others() -> None:
     assert offhost_guard.udp_destination(v6) == ("ff15::7", 5000)
     assert offhost_guard.udp_destination(b"\x00" * 13) is None
     assert offhost_guard.udp_destination(_udp_frame_v4("239.74.1.2", 43113)[:30]) is None
-
-
-def test_open_bus_defaults_udp_multicast_to_host_only() -> None:
-    assert HOST_ONLY_HOP_LIMIT == 0
-    bus = open_bus("udp_multicast", "239.74.250.250", port=47001)
-    try:
-        assert bus._multicast.hop_limit == 0
-    finally:
-        bus.shutdown()
-    bus = open_bus({"interface": "udp_multicast", "channel": "239.74.250.251", "hop_limit": 2})
-    try:
-        assert bus._multicast.hop_limit == 2
-    finally:
-        bus.shutdown()
 
 
 _SENDER = """
