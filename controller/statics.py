@@ -27,6 +27,15 @@ keeps every cable in range: then it is the distribution that violates the limits
 ``feasible`` is ``margin_n >= 0``.  Cable *indices* in data are 0-based; cable *names* in
 messages are 1-based (``cable 1`` is row 0), as in ``controller.kinematics``.
 
+Examples (the paper robot of config/paper-acre.toml: anchors at (+/-40.45, +/-25, 7.62) m)
+---------------------------------------------------------------------------------------
+A 5 kg effector (49.03 N) with limits 5..500 N: at (0, 0, 2) m each cable carries
+m g / (4 u_z) = 104.44 N (margin 99.44 N, to t_min); at (0, 0, 6.62) m, 1 m below the
+anchors, each needs 583.04 N: infeasible, margin -83.04 N.  Sampled on a 0.25 m grid, the
+tension-feasible part of its geometric workspace (x +/-38.45, y +/-23, z 0..6.62 m,
+23418 m^3) is about 22400 m^3 (96 %): only a layer under the anchors, thinnest at the
+corners, needs more than 500 N.  ``tests/test_statics.py`` checks these.
+
 Errors (nothing here returns NaN or inf)
 ---------------------------------------
 * ``StaticsInputError``: wrong shapes, non-finite numbers, ``mass_kg <= 0``, limits not
@@ -415,7 +424,9 @@ class CableStatics:
         for k, row in enumerate(p.tolist()):
             try:
                 r = self.solve(row, mass_kg)
-            except (SingularConfiguration, StaticsInputError):
+            except SolverUnavailable:
+                raise
+            except StaticsError:  # singular or non-finite row (or, never seen, an LP failure)
                 continue
             t[k] = r.tensions_n
             ok[k] = True

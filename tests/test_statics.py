@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import sys
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from controller.statics import (
     SINGULAR_ROW,
     CableStatics,
     SingularConfiguration,
+    SolverUnavailable,
     StaticsError,
     StaticsInputError,
     Tensions,
@@ -383,6 +385,17 @@ def test_six_cables_centre_shares_equally() -> None:
     assert r.margin_n == pytest.approx(expect - 5.0, rel=1e-6)
 
 
+def test_more_than_four_cables_without_scipy(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without scipy, N > 4 is a named error (single and batch); N <= 4 needs no scipy."""
+    monkeypatch.setitem(sys.modules, "scipy.optimize", None)  # import now raises ImportError
+    statics = CableStatics(hexagon(10.0, 6.0), 5.0, 300.0)
+    with pytest.raises(SolverUnavailable, match="scipy"):
+        statics.solve((0.0, 0.0, 2.0), 10.0)
+    with pytest.raises(SolverUnavailable, match="scipy"):
+        statics.solve_batch(np.zeros((2, 3)), 10.0)
+    assert solve_tensions(PAPER, (0.0, 0.0, 2.0), 5.0, 5.0, 500.0).feasible
+
+
 # -- properties (hypothesis) -----------------------------------------------------------------
 
 
@@ -626,6 +639,9 @@ def test_workspace_refinement_within_stated_accuracy() -> None:
     assert abs(fine.volume_m3 - tall.volume_m3) <= tall.uncertainty_m3
     assert abs(fine.volume_m3 - coarse.volume_m3) <= coarse.uncertainty_m3
     assert fine.uncertainty_m3 < coarse.uncertainty_m3
+    # 22430.6 m^3: columns of 0.5 m x 0.5 m sampled every 0.01 m in z (and 0.25 m x 0.02 m)
+    assert abs(fine.volume_m3 - 22430.6) <= fine.uncertainty_m3
+    assert abs(coarse.volume_m3 - 22430.6) <= coarse.uncertainty_m3
     # the infeasible part is at the top (cables too flat for t_max)
     top = fine.feasible[:, :, -1].mean()
     bottom = fine.feasible[:, :, 0].mean()
