@@ -36,6 +36,12 @@ Paths: a move or path is checked against the limits and prepared (speed, repeate
 thread that submits it, vectorised (`Limits.path_failure`); the tick only checks the first leg
 from where the set-point comes to rest and hands the prepared points to the planner, which
 builds each leg when it reaches it. A path of any length costs the tick the same.
+
+E-stop confirmation: after an e-stop every axis must report, by a heartbeat newer than the
+e-stop, that it left closed loop within `ESTOP_CONFIRM_S`. An axis that does not is named in the
+state reason (`estop_unconfirmed: ...`, published on `<prefix>/state`) and in
+`status()["estop"]`, and the Estop is sent again with an IDLE request every `ESTOP_CONFIRM_S`
+until every axis complies (a node that ignores Estop may still obey IDLE).
 """
 
 from __future__ import annotations
@@ -81,6 +87,8 @@ AXIS_CLOSED_LOOP = 8
 """ODrive AxisState CLOSED_LOOP_CONTROL."""
 
 COMMAND_QUEUE_SIZE = 32
+ESTOP_CONFIRM_S = 0.2
+"""Every axis must confirm leaving closed loop this soon after an e-stop (module docstring)."""
 MAX_PLANNER_DT_PERIODS = 4.0
 """The planner advances at most this many loop periods per tick (see the module docstring)."""
 STATS_WINDOW = 4096
@@ -325,6 +333,11 @@ class Controller:
         self.stream_last_refusal: str | None = None
         self.stream_discarded = 0
         """Set-points discarded because the state takes none (written by the submitting thread)."""
+        self._estop_at_s = 0.0
+        self._estop_check_s = 0.0
+        self._estop_confirmed = True
+        self._estop_unconfirmed: tuple[int, ...] = ()
+        self.estop_repeats = 0
 
         # Per-tick working values (the last tick's).
         self.lengths_m: list[float] = [math.nan] * self.n
@@ -525,6 +538,15 @@ class Controller:
         except Exception:
             log.exception("publish_state failed")
 
+    def _set_reason(self, reason: str) -> None:
+        """Change the reason of the current state and publish it (same state, new reason)."""
+        self.reason = reason
+        log.error("state %s: %s", self.state.value, reason)
+        try:
+            self.publisher.publish_state(self.state.value, reason, self._wall_ns())
+        except Exception:
+            log.exception("publish_state failed")
+
     def _fault(self, reason: str) -> None:
         """Enter FAULT (from an armed or arming state); the last good set-point stays commanded."""
         if self.state in (State.ARMING, State.HOLDING, State.MOVING):
@@ -553,7 +575,7 @@ class Controller:
         drv = self.driver
 
         if self._estop_flag:
-            self._do_estop()
+            self._do_estop(now_s)
 
         try:
             drv.poll()
@@ -591,6 +613,8 @@ class Controller:
                 self._fault(f.reason)
         if self.state is State.FAULT:
             self._hold_last()
+        elif self.state is State.ESTOPPED and not self._estop_confirmed:
+            self._confirm_estop(readings, now_s)
 
         if self.ticks % self.publish_every == 0:
             self._publish_pose()
@@ -853,7 +877,7 @@ class Controller:
 
     # ---------------------------------------------------------------- commands
 
-    def _do_estop(self) -> None:
+    def _do_estop(self, now_s: float) -> None:
         with self._estop_lock:
             futures = self._estop_futures
             self._estop_futures = []
@@ -865,12 +889,63 @@ class Controller:
             err = str(exc)
         if self.state is not State.ESTOPPED:
             self._set_state(State.ESTOPPED, "estop" if err is None else f"estop (bus: {err})")
+            self._estop_unconfirmed = ()
+            self.estop_repeats = 0
+        # Every e-stop (a repeated one too) restarts the confirmation from its own time.
+        self._estop_at_s = now_s
+        self._estop_check_s = now_s + ESTOP_CONFIRM_S
+        self._estop_confirmed = False
         self.commanded_rev = None
         self.setpoint_m = None
         self.setpoint_lengths_m = None
         self._stream_target = None
         for fut in futures:
             fut.set_result({"ok": True, "state": self.state.value})
+
+    def _confirm_estop(self, readings: Sequence[AxisReading], now_s: float) -> None:
+        """In ESTOPPED until confirmed: has every axis reported leaving closed loop since the
+        e-stop? Past the deadline: name the axes that have not, send Estop and IDLE again."""
+        since = self._estop_at_s
+        for r in readings:
+            if r.heartbeat_stamp_s <= since or r.axis_state == AXIS_CLOSED_LOOP:
+                break
+        else:
+            self._estop_confirmed = True
+            if self._estop_unconfirmed:
+                late = ", ".join(f"node {n}" for n in self._estop_unconfirmed)
+                self._estop_unconfirmed = ()
+                self._set_reason(
+                    f"estop (confirmed: {late} left closed loop only after "
+                    f"{self.estop_repeats} repeat(s) of Estop and IDLE)"
+                )
+            return
+        if now_s < self._estop_check_s:
+            return
+        self._estop_check_s = now_s + ESTOP_CONFIRM_S
+        bad = [
+            r for r in readings if r.heartbeat_stamp_s <= since or r.axis_state == AXIS_CLOSED_LOOP
+        ]
+        self.estop_repeats += 1
+        errors = []
+        for send in (self.driver.estop, self.driver.disarm):
+            try:
+                send()
+            except Exception as exc:
+                errors.append(str(exc))
+        nodes = tuple(r.node_id for r in bad)
+        if nodes != self._estop_unconfirmed:
+            self._estop_unconfirmed = nodes
+            what = ", ".join(
+                f"node {r.node_id} still in closed loop (state {r.axis_state})"
+                if r.heartbeat_stamp_s > since
+                else f"node {r.node_id} silent (no heartbeat since the Estop)"
+                for r in bad
+            )
+            bus = f" (bus: {'; '.join(errors)})" if errors else ""
+            self._set_reason(
+                f"estop_unconfirmed: {what} {now_s - since:.2f} s after Estop; "
+                f"Estop repeated and IDLE requested{bus}"
+            )
 
     def _take_commands(self, readings: Sequence[AxisReading], now_s: float) -> None:
         for _ in range(_MAX_COMMANDS_PER_TICK):
@@ -1009,6 +1084,7 @@ class Controller:
         self.setpoint_m = None
         self.setpoint_lengths_m = None
         self._stream_target = None
+        self._estop_unconfirmed = ()
         self._set_state(State.DISARMED, why)
 
     def _execute_home(
@@ -1115,6 +1191,15 @@ class Controller:
                 "last_refusal": self.stream_last_refusal,
                 "discarded": self.stream_discarded,
             },
+            "estop": (
+                {
+                    "confirmed": self._estop_confirmed,
+                    "unconfirmed_nodes": list(self._estop_unconfirmed),
+                    "repeats": self.estop_repeats,
+                }
+                if self.state is State.ESTOPPED
+                else None
+            ),
             "bus": {
                 "frames_rx": bs.frames_rx,
                 "frames_tx": bs.frames_tx,

@@ -947,3 +947,113 @@ def test_a_long_path_is_followed_to_its_end() -> None:
     rig.until(lambda: rig.ctl.state is State.HOLDING, 200_000)
     assert _dist(rig.ctl.setpoint_m, rig.start) < 1e-12
     assert rig.ctl.status()["state"] == "HOLDING"
+
+
+# ------------------------------------------------------------------------ e-stop confirmation
+
+
+class StubbornDriver(FFDriver):
+    """A FakeDriver whose nodes in `ignore_estop` stay in closed loop on Estop (a third-party
+    node), and those in `ignore_idle` on an IDLE request too."""
+
+    def __init__(self, *args: Any, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self.ignore_estop: set[int] = set()
+        self.ignore_idle: set[int] = set()
+
+    def _idle_except(self, keep: set[int]) -> None:
+        self.armed = False
+        self._pending_cmd = None
+        for r in self.readings:
+            if r.node_id not in keep:
+                r.axis_state = 1
+
+    def estop(self) -> None:
+        self.calls.append("estop")
+        self._idle_except(self.ignore_estop)
+
+    def disarm(self) -> None:
+        self.calls.append("disarm")
+        self._idle_except(self.ignore_idle)
+
+
+def _stubborn_rig() -> Rig:
+    rig = Rig()
+    rig.driver = StubbornDriver(rig.driver.node_ids, rig.clock, power_up_turns(rig.cfg))
+    rig.ctl = Controller(
+        rig.cfg, rig.driver, rig.pub, clock=rig.clock, wall_clock_ns=rig.clock.wall_ns
+    )
+    rig.arm()
+    rig.tick(5)
+    return rig
+
+
+def test_estop_is_confirmed_when_every_axis_leaves_closed_loop() -> None:
+    rig = _stubborn_rig()
+    rig.ctl.submit(Estop())
+    rig.tick(3)
+    st = rig.ctl.status()["estop"]
+    assert st == {"confirmed": True, "unconfirmed_nodes": [], "repeats": 0}
+    assert rig.ctl.reason == "estop"
+    rig.tick(int(0.5 * RATE_HZ))
+    assert rig.driver.calls.count("estop") == 1 and "disarm" not in rig.driver.calls
+    assert rig.ctl.status()["estop"]["repeats"] == 0
+
+
+def test_estop_ignored_by_a_node_is_repeated_idled_and_reported() -> None:
+    from controller.loop import ESTOP_CONFIRM_S
+
+    rig = _stubborn_rig()
+    bad = rig.ctl.node_ids[2]
+    assert isinstance(rig.driver, StubbornDriver)
+    rig.driver.ignore_estop = {bad}
+    rig.ctl.submit(Estop())
+    rig.tick()
+    assert rig.state() is State.ESTOPPED and rig.ctl.reason == "estop"
+    deadline = int(ESTOP_CONFIRM_S * RATE_HZ)
+    rig.tick(deadline - 2)
+    assert rig.driver.calls.count("estop") == 1  # still inside the confirmation window
+    rig.tick(3)
+    reason = str(rig.ctl.reason)
+    assert reason.startswith("estop_unconfirmed: ") and f"node {bad} still in closed loop" in reason
+    assert f"node {rig.ctl.node_ids[0]} " not in reason
+    assert rig.pub.states[-1][:2] == ("ESTOPPED", reason)  # published
+    assert rig.driver.calls[-2:] == ["estop", "disarm"]  # Estop again, then IDLE
+    # The node obeys IDLE: confirmed at the next heartbeat, and the reason says who was late.
+    rig.tick(2)
+    st = rig.ctl.status()["estop"]
+    assert st["confirmed"] and st["repeats"] == 1 and st["unconfirmed_nodes"] == []
+    assert f"node {bad}" in str(rig.ctl.reason) and "confirmed" in str(rig.ctl.reason)
+    assert rig.state() is State.ESTOPPED
+
+
+def test_estop_ignored_for_good_keeps_being_repeated_and_reported() -> None:
+    from controller.loop import ESTOP_CONFIRM_S
+
+    rig = _stubborn_rig()
+    bad = rig.ctl.node_ids[1]
+    assert isinstance(rig.driver, StubbornDriver)
+    rig.driver.ignore_estop = rig.driver.ignore_idle = {bad}
+    rig.ctl.submit(Estop())
+    rig.tick(int(3.5 * ESTOP_CONFIRM_S * RATE_HZ))
+    st = rig.ctl.status()
+    assert st["estop"]["confirmed"] is False
+    assert st["estop"]["unconfirmed_nodes"] == [bad]
+    assert st["estop"]["repeats"] == 3
+    assert rig.driver.calls.count("estop") == 4 and rig.driver.calls.count("disarm") == 3
+    assert f"node {bad} still in closed loop" in str(st["reason"])
+    # Published once per change of the culprits, not at every repeat.
+    assert [s for s, r, _ in rig.pub.states if r and "unconfirmed" in r] == ["ESTOPPED"]
+    n = len(rig.driver.commands)
+    rig.tick(10)
+    assert len(rig.driver.commands) == n
+
+
+def test_estop_with_a_silent_node_is_reported() -> None:
+    rig = _stubborn_rig()
+    silent = rig.ctl.node_ids[3]
+    rig.driver.heartbeat_silent = {silent}
+    rig.ctl.submit(Estop())
+    rig.tick(int(0.3 * RATE_HZ))
+    assert f"node {silent} silent" in str(rig.ctl.reason)
+    assert rig.ctl.status()["estop"]["unconfirmed_nodes"] == [silent]
