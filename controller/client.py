@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from controller.cli import add_xyz_arguments, xyz_from_args
+from controller.motion import MIN_SPEED_MPS, check_speed
 
 EXIT_OK = 0
 EXIT_REFUSED = 1
@@ -223,8 +224,9 @@ def _vec3(values: Sequence[float], what: str) -> list[float]:
 
 
 def _speed(v: float | None) -> float | None:
-    if v is not None and (not math.isfinite(v) or v <= 0.0):
-        raise InputError(f"--speed must be a finite number > 0, got {v}")
+    reason = None if v is None else check_speed(v)
+    if reason is not None:
+        raise InputError(f"--speed {reason}")
     return v
 
 
@@ -302,6 +304,9 @@ def _print_reply(verb: str, reply: Any, args: argparse.Namespace) -> None:
     if isinstance(reply, dict):
         extra = " ".join(f"{k}={v}" for k, v in reply.items() if k != "ok")
     print(f"{verb}: ok {extra}".rstrip())
+    limited = reply.get("speed_limited_to_mps") if isinstance(reply, dict) else None
+    if isinstance(limited, int | float):
+        print(f"{verb}: speed limited to {limited:g} m/s, the robot's maximum")
 
 
 def cmd_simple(args: argparse.Namespace) -> int:
@@ -491,7 +496,16 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
             add_xyz_arguments(p)
         else:
             p.add_argument("file", metavar="FILE", help="JSON points or CSV x,y,z lines")
-        p.add_argument("--speed", type=float, default=None, metavar="V", help="speed in m/s")
+        p.add_argument(
+            "--speed",
+            type=float,
+            default=None,
+            metavar="V",
+            help=(
+                f"speed in m/s, at least {MIN_SPEED_MPS:g}; above the robot's maximum it runs at"
+                " the maximum"
+            ),
+        )
         p.add_argument("--wait", action="store_true", help="wait until the end point is reached")
         p.add_argument(
             "--wait-timeout",

@@ -13,6 +13,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from controller.motion import check_speed
+
 Vec3 = tuple[float, float, float]
 
 
@@ -111,12 +113,17 @@ def _vec3(value: Any, field: str) -> Vec3:
 
 
 def _speed(obj: dict[str, Any]) -> float | None:
-    """Return the optional positive `speed_mps` field or raise CommandError."""
+    """Return the optional `speed_mps` field or raise CommandError.
+
+    The speed rule is `controller.motion.check_speed` (at least `MIN_SPEED_MPS`); a speed above
+    the robot's maximum is not an error here: the loop runs at the maximum and says so.
+    """
     if obj.get("speed_mps") is None:
         return None
     speed = _finite(obj["speed_mps"], "speed_mps")
-    if speed <= 0.0:
-        raise CommandError(f"speed_mps: must be > 0, got {speed}")
+    reason = check_speed(speed)
+    if reason is not None:
+        raise CommandError(f"speed_mps: {reason}")
     return speed
 
 

@@ -9,14 +9,19 @@ in a `CommandRefused` or a fault.
 A tolerance of `TOL_M` (1 nm) absorbs floating-point rounding of set-points that lie exactly on
 a boundary (a move to a point on the margin must not fault half-way).
 
-Deviations from the agreed API: none. Additions: `check_segment(a, b)` (used by `check_path`),
-`top_z_m`, `polygon_m`.
+Paths: `path_failure` / `check_path` check every point and every leg of a path of any length
+in a few numpy passes (a 10,000-point path in about a millisecond): the arrays only screen for
+candidates (anything within `_SCREEN_M` of a limit), and the scalar checks above decide each
+candidate in order, so a path gets exactly the verdict and reason of checking it point by point.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
 
 from controller.config import LimitsConfig
 from controller.kinematics import Geometry
@@ -24,6 +29,14 @@ from controller.kinematics import Geometry
 Vec3 = tuple[float, float, float]
 
 TOL_M = 1e-9
+
+_SCREEN_M = 1e-12
+"""The vectorised path screen flags anything within this of a limit (a margin far above the
+rounding differences between numpy and the scalar checks); the scalar check then decides."""
+_VECTOR_MIN_POINTS = 16
+"""Shorter paths are checked point by point (numpy's fixed cost is larger there)."""
+_CHUNK_POINTS = 1024
+"""Points converted to an array per numpy call: each call holds the GIL, keep it short."""
 
 
 class Limits:
@@ -185,6 +198,29 @@ class Limits:
         (the check for a move target or a streamed set-point), else the reason. Raises nothing."""
         return self.check_point(p) or self.check_lengths(self.lengths_at(p))
 
+    def path_failure(
+        self,
+        points: Sequence[Sequence[float]],
+        start_m: Sequence[float] | None = None,
+        *,
+        array: np.ndarray[Any, Any] | None = None,
+    ) -> tuple[int, str] | None:
+        """The first point of `points` that breaks a limit, as (0-based index, reason), or None.
+
+        Point i fails if it is outside the workspace or a cable length limit, or if the straight
+        leg to it from point i - 1 (from `start_m` for point 0, if given) leaves them; a leg
+        reason starts with "on the leg to it: ". Cost: a few numpy passes over the path, then
+        the scalar checks on the screened candidates only (module docstring). `array` is
+        `points_array(points)` if the caller has it already. Raises nothing.
+        """
+        n = len(points)
+        if n < _VECTOR_MIN_POINTS:
+            return self._scalar_failure(points, start_m, range(n))
+        arr = points_array(points) if array is None else array
+        if arr is None:  # ragged or non-numeric: the scalar checks name the point
+            return self._scalar_failure(points, start_m, range(n))
+        return self._scalar_failure(points, start_m, self._screen(arr, start_m))
+
     def check_path(
         self, points: Sequence[Sequence[float]], start_m: Sequence[float] | None = None
     ) -> str | None:
@@ -196,16 +232,87 @@ class Limits:
         """
         if len(points) == 0:
             return "path has no points"
-        prev = start_m
-        for i, p in enumerate(points, start=1):
+        failure = self.path_failure(points, start_m)
+        if failure is None:
+            return None
+        return f"path point {failure[0] + 1}: {failure[1]}"
+
+    def _scalar_failure(
+        self,
+        points: Sequence[Sequence[float]],
+        start_m: Sequence[float] | None,
+        indices: Any,
+    ) -> tuple[int, str] | None:
+        """The scalar verdict on points `indices` (ascending), first failure first."""
+        for i in indices:
+            i = int(i)
+            p = points[i]
             if len(p) != 3:
-                return f"path point {i}: needs 3 coordinates, got {len(p)}"
+                return i, f"needs 3 coordinates, got {len(p)}"
             reason = self.check_target(p)
             if reason is not None:
-                return f"path point {i}: {reason}"
+                return i, reason
+            prev = points[i - 1] if i > 0 else start_m
             if prev is not None:
                 reason = self.check_segment(prev, p)
                 if reason is not None:
-                    return f"path point {i}: on the leg to it: {reason}"
-            prev = p
+                    return i, f"on the leg to it: {reason}"
         return None
+
+    def _screen(self, pts: np.ndarray[Any, Any], start_m: Sequence[float] | None) -> Any:
+        """Indices of the points (or of the legs to them) that may break a limit: a superset
+        of those the scalar checks refuse (every threshold is moved in by `_SCREEN_M`)."""
+        x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            bad = ~np.isfinite(pts).all(axis=1)
+            for nx, ny, c in self._edges:
+                bad |= nx * x + ny * y - c > TOL_M - _SCREEN_M
+            bad |= z < self.floor_z_m - TOL_M + _SCREEN_M
+            bad |= z > self.top_z_m + TOL_M - _SCREEN_M
+            if start_m is not None:
+                a = np.empty_like(pts)
+                a[0] = start_m
+                a[1:] = pts[:-1]
+            else:
+                a = pts[:-1]
+            b = pts if start_m is not None else pts[1:]
+            d = b - a
+            dd = np.einsum("ij,ij->i", d, d)
+            lo = self.min_cable_m - TOL_M + _SCREEN_M
+            hi = self.max_cable_m + TOL_M - _SCREEN_M
+            leg_bad = np.zeros(len(b), dtype=bool)
+            for q in self._anchors:
+                rel = pts - q
+                length = np.sqrt(np.einsum("ij,ij->i", rel, rel))
+                bad |= ~((length >= lo) & (length <= hi))
+                # Closest point of each leg to the anchor (t clipped to the leg: a superset of
+                # the scalar interior test; a zero-length leg gives t = 0).
+                qa = np.asarray(q) - a
+                t = np.where(dd > 0.0, np.einsum("ij,ij->i", qa, d) / np.where(dd > 0, dd, 1), 0)
+                t = np.clip(t, 0.0, 1.0)
+                c = qa - t[:, None] * d
+                leg_bad |= np.sqrt(np.einsum("ij,ij->i", c, c)) < lo
+            if start_m is not None:
+                bad |= leg_bad
+                # The leg's own start must be within the limits too (the scalar leg check
+                # includes it); one point, checked as such.
+                bad[0] |= self.check_target(start_m) is not None
+            else:
+                bad[1:] |= leg_bad
+        return np.flatnonzero(bad)
+
+
+def points_array(points: Sequence[Sequence[float]]) -> np.ndarray[Any, Any] | None:
+    """`points` as an (n, 3) float array, or None if ragged or not numeric. Raises nothing.
+
+    Converted in chunks: each numpy call holds the GIL, and the control loop's thread must not
+    wait long for it while a large path is converted in another thread.
+    """
+    n = len(points)
+    out = np.empty((n, 3), dtype=np.float64)
+    try:
+        for i in range(0, n, _CHUNK_POINTS):
+            out[i : i + _CHUNK_POINTS] = points[i : i + _CHUNK_POINTS]
+    except (ValueError, TypeError):
+        return None
+    return out

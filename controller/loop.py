@@ -25,6 +25,23 @@ Other threads (Zenoh, the daemon) use `submit`, `submit_setpoint`, `request_esto
 Safety: on FAULT the motors keep receiving the last good set-point (a suspended load must not
 fall); nothing non-finite is ever commanded (a non-finite set-point is itself a fault); e-stop
 is taken at the start of the next tick, ahead of every queued command.
+
+Commands: which verbs each state accepts is `controller.states.COMMAND_RULES`, asked for every
+command and every streamed set-point. A set-point is taken only while HOLDING or MOVING and only
+within the armed session it arrived in: one that arrives while disarmed, arming, in FAULT or
+ESTOPPED is discarded (counted in `status()["stream"]["discarded"]`), so arming always starts
+by holding the measured pose.
+
+Paths: a move or path is checked against the limits and prepared (speed, repeated points) in the
+thread that submits it, vectorised (`Limits.path_failure`); the tick only checks the first leg
+from where the set-point comes to rest and hands the prepared points to the planner, which
+builds each leg when it reaches it. A path of any length costs the tick the same.
+
+E-stop confirmation: after an e-stop every axis must report, by a heartbeat newer than the
+e-stop, that it left closed loop within `ESTOP_CONFIRM_S`. An axis that does not is named in the
+state reason (`estop_unconfirmed: ...`, published on `<prefix>/state`) and in
+`status()["estop"]`, and the Estop is sent again with an IDLE request every `ESTOP_CONFIRM_S`
+until every axis complies (a node that ignores Estop may still obey IDLE).
 """
 
 from __future__ import annotations
@@ -58,9 +75,9 @@ from controller.commands import (
     Vec3,
 )
 from controller.config import RobotConfig
-from controller.limits import Limits
-from controller.motion import MotionPlanner
-from controller.states import ARMED_STATES, State, check_transition
+from controller.limits import Limits, points_array
+from controller.motion import MotionPlanner, check_speed, dedupe_path
+from controller.states import ARMED_STATES, State, check_transition, refusal
 from drivers.base import AxisReading, BusError, ReelDriver
 from drivers.reel import ReelModel
 
@@ -70,6 +87,8 @@ AXIS_CLOSED_LOOP = 8
 """ODrive AxisState CLOSED_LOOP_CONTROL."""
 
 COMMAND_QUEUE_SIZE = 32
+ESTOP_CONFIRM_S = 0.2
+"""Every axis must confirm leaving closed loop this soon after an e-stop (module docstring)."""
 MAX_PLANNER_DT_PERIODS = 4.0
 """The planner advances at most this many loop periods per tick (see the module docstring)."""
 STATS_WINDOW = 4096
@@ -200,7 +219,34 @@ class _Deferred(Exception):
         self.future = future
 
 
-_Pending = tuple[Command, "concurrent.futures.Future[dict[str, Any]]"]
+@dataclass(frozen=True, slots=True)
+class _Motion:
+    """A move or path checked and prepared outside the tick (see `Controller._prepare_motion`)."""
+
+    points_m: tuple[Vec3, ...]
+    """The points, consecutive repeats dropped."""
+    speed_mps: float
+    """The speed to run at (the requested one, limited to the maximum)."""
+    limited_to_mps: float | None
+    """The maximum speed, when the requested one was above it."""
+    refusal: str | None
+    """Why the command is refused whatever the state (a point or leg outside the limits, a
+    speed below the minimum), or None."""
+
+
+_VERBS: Mapping[type, str] = {
+    Move: "move",
+    Path: "path",
+    Stop: "stop",
+    Estop: "estop",
+    Arm: "arm",
+    Disarm: "disarm",
+    Reset: "reset",
+    Home: "home",
+    Setpoint: "setpoint",
+}
+
+_Pending = tuple[Command, "concurrent.futures.Future[dict[str, Any]]", _Motion | None]
 
 
 class Controller:
@@ -279,9 +325,19 @@ class Controller:
         self._estop_futures: list[concurrent.futures.Future[dict[str, Any]]] = []
         self._estop_lock = threading.Lock()
         self._estop_flag = False
-        self._stream_target: Vec3 | None = None
+        self._stream_target: tuple[Vec3, int] | None = None
+        """The latest streamed set-point and the armed session (`_arm_epoch`) it arrived in."""
+        self._arm_epoch = 0
+        """Counts `arm` commands taken: a set-point from an earlier session is discarded."""
         self.stream_refused = 0
         self.stream_last_refusal: str | None = None
+        self.stream_discarded = 0
+        """Set-points discarded because the state takes none (written by the submitting thread)."""
+        self._estop_at_s = 0.0
+        self._estop_check_s = 0.0
+        self._estop_confirmed = True
+        self._estop_unconfirmed: tuple[int, ...] = ()
+        self.estop_repeats = 0
 
         # Per-tick working values (the last tick's).
         self.lengths_m: list[float] = [math.nan] * self.n
@@ -379,11 +435,18 @@ class Controller:
                 self._estop_flag = True
             return fut
         if isinstance(cmd, Setpoint):
-            self.submit_setpoint(cmd.position_m)
-            fut.set_result({"ok": True})
+            why = self._offer_setpoint(cmd.position_m)
+            if why is None:
+                fut.set_result({"ok": True})
+            else:
+                fut.set_exception(CommandRefused(why))
             return fut
+        motion = None
+        if isinstance(cmd, Move | Path):
+            # Here, in the submitting thread: O(number of points), so never in the tick.
+            motion = self._prepare_motion(cmd)
         try:
-            self._queue.put_nowait((cmd, fut))
+            self._queue.put_nowait((cmd, fut, motion))
         except queue.Full:
             fut.set_exception(CommandRefused("busy: command queue full"))
         return fut
@@ -394,9 +457,67 @@ class Controller:
             self._estop_flag = True
 
     def submit_setpoint(self, position_m: Sequence[float]) -> None:
-        """Stream a target position; the latest one wins, validated and limited in the tick."""
+        """Stream a target position; the latest one wins, validated and limited in the tick.
+
+        Taken only while HOLDING or MOVING (`COMMAND_RULES`); otherwise discarded and counted.
+        Raises ValueError/TypeError/IndexError for a position that is not three numbers.
+        """
+        self._offer_setpoint(position_m)
+
+    def _offer_setpoint(self, position_m: Sequence[float]) -> str | None:
+        """Store a streamed set-point for the tick, or return why the state discards it."""
         p = (float(position_m[0]), float(position_m[1]), float(position_m[2]))
-        self._stream_target = p  # one reference assignment: atomic
+        # Read the session before the state: if the state then says armed, the session read is
+        # that one or an earlier one (discarded by the tick), never a later one.
+        epoch = self._arm_epoch
+        state = self.state
+        why = refusal(state, "setpoint")
+        if why is not None:
+            self.stream_discarded += 1
+            return self._refusal_text(state, why)
+        self._stream_target = (p, epoch)  # one reference assignment: atomic
+        return None
+
+    def _prepare_motion(self, cmd: Move | Path) -> _Motion:
+        """Check a move's or path's points, legs and speed and prepare them for the planner.
+
+        Reads only immutable limits and configuration: safe in any thread. Vectorised over the
+        points; the leg from where the set-point comes to rest to the first point depends on
+        the state and is checked in the tick. Raises nothing (a problem becomes `refusal`).
+        """
+        limited: float | None = None
+        if cmd.speed_mps is None:
+            speed = self._default_speed_mps
+        else:
+            why = check_speed(cmd.speed_mps)
+            if why is not None:
+                return _Motion((), 0.0, None, f"speed_mps: {why}")
+            speed = float(cmd.speed_mps)
+            vmax = float(self.cfg.limits.max_speed_mps)
+            if speed > vmax:
+                speed = limited = vmax
+        if isinstance(cmd, Move):
+            points: Sequence[Vec3] = (cmd.position_m,)
+        else:
+            points = cmd.points_m
+        try:
+            arr = points_array(points) if len(points) > 1 else None
+            failure = self.limits.path_failure(points, array=arr)
+            if failure is not None:
+                i, why = failure
+                where = "target" if isinstance(cmd, Move) else f"points_m[{i}]"
+                return _Motion((), speed, limited, f"{where} {_fmt(points[i])}: {why}")
+            if (
+                arr is not None
+                and type(points) is tuple
+                and bool(np.all(np.any(arr[1:] != arr[:-1], axis=1)))
+            ):
+                pts: tuple[Vec3, ...] = points  # checked finite, no repeats: as it is
+            else:
+                pts = dedupe_path(points)
+        except Exception as exc:  # e.g. a malformed point built in code: refuse, do not raise
+            return _Motion((), speed, limited, f"invalid points: {exc}")
+        return _Motion(pts, speed, limited, None)
 
     # ---------------------------------------------------------------- state changes
 
@@ -417,12 +538,22 @@ class Controller:
         except Exception:
             log.exception("publish_state failed")
 
+    def _set_reason(self, reason: str) -> None:
+        """Change the reason of the current state and publish it (same state, new reason)."""
+        self.reason = reason
+        log.error("state %s: %s", self.state.value, reason)
+        try:
+            self.publisher.publish_state(self.state.value, reason, self._wall_ns())
+        except Exception:
+            log.exception("publish_state failed")
+
     def _fault(self, reason: str) -> None:
         """Enter FAULT (from an armed or arming state); the last good set-point stays commanded."""
         if self.state in (State.ARMING, State.HOLDING, State.MOVING):
             self._set_state(State.FAULT, reason)
             self.planner_hold()
             self.commanded_ff_rps = list(self._zero_ff)  # the hold has no feed-forward
+            self._stream_target = None
 
     def planner_hold(self) -> None:
         """Put the planner on hold at the last good set-point (no further motion)."""
@@ -444,7 +575,7 @@ class Controller:
         drv = self.driver
 
         if self._estop_flag:
-            self._do_estop()
+            self._do_estop(now_s)
 
         try:
             drv.poll()
@@ -482,6 +613,8 @@ class Controller:
                 self._fault(f.reason)
         if self.state is State.FAULT:
             self._hold_last()
+        elif self.state is State.ESTOPPED and not self._estop_confirmed:
+            self._confirm_estop(readings, now_s)
 
         if self.ticks % self.publish_every == 0:
             self._publish_pose()
@@ -629,10 +762,14 @@ class Controller:
         if dt > self._max_plan_dt_s:
             dt = self._max_plan_dt_s  # after a stall: resume, do not jump (module docstring)
             self.dt_clamped += 1
-        target = self._stream_target
-        if target is not None:
+        item = self._stream_target
+        if item is not None:
             self._stream_target = None
-            reason = self._check_target(target)
+            target, epoch = item
+            if epoch != self._arm_epoch:
+                reason: str | None = "set-point from before the last `arm` discarded"
+            else:
+                reason = self._check_target(target)
             if reason is None:
                 self.planner.stream(target)
                 if self.state is State.HOLDING:
@@ -740,7 +877,7 @@ class Controller:
 
     # ---------------------------------------------------------------- commands
 
-    def _do_estop(self) -> None:
+    def _do_estop(self, now_s: float) -> None:
         with self._estop_lock:
             futures = self._estop_futures
             self._estop_futures = []
@@ -752,6 +889,12 @@ class Controller:
             err = str(exc)
         if self.state is not State.ESTOPPED:
             self._set_state(State.ESTOPPED, "estop" if err is None else f"estop (bus: {err})")
+            self._estop_unconfirmed = ()
+            self.estop_repeats = 0
+        # Every e-stop (a repeated one too) restarts the confirmation from its own time.
+        self._estop_at_s = now_s
+        self._estop_check_s = now_s + ESTOP_CONFIRM_S
+        self._estop_confirmed = False
         self.commanded_rev = None
         self.setpoint_m = None
         self.setpoint_lengths_m = None
@@ -759,16 +902,61 @@ class Controller:
         for fut in futures:
             fut.set_result({"ok": True, "state": self.state.value})
 
+    def _confirm_estop(self, readings: Sequence[AxisReading], now_s: float) -> None:
+        """In ESTOPPED until confirmed: has every axis reported leaving closed loop since the
+        e-stop? Past the deadline: name the axes that have not, send Estop and IDLE again."""
+        since = self._estop_at_s
+        for r in readings:
+            if r.heartbeat_stamp_s <= since or r.axis_state == AXIS_CLOSED_LOOP:
+                break
+        else:
+            self._estop_confirmed = True
+            if self._estop_unconfirmed:
+                late = ", ".join(f"node {n}" for n in self._estop_unconfirmed)
+                self._estop_unconfirmed = ()
+                self._set_reason(
+                    f"estop (confirmed: {late} left closed loop only after "
+                    f"{self.estop_repeats} repeat(s) of Estop and IDLE)"
+                )
+            return
+        if now_s < self._estop_check_s:
+            return
+        self._estop_check_s = now_s + ESTOP_CONFIRM_S
+        bad = [
+            r for r in readings if r.heartbeat_stamp_s <= since or r.axis_state == AXIS_CLOSED_LOOP
+        ]
+        self.estop_repeats += 1
+        errors = []
+        for send in (self.driver.estop, self.driver.disarm):
+            try:
+                send()
+            except Exception as exc:
+                errors.append(str(exc))
+        nodes = tuple(r.node_id for r in bad)
+        if nodes != self._estop_unconfirmed:
+            self._estop_unconfirmed = nodes
+            what = ", ".join(
+                f"node {r.node_id} still in closed loop (state {r.axis_state})"
+                if r.heartbeat_stamp_s > since
+                else f"node {r.node_id} silent (no heartbeat since the Estop)"
+                for r in bad
+            )
+            bus = f" (bus: {'; '.join(errors)})" if errors else ""
+            self._set_reason(
+                f"estop_unconfirmed: {what} {now_s - since:.2f} s after Estop; "
+                f"Estop repeated and IDLE requested{bus}"
+            )
+
     def _take_commands(self, readings: Sequence[AxisReading], now_s: float) -> None:
         for _ in range(_MAX_COMMANDS_PER_TICK):
             try:
-                cmd, fut = self._queue.get_nowait()
+                cmd, fut, motion = self._queue.get_nowait()
             except queue.Empty:
                 return
             if not fut.set_running_or_notify_cancel():
                 continue
             try:
-                reply = self._execute(cmd, readings, now_s)
+                reply = self._execute(cmd, readings, now_s, motion)
             except _Deferred as d:
                 d.future.add_done_callback(_chain(fut))
             except CommandRefused as exc:
@@ -780,12 +968,11 @@ class Controller:
             else:
                 fut.set_result(reply)
 
-    def _refuse_unless(self, *states: State) -> None:
-        if self.state not in states:
-            if self.state is State.FAULT:
-                raise CommandRefused(f"in FAULT ({self.reason}); reset first")
-            names = "/".join(s.value for s in states)
-            raise CommandRefused(f"not allowed in {self.state.value} (needs {names})")
+    def _refusal_text(self, state: State, why: str) -> str:
+        """The refusal message for a verb `state` refuses with reason `why` (COMMAND_RULES)."""
+        if state is State.FAULT or state is State.ESTOPPED:
+            return f"not allowed in {state.value} ({self.reason}): {why}"
+        return f"not allowed in {state.value}: {why}"
 
     def check_target(self, p: Sequence[float]) -> str | None:
         """Why `p` is not an allowed target (workspace, cable lengths), or None if it is.
@@ -807,27 +994,38 @@ class Controller:
             return str(exc)
         return self.limits.check_lengths(tuple(lengths))
 
-    def _speed(self, speed: float | None) -> float:
-        if speed is None:
-            return self._default_speed_mps
-        return min(float(speed), float(self.cfg.limits.max_speed_mps))
-
     def _execute(
-        self, cmd: Command, readings: Sequence[AxisReading], now_s: float
+        self,
+        cmd: Command,
+        readings: Sequence[AxisReading],
+        now_s: float,
+        motion: _Motion | None = None,
     ) -> dict[str, Any]:
         S = State  # noqa: N806
-        if isinstance(cmd, Move):
-            speed = self._start_motion([cmd.position_m], cmd.speed_mps, "move")
-            return {"ok": True, "target_m": list(cmd.position_m), "speed_mps": speed}
-        if isinstance(cmd, Path):
-            speed = self._start_motion(cmd.points_m, cmd.speed_mps, "path")
-            return {"ok": True, "points": len(cmd.points_m), "speed_mps": speed}
+        verb = _VERBS.get(type(cmd))
+        if verb is None:
+            raise CommandRefused(f"unsupported command {type(cmd).__name__}")
+        why = refusal(self.state, verb)
+        if why is not None:
+            raise CommandRefused(self._refusal_text(self.state, why))
+        if isinstance(cmd, Move | Path):
+            if motion is None:  # not submitted through `submit`: prepare it here
+                motion = self._prepare_motion(cmd)
+            self._start_motion(motion, cmd)
+            reply: dict[str, Any] = {"ok": True}
+            if isinstance(cmd, Move):
+                reply["target_m"] = list(cmd.position_m)
+            else:
+                reply["points"] = len(cmd.points_m)
+            reply["speed_mps"] = motion.speed_mps
+            if motion.limited_to_mps is not None:
+                reply["speed_limited_to_mps"] = motion.limited_to_mps
+            return reply
         if isinstance(cmd, Stop):
-            if self.state in (S.HOLDING, S.MOVING):
+            if self.state in ARMED_STATES:
                 self.planner.stop()
             return {"ok": True, "state": self.state.value}
         if isinstance(cmd, Arm):
-            self._refuse_unless(S.DISARMED)
             if not self.homed:
                 raise CommandRefused("not homed: run `home` at a known pose first")
             try:
@@ -839,14 +1037,15 @@ class Controller:
             self.commanded_rev = None
             self.setpoint_m = None
             self.setpoint_lengths_m = None
+            # A new armed session: set-points streamed before it are never taken.
+            self._arm_epoch += 1
+            self._stream_target = None
             self._set_state(S.ARMING)
             return {"ok": True, "state": S.ARMING.value}
         if isinstance(cmd, Disarm):
-            self._refuse_unless(S.DISARMED, S.ARMING, S.HOLDING, S.MOVING)
             self._disarm("disarm")
             return {"ok": True, "state": self.state.value}
         if isinstance(cmd, Reset):
-            self._refuse_unless(S.FAULT, S.ESTOPPED, S.DISARMED)
             if self.state is not S.DISARMED:
                 self._disarm("reset")
             return {"ok": True, "state": self.state.value}
@@ -854,28 +1053,27 @@ class Controller:
             return self._execute_home(cmd, readings, now_s)
         raise CommandRefused(f"unsupported command {type(cmd).__name__}")
 
-    def _start_motion(self, points: Sequence[Vec3], speed_mps: float | None, verb: str) -> float:
-        """Check a move or path and start it; returns its speed. A move is a one-point path.
+    def _start_motion(self, motion: _Motion, cmd: Move | Path) -> None:
+        """Start a prepared move or path (a move is a one-point path): O(1) in its length.
 
-        Raises CommandRefused (nothing changed) in the wrong state, for a point outside the
-        limits, or for a leg that leaves them, the first leg starting where the set-point will
-        come to rest (a motion that arrives while moving first brakes to a stop).
+        Raises CommandRefused (nothing changed) if the preparation refused it or if the first
+        leg leaves the limits; that leg starts where the set-point will come to rest (a motion
+        that arrives while moving first brakes to a stop).
         """
-        self._refuse_unless(State.HOLDING, State.MOVING)
-        for i, p in enumerate(points):
-            reason = self._check_target(p)
+        if motion.refusal is not None:
+            raise CommandRefused(motion.refusal)
+        first = motion.points_m[0]
+        if self.setpoint_m is not None:
+            start = self.planner.rest_point_m
+            reason = self.limits.check_segment(start, first)
             if reason is not None:
-                where = "target" if verb == "move" else f"points_m[{i}]"
-                raise CommandRefused(f"{where} {_fmt(p)}: {reason}")
-        start = self.planner.rest_point_m if self.setpoint_m is not None else None
-        reason = self.limits.check_path(([start] if start is not None else []) + list(points))
-        if reason is not None:
-            raise CommandRefused(f"path: {reason}")
-        speed = self._speed(speed_mps)
-        self.planner.follow_path(points, speed)
+                where = "target" if isinstance(cmd, Move) else "points_m[0]"
+                raise CommandRefused(
+                    f"{where} {_fmt(first)}: on the leg to it from {_fmt(start)}: {reason}"
+                )
+        self.planner.follow_points(motion.points_m, motion.speed_mps)
         if self.state is State.HOLDING:
-            self._set_state(State.MOVING, verb)
-        return speed
+            self._set_state(State.MOVING, "move" if isinstance(cmd, Move) else "path")
 
     def _disarm(self, why: str) -> None:
         try:
@@ -886,12 +1084,12 @@ class Controller:
         self.setpoint_m = None
         self.setpoint_lengths_m = None
         self._stream_target = None
+        self._estop_unconfirmed = ()
         self._set_state(State.DISARMED, why)
 
     def _execute_home(
         self, cmd: Home, readings: Sequence[AxisReading], now_s: float
     ) -> dict[str, Any]:
-        self._refuse_unless(State.DISARMED, State.HOLDING)
         old = [r.node_id for r in readings if now_s - r.stamp_s > self._stale_s]
         if old:
             raise CommandRefused(f"stale_encoder: no fresh encoder reading from nodes {old}")
@@ -988,7 +1186,20 @@ class Controller:
                 "compute_max_s": c["max"],
                 "dt_clamped": self.dt_clamped,
             },
-            "stream": {"refused": self.stream_refused, "last_refusal": self.stream_last_refusal},
+            "stream": {
+                "refused": self.stream_refused,
+                "last_refusal": self.stream_last_refusal,
+                "discarded": self.stream_discarded,
+            },
+            "estop": (
+                {
+                    "confirmed": self._estop_confirmed,
+                    "unconfirmed_nodes": list(self._estop_unconfirmed),
+                    "repeats": self.estop_repeats,
+                }
+                if self.state is State.ESTOPPED
+                else None
+            ),
             "bus": {
                 "frames_rx": bs.frames_rx,
                 "frames_tx": bs.frames_tx,

@@ -3,10 +3,9 @@
 Everything here is deterministic and clock-free: the control loop calls
 `MotionPlanner.advance(dt_s)` once per tick with the tick's time step and gets the new position
 set-point. The per-tick path uses plain Python floats and 3-tuples (no numpy, no allocation
-beyond a few tuples), so it costs a few microseconds.
+beyond a few tuples), so it costs a few microseconds, whatever the length of the path.
 
-Behaviour (API as agreed for issue 5; no deviations; additions: `rest_point_m` (where a move
-that arrives now would start: check its first leg from there), `position_m`, `mode`):
+Behaviour:
 
 * `TrapezoidMove`: rest-to-rest straight line, accelerate at `max_accel_mps2`, cruise at
   `max_speed_mps`, decelerate; a triangular profile when the distance is too short to reach the
@@ -16,6 +15,10 @@ that arrives now would start: check its first leg from there), `position_m`, `mo
   first brakes to a stop along the current direction at `max_accel_mps2`, then starts its legs
   from the stop point, so velocity never jumps and the acceleration limit always holds.
   Zero-length legs are dropped.
+* Legs are built one at a time, when the set-point reaches them, so starting a path costs the
+  same for 1 or 100,000 points. One `advance` crosses at most `MAX_LEGS_PER_ADVANCE` legs: a
+  path of legs so short that more of them fit in one tick runs slower than planned (every leg
+  ends at rest, so dropping the rest of the tick at a leg's end keeps every limit).
 * `MotionPlanner.stop`: brake along the current velocity direction at `max_accel_mps2` to a hold;
   the stop point is `position + v^2/(2 a)` along that direction. In a trapezoidal leg the
   remaining distance is always at least that braking distance, so a stop never leaves the leg.
@@ -23,8 +26,10 @@ that arrives now would start: check its first leg from there), `position_m`, `mo
   |change of velocity| <= max accel * dt per tick (a vector bang-bang limiter along the error
   direction with a discrete-time braking curve, so it lands on a fixed target without
   overshoot and holds there exactly).
-* Speeds above `max_speed_mps` given to `move_to`/`follow_path` are clamped to it; the control
-  loop is expected to refuse them with a reason before they reach the planner.
+* Speeds: `check_speed` is the rule for a commanded speed (finite and at least `MIN_SPEED_MPS`;
+  the command boundary and the control loop refuse others with its reason). Speeds above
+  `max_speed_mps` given to `move_to`/`follow_path` are clamped to it; the control loop says so in
+  its reply.
 """
 
 from __future__ import annotations
@@ -35,6 +40,44 @@ from collections.abc import Iterable, Sequence
 Vec3 = tuple[float, float, float]
 
 _ZERO: Vec3 = (0.0, 0.0, 0.0)
+
+MIN_SPEED_MPS = 1e-3
+"""The slowest commanded move or path speed (1 mm/s): slower ones are refused, because a move
+at a vanishing speed would keep the robot MOVING for hours (or, at 5e-324 m/s, forever)."""
+
+MAX_LEGS_PER_ADVANCE = 16
+"""Path legs one `MotionPlanner.advance` may cross (bounds the per-tick cost; module docstring)."""
+
+
+def check_speed(speed_mps: float) -> str | None:
+    """None if `speed_mps` is a usable commanded speed, else the reason (finite and at least
+    MIN_SPEED_MPS; the upper bound is the robot's max speed, applied by clamping). Raises nothing.
+    """
+    v = float(speed_mps)
+    if not math.isfinite(v):
+        return f"must be a finite number, got {speed_mps!r}"
+    if not v > 0.0:
+        return f"must be > 0, got {v:g}"
+    if not v >= MIN_SPEED_MPS:
+        return f"must be at least {MIN_SPEED_MPS:g} m/s (the minimum speed), got {v:g} m/s"
+    return None
+
+
+def dedupe_path(points_m: Iterable[Sequence[float]]) -> tuple[Vec3, ...]:
+    """The path's points as finite 3-tuples, consecutive repeats dropped (zero-length legs).
+
+    Raises ValueError on an empty path or a non-finite or malformed point (naming its index).
+    """
+    out: list[Vec3] = []
+    prev: Vec3 | None = None
+    for i, p in enumerate(points_m):
+        q = _finite3(p, f"points_m[{i}]")
+        if q != prev:
+            out.append(q)
+            prev = q
+    if not out:
+        raise ValueError("points_m must contain at least one point")
+    return tuple(out)
 
 
 def _finite3(p: Sequence[float], what: str) -> Vec3:
@@ -177,8 +220,12 @@ class MotionPlanner:
         self._p: Vec3 = _ZERO
         self._v: Vec3 = _ZERO
         self._mode = _HOLD
-        self._legs: list[TrapezoidMove] = []
-        self._pending: list[Vec3] = []  # path points still to plan (after a stop)
+        # A path in progress: `_leg` runs to `_path[_next - 1]`; `_path[_next:]` are still to go.
+        self._leg: TrapezoidMove | None = None
+        self._path: tuple[Vec3, ...] = ()
+        self._next = 0
+        self._path_speed = self.default_speed_mps
+        self._pending: tuple[Vec3, ...] = ()  # a path to start once the current stop ends
         self._pending_speed = self.default_speed_mps
         self._t_s = 0.0
         # stop state: p(t) = start + unit * (speed*t - a t^2/2), t <= speed/a
@@ -220,8 +267,8 @@ class MotionPlanner:
             return self._stream_target
         if self._pending:
             return self._pending[-1]
-        if self._mode == _MOVE and self._legs:
-            return self._legs[-1].end_m
+        if self._mode == _MOVE and self._path:
+            return self._path[-1]
         if self._mode == _STOP:
             return self._stop_point()
         return self._p
@@ -261,14 +308,14 @@ class MotionPlanner:
         self._p = _finite3(position_m, "position_m")
         self._v = _ZERO
         self._mode = _HOLD
-        self._legs = []
-        self._pending = []
+        self._clear_path()
+        self._pending = ()
 
     def move_to(self, target_m: Sequence[float], speed_mps: float | None = None) -> None:
         """Straight-line trapezoidal move to `target_m` (brakes to a stop first if moving).
 
         `speed_mps` None = the default speed; above max speed it is clamped. Raises ValueError
-        on a non-finite target or a non-positive/non-finite speed.
+        on a non-finite target or a speed that `check_speed` refuses.
         """
         self.follow_path([target_m], speed_mps)
 
@@ -279,32 +326,47 @@ class MotionPlanner:
 
         If the set-point is moving, it first brakes to a stop along its current direction and the
         first leg starts from the stop point. Raises ValueError on an empty path, a non-finite
-        point or a non-positive/non-finite speed (the planner is unchanged then).
+        point or a speed that `check_speed` refuses (the planner is unchanged then). Checks and
+        copies the points (O(n)); `follow_points` takes points already checked in O(1).
         """
-        pts = [_finite3(p, f"points_m[{i}]") for i, p in enumerate(points_m)]
-        if not pts:
+        pts = dedupe_path(points_m)
+        self.follow_points(pts, self._speed_arg(speed_mps))
+
+    def follow_points(self, points_m: tuple[Vec3, ...], speed_mps: float) -> None:
+        """`follow_path` for points from `dedupe_path` and a speed `check_speed` accepts: O(1),
+        whatever the number of points (the control loop prepares both outside its tick).
+
+        `speed_mps` above max speed is clamped. Raises ValueError on an empty path or a speed
+        that `check_speed` refuses.
+        """
+        if not points_m:
             raise ValueError("points_m must contain at least one point")
-        if speed_mps is None:
-            speed = self.default_speed_mps
-        else:
-            speed = min(_positive(speed_mps, "speed_mps"), self.max_speed_mps)
+        speed = self._speed_arg(speed_mps)
         if self._speed() > 0.0:
             self._begin_stop()
-            self._pending = pts
+            self._pending = points_m
             self._pending_speed = speed
         else:
-            self._pending = []
-            self._plan_legs(self._p, pts, speed)
+            self._pending = ()
+            self._start_path(points_m, speed)
+
+    def _speed_arg(self, speed_mps: float | None) -> float:
+        if speed_mps is None:
+            return self.default_speed_mps
+        reason = check_speed(speed_mps)
+        if reason is not None:
+            raise ValueError(f"speed_mps: {reason}")
+        return min(float(speed_mps), self.max_speed_mps)
 
     def stop(self) -> None:
         """Brake along the current direction at max accel to a hold; forget queued moves."""
-        self._pending = []
+        self._pending = ()
         if self._mode == _STOP:
             return
         if self._speed() > 0.0:
             self._begin_stop()
         else:
-            self._legs = []
+            self._clear_path()
             self._mode = _HOLD
 
     def stream(self, target_m: Sequence[float]) -> None:
@@ -314,29 +376,51 @@ class MotionPlanner:
         hand-over is smooth. Raises ValueError on a non-finite target.
         """
         self._stream_target = _finite3(target_m, "target_m")
-        self._legs = []
-        self._pending = []
+        self._clear_path()
+        self._pending = ()
         self._mode = _STREAM
 
     # ----------------------------------------------------------------------------- internals
-    def _plan_legs(self, start: Vec3, pts: list[Vec3], speed: float) -> None:
-        legs: list[TrapezoidMove] = []
-        prev = start
-        for p in pts:
-            leg = TrapezoidMove(prev, p, speed, self.max_accel_mps2)
-            if leg.distance_m > 0.0:
-                legs.append(leg)
-                prev = p
-        self._legs = legs
+    def _clear_path(self) -> None:
+        self._leg = None
+        self._path = ()
+        self._next = 0
+
+    def _start_path(self, pts: tuple[Vec3, ...], speed: float) -> None:
+        """Start the legs through `pts` from the current (resting) set-point."""
+        self._path = pts
+        self._next = 0
+        self._path_speed = speed
         self._t_s = 0.0
-        self._mode = _MOVE if legs else _HOLD
-        if not legs:
-            self._v = _ZERO
+        self._v = _ZERO
+        if self._next_leg():
+            self._mode = _MOVE
+        else:
+            self._clear_path()
+            self._mode = _HOLD
+
+    def _next_leg(self) -> bool:
+        """Build the leg from the set-point to the next path point; False at the path's end.
+
+        A zero-length leg is dropped (only the first point can repeat the set-point: the path's
+        consecutive repeats were removed by `dedupe_path`).
+        """
+        path = self._path
+        i = self._next
+        if i < len(path) and path[i] == self._p:
+            i += 1
+        if i >= len(path):
+            self._leg = None
+            self._next = i
+            return False
+        self._leg = TrapezoidMove(self._p, path[i], self._path_speed, self.max_accel_mps2)
+        self._next = i + 1
+        return True
 
     def _begin_stop(self) -> None:
         s = self._speed()
         v = self._v
-        self._legs = []
+        self._clear_path()
         self._stop_start = self._p
         self._stop_unit = (v[0] / s, v[1] / s, v[2] / s)
         self._stop_speed = s
@@ -361,20 +445,26 @@ class MotionPlanner:
 
     def _advance_move(self, dt_s: float) -> None:
         t = self._t_s + dt_s
-        legs = self._legs
-        while legs and t >= legs[0].duration_s:
-            t -= legs[0].duration_s
-            done = legs.pop(0)
-            self._p = done.end_m
-            if legs:
-                continue
-            self._p = done.end_m
-            self._v = _ZERO
-            self._mode = _HOLD
-            self._t_s = 0.0
-            return
+        leg = self._leg
+        assert leg is not None
+        crossed = 0
+        while t >= leg.duration_s:
+            t -= leg.duration_s
+            self._p = leg.end_m
+            crossed += 1
+            if not self._next_leg():
+                self._v = _ZERO
+                self._mode = _HOLD
+                self._t_s = 0.0
+                self._clear_path()
+                return
+            leg = self._leg
+            assert leg is not None
+            if crossed >= MAX_LEGS_PER_ADVANCE:
+                t = 0.0  # at rest at a path point: the rest of this step is dropped
+                break
         self._t_s = t
-        self._p, self._v = legs[0].sample(t)
+        self._p, self._v = leg.sample(t)
 
     def _advance_stop(self, dt_s: float) -> None:
         a = self.max_accel_mps2
@@ -387,8 +477,8 @@ class MotionPlanner:
             self._t_s = 0.0
             if self._pending:
                 pts = self._pending
-                self._pending = []
-                self._plan_legs(self._p, pts, self._pending_speed)
+                self._pending = ()
+                self._start_path(pts, self._pending_speed)
                 leftover = t - t_end
                 if self._mode == _MOVE and leftover > 0.0:
                     self._advance_move(leftover)

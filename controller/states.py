@@ -1,8 +1,12 @@
-"""Controller states and the one table of allowed transitions.
+"""Controller states, the one table of allowed transitions and the one table of command rules.
 
 DISARMED -> ARMING -> HOLDING <-> MOVING, plus FAULT and ESTOPPED. ESTOPPED is reachable from
 every state, FAULT from every armed or arming state; `reset` takes FAULT/ESTOPPED back to
 DISARMED. Every transition the controller makes goes through `check_transition`.
+
+`COMMAND_RULES` says, for every state, which verbs it accepts and why it refuses the others;
+the control loop asks `refusal(state, verb)` for every verb it receives (streamed set-points
+included) and README's state table is `command_table_markdown()`.
 """
 
 from __future__ import annotations
@@ -54,3 +58,123 @@ def check_transition(a: State, b: State) -> None:
     """Raise InvalidTransition unless the controller may go from `a` to `b`."""
     if b not in TRANSITIONS[a]:
         raise InvalidTransition(f"transition {a.value} -> {b.value} is not allowed")
+
+
+# --------------------------------------------------------------------------------------------
+# Command rules
+
+COMMAND_VERBS: tuple[str, ...] = (
+    "estop",
+    "arm",
+    "disarm",
+    "reset",
+    "home",
+    "move",
+    "path",
+    "setpoint",
+    "stop",
+)
+"""Every verb the controller takes: the `cmd/<verb>` commands plus streamed `setpoint`s."""
+
+_NOT_ARMED = "the motors are disarmed: arm first"
+_ARMING = "arming: wait for HOLDING"
+_ALREADY_ARMED = "already armed"
+_NO_RESET = "nothing to reset: disarm idles the motors"
+_FAULT = "the motors hold the last good set-point: reset first"
+_ESTOP = "estop is latched: reset first"
+
+COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
+    {
+        _S.DISARMED: MappingProxyType(
+            {
+                "estop": None,
+                "arm": None,
+                "disarm": None,
+                "reset": None,
+                "home": None,
+                "move": _NOT_ARMED,
+                "path": _NOT_ARMED,
+                "setpoint": _NOT_ARMED,
+                "stop": "nothing to stop: the motors are disarmed",
+            }
+        ),
+        _S.ARMING: MappingProxyType(
+            {
+                "estop": None,
+                "arm": "already arming",
+                "disarm": None,
+                "reset": "nothing to reset: disarm stops arming",
+                "home": "arming: home when DISARMED or HOLDING",
+                "move": _ARMING,
+                "path": _ARMING,
+                "setpoint": _ARMING,
+                "stop": None,
+            }
+        ),
+        _S.HOLDING: MappingProxyType(
+            {
+                "estop": None,
+                "arm": _ALREADY_ARMED,
+                "disarm": None,
+                "reset": _NO_RESET,
+                "home": None,
+                "move": None,
+                "path": None,
+                "setpoint": None,
+                "stop": None,
+            }
+        ),
+        _S.MOVING: MappingProxyType(
+            {
+                "estop": None,
+                "arm": _ALREADY_ARMED,
+                "disarm": None,
+                "reset": _NO_RESET,
+                "home": "moving: stop first, then home while HOLDING",
+                "move": None,
+                "path": None,
+                "setpoint": None,
+                "stop": None,
+            }
+        ),
+        _S.FAULT: MappingProxyType(
+            {v: None if v in ("estop", "reset") else _FAULT for v in COMMAND_VERBS}
+        ),
+        _S.ESTOPPED: MappingProxyType(
+            {v: None if v in ("estop", "reset") else _ESTOP for v in COMMAND_VERBS}
+        ),
+    }
+)
+"""`COMMAND_RULES[state][verb]`: None if `state` accepts `verb`, else the refusal reason."""
+
+
+def refusal(state: State, verb: str) -> str | None:
+    """None if `state` accepts `verb`, else the reason it refuses it (from COMMAND_RULES).
+
+    Raises KeyError for a verb that is not in COMMAND_VERBS.
+    """
+    return COMMAND_RULES[state][verb]
+
+
+def command_table_markdown() -> str:
+    """README's table of what each state accepts and refuses, generated from COMMAND_RULES.
+
+    One row per state: the accepted verbs, then the refused ones grouped by reason.
+    """
+    lines = [
+        "| state | accepts | refuses (reason given) |",
+        "| --- | --- | --- |",
+    ]
+    for state in State:
+        rules = COMMAND_RULES[state]
+        accepts = " ".join(f"`{v}`" for v in COMMAND_VERBS if rules[v] is None)
+        by_reason: dict[str, list[str]] = {}
+        for v in COMMAND_VERBS:
+            reason = rules[v]
+            if reason is not None:
+                by_reason.setdefault(reason, []).append(v)
+        refuses = "; ".join(
+            " ".join(f"`{v}`" for v in verbs) + f": {reason}" for reason, verbs in by_reason.items()
+        )
+        lines.append(f"| {state.value} | {accepts} | {refuses or '-'} |")
+    return "\n".join(lines) + "\n"

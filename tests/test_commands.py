@@ -24,6 +24,7 @@ from controller.commands import (
     Stop,
     parse_command,
 )
+from controller.motion import MIN_SPEED_MPS
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
 vec3 = st.tuples(finite, finite, finite)
@@ -107,7 +108,7 @@ def test_too_many_path_points() -> None:
     assert isinstance(parse_command("path", json.dumps({"points_m": [[0, 0, 1]] * 10_000})), Path)
 
 
-@given(vec3, st.one_of(st.none(), st.floats(min_value=1e-6, max_value=100.0)))
+@given(vec3, st.one_of(st.none(), st.floats(min_value=MIN_SPEED_MPS, max_value=100.0)))
 def test_move_round_trips_any_finite_position(
     p: tuple[float, float, float], v: float | None
 ) -> None:

@@ -740,3 +740,320 @@ def test_fpk_is_solved_only_when_the_encoder_lengths_change() -> None:
     assert rig.ctl.fpk_solves == solves + 1
     assert rig.ctl.state is State.FAULT
     assert rig.ctl.reason is not None and rig.ctl.reason.startswith("residual:")
+
+
+# ------------------------------------------------------------------------ streamed set-points
+
+
+def _far(rig: Rig) -> tuple[float, float, float]:
+    """A set-point well inside the workspace, metres from the start (like [4, -3, 3])."""
+    return _target(rig, 4.0, -3.0, 1.0)
+
+
+def _assert_holds_start_after_arming(rig: Rig) -> None:
+    """Arm and run 1 s: the robot must hold the measured pose, never move."""
+    names = len(rig.pub.states)
+    rig.arm()
+    rig.tick(int(RATE_HZ))
+    assert rig.state() is State.HOLDING, rig.ctl.reason
+    assert "MOVING" not in rig.pub.state_names()[names:]
+    assert _dist(rig.ctl.setpoint_m, rig.start) < 1e-9
+    assert _dist(rig.ctl.pose_m, rig.start) < 1e-6
+
+
+def test_setpoint_while_disarmed_does_not_move_the_robot_after_arm() -> None:
+    rig = _armed_rig()
+    rig.do(Disarm())
+    rig.ctl.submit_setpoint(_far(rig))
+    rig.tick(5)
+    _assert_holds_start_after_arming(rig)
+    assert rig.ctl.status()["stream"]["discarded"] == 1
+    # The same set-point once armed is taken: streaming itself still works.
+    rig.ctl.submit_setpoint(_target(rig, 0.2))
+    rig.tick()
+    assert rig.state() is State.MOVING
+
+
+@pytest.mark.parametrize("how", ["fault", "estop"])
+def test_setpoint_before_reset_does_not_move_the_robot_after_arm(how: str) -> None:
+    rig = _armed_rig()
+    if how == "fault":
+        rig.driver.axis_error[rig.ctl.node_ids[0]] = 0x800
+        rig.tick()
+        rig.driver.axis_error.clear()
+    else:
+        rig.ctl.submit(Estop())
+        rig.tick()
+    assert rig.state() in (State.FAULT, State.ESTOPPED)
+    rig.ctl.submit_setpoint(_far(rig))
+    rig.do(Reset())
+    rig.ctl.submit_setpoint(_far(rig))  # and once more while DISARMED
+    _assert_holds_start_after_arming(rig)
+
+
+def test_setpoint_during_arming_is_discarded() -> None:
+    rig = Rig()
+    rig.tick(2)
+    fut = rig.ctl.submit(Arm())
+    rig.tick()
+    assert fut.result(timeout=0)["state"] == "ARMING" and rig.state() is State.ARMING
+    rig.ctl.submit_setpoint(_far(rig))
+    rig.until(lambda: rig.ctl.state is State.HOLDING, 10)
+    rig.tick(int(RATE_HZ))
+    assert rig.state() is State.HOLDING and "MOVING" not in rig.pub.state_names()
+    assert _dist(rig.ctl.setpoint_m, rig.start) < 1e-9
+
+
+def test_setpoint_from_an_earlier_armed_session_is_discarded() -> None:
+    # A set-point the submitting thread stored for a session that has ended since (it read
+    # HOLDING, then the loop disarmed and re-armed before the store landed).
+    rig = _armed_rig()
+    stale_epoch = rig.ctl._arm_epoch
+    rig.do(Disarm())
+    rig.arm()
+    rig.ctl._stream_target = (_far(rig), stale_epoch)
+    rig.tick(50)
+    assert rig.state() is State.HOLDING
+    assert _dist(rig.ctl.setpoint_m, rig.start) < 1e-9
+    assert rig.ctl.stream_refused == 1
+    assert "before the last `arm`" in str(rig.ctl.stream_last_refusal)
+
+
+def test_submitted_setpoint_command_is_refused_when_not_armed() -> None:
+    from controller.commands import Setpoint
+
+    rig = Rig()
+    rig.tick(2)
+    fut = rig.ctl.submit(Setpoint(_far(rig)))
+    exc = fut.exception(timeout=0)
+    assert isinstance(exc, CommandRefused) and "not allowed in DISARMED" in str(exc)
+    rig.arm()
+    assert rig.ctl.submit(Setpoint(_target(rig, 0.1))).result(timeout=0) == {"ok": True}
+    rig.tick()
+    assert rig.state() is State.MOVING
+
+
+# ------------------------------------------------------------------------ speeds
+
+
+def test_speed_below_the_minimum_is_refused() -> None:
+    rig = _armed_rig()
+    for v in (5e-324, 1e-9):  # a move at 5e-324 m/s would stay MOVING forever
+        reason = rig.refused(Move(_target(rig, 1.0), speed_mps=v))
+        assert "speed_mps" in reason and "minimum" in reason, reason
+        assert rig.state() is State.HOLDING
+    from controller.motion import MIN_SPEED_MPS
+
+    assert "minimum" in rig.refused(Move(_target(rig, 1.0), speed_mps=0.5 * MIN_SPEED_MPS))
+    reason = rig.refused(Path((_target(rig, 1.0),), speed_mps=0.0))
+    assert "speed_mps" in reason
+    reply = rig.do(Move(_target(rig, 0.01), speed_mps=MIN_SPEED_MPS))
+    assert reply["speed_mps"] == MIN_SPEED_MPS and "speed_limited_to_mps" not in reply
+    rig.until(lambda: rig.ctl.state is State.HOLDING, int(30 * RATE_HZ))
+
+
+def test_speed_above_the_maximum_is_limited_and_the_reply_says_so() -> None:
+    rig = _armed_rig()
+    vmax = float(rig.cfg.limits.max_speed_mps)
+    reply = rig.do(Move(_target(rig, 3.0), speed_mps=50.0))
+    assert reply["speed_mps"] == vmax and reply["speed_limited_to_mps"] == vmax
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    reply = rig.do(Path((_target(rig, 1.0),), speed_mps=50.0))
+    assert reply["speed_limited_to_mps"] == vmax
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    reply = rig.do(Move(rig.start, speed_mps=vmax))
+    assert reply["speed_mps"] == vmax and "speed_limited_to_mps" not in reply
+
+
+# ------------------------------------------------------------------------ long paths
+
+
+def _circle(rig: Rig, n: int, radius_m: float = 3.0) -> tuple[tuple[float, float, float], ...]:
+    s = rig.start
+    return tuple(
+        (
+            s[0] + radius_m * math.cos(2.0 * math.pi * i / n) - radius_m,
+            s[1] + radius_m * math.sin(2.0 * math.pi * i / n),
+            s[2],
+        )
+        for i in range(n)
+    )
+
+
+def test_a_long_path_costs_the_tick_no_per_point_work(monkeypatch: pytest.MonkeyPatch) -> None:
+    from controller import limits as limits_mod
+    from controller import motion as motion_mod
+
+    rig = _armed_rig()
+    pts = _circle(rig, 10_000)
+    fut = rig.ctl.submit(Path(pts, 1.0))  # checked and prepared here, in this thread
+    calls = {"point": 0, "leg": 0, "ipk": 0}
+    lim = limits_mod.Limits
+    real_point, real_segment = lim.check_point, lim.check_segment
+    real_ipk = kinematics.ipk_point
+
+    def check_point(self: Any, p: Any) -> Any:
+        calls["point"] += 1
+        return real_point(self, p)
+
+    def check_segment(self: Any, a: Any, b: Any) -> Any:
+        calls["leg"] += 1
+        return real_segment(self, a, b)
+
+    def ipk_point(geom: Any, p: Any) -> Any:
+        calls["ipk"] += 1
+        return real_ipk(geom, p)
+
+    monkeypatch.setattr(lim, "check_point", check_point)
+    monkeypatch.setattr(lim, "check_segment", check_segment)
+    monkeypatch.setattr(kinematics, "ipk_point", ipk_point)
+    legs = {"n": 0}
+    real_init = motion_mod.TrapezoidMove.__init__
+
+    def counting_init(self: Any, *a: Any, **kw: Any) -> None:
+        legs["n"] += 1
+        real_init(self, *a, **kw)
+
+    monkeypatch.setattr(motion_mod.TrapezoidMove, "__init__", counting_init)
+    rig.tick()  # the tick that takes the path
+    reply = fut.result(timeout=0)
+    assert reply["ok"] and reply["points"] == 10_000
+    assert rig.state() is State.MOVING
+    # A handful of calls (first leg, this tick's set-point), not one per point.
+    assert calls["point"] <= 4 and calls["leg"] <= 2 and calls["ipk"] <= 4, calls
+    assert legs["n"] <= 2, legs
+    rig.tick(200)
+    assert rig.state() is State.MOVING
+    assert calls["point"] <= 4 + 3 * 200, calls
+
+
+def test_a_long_path_is_refused_at_its_first_bad_point() -> None:
+    rig = _armed_rig()
+    pts = list(_circle(rig, 2_000))
+    anchors = rig.cfg.geometry.anchors_m
+    pts[1234] = (max(float(a[0]) for a in anchors) + 1.0, 0.0, rig.start[2])
+    pts[1500] = (math.nan, 0.0, 0.0)
+    reason = rig.refused(Path(tuple(pts)))
+    assert reason.startswith("points_m[1234] ") and "plan-view polygon" in reason, reason
+    assert rig.state() is State.HOLDING
+
+
+def test_a_long_path_is_followed_to_its_end() -> None:
+    rig = _armed_rig()
+    pts = _circle(rig, 400, radius_m=0.5)
+    pts = (*pts, pts[-1], pts[-1], rig.start)  # repeated points are dropped
+    reply = rig.do(Path(pts, 2.0))
+    assert reply["points"] == 403
+    rig.until(lambda: rig.ctl.state is State.HOLDING, 200_000)
+    assert _dist(rig.ctl.setpoint_m, rig.start) < 1e-12
+    assert rig.ctl.status()["state"] == "HOLDING"
+
+
+# ------------------------------------------------------------------------ e-stop confirmation
+
+
+class StubbornDriver(FFDriver):
+    """A FakeDriver whose nodes in `ignore_estop` stay in closed loop on Estop (a third-party
+    node), and those in `ignore_idle` on an IDLE request too."""
+
+    def __init__(self, *args: Any, **kw: Any) -> None:
+        super().__init__(*args, **kw)
+        self.ignore_estop: set[int] = set()
+        self.ignore_idle: set[int] = set()
+
+    def _idle_except(self, keep: set[int]) -> None:
+        self.armed = False
+        self._pending_cmd = None
+        for r in self.readings:
+            if r.node_id not in keep:
+                r.axis_state = 1
+
+    def estop(self) -> None:
+        self.calls.append("estop")
+        self._idle_except(self.ignore_estop)
+
+    def disarm(self) -> None:
+        self.calls.append("disarm")
+        self._idle_except(self.ignore_idle)
+
+
+def _stubborn_rig() -> Rig:
+    rig = Rig()
+    rig.driver = StubbornDriver(rig.driver.node_ids, rig.clock, power_up_turns(rig.cfg))
+    rig.ctl = Controller(
+        rig.cfg, rig.driver, rig.pub, clock=rig.clock, wall_clock_ns=rig.clock.wall_ns
+    )
+    rig.arm()
+    rig.tick(5)
+    return rig
+
+
+def test_estop_is_confirmed_when_every_axis_leaves_closed_loop() -> None:
+    rig = _stubborn_rig()
+    rig.ctl.submit(Estop())
+    rig.tick(3)
+    st = rig.ctl.status()["estop"]
+    assert st == {"confirmed": True, "unconfirmed_nodes": [], "repeats": 0}
+    assert rig.ctl.reason == "estop"
+    rig.tick(int(0.5 * RATE_HZ))
+    assert rig.driver.calls.count("estop") == 1 and "disarm" not in rig.driver.calls
+    assert rig.ctl.status()["estop"]["repeats"] == 0
+
+
+def test_estop_ignored_by_a_node_is_repeated_idled_and_reported() -> None:
+    from controller.loop import ESTOP_CONFIRM_S
+
+    rig = _stubborn_rig()
+    bad = rig.ctl.node_ids[2]
+    assert isinstance(rig.driver, StubbornDriver)
+    rig.driver.ignore_estop = {bad}
+    rig.ctl.submit(Estop())
+    rig.tick()
+    assert rig.state() is State.ESTOPPED and rig.ctl.reason == "estop"
+    deadline = int(ESTOP_CONFIRM_S * RATE_HZ)
+    rig.tick(deadline - 2)
+    assert rig.driver.calls.count("estop") == 1  # still inside the confirmation window
+    rig.tick(3)
+    reason = str(rig.ctl.reason)
+    assert reason.startswith("estop_unconfirmed: ") and f"node {bad} still in closed loop" in reason
+    assert f"node {rig.ctl.node_ids[0]} " not in reason
+    assert rig.pub.states[-1][:2] == ("ESTOPPED", reason)  # published
+    assert rig.driver.calls[-2:] == ["estop", "disarm"]  # Estop again, then IDLE
+    # The node obeys IDLE: confirmed at the next heartbeat, and the reason says who was late.
+    rig.tick(2)
+    st = rig.ctl.status()["estop"]
+    assert st["confirmed"] and st["repeats"] == 1 and st["unconfirmed_nodes"] == []
+    assert f"node {bad}" in str(rig.ctl.reason) and "confirmed" in str(rig.ctl.reason)
+    assert rig.state() is State.ESTOPPED
+
+
+def test_estop_ignored_for_good_keeps_being_repeated_and_reported() -> None:
+    from controller.loop import ESTOP_CONFIRM_S
+
+    rig = _stubborn_rig()
+    bad = rig.ctl.node_ids[1]
+    assert isinstance(rig.driver, StubbornDriver)
+    rig.driver.ignore_estop = rig.driver.ignore_idle = {bad}
+    rig.ctl.submit(Estop())
+    rig.tick(int(3.5 * ESTOP_CONFIRM_S * RATE_HZ))
+    st = rig.ctl.status()
+    assert st["estop"]["confirmed"] is False
+    assert st["estop"]["unconfirmed_nodes"] == [bad]
+    assert st["estop"]["repeats"] == 3
+    assert rig.driver.calls.count("estop") == 4 and rig.driver.calls.count("disarm") == 3
+    assert f"node {bad} still in closed loop" in str(st["reason"])
+    # Published once per change of the culprits, not at every repeat.
+    assert [s for s, r, _ in rig.pub.states if r and "unconfirmed" in r] == ["ESTOPPED"]
+    n = len(rig.driver.commands)
+    rig.tick(10)
+    assert len(rig.driver.commands) == n
+
+
+def test_estop_with_a_silent_node_is_reported() -> None:
+    rig = _stubborn_rig()
+    silent = rig.ctl.node_ids[3]
+    rig.driver.heartbeat_silent = {silent}
+    rig.ctl.submit(Estop())
+    rig.tick(int(0.3 * RATE_HZ))
+    assert f"node {silent} silent" in str(rig.ctl.reason)
+    assert rig.ctl.status()["estop"]["unconfirmed_nodes"] == [silent]

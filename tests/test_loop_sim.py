@@ -197,3 +197,36 @@ def test_move_at_max_speed_tracks_with_feed_forward() -> None:
         )
     finally:
         rig.close()
+
+
+def test_estop_ignored_by_a_node_is_repeated_idled_and_reported(rig: SimRig) -> None:
+    from controller.commands import Estop
+    from drivers import cansimple as cs
+
+    rig.arm()
+    node = rig.ctl.node_ids[1]
+    axis = rig.bank.axis(node)
+    handle = axis._handle
+
+    def ignore_estop(msg: cs.Message) -> list[cs.Frame]:
+        if isinstance(msg, cs.Estop):
+            return []  # a third-party node that keeps its closed loop on Estop
+        return handle(msg)
+
+    axis._handle = ignore_estop  # type: ignore[method-assign]
+    rig.ctl.submit(Estop()).result(timeout=1.0)
+    assert rig.ctl.state is State.ESTOPPED
+    # Within the deadline the ignored Estop is named, repeated and IDLE requested...
+    rig.wait(
+        lambda: str(rig.ctl.reason).startswith("estop_unconfirmed: "), 2.0, "the unconfirmed reason"
+    )
+    reason = str(rig.ctl.reason)
+    assert f"node {node} still in closed loop" in reason, reason
+    assert all(f"node {n} " not in reason for n in rig.ctl.node_ids if n != node), reason
+    assert rig.pub.states[-1][:2] == ("ESTOPPED", reason)
+    # ... and the node obeys IDLE: every axis ends out of closed loop, confirmed.
+    rig.wait(lambda: rig.ctl.status()["estop"]["confirmed"], 2.0, "the e-stop confirmed")
+    assert all(rig.bank.axis(n).axis_state != 8 for n in rig.ctl.node_ids)
+    st = rig.ctl.status()
+    assert st["estop"]["repeats"] >= 1 and st["state"] == "ESTOPPED"
+    assert f"node {node}" in str(st["reason"]) and "confirmed" in str(st["reason"])

@@ -325,3 +325,86 @@ def test_circle_path_is_the_papers_example_c() -> None:
         circle_path(steps=2)
     with pytest.raises(ValueError):
         circle_path(radius_m=-1.0)
+
+
+def test_speed_below_the_minimum_is_refused_by_the_planner() -> None:
+    from controller.motion import MIN_SPEED_MPS, check_speed
+
+    assert check_speed(MIN_SPEED_MPS) is None and check_speed(1e9) is None
+    for bad in (5e-324, 1e-9, 0.999 * MIN_SPEED_MPS, 0.0, -1.0, math.nan, math.inf):
+        assert check_speed(bad) is not None, bad
+    pl = MotionPlanner(2.0, 1.0)
+    pl.hold((0, 0, 0))
+    for bad in (5e-324, 0.5 * MIN_SPEED_MPS):
+        with pytest.raises(ValueError, match="minimum"):
+            pl.move_to((1, 0, 0), speed_mps=bad)
+        assert not pl.moving
+    pl.move_to((0.01, 0, 0), speed_mps=MIN_SPEED_MPS)
+    assert pl.moving
+
+
+def test_legs_are_built_as_they_are_reached() -> None:
+    from controller import motion
+
+    built = []
+    real = motion.TrapezoidMove.__init__
+
+    def counting(self: TrapezoidMove, *a: object, **kw: object) -> None:
+        built.append(a[1])
+        real(self, *a, **kw)  # type: ignore[arg-type]
+
+    pts = tuple((0.01 * (i + 1), 0.0, 0.0) for i in range(50_000))
+    pl = MotionPlanner(2.0, 1.0)
+    pl.hold((0, 0, 0))
+    motion.TrapezoidMove.__init__ = counting  # type: ignore[method-assign]
+    try:
+        pl.follow_points(pts, 1.0)
+        assert len(built) == 1 and pl.target_m == pts[-1]
+        for _ in range(3):
+            pl.advance(0.1)  # a leg of 1 cm at 1 m/s^2 takes 0.2 s
+        assert 1 < len(built) <= 3
+    finally:
+        motion.TrapezoidMove.__init__ = real  # type: ignore[method-assign]
+
+
+def test_one_advance_crosses_a_bounded_number_of_legs() -> None:
+    from controller.motion import MAX_LEGS_PER_ADVANCE
+
+    # Legs of 1e-12 m last 2 us each: thousands would fit in one 2 ms tick.
+    n = 10 * MAX_LEGS_PER_ADVANCE
+    pts = [(1e-12 * (i + 1), 0.0, 0.0) for i in range(n)]
+    pl = MotionPlanner(2.0, 1.0)
+    pl.hold((0, 0, 0))
+    pl.follow_path(pts)
+    ticks = 0
+    last = pl.position_m
+    while pl.moving:
+        p = pl.advance(0.002)
+        ticks += 1
+        assert p[0] >= last[0] and p[0] - last[0] <= 1e-12 * MAX_LEGS_PER_ADVANCE * (1 + 1e-9)
+        assert norm(pl.velocity_mps) <= 2.0
+        last = p
+        assert ticks <= 100
+    assert ticks >= n // MAX_LEGS_PER_ADVANCE
+    assert pl.position_m == pts[-1]
+
+
+def test_repeated_points_are_dropped_and_targets_kept() -> None:
+    from controller.motion import dedupe_path
+
+    assert dedupe_path([(0, 0, 1), (0, 0, 1), (1, 0, 1), (1, 0, 1), (0, 0, 1)]) == (
+        (0.0, 0.0, 1.0),
+        (1.0, 0.0, 1.0),
+        (0.0, 0.0, 1.0),
+    )
+    with pytest.raises(ValueError, match=r"points_m\[1\]"):
+        dedupe_path([(0, 0, 1), (0, math.nan, 1)])
+    with pytest.raises(ValueError):
+        dedupe_path([])
+    pl = MotionPlanner(1.0, 1.0)
+    pl.hold((0, 0, 1))
+    pl.follow_path([(0, 0, 1), (0, 0, 1), (0.5, 0, 1), (0.5, 0, 1)])
+    assert pl.moving and pl.target_m == (0.5, 0.0, 1.0)
+    while pl.moving:
+        pl.advance(0.01)
+    assert pl.position_m == (0.5, 0.0, 1.0)
