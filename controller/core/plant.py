@@ -412,8 +412,9 @@ def _holding_tensions(
     redundant cable, N = 4) by the least amount that keeps every tension >= `pretension_n`.
     With three cables the solution is unique and must be >= 0 (the pre-tension cannot be
     chosen). With every anchor above the effector the null space trades tension between the
-    cables (some gain, some lose: no internal loop can pull them all), so the pre-tension that
-    can be had is bounded by the weight. A stand-in for a statics solver: more than one
+    cables (some gain, some lose: no internal loop can pull them all, since every cable's
+    upward pull is carried by the weight), so the pre-tension that can be had is limited. A
+    stand-in for a statics solver: more than one
     redundant cable is refused.
     Raises EquilibriumError when no such distribution exists (the pose is outside the
     cables' reach, or the cables are degenerate there).
