@@ -619,9 +619,10 @@ class CablePlant:
         """Advance by `dt_s` while the unstretched lengths move linearly to `unstretched_m`.
 
         Returns the new effector position; velocity and tensions are in the properties.
-        Raises PlantError on a non-positive or non-finite `dt_s`, bad lengths, or when the
-        stiffness would need more than `max_substeps` sub-steps; PlantDivergedError if the
-        state stops being finite (the state is then left as it was before the step).
+        Raises PlantError on a non-positive or non-finite `dt_s`, bad lengths, the effector on
+        an anchor, or when the stiffness would need more than `max_substeps` sub-steps;
+        PlantDivergedError if the state stops being finite. On any error the state is left as
+        it was before the step.
         """
         if not (0.0 < dt_s < math.inf):
             raise PlantError(f"dt_s must be finite and > 0, got {dt_s!r}")
@@ -653,6 +654,8 @@ class CablePlant:
             dy = ay[i] - py
             dz = az[i] - pz
             d2 = dx * dx + dy * dy + dz * dz
+            if d2 <= 0.0:
+                raise PlantError(f"the effector is on anchor {i + 1}")
             s = ea[i] / (la if la < lb else lb) / d2
             kxx += s * dx * dx
             kyy += s * dy * dy

@@ -412,6 +412,13 @@ def test_divergence_is_a_named_error_not_nan() -> None:
     assert plant.position_m == (0.0, 0.0, 0.3)
 
 
+def test_effector_on_an_anchor_is_a_named_error() -> None:
+    params = desk()
+    plant = CablePlant(params, DESK[2], (1.0, 1.0, 1.0, 1.0))
+    with pytest.raises(PlantError, match="on anchor 3"):
+        plant.step((1.0, 1.0, 1.0, 1.0), 0.001)
+
+
 def test_too_stiff_for_max_substeps_is_refused() -> None:
     plant = CablePlant.at_pose(desk(ea_n=1e9, max_substeps=50), (0.0, 0.0, 0.3))
     with pytest.raises(PlantError, match="sub-steps"):
