@@ -1,0 +1,426 @@
+"""The physical plant: rest poses, slack cables, holding still, pay-out, damping, errors."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from controller.core.plant import (
+    CablePlant,
+    EquilibriumError,
+    PlantDivergedError,
+    PlantError,
+    PlantParams,
+    equilibrium,
+    unstretched_lengths,
+)
+
+CONFIG = Path(__file__).resolve().parents[2] / "config"
+FAST = settings(max_examples=60, deadline=None, derandomize=True)
+
+
+def anchors_of(name: str) -> list[tuple[float, float, float]]:
+    """The anchors of a shipped robot configuration."""
+    with (CONFIG / name).open("rb") as f:
+        reels = tomllib.load(f)["reels"]
+    return [tuple(r["anchor_m"]) for r in reels]
+
+
+DESK = anchors_of("desk.toml")
+PAPER = anchors_of("paper-acre.toml")
+
+
+def desk(ea_n: float = 1e5, mass_kg: float = 0.5, **kw: float) -> PlantParams:
+    return PlantParams(DESK, ea_n, mass_kg, **kw)
+
+
+def paper(ea_n: float = 1e6, mass_kg: float = 10.0) -> PlantParams:
+    return PlantParams(PAPER, ea_n, mass_kg)
+
+
+def net_force(params: PlantParams, p: Sequence[float], l0: Sequence[float]) -> np.ndarray:
+    """Static force balance computed here, independently of the plant."""
+    f = np.array([0.0, 0.0, -params.mass_kg * 9.80665])
+    for a, ea, l0_i in zip(params.anchors_m, params.ea_n, l0, strict=True):
+        d = np.subtract(a, p)
+        length = float(np.linalg.norm(d))
+        f += ea / l0_i * max(0.0, length - l0_i) * d / length
+    return f
+
+
+def distances(params: PlantParams, p: Sequence[float]) -> list[float]:
+    return [math.dist(a, p) for a in params.anchors_m]
+
+
+def hold(plant: CablePlant, seconds: float, dt_s: float = 0.001) -> None:
+    l0 = plant.unstretched_m
+    for _ in range(round(seconds / dt_s)):
+        plant.step(l0, dt_s)
+
+
+# --- equilibrium ------------------------------------------------------------------------------
+
+
+@FAST
+@given(
+    x=st.floats(-0.4, 0.4),
+    y=st.floats(-0.4, 0.4),
+    z=st.floats(0.05, 0.65),
+    mass_kg=st.floats(0.1, 5.0),
+    log_ea=st.floats(4.0, 6.0),
+    payout_m=st.lists(st.sampled_from([0.0, 0.0, 1e-5, 1e-3, 0.02]), min_size=4, max_size=4),
+)
+def test_equilibrium_balances_forces_and_slack_cables_carry_nothing(
+    x: float, y: float, z: float, mass_kg: float, log_ea: float, payout_m: list[float]
+) -> None:
+    params = desk(10.0**log_ea, mass_kg)
+    held = CablePlant.at_pose(params, (x, y, z))
+    l0 = [a + b for a, b in zip(held.unstretched_m, payout_m, strict=True)]
+    eq = equilibrium(params, l0)  # from the default guess, far below
+    assert np.linalg.norm(net_force(params, eq.position_m, l0)) < 1e-6
+    assert eq.residual_n < 1e-6
+    for t, length, l0_i in zip(eq.tensions_n, distances(params, eq.position_m), l0, strict=True):
+        assert t >= 0.0
+        assert (t > 0.0) == (length > l0_i)  # taut exactly when stretched
+
+
+def test_equilibrium_paper_robot_force_balance() -> None:
+    params = paper()
+    held = CablePlant.at_pose(params, (-6.55, -8.6, 2.63))
+    l0 = list(held.unstretched_m)
+    l0[2] += 0.5
+    eq = equilibrium(params, l0)
+    assert np.linalg.norm(net_force(params, eq.position_m, l0)) < 1e-6
+    assert eq.tensions_n[2] == 0.0
+
+
+def test_equilibrium_of_very_stiff_cables_converges_by_continuation() -> None:
+    # Steel-stiff for a 0.5 kg effector: Newton alone creeps along the slack/taut kink here.
+    params = desk(ea_n=1e9)
+    held = CablePlant.at_pose(
+        params, (-0.36383098817939963, -0.44644020030303305, 0.2522240819360385)
+    )
+    l0 = list(held.unstretched_m)
+    l0[1] += 0.0015596104969872737
+    eq = equilibrium(params, l0)
+    # rounding allows about k * |P| * eps per cable at k ~ 1e9 N/m
+    assert np.linalg.norm(net_force(params, eq.position_m, l0)) < 1e-3
+    assert eq.tensions_n[1] == 0.0
+
+
+def test_at_pose_holds_the_pose_with_the_given_tensions() -> None:
+    params = desk()
+    p = (0.1, 0.05, 0.3)
+    plant = CablePlant.at_pose(params, p)
+    t = plant.tensions_n
+    assert np.linalg.norm(net_force(params, p, plant.unstretched_m)) < 1e-9
+    assert min(t) > 0.0
+    # the same tensions, passed explicitly, give the same lengths; the round trip is exact
+    assert unstretched_lengths(params, p, t) == pytest.approx(plant.unstretched_m, abs=1e-15)
+    eq = equilibrium(params, plant.unstretched_m)
+    assert math.dist(eq.position_m, p) < 1e-9
+    assert eq.tensions_n == pytest.approx(t, rel=1e-6)
+
+
+def test_at_pose_pretension_and_its_limit() -> None:
+    params = desk(mass_kg=2.0)
+    p = (0.2, 0.1, 0.3)
+    free = CablePlant.at_pose(params, p).tensions_n
+    lifted = CablePlant.at_pose(params, p, pretension_n=min(free) + 0.3).tensions_n
+    assert min(lifted) == pytest.approx(min(free) + 0.3)
+    assert np.linalg.norm(net_force(params, p, unstretched_lengths(params, p, lifted))) < 1e-9
+    # anchors all above: the null space only trades tension between cables, and the upward
+    # pulls sum to the weight, so four cables cannot all pull the weight
+    with pytest.raises(EquilibriumError, match="no tension distribution"):
+        CablePlant.at_pose(params, p, pretension_n=params.weight_n)
+
+
+def test_at_pose_three_and_five_cables() -> None:
+    tri = PlantParams([(0.0, 1.0, 2.0), (-0.9, -0.5, 2.0), (0.9, -0.5, 2.0)], 1e5, 1.0)
+    plant = CablePlant.at_pose(tri, (0.1, 0.0, 1.0))
+    assert np.linalg.norm(net_force(tri, (0.1, 0.0, 1.0), plant.unstretched_m)) < 1e-9
+    five = PlantParams([*DESK, (0.0, 0.0, 1.0)], 1e5, 1.0)
+    with pytest.raises(EquilibriumError, match="redundant"):
+        CablePlant.at_pose(five, (0.0, 0.0, 0.3))
+    # with a statics solution given it works: the top cable alone holds it
+    plant = CablePlant.at_pose(five, (0.0, 0.0, 0.3), (0.0, 0.0, 0.0, 0.0, five.weight_n))
+    hold(plant, 0.2)
+    assert math.dist(plant.position_m, (0.0, 0.0, 0.3)) < 1e-9
+
+
+# --- the time step ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("params", "pose"),
+    [
+        (desk(), (0.1, 0.05, 0.3)),
+        (desk(ea_n=1e7), (-0.3, 0.2, 0.1)),
+        (paper(), (-6.55, -8.6, 2.63)),
+    ],
+    ids=["desk", "desk-steel", "paper-acre"],
+)
+def test_plant_started_at_equilibrium_stays_put(
+    params: PlantParams, pose: tuple[float, ...]
+) -> None:
+    plant = CablePlant.at_pose(params, pose)
+    t0 = plant.tensions_n
+    hold(plant, 1.0)
+    assert plant.time_s == pytest.approx(1.0)
+    assert math.dist(plant.position_m, pose) < 1e-6
+    assert math.hypot(*plant.velocity_mps) < 1e-6
+    assert plant.tensions_n == pytest.approx(t0, rel=1e-6)
+
+
+@FAST
+@given(
+    moves=st.lists(
+        st.lists(st.floats(-1e-3, 1e-3), min_size=4, max_size=4), min_size=20, max_size=120
+    ),
+    log_ea=st.floats(4.0, 6.5),
+)
+def test_tensions_never_negative_and_slack_cables_carry_nothing(
+    moves: list[list[float]], log_ea: float
+) -> None:
+    plant = CablePlant.at_pose(desk(10.0**log_ea), (0.05, -0.1, 0.3))
+    l0 = list(plant.unstretched_m)
+    for move in moves:
+        l0 = [a + b for a, b in zip(l0, move, strict=True)]
+        plant.step(l0, 0.001)
+        assert all(math.isfinite(v) for v in (*plant.position_m, *plant.velocity_mps))
+        for t, length, l0_i in zip(
+            plant.tensions_n, distances(plant.params, plant.position_m), l0, strict=True
+        ):
+            assert t >= 0.0
+            if length <= l0_i:
+                assert t == 0.0
+
+
+def test_slack_cable_carries_no_tension() -> None:
+    params = desk()
+    held = CablePlant.at_pose(params, (0.0, 0.0, 0.3))
+    l0 = list(held.unstretched_m)
+    l0[3] = math.dist(DESK[3], (0.0, 0.0, 0.3)) + 0.01  # paid out beyond the distance
+    plant = CablePlant(params, (0.0, 0.0, 0.3), l0)
+    assert plant.tensions_n[3] == 0.0
+    assert min(plant.tensions_n[:3]) > 0.0
+    for _ in range(100):
+        plant.step(l0, 0.001)
+        assert plant.tensions_n[3] == 0.0
+
+
+def pay_out(
+    params: PlantParams, pose: tuple[float, float, float], payout_m: float, hold_s: float = 2.0
+) -> CablePlant:
+    """Hold at `pose`, pay cable 1 out by `payout_m` at 0.1 m/s, then hold `hold_s`."""
+    plant = CablePlant.at_pose(params, pose)
+    l0 = list(plant.unstretched_m)
+    start = l0[0]
+    ramp_steps = max(1, round(payout_m / 0.1 / 0.001))
+    for k in range(1, ramp_steps + 1):
+        l0[0] = start + payout_m * k / ramp_steps
+        plant.step(l0, 0.001)
+    hold(plant, hold_s)
+    return plant
+
+
+@pytest.mark.parametrize(
+    ("params", "pose", "hold_s", "slack"),
+    [(desk(), (0.1, 0.05, 0.3), 2.0, 0), (paper(), (-6.55, -8.6, 2.63), 15.0, 2)],
+    ids=["desk", "paper-acre"],
+)
+def test_paying_one_cable_out_5cm_moves_to_a_rest_on_three_cables(
+    params: PlantParams, pose: tuple[float, float, float], hold_s: float, slack: int
+) -> None:
+    # The rest pose is the lowest point the cable lengths allow. On the desk's steep cables the
+    # other three keep the effector where it was and cable 1 goes slack. On the paper robot's
+    # shallow cables the effector drops (13.5 cm) on cables 1, 2, 4 and cable 3 goes slack.
+    before = CablePlant.at_pose(params, pose)
+    plant = pay_out(params, pose, 0.05, hold_s)
+    l0 = plant.unstretched_m
+    assert l0[0] == pytest.approx(before.unstretched_m[0] + 0.05)
+    # at rest, at the equilibrium of the new lengths
+    assert math.hypot(*plant.velocity_mps) < 1e-6
+    rest = equilibrium(params, l0, pose)
+    assert math.dist(plant.position_m, rest.position_m) < 1e-6
+    assert np.linalg.norm(net_force(params, plant.position_m, l0)) < 1e-3
+    assert plant.tensions_n[0] < before.tensions_n[0]
+    assert min(before.tensions_n) > 0.0
+    for i, (t, length, l0_i) in enumerate(
+        zip(plant.tensions_n, distances(params, plant.position_m), l0, strict=True)
+    ):
+        if i == slack:
+            assert t == 0.0
+            assert length < l0_i
+        else:
+            assert t > 0.0
+
+
+def test_a_small_pay_out_lowers_that_cables_tension() -> None:
+    params = desk()
+    pose = (0.1, 0.05, 0.3)
+    before = CablePlant.at_pose(params, pose)
+    stretch_m = distances(params, pose)[0] - before.unstretched_m[0]
+    plant = pay_out(params, pose, 0.3 * stretch_m)
+    assert 0.0 < plant.tensions_n[0] < before.tensions_n[0] - 0.1
+    assert np.linalg.norm(net_force(params, plant.position_m, plant.unstretched_m)) < 1e-6
+
+
+def test_dropped_effector_settles_and_energy_only_falls() -> None:
+    params = desk()
+    rest = CablePlant.at_pose(params, (0.1, 0.05, 0.3))
+    x, y, z = rest.position_m
+    plant = CablePlant(params, (x, y, z + 0.02), rest.unstretched_m)  # 2 cm up: all slack
+    assert plant.tensions_n == (0.0, 0.0, 0.0, 0.0)
+    energy = plant.energy_j()
+    start = energy
+    for _ in range(1000):
+        plant.step(rest.unstretched_m, 0.001)
+        now = plant.energy_j()
+        assert now <= energy + 1e-12
+        energy = now
+    assert start - energy == pytest.approx(params.weight_n * 0.02, rel=1e-3)
+    assert math.dist(plant.position_m, rest.position_m) < 1e-6
+    assert math.hypot(*plant.velocity_mps) < 1e-6
+
+
+def test_effector_follows_cables_paid_in_step_with_a_move() -> None:
+    # The cable damping acts on the stretch rate only: cables wound in and out with the motion
+    # do not drag the effector, and the tensions stay the static ones up to m a + c v.
+    params = desk()
+    start = (-0.1, 0.0, 0.3)
+    plant = CablePlant.at_pose(params, start)
+    for k in range(1, 3001):  # 0.2 m along x in 3 s, cosine profile (peak 0.1 m/s)
+        target = (start[0] + 0.1 * (1.0 - math.cos(math.pi * k / 3000)), 0.0, 0.3)
+        held = CablePlant.at_pose(params, target)
+        plant.step(held.unstretched_m, 0.001)
+        assert math.dist(plant.position_m, target) < 1e-5
+        assert plant.tensions_n == pytest.approx(held.tensions_n, abs=0.02 * params.weight_n)
+
+
+@pytest.mark.parametrize("ea_n", [1e5, 1e7])
+def test_sub_steps_keep_an_undamped_plant_stable(ea_n: float) -> None:
+    params = desk(ea_n=ea_n, cable_damping_ratio=0.0, effector_damping_n_s_per_m=0.0)
+    rest = CablePlant.at_pose(params, (0.1, 0.05, 0.3))
+    x, y, z = rest.position_m
+    plant = CablePlant(params, (x, y, z - 1e-4), rest.unstretched_m)
+    excess = plant.energy_j() - rest.energy_j()
+    hold(plant, 2.0)
+    # no damping: the energy neither grows (unstable) nor drains away
+    assert 0.5 * excess < plant.energy_j() - rest.energy_j() < 1.5 * excess
+
+
+def test_sub_steps_grow_with_stiffness() -> None:
+    counts = []
+    for ea_n in (1e5, 1e7):
+        plant = CablePlant.at_pose(desk(ea_n=ea_n), (0.1, 0.05, 0.3))
+        plant.step(plant.unstretched_m, 0.001)
+        counts.append(plant.substeps)
+    assert 1 <= counts[0] < counts[1] <= 100
+
+
+# --- errors -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"mass_kg": 0.0}, "mass_kg"),
+        ({"mass_kg": -1.0}, "mass_kg"),
+        ({"mass_kg": math.nan}, "mass_kg"),
+        ({"ea_n": math.inf}, "ea_n"),
+        ({"ea_n": [1e5, 1e5, 1e5]}, "3 values for 4 cables"),
+        ({"ea_n": [1e5, 1e5, -1.0, 1e5]}, "cable 3"),
+        ({"anchors_m": [(0.0, 0.0, math.nan)]}, "anchor 1"),
+        ({"anchors_m": [(0.0, 0.0)]}, "anchor 1"),
+        ({"anchors_m": []}, "at least one cable"),
+        ({"cable_damping_ratio": -0.1}, "cable_damping_ratio"),
+        ({"effector_damping_n_s_per_m": math.inf}, "effector_damping"),
+        ({"gravity_mps2": math.nan}, "gravity"),
+        ({"max_substeps": 0}, "max_substeps"),
+    ],
+)
+def test_bad_parameters_are_named_errors(kwargs: dict[str, object], match: str) -> None:
+    args: dict[str, object] = {"anchors_m": DESK, "ea_n": 1e5, "mass_kg": 1.0}
+    args.update(kwargs)
+    with pytest.raises(PlantError, match=match):
+        PlantParams(**args)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("l0_change", "dt_s", "match"),
+    [
+        ((math.nan, 0, 0, 0), 0.001, "cable 1"),
+        ((0, math.inf, 0, 0), 0.001, "cable 2"),
+        ((0, 0, -10.0, 0), 0.001, "cable 3"),
+        ((0, 0, 0, 0), math.nan, "dt_s"),
+        ((0, 0, 0, 0), math.inf, "dt_s"),
+        ((0, 0, 0, 0), 0.0, "dt_s"),
+        ((0, 0, 0, 0), -0.001, "dt_s"),
+    ],
+)
+def test_bad_step_inputs_are_named_errors_and_leave_the_state(
+    l0_change: tuple[float, ...], dt_s: float, match: str
+) -> None:
+    plant = CablePlant.at_pose(desk(), (0.1, 0.05, 0.3))
+    state = (plant.position_m, plant.velocity_mps, plant.tensions_n, plant.unstretched_m)
+    l0 = [a + b for a, b in zip(plant.unstretched_m, l0_change, strict=True)]
+    with pytest.raises(PlantError, match=match):
+        plant.step(l0, dt_s)
+    with pytest.raises(PlantError, match="3 values for 4 cables"):
+        plant.step(plant.unstretched_m[:3], 0.001)
+    with pytest.raises(PlantError, match="numbers"):
+        plant.step(["x", 1.0, 1.0, 1.0], 0.001)  # type: ignore[list-item]
+    assert (plant.position_m, plant.velocity_mps, plant.tensions_n, plant.unstretched_m) == state
+    assert plant.time_s == 0.0
+
+
+def test_bad_poses_lengths_and_tensions_are_named_errors() -> None:
+    params = desk()
+    l0 = CablePlant.at_pose(params, (0.0, 0.0, 0.3)).unstretched_m
+    with pytest.raises(PlantError, match="position_m"):
+        CablePlant(params, (0.0, math.nan, 0.3), l0)
+    with pytest.raises(PlantError, match="velocity_mps"):
+        CablePlant(params, (0.0, 0.0, 0.3), l0, (math.inf, 0.0, 0.0))
+    with pytest.raises(PlantError, match="unstretched_m"):
+        CablePlant(params, (0.0, 0.0, 0.3), (*l0[:3], 0.0))
+    with pytest.raises(PlantError, match="unstretched_m"):
+        equilibrium(params, (*l0[:3], math.nan))
+    with pytest.raises(PlantError, match="guess_m"):
+        equilibrium(params, l0, (0.0, 0.0, math.inf))
+    with pytest.raises(PlantError, match="tension of cable 2"):
+        unstretched_lengths(params, (0.0, 0.0, 0.3), (1.0, -1.0, 1.0, 1.0))
+    with pytest.raises(PlantError, match="tension of cable 4"):
+        unstretched_lengths(params, (0.0, 0.0, 0.3), (1.0, 1.0, 1.0, math.nan))
+    with pytest.raises(PlantError, match="pretension_n"):
+        CablePlant.at_pose(params, (0.0, 0.0, 0.3), pretension_n=math.nan)
+
+
+def test_divergence_is_a_named_error_not_nan() -> None:
+    params = desk()
+    l0 = CablePlant.at_pose(params, (0.0, 0.0, 0.3)).unstretched_m
+    plant = CablePlant(params, (0.0, 0.0, 0.3), l0, (1e308, 0.0, 0.0))
+    with pytest.raises(PlantDivergedError, match="diverged"):
+        plant.step(l0, 0.001)
+    assert plant.position_m == (0.0, 0.0, 0.3)
+
+
+def test_effector_on_an_anchor_is_a_named_error() -> None:
+    params = desk()
+    plant = CablePlant(params, DESK[2], (1.0, 1.0, 1.0, 1.0))
+    with pytest.raises(PlantError, match="on anchor 3"):
+        plant.step((1.0, 1.0, 1.0, 1.0), 0.001)
+
+
+def test_too_stiff_for_max_substeps_is_refused() -> None:
+    plant = CablePlant.at_pose(desk(ea_n=1e9, max_substeps=50), (0.0, 0.0, 0.3))
+    with pytest.raises(PlantError, match="sub-steps"):
+        plant.step(plant.unstretched_m, 0.001)
+    assert plant.time_s == 0.0
