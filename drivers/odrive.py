@@ -4,9 +4,16 @@ Receive path (`poll`): drains the bus without blocking (at most `max_frames_per_
 call, so a flooded bus cannot stretch a tick), decodes each frame with `drivers.cansimple`, and
 updates one mutable `AxisReading` per axis: encoder estimates from the cyclic broadcast (or the
 RTR replies), axis state and axis error from the heartbeat. Each update is stamped with the
-injected clock (time.monotonic by default) and time.time_ns() at decode time. Nothing raises out
-of `poll`: bad frames are counted in `stats` by kind and dropped, frames from nodes not in
-`node_ids` are counted ("unknown_node") and dropped, and a receive-side bus error is counted.
+frame's arrival time, not the time it was taken off the queue, so frames that waited in the
+receive queue (a stalled loop) are as old as they are: python-can's `Message.timestamp` is a
+wall-clock (time.time()) reading on the interfaces cablebot uses, so its age against the wall
+clock now, taken from the injected clock (time.monotonic by default) now, gives the arrival on
+that clock; the age is clamped at 0 (no frame arrives in the future). A timestamp more than
+`TIMESTAMP_FUTURE_TOLERANCE_S` ahead of the wall clock or more than `TIMESTAMP_MAX_AGE_S`
+behind it is on some other clock: that frame is stamped at poll time instead and counted in
+`stats.untimed_frames`. Nothing raises out of `poll`: bad frames are counted in `stats` by kind
+and dropped, frames from nodes not in `node_ids` are counted ("unknown_node") and dropped, and a
+receive-side bus error is counted.
 
 Transmit path: `command`, `arm`, `disarm`, `estop`, `request_encoders`. A failed send is counted
 in `stats.bus_errors`/`stats.last_error`; the method still tries every axis, then raises
@@ -31,6 +38,10 @@ from drivers import cansimple as cs
 from drivers.base import AxisReading, BusError, BusStats
 
 DEFAULT_SEND_TIMEOUT_S = 0.005
+TIMESTAMP_FUTURE_TOLERANCE_S = 1.0
+"""A frame timestamp further ahead of the wall clock than this is not a wall-clock reading."""
+TIMESTAMP_MAX_AGE_S = 3600.0
+"""A frame timestamp further behind the wall clock than this is not a wall-clock reading."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,11 +123,17 @@ class ODriveReels:
         recv = self._bus.recv
         by_node = self._by_node
         clock = self._clock
-        wall_ns = self._wall_ns
         decode = cs.decode
         encoder_type = cs.EncoderEstimates
         heartbeat_type = cs.Heartbeat
         handled = 0
+        # One clock pair per poll: a frame's age against the wall clock now, subtracted from the
+        # loop's clock now, is its arrival on the loop's clock (module docstring).
+        now_s = clock()
+        now_ns = self._wall_ns()
+        wall_s = now_ns * 1e-9
+        future_tol = TIMESTAMP_FUTURE_TOLERANCE_S
+        max_age = TIMESTAMP_MAX_AGE_S
         while handled < self._max_frames:
             try:
                 msg = recv(0.0)
@@ -135,28 +152,33 @@ class ODriveReels:
                 continue
             m = decode(msg.arbitration_id, msg.data, msg.is_remote_frame, msg.is_extended_id)
             mtype = type(m)
-            if mtype is encoder_type:
+            if mtype is encoder_type or mtype is heartbeat_type:
                 rec = by_node[m.node_id]
                 if rec is None:
                     self._count("unknown_node", decode_error=False)
                     continue
-                rec.position_rev = m.pos_estimate_rev  # type: ignore[union-attr]
-                rec.velocity_rps = m.vel_estimate_rps  # type: ignore[union-attr]
-                rec.stamp_s = clock()
-                rec.stamp_ns = wall_ns()
-            elif mtype is heartbeat_type:
-                rec = by_node[m.node_id]
-                if rec is None:
-                    self._count("unknown_node", decode_error=False)
-                    continue
-                rec.axis_state = m.axis_state  # type: ignore[union-attr]
-                rec.axis_error = m.axis_error  # type: ignore[union-attr]
-                rec.heartbeat_stamp_s = clock()
+                age = wall_s - msg.timestamp
+                if age < 0.0:
+                    if age < -future_tol:
+                        self._stats.untimed_frames += 1
+                    age = 0.0
+                elif age > max_age:
+                    self._stats.untimed_frames += 1
+                    age = 0.0
+                if mtype is encoder_type:
+                    rec.position_rev = m.pos_estimate_rev  # type: ignore[union-attr]
+                    rec.velocity_rps = m.vel_estimate_rps  # type: ignore[union-attr]
+                    rec.stamp_s = now_s - age
+                    rec.stamp_ns = now_ns - int(age * 1e9)
+                else:
+                    rec.axis_state = m.axis_state  # type: ignore[union-attr]
+                    rec.axis_error = m.axis_error  # type: ignore[union-attr]
+                    rec.heartbeat_stamp_s = now_s - age
             else:
                 self._handle_other(m)
         self._stats.frames_rx += handled
         if self._encoder_rtr:
-            now = clock()
+            now = now_s
             if now >= self._next_rtr_s:
                 self._next_rtr_s = now + self._encoder_rtr_period_s
                 with contextlib.suppress(BusError):  # counted in stats; poll never raises
