@@ -12,11 +12,12 @@ Clear_Errors clears the error. In IDLE the simulated reel is braked: its positio
 is (a real unpowered reel under cable tension would not; that is outside the model).
 
 Axis watchdog (`watchdog_timeout_s` > 0, the drive's `axis.config.enable_watchdog` and
-`axis.config.watchdog_timeout`): every CANSimple frame addressed to the axis feeds it, as in
-the firmware's CANSimple handler; an axis in closed loop that goes `watchdog_timeout_s` without
-one disarms to IDLE with WATCHDOG_TIMER_EXPIRED (reported by heartbeat and Get_Error), so a
-host that dies mid-move does not leave the axis running on its last velocity feed-forward.
-The timer runs only in closed loop here (an idle axis has nothing to stop).
+`axis.config.watchdog_timeout`): every CANSimple frame a host sends to the axis feeds it (as in
+the firmware's CANSimple handler; the axis's own broadcasts heard back do not); an axis in
+closed loop that goes `watchdog_timeout_s` without one disarms to IDLE with
+WATCHDOG_TIMER_EXPIRED (reported by heartbeat and Get_Error), so a host that dies mid-move does
+not leave the axis running on its last velocity feed-forward. The timer runs only in closed loop
+here (an idle axis has nothing to stop).
 
 Motion model (POSITION_CONTROL with INPUT_MODE_PASSTHROUGH, the firmware's cascaded loop):
 Set_Input_Pos sets input_pos and input_vel (its Vel_FF field), and the velocity command is
@@ -68,6 +69,8 @@ DEFAULT_POS_GAIN = 20.0
 MAX_SUBSTEP_S = 0.001
 """Longest integration step of the axis dynamics (a longer `step` is split)."""
 _MAX_SUBSTEPS = 10_000
+_AXIS_TX_TYPES = (cs.Heartbeat, cs.EncoderEstimates, cs.GetError)
+"""What an axis sends itself: heard back (udp_multicast loops frames back), they feed nothing."""
 REST_SNAP_REV = 1e-9
 REST_SNAP_RPS = 1e-6
 
@@ -204,8 +207,9 @@ class SimODriveAxis:
             return self._handle(msg)
 
     def _handle(self, msg: cs.Message) -> list[cs.Frame]:
-        self._since_feed_s = 0.0  # any frame addressed to the axis feeds its watchdog
         t = type(msg)
+        if t not in _AXIS_TX_TYPES:
+            self._since_feed_s = 0.0  # any frame from a host to the axis feeds its watchdog
         if t is cs.SetInputPos:
             assert isinstance(msg, cs.SetInputPos)
             self.commands_received += 1

@@ -436,3 +436,17 @@ def test_a_stalled_simulator_does_not_mistake_queued_commands_for_silence() -> N
     axis.handle(cs.SetInputPos(0, 0.0, 0.0, 0.0))
     axis.step(DT)
     assert axis.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL and axis.axis_error == 0
+
+
+def test_the_axis_own_frames_heard_back_do_not_feed_its_watchdog() -> None:
+    # udp_multicast loops every frame back to its sender: the simulated node hears its own
+    # encoder estimates and heartbeats, which must not count as a host that is alive.
+    axis = SimODriveAxis(1, watchdog_timeout_s=0.2)
+    arm(axis)
+    for _ in range(30):
+        for m in run(axis, 0.01):
+            if isinstance(m, cs.Heartbeat | cs.EncoderEstimates):
+                axis.handle(m)
+        axis.handle(cs.GetError(1, 0, 0))
+    assert axis.axis_state == cs.AxisState.IDLE
+    assert axis.axis_error == cs.ODriveError.WATCHDOG_TIMER_EXPIRED
