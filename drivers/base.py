@@ -98,6 +98,8 @@ class BusStats:
     errors_by_kind: dict[str, int] = field(default_factory=dict)
     untimed_frames: int = 0
     """Frames whose interface timestamp was not a wall-clock reading (stamped at poll time)."""
+    catch_up_polls: int = 0
+    """Polls that read past their frame cap to catch up with a backlog (after a loop stall)."""
 
     def snapshot(self) -> BusStats:
         """Return an independent copy of these counters."""
@@ -111,6 +113,7 @@ class BusStats:
             self.ff_clamped,
             dict(self.errors_by_kind),
             self.untimed_frames,
+            self.catch_up_polls,
         )
 
 

@@ -208,6 +208,41 @@ def test_frame_timestamps_are_clamped_and_foreign_clocks_fall_back_to_poll_time(
         peer.shutdown()
 
 
+def test_a_backlog_after_a_stall_is_read_through_but_a_flood_is_not() -> None:
+    channel = f"test-odrive-backlog-{uuid.uuid4().hex}"
+    bus = open_bus("virtual", channel)
+    peer = open_bus("virtual", channel, preserve_timestamps=True)
+    try:
+        d = ODriveReels(bus, NODES, max_frames_per_poll=10, catch_up_age_s=0.05)
+
+        def queue(count: int, age_s: float) -> None:
+            for i in range(count):
+                arb_id, data, _ = cs.encode_encoder_estimates(0, float(i), 0.0)
+                peer.send(
+                    can.Message(
+                        arbitration_id=arb_id,
+                        data=data,
+                        is_extended_id=False,
+                        timestamp=time.time() - age_s,
+                    )
+                )
+
+        queue(25, 0.5)  # frames that waited half a second: read to the newest at once
+        time.sleep(0.01)
+        assert d.poll() == 25
+        assert d.read()[0].position_rev == 24.0
+        assert d.stats.catch_up_polls == 1
+        queue(100, 0.5)  # a bigger backlog: still bounded, at 8 x the cap
+        time.sleep(0.01)
+        assert [d.poll(), d.poll()] == [80, 20]
+        queue(25, 0.0)  # fresh frames: a flood, kept to the cap
+        time.sleep(0.01)
+        assert d.poll() == 10
+    finally:
+        bus.shutdown()
+        peer.shutdown()
+
+
 class ExplodingBus:
     """A bus whose every operation fails, as a broken adapter would."""
 
@@ -342,6 +377,8 @@ def test_constructor_validation(buses: tuple[can.BusABC, can.BusABC]) -> None:
         ODriveReels(bus, [64])
     with pytest.raises(ValueError, match="encoder_rtr_period_s"):
         ODriveReels(bus, [1], encoder_rtr_period_s=-1.0)
+    with pytest.raises(ValueError, match="catch_up_age_s"):
+        ODriveReels(bus, [1], catch_up_age_s=0.0)
 
 
 def test_open_bus_errors_are_named() -> None:
