@@ -30,8 +30,9 @@ values run only when those values are valid themselves):
 Deviations from the agreed API: none. Additions (all with defaults, so nothing breaks):
 `LoopConfig.rt_priority` (int, 50), `LoopConfig.auto_arm` (bool | None; None = arm at start
 only with `sim.enabled`), `SimConfig.tick_s` (0.001 s), `SimConfig.watchdog_timeout_s` (0.3 s,
-the simulated drives' axis watchdog), `BusConfig.as_mapping()` (for
-`drivers.bus.open_bus`), `RobotConfig.node_ids` / `RobotConfig.anchors_m` properties.
+the simulated drives' axis watchdog; unset in a file: 0.3 s or 5 loop periods if longer),
+`BusConfig.as_mapping()` (for `drivers.bus.open_bus`), `RobotConfig.node_ids` /
+`RobotConfig.anchors_m` properties, `bus_option_names(interface)`.
 `HomingConfig.state_file` is stored already expanded (``~`` and ``{name}`` replaced).
 In a file, `[limits]` is required with every key but `default_speed_mps` (a safe limit
 depends on the robot); all other sections are optional with the defaults of the dataclasses.
@@ -62,8 +63,10 @@ FLOAT32_RESOLUTION_LIMIT_M = 1e-4
 """Worst allowed cable-length step of one float32 ULP of motor turns over the cable range."""
 _MAX_ABS = 1e9
 """Largest magnitude any number in a configuration may have (keeps every check finite)."""
-WATCHDOG_MIN_PERIODS = 5.0
+WATCHDOG_MIN_PERIODS = 3.0
 """A simulated drive watchdog must allow at least this many loop periods between commands."""
+WATCHDOG_DEFAULT_PERIODS = 5.0
+"""Without `sim.watchdog_timeout_s`, the watchdog allows at least this many loop periods."""
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,62}$")
 _PREFIX_RE = re.compile(r"^[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*$")
@@ -719,6 +722,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     st = top.sub("sim")
     st.finish(tuple(SimConfig.__dataclass_fields__))
     d_sim = SimConfig()
+    period_s = 1.0 / loop.rate_hz
     sim = SimConfig(
         enabled=st.boolean("enabled", bus.interface == "virtual"),
         encoder_period_s=st.number("encoder_period_s", d_sim.encoder_period_s, gt=0.0, le=1.0),
@@ -729,10 +733,12 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         max_accel_rps2=st.number("max_accel_rps2", d_sim.max_accel_rps2, gt=0.0),
         tick_s=st.number("tick_s", d_sim.tick_s, gt=0.0, le=0.1),
         watchdog_timeout_s=st.number(
-            "watchdog_timeout_s", d_sim.watchdog_timeout_s, ge=0.0, le=10.0
+            "watchdog_timeout_s",
+            max(d_sim.watchdog_timeout_s, WATCHDOG_DEFAULT_PERIODS * period_s),
+            ge=0.0,
+            le=10.0,
         ),
     )
-    period_s = 1.0 / loop.rate_hz
     wd = sim.watchdog_timeout_s
     if 0.0 < wd < WATCHDOG_MIN_PERIODS * period_s:
         st.fail(
