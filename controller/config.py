@@ -4,13 +4,21 @@
 `parse_config(mapping, source)` validates an already-parsed mapping, `default_config()` is the
 paper's 80.9 m x 50 m x 7.62 m robot on four simulated reels on a python-can `virtual` bus.
 
-Validation rules (every mistake raises `ConfigError` whose message names the file and the key
-path, e.g. ``config/desk.toml: reels[2].metres_per_rev: must be > 0, got -0.1``):
+Validation rules (every mistake is reported, all of them at once: one `ConfigError` whose
+message has one line per problem naming the file and the key path, e.g.
+``config/desk.toml: reels[2].metres_per_rev: must be > 0, got -0.1``; checks that combine
+values run only when those values are valid themselves):
 
+* the file must be UTF-8 TOML;
 * unknown keys are errors (with a "did you mean" hint), so typos never silently pass;
 * units are part of the key names (`_m`, `_mps`, `_mps2`, `_s`, `_hz`, `_rps`, `_rev`); a value
   written with a unit ("2 m/s") or of the wrong type is an error naming the unit expected;
-* numbers are range-checked, node ids are unique and in 0..63, at least three reels;
+* numbers are finite, within ±1e9 and range-checked, node ids are unique and in 0..63, at
+  least three reels;
+* `bus.interface` is a python-can interface name and every `[bus.options]` key is a keyword
+  the interface's python-can bus class takes (`bus_option_names`; `hop_limit` for
+  udp_multicast); Zenoh endpoints are `proto/host:port` with a valid port, and a Zenoh
+  `config_file` must load (with valid endpoints);
 * the anchors must make a usable `Geometry` (coincident or collinear anchors -> error naming
   the anchors);
 * cross-checks: the shrunk workspace is not empty, floor below the top limit, min < max cable,
@@ -21,8 +29,10 @@ path, e.g. ``config/desk.toml: reels[2].metres_per_rev: must be > 0, got -0.1``)
 
 Deviations from the agreed API: none. Additions (all with defaults, so nothing breaks):
 `LoopConfig.rt_priority` (int, 50), `LoopConfig.auto_arm` (bool | None; None = arm at start
-only with `sim.enabled`), `SimConfig.tick_s` (0.001 s), `BusConfig.as_mapping()` (for
-`drivers.bus.open_bus`), `RobotConfig.node_ids` / `RobotConfig.anchors_m` properties.
+only with `sim.enabled`), `SimConfig.tick_s` (0.001 s), `SimConfig.watchdog_timeout_s` (0.3 s,
+the simulated drives' axis watchdog; unset in a file: 0.3 s or 5 loop periods if longer),
+`BusConfig.as_mapping()` (for `drivers.bus.open_bus`), `RobotConfig.node_ids` /
+`RobotConfig.anchors_m` properties, `bus_option_names(interface)`.
 `HomingConfig.state_file` is stored already expanded (``~`` and ``{name}`` replaced).
 In a file, `[limits]` is required with every key but `default_speed_mps` (a safe limit
 depends on the robot); all other sections are optional with the defaults of the dataclasses.
@@ -32,15 +42,17 @@ depends on the robot); all other sections are optional with the defaults of the 
 from __future__ import annotations
 
 import difflib
+import functools
+import json
 import math
 import os
 import re
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
+from typing import Any, overload
 
 from controller.kinematics import Geometry, KinematicsError, SingularGeometryError
 from drivers.reel import ReelModel, spool_buildup
@@ -49,6 +61,12 @@ Vec3 = tuple[float, float, float]
 
 FLOAT32_RESOLUTION_LIMIT_M = 1e-4
 """Worst allowed cable-length step of one float32 ULP of motor turns over the cable range."""
+_MAX_ABS = 1e9
+"""Largest magnitude any number in a configuration may have (keeps every check finite)."""
+WATCHDOG_MIN_PERIODS = 3.0
+"""A simulated drive watchdog must allow at least this many loop periods between commands."""
+WATCHDOG_DEFAULT_PERIODS = 5.0
+"""Without `sim.watchdog_timeout_s`, the watchdog allows at least this many loop periods."""
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,62}$")
 _PREFIX_RE = re.compile(r"^[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*$")
@@ -56,13 +74,36 @@ _ZENOH_MODES = ("peer", "client", "router")
 
 
 class ConfigError(ValueError):
-    """An invalid configuration; the message names the file (or source) and the key path."""
+    """An invalid configuration; the message names the file (or source) and the key path.
 
-    def __init__(self, source: str, key: str, problem: str) -> None:
+    `errors` holds every problem found (just this one for a single problem), and the message
+    has one line per problem, ``<source>: <key>: <problem>``; `key` and `problem` are those of
+    the first.
+    """
+
+    def __init__(
+        self, source: str, key: str, problem: str, *, errors: Sequence[ConfigError] = ()
+    ) -> None:
         self.source = source
         self.key = key
         self.problem = problem
-        super().__init__(f"{source}: {key}: {problem}" if key else f"{source}: {problem}")
+        self.errors: tuple[ConfigError, ...] = tuple(errors) if errors else (self,)
+        if errors:
+            super().__init__("\n".join(_error_line(e) for e in self.errors))
+        else:
+            super().__init__(_error_line(self))
+
+    @classmethod
+    def collected(cls, source: str, errors: Sequence[ConfigError]) -> ConfigError:
+        """One error for `errors` (the error itself when there is only one)."""
+        if len(errors) == 1:
+            return errors[0]
+        first = errors[0]
+        return cls(source, first.key, first.problem, errors=errors)
+
+
+def _error_line(e: ConfigError) -> str:
+    return f"{e.source}: {e.key}: {e.problem}" if e.key else f"{e.source}: {e.problem}"
 
 
 # ------------------------------------------------------------------------------- dataclasses
@@ -169,6 +210,10 @@ class SimConfig:
     max_accel_rps2: float = 400.0
     tick_s: float = 0.001
     """Time step of the simulated axes' dynamics."""
+    watchdog_timeout_s: float = 0.3
+    """Simulated ODrive axis watchdog (axis.config.watchdog_timeout): an axis in closed loop
+    that receives no command for this long disarms to IDLE with WATCHDOG_TIMER_EXPIRED;
+    0 = off."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -284,22 +329,71 @@ def _unit_of(key: str) -> str | None:
     return None
 
 
-class _Table:
-    """One TOML table being validated: typed getters that record which keys were used."""
+class _Errors:
+    """Every problem found in one configuration, in the order found."""
 
-    def __init__(self, data: Any, path: str, source: str) -> None:
-        if not isinstance(data, Mapping):
-            raise ConfigError(source, path, f"must be a table, got {_tname(data)}")
-        self.data: Mapping[str, Any] = data
-        self.path = path
+    def __init__(self, source: str) -> None:
         self.source = source
+        self.items: list[ConfigError] = []
+
+    def add(self, key: str, problem: str) -> None:
+        self.items.append(ConfigError(self.source, key, problem))
+
+    def mark(self) -> int:
+        return len(self.items)
+
+    def clean_since(self, mark: int) -> bool:
+        """True if no problem was found since `mark()` returned `mark`."""
+        return len(self.items) == mark
+
+    def check(self, key: str, fn: Callable[[], None]) -> None:
+        """Run a cross-check that raises ConfigError; record its problems and go on. A value
+        that makes the arithmetic fail is reported against `key` too."""
+        try:
+            fn()
+        except ConfigError as exc:
+            self.items.extend(exc.errors)
+        except (ArithmeticError, ValueError) as exc:
+            self.add(key, f"values out of range for the checks ({type(exc).__name__}: {exc})")
+
+    def raise_if_any(self) -> None:
+        """Raise one ConfigError listing every problem found (nothing if none)."""
+        if self.items:
+            raise ConfigError.collected(self.source, self.items)
+
+
+class _Table:
+    """One TOML table being validated: typed getters that record which keys were used.
+
+    A getter that finds a problem records it in `errs` and returns a stand-in (the default, or
+    NaN / None), so that validation goes on and every problem is reported at once; checks that
+    combine values run only when their inputs were clean.
+    """
+
+    def __init__(self, data: Any, path: str, errs: _Errors) -> None:
+        self.path = path
+        self.errs = errs
+        self.source = errs.source
         self.used: set[str] = set()
+        if isinstance(data, Mapping):
+            self.data: Mapping[str, Any] = data
+        else:
+            errs.add(path, f"must be a table, got {_tname(data)}")
+            self.data = {}
 
     def key(self, name: str) -> str:
         return f"{self.path}.{name}" if self.path else name
 
     def error(self, name: str, problem: str) -> ConfigError:
         return ConfigError(self.source, self.key(name), problem)
+
+    def fail(self, name: str, problem: str) -> None:
+        """Record a problem with key `name` of this table."""
+        self.errs.add(self.key(name), problem)
+
+    def fail_here(self, problem: str) -> None:
+        """Record a problem with this table as a whole."""
+        self.errs.add(self.path, problem)
 
     def has(self, name: str) -> bool:
         return name in self.data
@@ -318,48 +412,76 @@ class _Table:
         le: float | None = None,
         required: bool = False,
     ) -> float:
+        fallback = math.nan if default is None else default
         if name not in self.data:
             if required or default is None:
-                raise self.error(name, "missing (required)")
-            return default
+                self.fail(name, "missing (required)")
+            return fallback
         v = self.raw(name)
         if isinstance(v, bool) or not isinstance(v, int | float):
             unit = _unit_of(name)
             hint = f" in {unit} (the unit is in the key name)" if unit else ""
-            raise self.error(name, f"must be a number{hint}, got {v!r}")
-        f = float(v)
+            self.fail(name, f"must be a number{hint}, got {v!r}")
+            return fallback
+        try:
+            f = float(v)
+        except OverflowError:  # an integer beyond float range
+            f = math.inf
+        problem = None
         if not math.isfinite(f):
-            raise self.error(name, f"must be finite, got {v!r}")
-        if gt is not None and not f > gt:
-            raise self.error(name, f"must be > {gt:g}, got {v!r}")
-        if ge is not None and not f >= ge:
-            raise self.error(name, f"must be >= {ge:g}, got {v!r}")
-        if le is not None and not f <= le:
-            raise self.error(name, f"must be <= {le:g}, got {v!r}")
+            problem = f"must be finite, got {v!r}"
+        elif abs(f) > _MAX_ABS:
+            problem = f"must be within ±{_MAX_ABS:g}, got {v!r}"
+        elif gt is not None and not f > gt:
+            problem = f"must be > {gt:g}, got {v!r}"
+        elif ge is not None and not f >= ge:
+            problem = f"must be >= {ge:g}, got {v!r}"
+        elif le is not None and not f <= le:
+            problem = f"must be <= {le:g}, got {v!r}"
+        if problem is not None:
+            self.fail(name, problem)
+            return fallback
         return f
+
+    @overload
+    def integer(
+        self, name: str, default: int, *, ge: int | None = None, le: int | None = None
+    ) -> int: ...
+
+    @overload
+    def integer(
+        self, name: str, default: None = None, *, ge: int | None = None, le: int | None = None
+    ) -> int | None: ...
 
     def integer(
         self, name: str, default: int | None = None, *, ge: int | None = None, le: int | None = None
-    ) -> int:
+    ) -> int | None:
+        """The integer at `name`; None (after recording the problem) if it is missing without
+        a default or invalid and there is no default."""
         if name not in self.data:
             if default is None:
-                raise self.error(name, "missing (required)")
+                self.fail(name, "missing (required)")
             return default
         v = self.raw(name)
+        problem = None
         if isinstance(v, bool) or not isinstance(v, int):
-            raise self.error(name, f"must be an integer, got {v!r}")
-        if ge is not None and v < ge:
-            raise self.error(name, f"must be >= {ge}, got {v}")
-        if le is not None and v > le:
-            raise self.error(name, f"must be <= {le}, got {v}")
-        return v
+            problem = f"must be an integer, got {v!r}"
+        elif ge is not None and v < ge:
+            problem = f"must be >= {ge}, got {v}"
+        elif le is not None and v > le:
+            problem = f"must be <= {le}, got {v}"
+        if problem is not None:
+            self.fail(name, problem)
+            return default
+        return int(v)
 
     def boolean(self, name: str, default: bool) -> bool:
         if name not in self.data:
             return default
         v = self.raw(name)
         if not isinstance(v, bool):
-            raise self.error(name, f"must be true or false, got {v!r}")
+            self.fail(name, f"must be true or false, got {v!r}")
+            return default
         return v
 
     def string(self, name: str, default: str | None) -> str | None:
@@ -367,7 +489,8 @@ class _Table:
             return default
         v = self.raw(name)
         if not isinstance(v, str) or not v:
-            raise self.error(name, f"must be a non-empty string, got {v!r}")
+            self.fail(name, f"must be a non-empty string, got {v!r}")
+            return default
         return v
 
     def strings(self, name: str, default: tuple[str, ...]) -> tuple[str, ...]:
@@ -375,13 +498,15 @@ class _Table:
             return default
         v = self.raw(name)
         if not isinstance(v, list) or not all(isinstance(s, str) and s for s in v):
-            raise self.error(name, f"must be a list of non-empty strings, got {v!r}")
+            self.fail(name, f"must be a list of non-empty strings, got {v!r}")
+            return default
         return tuple(v)
 
     def vec3(self, name: str, *, required: bool = True) -> Vec3 | None:
+        """[x, y, z] in metres at `name`; None if absent (recorded when `required`) or bad."""
         if name not in self.data:
             if required:
-                raise self.error(name, "missing (required)")
+                self.fail(name, "missing (required)")
             return None
         v = self.raw(name)
         if (
@@ -389,23 +514,31 @@ class _Table:
             or len(v) != 3
             or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
         ):
-            raise self.error(name, f"must be [x, y, z] in metres (3 numbers), got {v!r}")
-        x, y, z = (float(c) for c in v)
+            self.fail(name, f"must be [x, y, z] in metres (3 numbers), got {v!r}")
+            return None
+        try:
+            x, y, z = (float(c) for c in v)
+        except OverflowError:
+            x = y = z = math.inf
         if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-            raise self.error(name, f"must be finite, got {v!r}")
+            self.fail(name, f"must be finite, got {v!r}")
+            return None
+        if max(abs(x), abs(y), abs(z)) > _MAX_ABS:
+            self.fail(name, f"coordinates must be within ±{_MAX_ABS:g} m, got {v!r}")
+            return None
         return (x, y, z)
 
     def sub(self, name: str) -> _Table:
         if name not in self.data:
-            return _Table({}, self.key(name), self.source)
-        return _Table(self.raw(name), self.key(name), self.source)
+            return _Table({}, self.key(name), self.errs)
+        return _Table(self.raw(name), self.key(name), self.errs)
 
     def finish(self, allowed: tuple[str, ...]) -> None:
-        """Raise on the first key not in `allowed` (unknown key, with a did-you-mean hint)."""
+        """Record every key not in `allowed` (unknown key, with a did-you-mean hint)."""
         known = set(allowed)
         for k in self.data:
             if k not in known:
-                raise self.error(k, _unknown(k, known))
+                self.fail(k, _unknown(k, known))
 
 
 def _unknown(key: str, known: set[str]) -> str:
@@ -438,38 +571,41 @@ _REEL_KEYS = (
 )
 
 
-def _parse_reel(t: _Table) -> ReelConfig:
+def _parse_reel(t: _Table) -> ReelConfig | None:
+    """One [[reels]] table; None (problems recorded) if it is not usable."""
+    mark = t.errs.mark()
     t.finish(_REEL_KEYS)
     node_id = t.integer("node_id", ge=0, le=63)
     anchor = t.vec3("anchor_m")
-    assert anchor is not None
     has_mpr, has_radius = t.has("metres_per_rev"), t.has("drum_radius_m")
+    mpr = math.nan
     if has_mpr == has_radius:
-        raise ConfigError(t.source, t.path, "give exactly one of metres_per_rev and drum_radius_m")
-    if has_mpr:
+        t.fail_here("give exactly one of metres_per_rev and drum_radius_m")
+    elif has_mpr:
         mpr = t.number("metres_per_rev", gt=0.0)
     else:
         mpr = 2.0 * math.pi * t.number("drum_radius_m", gt=0.0)
     gear = t.number("gear_ratio", 1.0, gt=0.0)
     direction = t.integer("direction", 1)
     if direction not in (1, -1):
-        raise t.error("direction", f"must be 1 or -1, got {direction}")
+        t.fail("direction", f"must be 1 or -1, got {direction}")
     ma = t.number("mechanical_advantage", 1.0, gt=0.0)
+    buildup = 0.0
     if t.has("spool_buildup_m_per_rev2") and (
         t.has("cable_diameter_m") or t.has("turns_per_layer")
     ):
-        raise ConfigError(
-            t.source,
-            t.path,
-            "give either spool_buildup_m_per_rev2 or cable_diameter_m/turns_per_layer, not both",
+        t.fail_here(
+            "give either spool_buildup_m_per_rev2 or cable_diameter_m/turns_per_layer, not both"
         )
-    if t.has("cable_diameter_m") or t.has("turns_per_layer"):
+    elif t.has("cable_diameter_m") or t.has("turns_per_layer"):
         d = t.number("cable_diameter_m", 0.0, ge=0.0)
         tpl = t.number("turns_per_layer", 1.0, gt=0.0)
         buildup = spool_buildup(d, tpl)
     else:
         buildup = t.number("spool_buildup_m_per_rev2", 0.0, ge=0.0)
     ref = t.number("reference_length_m", 0.0, ge=0.0)
+    if not t.errs.clean_since(mark) or node_id is None or anchor is None:
+        return None
     try:
         model = ReelModel(
             metres_per_rev=mpr,
@@ -479,8 +615,9 @@ def _parse_reel(t: _Table) -> ReelConfig:
             spool_buildup_m_per_rev2=buildup,
             reference_length_m=ref,
         )
-    except ValueError as exc:
-        raise ConfigError(t.source, t.path, str(exc)) from exc
+    except (ValueError, ArithmeticError) as exc:
+        t.fail_here(f"unusable reel model: {exc}")
+        return None
     return ReelConfig(node_id=node_id, anchor_m=anchor, reel=model)
 
 
@@ -492,7 +629,7 @@ def _check_reel_range(rc: ReelConfig, i: int, lim: LimitsConfig, source: str) ->
         lo = m.position_rev(lim.min_cable_m)
         hi = m.position_rev(lim.max_cable_m)
         for p in (lo, hi):
-            if m.length_rate_mps(p, 1.0) * m.direction <= 0.0:
+            if not math.isfinite(p) or m.length_rate_mps(p, 1.0) * m.direction <= 0.0:
                 raise ValueError("metres per turn fall to zero within the cable range")
     except ValueError as exc:
         raise ConfigError(
@@ -518,74 +655,39 @@ def _check_reel_range(rc: ReelConfig, i: int, lim: LimitsConfig, source: str) ->
             )
 
 
+_TOP_KEYS = ("name", "reels", "bus", "loop", "limits", "faults", "homing", "zenoh", "sim")
+_BUS_KEYS = ("interface", "channel", "bitrate", "options")
+
+
 def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     """Validate an already-parsed TOML mapping and return the `RobotConfig`.
 
-    `source` names the origin (file path) in error messages. Raises ConfigError naming the
-    source and the key path for any unknown key, wrong type or unit, out-of-range value,
-    duplicate node id, unusable anchor geometry or failed cross-check.
+    `source` names the origin (file path) in error messages. Raises one ConfigError listing
+    every problem found (each naming the key path): unknown keys, wrong types or units,
+    out-of-range values, duplicate node ids, unusable anchor geometry, an unknown bus interface
+    or interface option, a bad Zenoh endpoint or file, failed cross-checks.
     """
-    top = _Table(data, "", source)
-    top.finish(("name", "reels", "bus", "loop", "limits", "faults", "homing", "zenoh", "sim"))
-    name = top.string("name", "default")
-    assert name is not None
+    errs = _Errors(source)
+    if not isinstance(data, Mapping):
+        raise ConfigError(source, "", f"must be a table, got {_tname(data)}")
+    top = _Table(data, "", errs)
+    top.finish(_TOP_KEYS)
+    name = top.string("name", "default") or "default"
     if not _NAME_RE.match(name):
-        raise top.error(
-            "name", f"must match {_NAME_RE.pattern} (used in paths and keys), got {name!r}"
-        )
+        top.fail("name", f"must match {_NAME_RE.pattern} (used in paths and keys), got {name!r}")
+        name = "default"
 
-    # ---- reels
-    if "reels" not in data:
-        raise ConfigError(source, "reels", "missing (need at least 3 [[reels]] tables)")
-    reels_raw = top.raw("reels")
-    if not isinstance(reels_raw, list):
-        raise ConfigError(
-            source, "reels", f"must be an array of tables ([[reels]]), got {_tname(reels_raw)}"
-        )
-    if len(reels_raw) < 3:
-        raise ConfigError(source, "reels", f"need at least 3 reels, got {len(reels_raw)}")
-    reels = tuple(_parse_reel(_Table(r, f"reels[{i}]", source)) for i, r in enumerate(reels_raw))
-    seen: dict[int, int] = {}
-    for i, r in enumerate(reels):
-        if r.node_id in seen:
-            raise ConfigError(
-                source,
-                f"reels[{i}].node_id",
-                f"duplicate node id {r.node_id} (also reels[{seen[r.node_id]}])",
-            )
-        seen[r.node_id] = i
-    try:
-        geometry = Geometry([r.anchor_m for r in reels])
-    except SingularGeometryError as exc:
-        raise ConfigError(
-            source, "reels[*].anchor_m", f"singular anchors: {exc} (anchors numbered from 1)"
-        ) from exc
-    except KinematicsError as exc:
-        raise ConfigError(source, "reels[*].anchor_m", str(exc)) from exc
+    reels = _parse_reels(top, data, errs)
+    geometry: Geometry | None = None
+    if reels is not None:
+        try:
+            geometry = Geometry([r.anchor_m for r in reels])
+        except SingularGeometryError as exc:
+            errs.add("reels[*].anchor_m", f"singular anchors: {exc} (anchors numbered from 1)")
+        except (KinematicsError, ArithmeticError, ValueError) as exc:
+            errs.add("reels[*].anchor_m", str(exc))
 
-    # ---- bus
-    b = top.sub("bus")
-    b.finish(("interface", "channel", "bitrate", "options"))
-    interface = b.string("interface", "virtual")
-    channel_raw = b.raw("channel") if b.has("channel") else "cablebot"
-    if isinstance(channel_raw, bool) or not isinstance(channel_raw, str | int) or channel_raw == "":
-        raise b.error("channel", f"must be a non-empty string or an integer, got {channel_raw!r}")
-    bitrate: int | None = None
-    if b.has("bitrate"):
-        bitrate = b.integer("bitrate", ge=10_000, le=8_000_000)
-    options: dict[str, Any] = {}
-    if b.has("options"):
-        opts = b.raw("options")
-        if not isinstance(opts, Mapping):
-            raise b.error("options", f"must be a table, got {_tname(opts)}")
-        options = dict(opts)
-        for reserved in ("interface", "channel", "bitrate"):
-            if reserved in options:
-                raise ConfigError(
-                    source, f"bus.options.{reserved}", f"set it as bus.{reserved}, not in options"
-                )
-    assert interface is not None
-    bus = BusConfig(interface, str(channel_raw), bitrate, MappingProxyType(options))
+    bus = _parse_bus(top)
 
     # ---- loop
     lt = top.sub("loop")
@@ -602,30 +704,25 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     )
 
     # ---- limits: no defaults in a file (a safe limit depends on the robot)
-    mt = top.sub("limits")
-    mt.finish(tuple(LimitsConfig.__dataclass_fields__))
-    if not top.has("limits"):
-        raise ConfigError(source, "limits", "missing (every robot needs its own [limits])")
-    max_speed = mt.number("max_speed_mps", required=True, gt=0.0)
-    limits = LimitsConfig(
-        xy_margin_m=mt.number("xy_margin_m", required=True, ge=0.0),
-        floor_z_m=mt.number("floor_z_m", required=True),
-        top_margin_m=mt.number("top_margin_m", required=True, ge=0.0),
-        min_cable_m=mt.number("min_cable_m", required=True, gt=0.0),
-        max_cable_m=mt.number("max_cable_m", required=True, gt=0.0),
-        max_cable_speed_mps=mt.number("max_cable_speed_mps", required=True, gt=0.0),
-        max_speed_mps=max_speed,
-        max_accel_mps2=mt.number("max_accel_mps2", required=True, gt=0.0),
-        default_speed_mps=mt.number("default_speed_mps", max_speed, gt=0.0),
-    )
-    _check_limits(limits, geometry, source)
-    for i, r in enumerate(reels):
-        _check_reel_range(r, i, limits, source)
+    mark = errs.mark()
+    if top.has("limits"):
+        limits = _parse_limits(top.sub("limits"))
+    else:
+        errs.add("limits", "missing (every robot needs its own [limits])")
+        limits = LimitsConfig()  # a stand-in: the configuration is refused
+    limits_ok = errs.clean_since(mark)
+    if limits_ok and geometry is not None and reels is not None:
+        g = geometry
+        errs.check("limits", lambda: _check_limits(limits, g, source))
+        for i, r in enumerate(reels):
+            errs.check(f"reels[{i}]", functools.partial(_check_reel_range, r, i, limits, source))
+    limits_ok = limits_ok and errs.clean_since(mark)
 
     # ---- sim (needed before faults for the cross-check)
     st = top.sub("sim")
     st.finish(tuple(SimConfig.__dataclass_fields__))
     d_sim = SimConfig()
+    period_s = 1.0 / loop.rate_hz
     sim = SimConfig(
         enabled=st.boolean("enabled", bus.interface == "virtual"),
         encoder_period_s=st.number("encoder_period_s", d_sim.encoder_period_s, gt=0.0, le=1.0),
@@ -635,7 +732,20 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         max_velocity_rps=st.number("max_velocity_rps", d_sim.max_velocity_rps, gt=0.0),
         max_accel_rps2=st.number("max_accel_rps2", d_sim.max_accel_rps2, gt=0.0),
         tick_s=st.number("tick_s", d_sim.tick_s, gt=0.0, le=0.1),
+        watchdog_timeout_s=st.number(
+            "watchdog_timeout_s",
+            max(d_sim.watchdog_timeout_s, WATCHDOG_DEFAULT_PERIODS * period_s),
+            ge=0.0,
+            le=10.0,
+        ),
     )
+    wd = sim.watchdog_timeout_s
+    if 0.0 < wd < WATCHDOG_MIN_PERIODS * period_s:
+        st.fail(
+            "watchdog_timeout_s",
+            f"{wd:g} s is shorter than {WATCHDOG_MIN_PERIODS:g} loop periods "
+            f"({WATCHDOG_MIN_PERIODS * period_s:g} s at {loop.rate_hz:g} Hz); 0 turns it off",
+        )
 
     # ---- faults
     ft = top.sub("faults")
@@ -653,21 +763,20 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
             "bus_error_timeout_s", d_f.bus_error_timeout_s, ge=0.0, le=10.0
         ),
     )
-    period_s = 1.0 / loop.rate_hz
     if faults.stale_timeout_s < 2.0 * period_s:
-        raise ft.error(
+        ft.fail(
             "stale_timeout_s",
             f"{faults.stale_timeout_s:g} s is shorter than two loop periods "
             f"({2.0 * period_s:g} s at {loop.rate_hz:g} Hz)",
         )
     if sim.enabled and faults.stale_timeout_s < 2.0 * sim.encoder_period_s:
-        raise ft.error(
+        ft.fail(
             "stale_timeout_s",
             f"{faults.stale_timeout_s:g} s is shorter than two simulated encoder periods "
             f"(sim.encoder_period_s = {sim.encoder_period_s:g} s)",
         )
     if sim.enabled and faults.heartbeat_timeout_s < 2.0 * sim.heartbeat_period_s:
-        raise ft.error(
+        ft.fail(
             "heartbeat_timeout_s",
             f"{faults.heartbeat_timeout_s:g} s is shorter than two simulated heartbeat periods "
             f"(sim.heartbeat_period_s = {sim.heartbeat_period_s:g} s)",
@@ -678,46 +787,23 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     ht.finish(tuple(HomingConfig.__dataclass_fields__))
     pup = ht.vec3("power_up_position_m", required=False)
     state_file = ht.string("state_file", None)
-    if pup is not None:
-        problem = _point_problem(pup, limits, geometry)
-        if problem:
-            raise ht.error("power_up_position_m", problem)
+    if pup is not None and limits_ok and geometry is not None:
+        p, g = pup, geometry
+        errs.check(
+            "homing.power_up_position_m",
+            lambda: _raise_point_problem(ht, "power_up_position_m", p, limits, g),
+        )
     if state_file is not None:
         try:
             state_file = os.path.expanduser(state_file.format(name=name))
-        except (KeyError, IndexError, ValueError) as exc:
-            raise ht.error(
-                "state_file", f"only {{name}} may be substituted, got {state_file!r}"
-            ) from exc
+        except (KeyError, IndexError, ValueError):
+            ht.fail("state_file", f"only {{name}} may be substituted, got {state_file!r}")
     homing = HomingConfig(pup, state_file)
 
-    # ---- zenoh
-    zt = top.sub("zenoh")
-    zt.finish(tuple(ZenohConfig.__dataclass_fields__))
-    prefix = zt.string("prefix", f"cablebot/{name}")
-    assert prefix is not None
-    if not _PREFIX_RE.match(prefix):
-        raise zt.error(
-            "prefix",
-            f"must be a plain key expression like 'cablebot/desk' (no wildcards), got {prefix!r}",
-        )
-    mode = zt.string("mode", "peer")
-    if mode not in _ZENOH_MODES:
-        raise zt.error("mode", f"must be one of {', '.join(_ZENOH_MODES)}, got {mode!r}")
-    listen = zt.strings("listen", ("tcp/127.0.0.1:7447",))
-    connect = zt.strings("connect", ())
-    for k, eps in (("listen", listen), ("connect", connect)):
-        for ep in eps:
-            if "/" not in ep:
-                raise zt.error(k, f"endpoint {ep!r} must look like 'tcp/HOST:PORT'")
-    scouting = zt.boolean("multicast_scouting", False)
-    zcfg = zt.string("config_file", None)
-    if zcfg is not None:
-        zcfg = os.path.expanduser(zcfg)
-        if not Path(zcfg).is_file():
-            raise zt.error("config_file", f"no such file: {zcfg}")
-    zenoh = ZenohConfig(prefix, mode, listen, connect, scouting, zcfg)
+    zenoh = _parse_zenoh(top, name)
 
+    errs.raise_if_any()
+    assert reels is not None and geometry is not None  # no problems: both were built
     return RobotConfig(
         name=name,
         reels=reels,
@@ -731,6 +817,223 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         sim=sim,
         source=source,
     )
+
+
+def _parse_limits(mt: _Table) -> LimitsConfig:
+    mt.finish(tuple(LimitsConfig.__dataclass_fields__))
+    max_speed = mt.number("max_speed_mps", required=True, gt=0.0)
+    return LimitsConfig(
+        xy_margin_m=mt.number("xy_margin_m", required=True, ge=0.0),
+        floor_z_m=mt.number("floor_z_m", required=True),
+        top_margin_m=mt.number("top_margin_m", required=True, ge=0.0),
+        min_cable_m=mt.number("min_cable_m", required=True, gt=0.0),
+        max_cable_m=mt.number("max_cable_m", required=True, gt=0.0),
+        max_cable_speed_mps=mt.number("max_cable_speed_mps", required=True, gt=0.0),
+        max_speed_mps=max_speed,
+        max_accel_mps2=mt.number("max_accel_mps2", required=True, gt=0.0),
+        default_speed_mps=mt.number("default_speed_mps", max_speed, gt=0.0),
+    )
+
+
+def _parse_reels(
+    top: _Table, data: Mapping[str, Any], errs: _Errors
+) -> tuple[ReelConfig, ...] | None:
+    """The [[reels]] array; None (problems recorded) unless every reel is usable."""
+    if "reels" not in data:
+        errs.add("reels", "missing (need at least 3 [[reels]] tables)")
+        return None
+    reels_raw = top.raw("reels")
+    if not isinstance(reels_raw, list):
+        errs.add("reels", f"must be an array of tables ([[reels]]), got {_tname(reels_raw)}")
+        return None
+    if len(reels_raw) < 3:
+        errs.add("reels", f"need at least 3 reels, got {len(reels_raw)}")
+    parsed = [_parse_reel(_Table(r, f"reels[{i}]", errs)) for i, r in enumerate(reels_raw)]
+    seen: dict[int, int] = {}
+    for i, r in enumerate(parsed):
+        if r is None:
+            continue
+        if r.node_id in seen:
+            errs.add(
+                f"reels[{i}].node_id",
+                f"duplicate node id {r.node_id} (also reels[{seen[r.node_id]}])",
+            )
+        else:
+            seen[r.node_id] = i
+    good = [r for r in parsed if r is not None]
+    if len(good) != len(parsed) or len(good) < 3 or len(seen) != len(good):
+        return None
+    return tuple(good)
+
+
+def _parse_bus(top: _Table) -> BusConfig:
+    b = top.sub("bus")
+    b.finish(_BUS_KEYS)
+    interface = b.string("interface", "virtual") or "virtual"
+    problem = _interface_problem(interface)
+    if problem is not None:
+        b.fail("interface", problem)
+    channel_raw = b.raw("channel") if b.has("channel") else "cablebot"
+    if isinstance(channel_raw, bool) or not isinstance(channel_raw, str | int) or channel_raw == "":
+        b.fail("channel", f"must be a non-empty string or an integer, got {channel_raw!r}")
+        channel_raw = "cablebot"
+    bitrate: int | None = None
+    if b.has("bitrate"):
+        bitrate = b.integer("bitrate", ge=10_000, le=8_000_000)
+    options: dict[str, Any] = {}
+    if b.has("options"):
+        opts = b.raw("options")
+        if not isinstance(opts, Mapping):
+            b.fail("options", f"must be a table, got {_tname(opts)}")
+        else:
+            options = dict(opts)
+    for reserved in ("interface", "channel", "bitrate"):
+        if reserved in options:
+            b.fail(f"options.{reserved}", f"set it as bus.{reserved}, not in options")
+            del options[reserved]
+    if options and problem is None:
+        allowed = bus_option_names(interface)
+        if allowed is not None:
+            for k in options:
+                if k not in allowed:
+                    b.fail(
+                        f"options.{k}",
+                        _unknown(k, set(allowed)).replace(
+                            "unknown key", f"not an option of the {interface} interface"
+                        )
+                        + f" (it takes: {', '.join(sorted(allowed))})",
+                    )
+    return BusConfig(interface, str(channel_raw), bitrate, MappingProxyType(options))
+
+
+def _interface_problem(interface: str) -> str | None:
+    """Why `interface` is not a python-can interface name, or None if it is one."""
+    import can
+
+    valid = sorted(can.interfaces.VALID_INTERFACES)
+    if interface in valid:
+        return None
+    close = difflib.get_close_matches(interface, valid, n=1, cutoff=0.6)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    return f"unknown python-can interface {interface!r}{hint} (known: {', '.join(valid)})"
+
+
+_GENERIC_BUS_OPTIONS = frozenset(
+    {"timing", "fd", "data_bitrate", "state", "receive_own_messages", "can_filters"}
+)
+"""Keywords python-can's `can.Bus` understands for any interface (besides bit-timing fields)."""
+
+
+def bus_option_names(interface: str) -> frozenset[str] | None:
+    """The keyword options python-can's bus class for `interface` names in its constructor
+    (plus python-can's generic ones: bit timing, fd, data_bitrate, state, can_filters), and
+    `hop_limit` for udp_multicast. None if the interface's module cannot be imported here (a
+    vendor library missing): its options cannot be checked. Raises nothing."""
+    import importlib
+    import inspect
+
+    import can
+    import can.typechecking
+
+    entry = can.interfaces.BACKENDS.get(interface)
+    if entry is None:
+        return None
+    module_name, class_name = entry
+    try:
+        cls = getattr(importlib.import_module(module_name), class_name)
+        params = list(inspect.signature(cls.__init__).parameters.values())
+        params += list(inspect.signature(can.BusABC.__init__).parameters.values())
+    except Exception:  # a missing vendor library, an odd plugin: cannot tell
+        return None
+    named = {p.name for p in params if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+    named.discard("self")
+    named.discard("channel")
+    named |= _GENERIC_BUS_OPTIONS
+    named |= set(can.typechecking.BitTimingDict.__annotations__)
+    named |= set(can.typechecking.BitTimingFdDict.__annotations__)
+    if interface == "udp_multicast":
+        named.add("hop_limit")
+    return frozenset(named)
+
+
+_PORT_PROTOCOLS = frozenset({"tcp", "udp", "tls", "quic", "ws"})
+
+
+def _endpoint_problem(ep: str, *, listen: bool) -> str | None:
+    """Why Zenoh endpoint `ep` is malformed (protocol/address; for tcp, udp, tls, quic and ws
+    host:port with a port in 1..65535, or 0 = any free port for a listen endpoint)."""
+    proto, sep, rest = ep.partition("/")
+    if not sep or not proto or not rest:
+        return f"endpoint {ep!r} must look like 'tcp/HOST:PORT'"
+    if proto not in _PORT_PROTOCOLS:
+        return None  # unixsock-stream/PATH, serial/..., vsock/...: Zenoh checks these
+    address = rest.split("?", 1)[0].split("#", 1)[0]
+    host, colon, port_text = address.rpartition(":")
+    if not colon or not host:
+        return f"endpoint {ep!r} must look like '{proto}/HOST:PORT'"
+    lowest = 0 if listen else 1
+    if not port_text.isdigit() or not lowest <= int(port_text) <= 65535:
+        return f"endpoint {ep!r}: port must be {lowest}..65535, got {port_text!r}"
+    return None
+
+
+def _parse_zenoh(top: _Table, name: str) -> ZenohConfig:
+    zt = top.sub("zenoh")
+    zt.finish(tuple(ZenohConfig.__dataclass_fields__))
+    prefix = zt.string("prefix", f"cablebot/{name}") or f"cablebot/{name}"
+    if not _PREFIX_RE.match(prefix):
+        zt.fail(
+            "prefix",
+            f"must be a plain key expression like 'cablebot/desk' (no wildcards), got {prefix!r}",
+        )
+    mode = zt.string("mode", "peer") or "peer"
+    if mode not in _ZENOH_MODES:
+        zt.fail("mode", f"must be one of {', '.join(_ZENOH_MODES)}, got {mode!r}")
+    listen = zt.strings("listen", ("tcp/127.0.0.1:7447",))
+    connect = zt.strings("connect", ())
+    for k, eps in (("listen", listen), ("connect", connect)):
+        for ep in eps:
+            problem = _endpoint_problem(ep, listen=k == "listen")
+            if problem is not None:
+                zt.fail(k, problem)
+    scouting = zt.boolean("multicast_scouting", False)
+    zcfg = zt.string("config_file", None)
+    if zcfg is not None:
+        zcfg = os.path.expanduser(zcfg)
+        if not Path(zcfg).is_file():
+            zt.fail("config_file", f"no such file: {zcfg}")
+        else:
+            problem = _zenoh_file_problem(zcfg)
+            if problem is not None:
+                zt.fail("config_file", problem)
+    return ZenohConfig(prefix, mode, listen, connect, scouting, zcfg)
+
+
+def _zenoh_file_problem(path: str) -> str | None:
+    """Why Zenoh cannot use the JSON5 configuration at `path` (unloadable, or a malformed
+    listen/connect endpoint that it sets), or None if it can."""
+    try:
+        import zenoh
+    except ImportError:  # pragma: no cover - zenoh is a dependency
+        return None
+    try:
+        conf = zenoh.Config.from_file(path)
+        defaults = zenoh.Config()
+        problems = []
+        for key in ("listen/endpoints", "connect/endpoints"):
+            text = conf.get_json(key)
+            if text == defaults.get_json(key):
+                continue
+            value = json.loads(text)
+            groups = value.values() if isinstance(value, dict) else [value]
+            for eps in groups:
+                for ep in eps if isinstance(eps, list) else [eps]:
+                    problem = _endpoint_problem(str(ep), listen=key.startswith("listen"))
+                    if problem is not None:
+                        problems.append(f"{key.split('/')[0]}: {problem}")
+    except Exception as exc:  # zenoh.ZError, OSError, UnicodeDecodeError...
+        return f"not a valid Zenoh configuration: {type(exc).__name__}: {exc}"
+    return "; ".join(problems) if problems else None
 
 
 def _check_limits(lim: LimitsConfig, geometry: Geometry, source: str) -> None:
@@ -762,6 +1065,14 @@ def _check_limits(lim: LimitsConfig, geometry: Geometry, source: str) -> None:
             f"{lim.xy_margin_m:g} m leaves no workspace (even the anchors' centroid "
             "is outside the shrunk plan-view polygon)",
         )
+
+
+def _raise_point_problem(
+    t: _Table, name: str, p: Vec3, lim: LimitsConfig, geometry: Geometry
+) -> None:
+    problem = _point_problem(p, lim, geometry)
+    if problem is not None:
+        raise t.error(name, problem)
 
 
 def _footprint(geometry: Geometry, x: float, y: float, margin: float) -> bool:
@@ -803,9 +1114,22 @@ def load_config(path: str | os.PathLike[str] | None) -> RobotConfig:
     source = os.fspath(path)
     try:
         with open(source, "rb") as fh:
-            data = tomllib.load(fh)
+            raw = fh.read()
     except OSError as exc:
         raise ConfigError(source, "", f"cannot read: {exc.strerror or exc}") from exc
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise ConfigError(
+            source,
+            "",
+            f"not UTF-8 text: byte 0x{raw[exc.start]:02x} at line {line}, column {column} "
+            "(TOML files must be UTF-8)",
+        ) from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(source, "", f"not valid TOML: {exc}") from exc
     return parse_config(data, source)

@@ -2,10 +2,20 @@
 
 Loads the configuration, opens the bus, starts the simulated ODrive nodes in-process when
 `[sim] enabled`, creates the reel driver, the `Controller` and the Zenoh interface, runs the
-fixed-rate loop in its own thread and waits for SIGTERM/SIGINT. On a signal it stops any motion,
-leaves the motors holding, stops the loop, closes Zenoh and the bus and exits 0 (well within
-2 s). Logs go to stderr (no timestamps under journald). systemd `Type=notify`: READY=1 once the
-robot holds (auto-arm) or every reel has answered, WATCHDOG=1 from the loop thread, STATUS=<state>.
+fixed-rate loop in its own thread and waits for SIGTERM/SIGINT.
+
+Start-up: READY=1 (systemd `Type=notify`) only once every reel has answered (a heartbeat and
+an encoder estimate from each node) and, with auto-arm, the arm has been tried (the robot
+holds, or the arm was refused or faulted: the daemon is up and says why). A node that stays
+silent gets a WARNING naming it, after `faults.arm_timeout_s` and then every status period
+(`--status-every`, 1 s at least, 5 s when status lines are off) until it answers; auto-arm waits
+for every reel too. WATCHDOG=1 comes from the loop thread, STATUS=<state> from here.
+
+Shutdown: on a signal new motion is refused (`Controller.begin_shutdown`) and any motion brakes
+to a hold at `limits.max_accel_mps2`; the daemon waits for it as long as the actual speed needs
+(speed / acceleration, with a margin, at most `STOP_WAIT_MAX_S`), stops the loop, sends the
+last set-point once more with zero velocity feed-forward (`Controller.send_final_hold`), closes
+Zenoh and the bus and exits 0. Logs go to stderr (no timestamps under journald).
 """
 
 from __future__ import annotations
@@ -28,7 +38,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-from controller.commands import Arm, Stop
+from controller.commands import Arm
 from controller.states import State
 
 log = logging.getLogger("cablebot.daemon")
@@ -38,8 +48,15 @@ RT_PRIORITY = 50
 """Default SCHED_FIFO priority of the loop thread (`loop.rt_priority` overrides it)."""
 TIMER_SLACK_NS = 1_000
 SWITCH_INTERVAL_S = 0.0005
-STOP_WAIT_S = 1.4
-"""How long shutdown waits for a move to brake to a hold before stopping the loop."""
+STOP_MARGIN_S = 0.5
+STOP_MARGIN_FACTOR = 1.25
+"""Shutdown waits for braking: the set-point's speed / max acceleration, times this factor (a
+loaded loop runs the motion slower than the wall clock), plus `STOP_MARGIN_S`."""
+STOP_WAIT_MAX_S = 10.0
+"""The longest shutdown waits for a brake, whatever the speed and acceleration (systemd's
+TimeoutStopSec in config/cablebot.service is longer)."""
+SILENT_WARN_EVERY_S = 5.0
+"""Warning period for silent nodes when status lines are off (`--status-every 0`)."""
 
 
 # -------------------------------------------------------------------------------- sd_notify
@@ -208,8 +225,13 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
                 [r.node_id for r in cfg.reels],
                 sim_rt,
             )
+        # After a loop stall, read through the queued frames to the newest in one poll rather
+        # than show frames from before the stall (they carry their arrival time).
         driver = ODriveReels(
-            bus, [r.node_id for r in cfg.reels], encoder_rtr=bool(cfg.loop.encoder_rtr)
+            bus,
+            [r.node_id for r in cfg.reels],
+            encoder_rtr=bool(cfg.loop.encoder_rtr),
+            catch_up_age_s=float(cfg.faults.stale_timeout_s) / 2.0,
         )
         controller = Controller(cfg, driver)
         iface = None
@@ -220,16 +242,169 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
             try:
                 iface.open()
             except Exception as exc:
-                raise RuntimeError(
-                    f"Zenoh interface failed to open on {list(cfg.zenoh.listen)}: {exc} "
-                    "(is another cablebot daemon running? set [zenoh] listen)"
-                ) from exc
+                raise RuntimeError(zenoh_open_problem(cfg.zenoh, exc)) from exc
             closers.append(("zenoh", iface.close))
             controller.publisher = iface
     except BaseException:
         _close_all(closers)
         raise
     return Stack(cfg, bus, driver, controller, iface, closers)
+
+
+def zenoh_open_problem(zcfg: Any, exc: BaseException) -> str:
+    """The start-up error for a Zenoh session that failed to open: what failed, the `[zenoh]`
+    keys that decide it, and, only when the address is taken, the hint that another daemon
+    may be running."""
+    keys = [f"listen = {list(zcfg.listen)}"]
+    if zcfg.connect:
+        keys.append(f"connect = {list(zcfg.connect)}")
+    if zcfg.config_file:
+        keys.append(f"config_file = {zcfg.config_file!r}")
+    text = str(exc)
+    msg = f"Zenoh interface failed to open ([zenoh] {', '.join(keys)}): {text}"
+    if "in use" in text.lower() or "os error 98" in text.lower():
+        return (
+            msg + " (the address is taken: is another cablebot daemon running? set [zenoh] listen)"
+        )
+    return msg + " (check [zenoh] listen, connect and config_file)"
+
+
+def silent_nodes(readings: Any) -> list[tuple[int, int, str]]:
+    """(node id, cable number from 1, what is missing) for every axis that has not sent both a
+    heartbeat and an encoder estimate yet."""
+    out = []
+    for i, r in enumerate(readings):
+        missing = []
+        if not math.isfinite(r.heartbeat_stamp_s):
+            missing.append("no heartbeat")
+        if not math.isfinite(r.stamp_s):
+            missing.append("no encoder estimate")
+        if missing:
+            out.append((int(r.node_id), i + 1, " and ".join(missing)))
+    return out
+
+
+def brake_wait_s(brake_time_s: float, max_speed_mps: float, max_accel_mps2: float) -> float:
+    """How long shutdown waits for a brake that needs `brake_time_s` at the set-point's speed:
+    times `STOP_MARGIN_FACTOR` plus `STOP_MARGIN_S`, at most what the fastest allowed motion
+    needs, and never more than `STOP_WAIT_MAX_S`. Raises nothing (a non-finite input gives the
+    cap)."""
+    longest = max_speed_mps / max_accel_mps2 * STOP_MARGIN_FACTOR + STOP_MARGIN_S
+    wait = brake_time_s * STOP_MARGIN_FACTOR + STOP_MARGIN_S
+    if not math.isfinite(wait) or not math.isfinite(longest):
+        return STOP_WAIT_MAX_S
+    return min(wait, longest, STOP_WAIT_MAX_S)
+
+
+class StartupWatch:
+    """The daemon's start-up duties, stepped from its main thread (every 50 ms).
+
+    * Names every node that has not answered yet (no heartbeat or no encoder estimate) in a
+      WARNING, first after `faults.arm_timeout_s`, then every `status_every_s` (1 s at least;
+      `SILENT_WARN_EVERY_S` when status lines are off) until it answers, then logs that it did.
+    * Looks at each node's first heartbeat: an axis already in closed loop before cablebot armed
+      it is driven by someone else, or its watchdog is off and a previous controller left it
+      running (WARNING); WATCHDOG_TIMER_EXPIRED shows that its watchdog works (INFO).
+    * With `want_arm`, submits Arm once every reel has answered.
+    * Sends READY=1 once every reel has answered and, with `want_arm`, the arm has been tried
+      (holding, faulted or refused: the daemon is up and its status says how it is).
+
+    STATUS= follows the controller's state (or names the nodes waited for). Raises nothing.
+    """
+
+    def __init__(
+        self,
+        cfg: Any,
+        controller: Any,
+        driver: Any,
+        notifier: Notifier,
+        *,
+        want_arm: bool,
+        status_every_s: float,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.cfg = cfg
+        self.controller = controller
+        self.driver = driver
+        self.notifier = notifier
+        self.want_arm = want_arm
+        self.ready = False
+        self.arm_future: Any = None
+        self._clock = clock
+        self._started = clock()
+        self._warn_every_s = max(1.0, status_every_s if status_every_s > 0 else SILENT_WARN_EVERY_S)
+        self._next_warn = self._started + float(cfg.faults.arm_timeout_s)
+        self._warned: set[int] = set()
+        self._seen: set[int] = set()
+        self._last_status: str | None = None
+        self._bus_name = f"{cfg.bus.interface} {cfg.bus.channel}"
+
+    def step(self) -> bool:
+        """Do what is due now; True exactly once, when the daemon has become ready."""
+        now = self._clock()
+        readings = self.driver.read()
+        self._first_heartbeats(readings)
+        silent = silent_nodes(readings)
+        if silent and now >= self._next_warn:
+            self._next_warn = now + self._warn_every_s
+            log.warning(
+                "no answer from ODrive %s on %s after %.1f s: check power, wiring, CAN node ids "
+                "and bit rate; READY withheld until every reel answers",
+                ", ".join(f"node {n} (cable {c}: {what})" for n, c, what in silent),
+                self._bus_name,
+                now - self._started,
+            )
+            self._warned.update(n for n, _, _ in silent)
+            self._status(f"waiting for ODrive node(s) {[n for n, _, _ in silent]}")
+        if self._warned:
+            answered = self._warned - {n for n, _, _ in silent}
+            for n in sorted(answered):
+                log.info("ODrive node %d answered after %.1f s", n, now - self._started)
+            self._warned -= answered
+        if self.want_arm and self.arm_future is None and not silent:
+            self.arm_future = self.controller.submit(Arm())
+            log.info("auto-arm requested (every reel answered)")
+        state = self.controller.state.value
+        if not self._warned:
+            reason = self.controller.reason
+            self._status(state + (f" {reason}" if reason else ""))
+        if self.ready or silent:
+            return False
+        fut = self.arm_future
+        if self.want_arm and not (fut is not None and fut.done() and state != State.ARMING.value):
+            return False
+        self.ready = True
+        if fut is not None and fut.exception() is not None:
+            log.warning("auto-arm refused: %s", fut.exception())
+        self.notifier.notify("READY=1")
+        log.info("ready: %s", status_line(self.controller.status()))
+        return True
+
+    def _status(self, text: str) -> None:
+        if text != self._last_status:
+            self._last_status = text
+            self.notifier.notify(f"STATUS={text}")
+
+    def _first_heartbeats(self, readings: Any) -> None:
+        from drivers import cansimple as cs
+
+        for r in readings:
+            if r.node_id in self._seen or not math.isfinite(r.heartbeat_stamp_s):
+                continue
+            self._seen.add(r.node_id)
+            if self.arm_future is None and r.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL:
+                log.warning(
+                    "ODrive node %d is in closed loop before cablebot armed it: another "
+                    "controller drives it, or its watchdog (axis.config.enable_watchdog) is off "
+                    "and a previous controller left it running",
+                    r.node_id,
+                )
+            elif r.axis_error & cs.ODriveError.WATCHDOG_TIMER_EXPIRED:
+                log.info(
+                    "ODrive node %d reports WATCHDOG_TIMER_EXPIRED: its watchdog stopped it "
+                    "after the previous controller went quiet (arming clears it)",
+                    r.node_id,
+                )
 
 
 def start_loop(
@@ -336,34 +511,21 @@ def run_daemon(
         "gc frozen" if cfg.loop.gc_freeze else "gc normal",
     )
 
-    want_arm = auto_arm if auto_arm is not None else _auto_arm(cfg)
-    if want_arm:
-        controller.submit(Arm())
-        log.info("auto-arm requested")
-    last_state: str | None = None
-    announced_ready = False
+    watch = StartupWatch(
+        cfg,
+        controller,
+        driver,
+        notifier,
+        want_arm=auto_arm if auto_arm is not None else _auto_arm(cfg),
+        status_every_s=status_every_s,
+    )
     next_status = time.monotonic() + status_every_s
-    arm_deadline = time.monotonic() + float(cfg.faults.arm_timeout_s) + 1.0
     while not shutdown.is_set():
         if rt_report:
             log.info("loop thread: %s", "; ".join(rt_report))
             rt_report.clear()
-        state = controller.state.value
-        if state != last_state:
-            last_state = state
-            notifier.notify(
-                f"STATUS={state}" + (f" {controller.reason}" if controller.reason else "")
-            )
-        if not announced_ready and (
-            (want_arm and state in (State.HOLDING.value, State.MOVING.value, State.FAULT.value))
-            or (not want_arm and all(math.isfinite(r.stamp_s) for r in driver.read()))
-            or time.monotonic() > arm_deadline
-        ):
-            announced_ready = True
-            notifier.notify("READY=1")
-            log.info("ready: %s", status_line(controller.status()))
-            if ready is not None:
-                ready()
+        if watch.step() and ready is not None:
+            ready()
         now = time.monotonic()
         if now >= next_status:
             next_status = now + (status_every_s if status_every_s > 0 else 5.0)
@@ -373,16 +535,37 @@ def run_daemon(
                 log.info("%s", line)
         shutdown.wait(0.05)
 
-    log.info("signal received: stopping motion and holding")
+    log.info("signal received: refusing new motion, braking to a hold")
     notifier.notify("STOPPING=1")
     t0 = time.monotonic()
-    if controller.state in (State.MOVING, State.HOLDING):
-        controller.submit(Stop())
-        while controller.state is State.MOVING and time.monotonic() - t0 < STOP_WAIT_S:
-            time.sleep(0.01)
+    lim = cfg.limits
+    brake_s = controller.brake_time_s()
+    start_sp = controller.setpoint_m
+    controller.begin_shutdown()
+    wait_s = brake_wait_s(brake_s, float(lim.max_speed_mps), float(lim.max_accel_mps2))
+    deadline = t0 + wait_s
+    while controller.state is State.MOVING and time.monotonic() < deadline:
+        time.sleep(0.01)
+    if controller.state is State.MOVING:
+        log.warning("motion not at rest after %.2f s; holding the last set-point", wait_s)
+    elif brake_s > 0.0:
+        end_sp = controller.setpoint_m
+        travel = (
+            math.dist(start_sp, end_sp) if start_sp is not None and end_sp is not None else math.nan
+        )
+        log.info(
+            "braked from %.3f m/s to rest in %.3f s over %.3f m",
+            brake_s * float(lim.max_accel_mps2),
+            time.monotonic() - t0,
+            travel,
+        )
     controller.wait_for_saves(0.3)
     stop_loop.set()
-    thread.join(0.5)
+    thread.join(1.0)
+    if thread.is_alive():
+        log.error("control loop thread did not stop: final hold not sent")
+    elif controller.send_final_hold():
+        log.info("final hold sent: last set-point, zero velocity feed-forward")
     final = controller.status()
     stack.close()
     notifier.close()

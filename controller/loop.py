@@ -374,6 +374,8 @@ class Controller:
         self.compute = _Ring(STATS_WINDOW)
         self.sleep_spin_s = 0.0002
         self._save_threads: list[threading.Thread] = []
+        self._closing = False
+        """Set by `begin_shutdown`: no new motion is taken."""
 
     # ---------------------------------------------------------------- homing / offsets
 
@@ -762,7 +764,7 @@ class Controller:
         if dt > self._max_plan_dt_s:
             dt = self._max_plan_dt_s  # after a stall: resume, do not jump (module docstring)
             self.dt_clamped += 1
-        item = self._stream_target
+        item = None if self._closing else self._stream_target
         if item is not None:
             self._stream_target = None
             target, epoch = item
@@ -1005,6 +1007,8 @@ class Controller:
         verb = _VERBS.get(type(cmd))
         if verb is None:
             raise CommandRefused(f"unsupported command {type(cmd).__name__}")
+        if self._closing and isinstance(cmd, Move | Path | Arm | Home):
+            raise CommandRefused("shutting down: no new motion")
         why = refusal(self.state, verb)
         if why is not None:
             raise CommandRefused(self._refusal_text(self.state, why))
@@ -1259,6 +1263,41 @@ class Controller:
             if on_watchdog is not None and end >= next_wd:
                 next_wd = end + watchdog_period_s
                 on_watchdog()
+
+    # ---------------------------------------------------------------- shutdown
+
+    def begin_shutdown(self) -> concurrent.futures.Future[dict[str, Any]]:
+        """Start a shutdown: from now on no new motion is taken (move, path, streamed set-points,
+        arm, home are refused or ignored) and any motion brakes to a hold at `max_accel_mps2`
+        (a queued Stop, whose future is returned). Thread-safe; the loop keeps running."""
+        self._closing = True
+        return self.submit(Stop())
+
+    def brake_time_s(self) -> float:
+        """Seconds the set-point needs to come to rest from its current speed at the configured
+        acceleration (0 when still). Thread-safe (reads one tuple)."""
+        vx, vy, vz = self.planner.velocity_mps
+        return math.sqrt(vx * vx + vy * vy + vz * vz) / float(self.cfg.limits.max_accel_mps2)
+
+    def send_final_hold(self) -> bool:
+        """Shutdown, after the loop thread has stopped: command the last set-point once more with
+        zero velocity feed-forward, so the drives hold still on it instead of running on to
+        `vel_ff / pos_gain` past it. Only while the motors are commanded (ARMING, HOLDING,
+        MOVING, FAULT with a set-point). Returns True if it was sent; never raises.
+
+        Call it only when `run` has returned: the loop thread is otherwise the driver's only user.
+        """
+        rev = self.commanded_rev
+        commanded = (State.ARMING, State.HOLDING, State.MOVING, State.FAULT)
+        if rev is None or self.state not in commanded:
+            return False
+        try:
+            self.driver.command(rev, self._zero_ff)
+        except Exception as exc:
+            log.error("final hold not sent: %s", exc)
+            return False
+        self.commanded_ff_rps = list(self._zero_ff)
+        return True
 
     def wait_for_saves(self, timeout_s: float = 2.0) -> None:
         """Wait (bounded) for homing saves in flight, e.g. before exiting."""

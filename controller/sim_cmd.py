@@ -2,7 +2,8 @@
 
 The axes are those of the config's reels, on the config's bus, initialised at the configured
 power-up pose (motor turns = reel.position_rev(ipk(power-up pose)) with the config's reel
-offsets), with the `[sim]` section's speed, acceleration and broadcast periods. Prints
+offsets), with the `[sim]` section's speed, acceleration, broadcast periods and axis watchdog
+(`watchdog_timeout_s`, on by default: a crashed daemon leaves the axes IDLE, not running). Prints
 "READY <node ids>" on stdout once serving; runs until SIGTERM/SIGINT (exit 0).
 `start_sim_bank` is the same thing as a thread, used by `cablebot run` when `[sim] enabled`.
 """
@@ -44,6 +45,7 @@ def sim_axes(cfg: Any) -> list[Any]:
             max_accel_rps2=float(s.max_accel_rps2),
             encoder_period_s=float(s.encoder_period_s),
             heartbeat_period_s=float(s.heartbeat_period_s),
+            watchdog_timeout_s=float(getattr(s, "watchdog_timeout_s", 0.0)),
         )
         for r, t in zip(cfg.reels, turns, strict=True)
     ]

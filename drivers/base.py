@@ -43,7 +43,8 @@ class AxisReading:
     velocity_rps: float = 0.0
     """Motor turns per second from Get_Encoder_Estimates (always finite)."""
     stamp_s: float = NEVER_S
-    """Clock time (time.monotonic() by default) when the encoder frame arrived; -inf = never."""
+    """Clock time (time.monotonic() by default) when the encoder frame arrived on the bus (the
+    interface's receive timestamp, not when the loop read it); -inf = never."""
     stamp_ns: int = 0
     """time.time_ns() wall clock of the same arrival; 0 = never."""
     axis_state: int = 0
@@ -51,7 +52,7 @@ class AxisReading:
     axis_error: int = 0
     """ODrive axis error bit field from the last heartbeat; 0 = no error."""
     heartbeat_stamp_s: float = NEVER_S
-    """Clock time of the last heartbeat; -inf = never."""
+    """Clock time when the last heartbeat arrived on the bus; -inf = never."""
 
     def snapshot(self) -> AxisReading:
         """Return an independent copy of this reading."""
@@ -95,6 +96,10 @@ class BusStats:
     ff_clamped: int = 0
     """Velocity feed-forward values clamped to the int16 wire range (±32.767 rev/s)."""
     errors_by_kind: dict[str, int] = field(default_factory=dict)
+    untimed_frames: int = 0
+    """Frames whose interface timestamp was not a wall-clock reading (stamped at poll time)."""
+    catch_up_polls: int = 0
+    """Polls that read past their frame cap to catch up with a backlog (after a loop stall)."""
 
     def snapshot(self) -> BusStats:
         """Return an independent copy of these counters."""
@@ -107,6 +112,8 @@ class BusStats:
             self.last_error,
             self.ff_clamped,
             dict(self.errors_by_kind),
+            self.untimed_frames,
+            self.catch_up_polls,
         )
 
 

@@ -1,12 +1,20 @@
 """`ODriveReels`: the `ReelDriver` for ODrive axes speaking CANSimple (firmware 0.6).
 
 Receive path (`poll`): drains the bus without blocking (at most `max_frames_per_poll` frames a
-call, so a flooded bus cannot stretch a tick), decodes each frame with `drivers.cansimple`, and
-updates one mutable `AxisReading` per axis: encoder estimates from the cyclic broadcast (or the
-RTR replies), axis state and axis error from the heartbeat. Each update is stamped with the
-injected clock (time.monotonic by default) and time.time_ns() at decode time. Nothing raises out
-of `poll`: bad frames are counted in `stats` by kind and dropped, frames from nodes not in
-`node_ids` are counted ("unknown_node") and dropped, and a receive-side bus error is counted.
+call, so a flooded bus cannot stretch a tick; a backlog of old frames left by a loop stall is
+read through up to `CATCH_UP_FACTOR` times that, see `catch_up_age_s`), decodes each frame with
+`drivers.cansimple`, and updates one mutable `AxisReading` per axis: encoder estimates from the
+cyclic broadcast (or the RTR replies), axis state and axis error from the heartbeat. Each update
+is stamped with the frame's arrival time, not the time it was taken off the queue, so frames
+that waited in the receive queue (a stalled loop) are as old as they are: python-can's
+`Message.timestamp` is a wall-clock (time.time()) reading on the interfaces cablebot uses, so
+its age against the wall clock now, taken from the injected clock (time.monotonic by default)
+now, gives the arrival on that clock; the age is clamped at 0 (no frame arrives in the future).
+A timestamp more than `TIMESTAMP_FUTURE_TOLERANCE_S` ahead of the wall clock or more than
+`TIMESTAMP_MAX_AGE_S` behind it is on some other clock: that frame is stamped at poll time
+instead and counted in `stats.untimed_frames`. Nothing raises out of `poll`: bad frames are
+counted in `stats` by kind and dropped, frames from nodes not in `node_ids` are counted
+("unknown_node") and dropped, and a receive-side bus error is counted.
 
 Transmit path: `command`, `arm`, `disarm`, `estop`, `request_encoders`. A failed send is counted
 in `stats.bus_errors`/`stats.last_error`; the method still tries every axis, then raises
@@ -31,6 +39,12 @@ from drivers import cansimple as cs
 from drivers.base import AxisReading, BusError, BusStats
 
 DEFAULT_SEND_TIMEOUT_S = 0.005
+TIMESTAMP_FUTURE_TOLERANCE_S = 1.0
+"""A frame timestamp further ahead of the wall clock than this is not a wall-clock reading."""
+TIMESTAMP_MAX_AGE_S = 3600.0
+"""A frame timestamp further behind the wall clock than this is not a wall-clock reading."""
+CATCH_UP_FACTOR = 8
+"""A poll that catches up with a backlog takes at most this many times `max_frames_per_poll`."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,6 +72,7 @@ class ODriveReels:
         encoder_rtr: bool = False,
         encoder_rtr_period_s: float = 0.0,
         max_frames_per_poll: int = 256,
+        catch_up_age_s: float = math.inf,
         send_timeout_s: float = DEFAULT_SEND_TIMEOUT_S,
         clock: Callable[[], float] = time.monotonic,
         wall_clock_ns: Callable[[], int] = time.time_ns,
@@ -68,8 +83,12 @@ class ODriveReels:
         (answers arrive by the next poll), for ODrives whose cyclic broadcast is off, at most
         once per `encoder_rtr_period_s` (0 = every poll). Mind the bus load: each round is
         2 frames per axis, so 4 axes polled at 1 kHz fill a 1 Mbit/s bus; 2-5 ms is sane there.
-        Raises ValueError on bad node ids, a non-positive `max_frames_per_poll` or a negative
-        `encoder_rtr_period_s`.
+        `catch_up_age_s`: when a poll reaches `max_frames_per_poll` and the last frame taken
+        arrived longer ago than this, the queue holds a backlog (the loop stalled), not a flood:
+        that poll goes on, up to `CATCH_UP_FACTOR` times the cap, so the readings reach the
+        newest frames instead of showing frames from before the stall (inf = never).
+        Raises ValueError on bad node ids, a non-positive `max_frames_per_poll` or
+        `catch_up_age_s`, or a negative `encoder_rtr_period_s`.
         """
         ids = tuple(int(n) for n in node_ids)
         if not ids:
@@ -81,6 +100,8 @@ class ODriveReels:
                 raise ValueError(f"node id {n} is outside 0..63")
         if max_frames_per_poll <= 0:
             raise ValueError("max_frames_per_poll must be > 0")
+        if not catch_up_age_s > 0.0:
+            raise ValueError("catch_up_age_s must be > 0")
         if not (math.isfinite(encoder_rtr_period_s) and encoder_rtr_period_s >= 0.0):
             raise ValueError("encoder_rtr_period_s must be finite and >= 0")
         self.node_ids: tuple[int, ...] = ids
@@ -89,6 +110,7 @@ class ODriveReels:
         self._encoder_rtr_period_s = encoder_rtr_period_s
         self._next_rtr_s = -math.inf
         self._max_frames = max_frames_per_poll
+        self._catch_up_age_s = catch_up_age_s
         self._send_timeout_s = send_timeout_s
         self._clock = clock
         self._wall_ns = wall_clock_ns
@@ -104,7 +126,8 @@ class ODriveReels:
     # --- receive ----------------------------------------------------------------------------
 
     def poll(self) -> int:
-        """Drain up to `max_frames_per_poll` received frames without blocking; update readings.
+        """Drain up to `max_frames_per_poll` received frames without blocking (more to catch up
+        with a backlog, see `catch_up_age_s`); update readings.
 
         Returns the number of frames taken off the bus. Never raises: bad frames, unknown nodes
         and receive errors are counted in `stats`.
@@ -112,12 +135,19 @@ class ODriveReels:
         recv = self._bus.recv
         by_node = self._by_node
         clock = self._clock
-        wall_ns = self._wall_ns
         decode = cs.decode
         encoder_type = cs.EncoderEstimates
         heartbeat_type = cs.Heartbeat
         handled = 0
-        while handled < self._max_frames:
+        # One clock pair per poll: a frame's age against the wall clock now, subtracted from the
+        # loop's clock now, is its arrival on the loop's clock (module docstring).
+        now_s = clock()
+        now_ns = self._wall_ns()
+        wall_s = now_ns * 1e-9
+        future_tol = TIMESTAMP_FUTURE_TOLERANCE_S
+        max_age = TIMESTAMP_MAX_AGE_S
+        limit = self._max_frames
+        while handled < limit:
             try:
                 msg = recv(0.0)
             except Exception as exc:  # a receive error must never escape into the loop
@@ -126,6 +156,12 @@ class ODriveReels:
             if msg is None:
                 break
             handled += 1
+            if (
+                handled == limit == self._max_frames
+                and self._catch_up_age_s < wall_s - msg.timestamp < max_age
+            ):
+                limit *= CATCH_UP_FACTOR  # a backlog from a stall: read on to the newest
+                self._stats.catch_up_polls += 1
             if msg.is_error_frame:
                 # SocketCAN error frame: bus-off, controller or protocol trouble. A bus error
                 # for the loop (which faults when they persist), not a dropped data frame.
@@ -135,28 +171,33 @@ class ODriveReels:
                 continue
             m = decode(msg.arbitration_id, msg.data, msg.is_remote_frame, msg.is_extended_id)
             mtype = type(m)
-            if mtype is encoder_type:
+            if mtype is encoder_type or mtype is heartbeat_type:
                 rec = by_node[m.node_id]
                 if rec is None:
                     self._count("unknown_node", decode_error=False)
                     continue
-                rec.position_rev = m.pos_estimate_rev  # type: ignore[union-attr]
-                rec.velocity_rps = m.vel_estimate_rps  # type: ignore[union-attr]
-                rec.stamp_s = clock()
-                rec.stamp_ns = wall_ns()
-            elif mtype is heartbeat_type:
-                rec = by_node[m.node_id]
-                if rec is None:
-                    self._count("unknown_node", decode_error=False)
-                    continue
-                rec.axis_state = m.axis_state  # type: ignore[union-attr]
-                rec.axis_error = m.axis_error  # type: ignore[union-attr]
-                rec.heartbeat_stamp_s = clock()
+                age = wall_s - msg.timestamp
+                if age < 0.0:
+                    if age < -future_tol:
+                        self._stats.untimed_frames += 1
+                    age = 0.0
+                elif age > max_age:
+                    self._stats.untimed_frames += 1
+                    age = 0.0
+                if mtype is encoder_type:
+                    rec.position_rev = m.pos_estimate_rev  # type: ignore[union-attr]
+                    rec.velocity_rps = m.vel_estimate_rps  # type: ignore[union-attr]
+                    rec.stamp_s = now_s - age
+                    rec.stamp_ns = now_ns - int(age * 1e9)
+                else:
+                    rec.axis_state = m.axis_state  # type: ignore[union-attr]
+                    rec.axis_error = m.axis_error  # type: ignore[union-attr]
+                    rec.heartbeat_stamp_s = now_s - age
             else:
                 self._handle_other(m)
         self._stats.frames_rx += handled
         if self._encoder_rtr:
-            now = clock()
+            now = now_s
             if now >= self._next_rtr_s:
                 self._next_rtr_s = now + self._encoder_rtr_period_s
                 with contextlib.suppress(BusError):  # counted in stats; poll never raises

@@ -11,6 +11,14 @@ closed loop is refused while an axis error is active and holds the current posit
 Clear_Errors clears the error. In IDLE the simulated reel is braked: its position stays where it
 is (a real unpowered reel under cable tension would not; that is outside the model).
 
+Axis watchdog (`watchdog_timeout_s` > 0, the drive's `axis.config.enable_watchdog` and
+`axis.config.watchdog_timeout`): every CANSimple frame a host sends to the axis feeds it (as in
+the firmware's CANSimple handler; the axis's own broadcasts heard back do not); an axis in
+closed loop that goes `watchdog_timeout_s` without one disarms to IDLE with
+WATCHDOG_TIMER_EXPIRED (reported by heartbeat and Get_Error), so a host that dies mid-move does
+not leave the axis running on its last velocity feed-forward. The timer runs only in closed loop
+here (an idle axis has nothing to stop).
+
 Motion model (POSITION_CONTROL with INPUT_MODE_PASSTHROUGH, the firmware's cascaded loop):
 Set_Input_Pos sets input_pos and input_vel (its Vel_FF field), and the velocity command is
 
@@ -61,6 +69,8 @@ DEFAULT_POS_GAIN = 20.0
 MAX_SUBSTEP_S = 0.001
 """Longest integration step of the axis dynamics (a longer `step` is split)."""
 _MAX_SUBSTEPS = 10_000
+_AXIS_TX_TYPES = (cs.Heartbeat, cs.EncoderEstimates, cs.GetError)
+"""What an axis sends itself: heard back (udp_multicast loops frames back), they feed nothing."""
 REST_SNAP_REV = 1e-9
 REST_SNAP_RPS = 1e-6
 
@@ -78,12 +88,15 @@ class SimODriveAxis:
         encoder_period_s: float = 0.01,
         heartbeat_period_s: float = 0.1,
         pos_gain: float = DEFAULT_POS_GAIN,
+        watchdog_timeout_s: float = 0.0,
     ) -> None:
         """Create an IDLE axis at `initial_position_rev`.
 
         `max_velocity_rps` is the drive's vel_limit, `max_accel_rps2` its torque-limited
-        acceleration, `pos_gain` the position loop gain in (rev/s)/rev. Raises ValueError on a
-        node id outside 0..63, a non-finite position, or a non-positive limit, gain or period.
+        acceleration, `pos_gain` the position loop gain in (rev/s)/rev, `watchdog_timeout_s`
+        the axis watchdog (0 = off; see the module docstring). Raises ValueError on a node id
+        outside 0..63, a non-finite position, a non-positive limit, gain or period, or a
+        negative or non-finite watchdog timeout.
         """
         if not 0 <= node_id <= cs.MAX_NODE_ID:
             raise ValueError(f"node id {node_id} is outside 0..63")
@@ -98,12 +111,18 @@ class SimODriveAxis:
         ):
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        if not (math.isfinite(watchdog_timeout_s) and watchdog_timeout_s >= 0.0):
+            raise ValueError(
+                f"watchdog_timeout_s must be finite and >= 0, got {watchdog_timeout_s!r}"
+            )
         self.node_id = node_id
         self.max_velocity_rps = max_velocity_rps
         self.max_accel_rps2 = max_accel_rps2
         self.encoder_period_s = encoder_period_s
         self.heartbeat_period_s = heartbeat_period_s
         self.pos_gain = pos_gain
+        self.watchdog_timeout_s = watchdog_timeout_s
+        self._since_feed_s = 0.0
         self.position_rev = float(initial_position_rev)
         self.velocity_rps = 0.0
         self.input_pos_rev = self.position_rev
@@ -189,6 +208,8 @@ class SimODriveAxis:
 
     def _handle(self, msg: cs.Message) -> list[cs.Frame]:
         t = type(msg)
+        if t not in _AXIS_TX_TYPES:
+            self._since_feed_s = 0.0  # any frame from a host to the axis feeds its watchdog
         if t is cs.SetInputPos:
             assert isinstance(msg, cs.SetInputPos)
             self.commands_received += 1
@@ -242,6 +263,7 @@ class SimODriveAxis:
         """Advance the simulation by `dt_s` seconds; return the broadcasts that fall due."""
         with self._lock:
             if dt_s > 0.0:
+                self._watchdog(dt_s)
                 self._move(dt_s)
                 self._drift_rev += self._drift_rate_rps * dt_s
             if self._silent:
@@ -263,6 +285,19 @@ class SimODriveAxis:
                 self._heartbeat_due_s = max(self._heartbeat_due_s + self.heartbeat_period_s, 0.0)
                 out.append(self._heartbeat_frame())
             return out
+
+    def _watchdog(self, dt: float) -> None:
+        if self.watchdog_timeout_s <= 0.0 or self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
+            return
+        # Checked before the step is counted: after a stall of the simulation thread the
+        # commands that queued meanwhile are handled before the expiry is judged, so a slow
+        # simulator does not look like a silent host (a dead host is caught one step later).
+        if self._since_feed_s > self.watchdog_timeout_s:
+            self.axis_error |= cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+            self.disarm_reason = cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+            self._disarm()
+            return
+        self._since_feed_s += dt
 
     def _move(self, dt: float) -> None:
         if self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
@@ -480,6 +515,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--encoder-period-s", type=float, default=0.01)
     p.add_argument("--heartbeat-period-s", type=float, default=0.1)
     p.add_argument("--tick-s", type=float, default=0.001)
+    p.add_argument(
+        "--watchdog-timeout-s",
+        type=float,
+        default=0.0,
+        help="axis watchdog: IDLE after this long in closed loop without a command (0: off)",
+    )
     p.add_argument("--duration-s", type=float, default=None, help="exit after this long")
     args = p.parse_args(argv)
     nodes = [int(n) for n in args.nodes.split(",")]
@@ -493,6 +534,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             pos_gain=args.pos_gain,
             encoder_period_s=args.encoder_period_s,
             heartbeat_period_s=args.heartbeat_period_s,
+            watchdog_timeout_s=args.watchdog_timeout_s,
         )
         for n, x in zip(nodes, initial, strict=True)
     ]

@@ -74,6 +74,7 @@ def write_config(
     sim_enabled: bool = False,
     faults: Mapping[str, Any] | None = None,
     sim: Mapping[str, Any] | None = None,
+    loop: Mapping[str, Any] | None = None,
 ) -> tuple[Path, dict[str, Any]]:
     """Write a paper-robot config for a test (own bus, own Zenoh port, state file in tmp)."""
     from controller.config import paper_robot_data
@@ -81,7 +82,7 @@ def write_config(
     name = f"t{uuid.uuid4().hex[:8]}"
     data = paper_robot_data(name)
     data["bus"] = dict(bus)
-    data["loop"] = {"rate_hz": rate_hz, "realtime": False, "publish_every": 5}
+    data["loop"] = {"rate_hz": rate_hz, "realtime": False, "publish_every": 5, **(loop or {})}
     data["sim"] = {"enabled": sim_enabled, **(sim or {})}
     data["homing"] = {
         "power_up_position_m": [0.0, 0.0, 2.0],

@@ -308,3 +308,148 @@ def test_systemd_unit_is_type_notify_with_watchdog() -> None:
     assert svc["WatchdogSec"] == "2s"
     assert "cablebot run --config" in svc["ExecStart"]
     assert unit["Install"]["WantedBy"] == "multi-user.target"
+
+
+# ---------------------------------------------------------------------------- hostile files
+
+
+def test_a_file_that_is_not_utf8_is_a_config_error_naming_line_and_byte(tmp_path: Path) -> None:
+    bad = tmp_path / "latin1.toml"
+    bad.write_bytes(PAPER.read_bytes().replace(b'name = "paper-acre"', b'name = "caf\xe9"'))
+    with pytest.raises(ConfigError) as info:
+        load_config(bad)
+    msg = str(info.value)
+    assert msg.startswith(f"{bad}: not UTF-8 text: byte 0xe9 at line "), msg
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "expected"),
+    [
+        ("reels[0].anchor_m", [1e308, -1e308, 7.62], "reels[0].anchor_m: coordinates must be"),
+        ("reels[0].anchor_m", [10**400, 0, 7.62], "reels[0].anchor_m: must be finite"),
+        ("limits.max_cable_m", 1e308, "limits.max_cable_m: must be within ±1e+09"),
+        ("limits.floor_z_m", -1e308, "limits.floor_z_m: must be within ±1e+09"),
+        ("limits.max_speed_mps", 10**400, "limits.max_speed_mps: must be finite"),
+        ("homing.power_up_position_m", [0.0, 1e300, 2.0], "homing.power_up_position_m: coord"),
+        ("loop.publish_every", 10**400, "loop.publish_every: must be <= 100000"),
+    ],
+)
+def test_extreme_numbers_are_config_errors_not_tracebacks(
+    path: str, value: Any, expected: str
+) -> None:
+    msg = err(edit(path, value))
+    assert expected in msg, msg
+
+
+def _numeric_paths(node: Any, prefix: str = "") -> list[str]:
+    out: list[str] = []
+    items = enumerate(node) if isinstance(node, list) else node.items()
+    for k, v in items:
+        p = f"{prefix}[{k}]" if isinstance(node, list) else (f"{prefix}.{k}" if prefix else k)
+        if isinstance(v, bool):
+            continue
+        if isinstance(v, int | float):
+            out.append(p)
+        elif isinstance(v, dict) or (isinstance(v, list) and v and isinstance(v[0], dict)):
+            out.extend(_numeric_paths(v, p))
+        elif isinstance(v, list) and len(v) == 3:
+            out.extend(f"{p}[{i}]" for i in range(3))
+    return out
+
+
+@pytest.mark.parametrize("value", [1e308, -1e308, 5e-324, -5e-324, 10**30, -(10**30), 0])
+def test_no_number_anywhere_makes_validation_raise_anything_but_config_error(value: Any) -> None:
+    paths = _numeric_paths(base())
+    assert len(paths) > 40  # every limit, fault, reel number and anchor coordinate
+    for path in paths:
+        try:
+            parse(edit(path, value))
+        except ConfigError as exc:
+            assert str(exc).startswith("robot.toml: "), (path, str(exc))
+
+
+def test_zenoh_listen_port_out_of_range_names_the_key() -> None:
+    msg = err(edit("zenoh.listen", ["tcp/127.0.0.1:99999"]))
+    assert "zenoh.listen: endpoint 'tcp/127.0.0.1:99999': port must be 0..65535" in msg, msg
+    msg = err(edit("zenoh.connect", ["tcp/10.0.0.1:0"]))
+    assert "zenoh.connect: endpoint 'tcp/10.0.0.1:0': port must be 1..65535" in msg, msg
+    msg = err(edit("zenoh.connect", ["tcp/10.0.0.1"]))
+    assert "zenoh.connect: endpoint 'tcp/10.0.0.1' must look like 'tcp/HOST:PORT'" in msg, msg
+    cfg = parse(edit("zenoh.listen", ["tcp/[::1]:7447", "unixsock-stream//tmp/z.sock"]))
+    assert cfg.zenoh.listen == ("tcp/[::1]:7447", "unixsock-stream//tmp/z.sock")
+
+
+def test_a_garbage_zenoh_file_is_a_config_error_naming_the_key(tmp_path: Path) -> None:
+    garbage = tmp_path / "z.json5"
+    garbage.write_text("{ this is : not json5 ,,, }")
+    msg = err(edit("zenoh.config_file", str(garbage)))
+    assert "zenoh.config_file: not a valid Zenoh configuration" in msg, msg
+    bad_port = tmp_path / "port.json5"
+    bad_port.write_text('{ listen: { endpoints: ["tcp/127.0.0.1:99999"] } }')
+    msg = err(edit("zenoh.config_file", str(bad_port)))
+    assert "zenoh.config_file: listen: endpoint 'tcp/127.0.0.1:99999': port must be" in msg, msg
+    good = tmp_path / "good.json5"
+    good.write_text('{ mode: "peer", listen: { endpoints: ["tcp/127.0.0.1:7447"] } }')
+    assert parse(edit("zenoh.config_file", str(good))).zenoh.config_file == str(good)
+
+
+def test_unknown_bus_interface_is_caught_by_validation() -> None:
+    msg = err(edit("bus.interface", "sockectan"))
+    assert "bus.interface: unknown python-can interface 'sockectan'; did you mean 'socketcan'?" in (
+        msg
+    ), msg
+    assert "udp_multicast" in msg  # the known names are listed
+
+
+def test_bus_options_are_checked_against_the_interface() -> None:
+    data = edit("bus", {"interface": "udp_multicast", "channel": "239.74.0.1"})
+    data["bus"]["options"] = {"prot": 43113, "hop_limit": 0}
+    msg = err(data)
+    assert (
+        "bus.options.prot: not an option of the udp_multicast interface; did you mean 'port'?"
+        in (msg)
+    ), msg
+    assert "hop_limit" not in msg.split("(it takes")[0]
+    data["bus"]["options"] = {"port": 43113, "hop_limit": 0, "receive_own_messages": False}
+    cfg = parse(data)
+    assert dict(cfg.bus.options) == {"port": 43113, "hop_limit": 0, "receive_own_messages": False}
+    data = edit("bus.options", {"rx_queue_size": 100, "preserve_timestamps": True})
+    assert dict(parse(data).bus.options)["rx_queue_size"] == 100  # virtual's own keywords
+    msg = err(edit("bus.options", {"bogus": 1}))
+    assert "bus.options.bogus: not an option of the virtual interface" in msg, msg
+
+
+def test_every_problem_is_reported_at_once() -> None:
+    data = edit("limits.max_speed", 2.0)  # typo: unknown key
+    data["reels"][2]["metres_per_rev"] = -0.1
+    data["loop"]["rate_hz"] = "fast"
+    data["zenoh"] = {"listen": ["tcp/127.0.0.1:99999"]}
+    data["bus"] = {"interface": "virtual", "channel": "x", "options": {"bogus": 1}}
+    with pytest.raises(ConfigError) as info:
+        parse(data)
+    e = info.value
+    lines = str(e).splitlines()
+    assert len(e.errors) == len(lines) == 5, str(e)
+    assert all(line.startswith("robot.toml: ") for line in lines), lines
+    keys = [x.key for x in e.errors]
+    assert keys == [
+        "reels[2].metres_per_rev",
+        "bus.options.bogus",
+        "loop.rate_hz",
+        "limits.max_speed",
+        "zenoh.listen",
+    ], keys
+    assert (e.key, e.problem) == (e.errors[0].key, e.errors[0].problem)
+
+
+def test_simulated_watchdog_timeout_is_validated() -> None:
+    assert parse(base()).sim.watchdog_timeout_s == 0.3
+    assert parse(edit("sim.watchdog_timeout_s", 0.0)).sim.watchdog_timeout_s == 0.0
+    msg = err(edit("sim.watchdog_timeout_s", 0.005))
+    assert "sim.watchdog_timeout_s: 0.005 s is shorter than 3 loop periods" in msg, msg
+    # unset: 0.3 s, or 5 loop periods on a slow loop
+    slow = edit("loop.rate_hz", 10.0)
+    slow["faults"]["stale_timeout_s"] = 0.5
+    assert parse(slow).sim.watchdog_timeout_s == 0.5
+    msg = err(edit("sim.watchdog_timeout_s", -1.0))
+    assert "sim.watchdog_timeout_s: must be >= 0" in msg, msg

@@ -152,6 +152,97 @@ def test_poll_is_bounded(buses: tuple[can.BusABC, can.BusABC]) -> None:
     assert d.read()[0].position_rev == 24.0
 
 
+def test_readings_are_stamped_with_their_arrival_not_with_the_poll(
+    buses: tuple[can.BusABC, can.BusABC],
+) -> None:
+    # Frames that waited in the receive queue while the loop stalled are as old as they are.
+    bus, peer = buses
+    d = ODriveReels(bus, NODES)
+    sent_s = time.monotonic()
+    sent_ns = time.time_ns()
+    send(peer, cs.encode_encoder_estimates(1, 2.0, 0.0))
+    send(peer, cs.encode_heartbeat(1, 0, 8))
+    time.sleep(0.3)  # the loop stalls
+    polled_s = time.monotonic()
+    assert d.poll() == 2
+    r = d.read()[1]
+    assert sent_s - 0.05 <= r.stamp_s <= sent_s + 0.05, (r.stamp_s - sent_s, polled_s - sent_s)
+    assert sent_s - 0.05 <= r.heartbeat_stamp_s <= sent_s + 0.05
+    assert r.encoder_age_s(polled_s) > 0.25
+    assert abs(r.stamp_ns - sent_ns) < 50_000_000
+    assert d.stats.untimed_frames == 0
+
+
+def test_frame_timestamps_are_clamped_and_foreign_clocks_fall_back_to_poll_time() -> None:
+    channel = f"test-odrive-ts-{uuid.uuid4().hex}"
+    bus = open_bus("virtual", channel)
+    # The peer keeps the timestamps it is given, as an interface with its own clock would.
+    peer = open_bus("virtual", channel, preserve_timestamps=True)
+    wall_s = 1_700_000_000.0
+    clock = FakeClock()
+    try:
+        d = ODriveReels(bus, NODES, clock=clock, wall_clock_ns=lambda: int(wall_s * 1e9))
+
+        def arrive(node: int, timestamp: float) -> None:
+            arb_id, data, _ = cs.encode_encoder_estimates(node, 1.0, 0.0)
+            peer.send(
+                can.Message(
+                    arbitration_id=arb_id, data=data, is_extended_id=False, timestamp=timestamp
+                )
+            )
+
+        arrive(0, wall_s - 0.25)  # waited 250 ms in the queue
+        arrive(1, wall_s + 0.5)  # a little ahead (clock skew): clamped to now
+        arrive(2, 0.0)  # not a wall-clock reading: stamped at poll time, counted
+        arrive(3, wall_s + 30.0)  # far ahead: the same
+        deadline = time.monotonic() + 2.0
+        while d.stats.frames_rx < 4 and time.monotonic() < deadline:
+            d.poll()
+        r = d.read()
+        assert r[0].stamp_s == pytest.approx(100.0 - 0.25)
+        assert r[0].stamp_ns == pytest.approx(int((wall_s - 0.25) * 1e9), abs=1000)
+        assert [x.stamp_s for x in r[1:]] == [100.0, 100.0, 100.0]
+        assert d.stats.untimed_frames == 2
+    finally:
+        bus.shutdown()
+        peer.shutdown()
+
+
+def test_a_backlog_after_a_stall_is_read_through_but_a_flood_is_not() -> None:
+    channel = f"test-odrive-backlog-{uuid.uuid4().hex}"
+    bus = open_bus("virtual", channel)
+    peer = open_bus("virtual", channel, preserve_timestamps=True)
+    try:
+        d = ODriveReels(bus, NODES, max_frames_per_poll=10, catch_up_age_s=0.05)
+
+        def queue(count: int, age_s: float) -> None:
+            for i in range(count):
+                arb_id, data, _ = cs.encode_encoder_estimates(0, float(i), 0.0)
+                peer.send(
+                    can.Message(
+                        arbitration_id=arb_id,
+                        data=data,
+                        is_extended_id=False,
+                        timestamp=time.time() - age_s,
+                    )
+                )
+
+        queue(25, 0.5)  # frames that waited half a second: read to the newest at once
+        time.sleep(0.01)
+        assert d.poll() == 25
+        assert d.read()[0].position_rev == 24.0
+        assert d.stats.catch_up_polls == 1
+        queue(100, 0.5)  # a bigger backlog: still bounded, at 8 x the cap
+        time.sleep(0.01)
+        assert [d.poll(), d.poll()] == [80, 20]
+        queue(25, 0.0)  # fresh frames: a flood, kept to the cap
+        time.sleep(0.01)
+        assert d.poll() == 10
+    finally:
+        bus.shutdown()
+        peer.shutdown()
+
+
 class ExplodingBus:
     """A bus whose every operation fails, as a broken adapter would."""
 
@@ -286,6 +377,8 @@ def test_constructor_validation(buses: tuple[can.BusABC, can.BusABC]) -> None:
         ODriveReels(bus, [64])
     with pytest.raises(ValueError, match="encoder_rtr_period_s"):
         ODriveReels(bus, [1], encoder_rtr_period_s=-1.0)
+    with pytest.raises(ValueError, match="catch_up_age_s"):
+        ODriveReels(bus, [1], catch_up_age_s=0.0)
 
 
 def test_open_bus_errors_are_named() -> None:

@@ -237,6 +237,47 @@ def test_fault_injection_frames() -> None:
     assert run(axis, 0.05) != []
 
 
+def test_watchdog_disarms_an_axis_that_stops_hearing_commands() -> None:
+    axis = SimODriveAxis(2, max_velocity_rps=100.0, max_accel_rps2=400.0, watchdog_timeout_s=0.2)
+    arm(axis)
+    for k in range(100):  # a host streaming a 10 rev/s ramp every 10 ms keeps it fed
+        axis.handle(cs.SetInputPos(2, 0.1 * k, 10.0, 0.0))
+        run(axis, 0.01)
+        assert axis.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL and axis.axis_error == 0
+    # The host dies with a 10 rev/s feed-forward outstanding.
+    moving_at = axis.position_rev
+    assert axis.velocity_rps > 8.0
+    run(axis, 0.18)  # 0.19 s since the last command: still running on the feed-forward
+    assert axis.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL and axis.velocity_rps > 0.1
+    run(axis, 0.03)  # 0.21 s
+    assert axis.axis_state == cs.AxisState.IDLE
+    assert axis.axis_error == cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+    assert axis.velocity_rps == 0.0
+    stopped_at = axis.position_rev
+    assert 0.0 < stopped_at - moving_at < 10.0 * 0.21
+    msgs = run(axis, 0.5)
+    assert axis.position_rev == stopped_at
+    hb = [m for m in msgs if isinstance(m, cs.Heartbeat)]
+    assert hb and hb[-1].axis_state == cs.AxisState.IDLE
+    assert hb[-1].axis_error == cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+    enc = [m for m in msgs if isinstance(m, cs.EncoderEstimates)]
+    assert enc and all(m.vel_estimate_rps == 0.0 for m in enc)
+    reply = decoded(axis.handle(cs.RemoteRequest(2, cs.GET_ERROR)))
+    assert reply == [cs.GetError(2, 0x1000000, 0x1000000)]
+    arm(axis)  # Clear_Errors then closed loop again, as the driver arms
+    assert axis.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL and axis.axis_error == 0
+
+
+def test_watchdog_is_off_by_default_and_only_runs_in_closed_loop() -> None:
+    idle = SimODriveAxis(0, watchdog_timeout_s=0.05)
+    run(idle, 0.5)
+    assert idle.axis_error == 0
+    plain = SimODriveAxis(1)
+    arm(plain)
+    run(plain, 1.0)
+    assert plain.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL and plain.axis_error == 0
+
+
 def test_axis_validation() -> None:
     with pytest.raises(ValueError, match="node id"):
         SimODriveAxis(64)
@@ -246,6 +287,10 @@ def test_axis_validation() -> None:
         SimODriveAxis(0, initial_position_rev=math.nan)
     with pytest.raises(ValueError, match="pos_gain"):
         SimODriveAxis(0, pos_gain=-1.0)
+    with pytest.raises(ValueError, match="watchdog_timeout_s"):
+        SimODriveAxis(0, watchdog_timeout_s=-0.1)
+    with pytest.raises(ValueError, match="watchdog_timeout_s"):
+        SimODriveAxis(0, watchdog_timeout_s=math.inf)
 
 
 # --- bank + driver on a virtual bus ----------------------------------------------------------
@@ -374,3 +419,34 @@ def test_process_option_parsing() -> None:
     assert _option("serial=ABC") == ("serial", "ABC")
     with pytest.raises(SystemExit):
         _option("novalue")
+
+
+def test_the_configured_simulated_robot_has_its_watchdog_on() -> None:
+    from controller.config import default_config
+    from controller.sim_cmd import sim_axes
+
+    axes = sim_axes(default_config())
+    assert [a.watchdog_timeout_s for a in axes] == [0.3] * 4
+
+
+def test_a_stalled_simulator_does_not_mistake_queued_commands_for_silence() -> None:
+    axis = SimODriveAxis(0, watchdog_timeout_s=0.2)
+    arm(axis)
+    axis.step(0.5)  # the simulation thread stalled; the host's frames waited in the queue
+    axis.handle(cs.SetInputPos(0, 0.0, 0.0, 0.0))
+    axis.step(DT)
+    assert axis.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL and axis.axis_error == 0
+
+
+def test_the_axis_own_frames_heard_back_do_not_feed_its_watchdog() -> None:
+    # udp_multicast loops every frame back to its sender: the simulated node hears its own
+    # encoder estimates and heartbeats, which must not count as a host that is alive.
+    axis = SimODriveAxis(1, watchdog_timeout_s=0.2)
+    arm(axis)
+    for _ in range(30):
+        for m in run(axis, 0.01):
+            if isinstance(m, cs.Heartbeat | cs.EncoderEstimates):
+                axis.handle(m)
+        axis.handle(cs.GetError(1, 0, 0))
+    assert axis.axis_state == cs.AxisState.IDLE
+    assert axis.axis_error == cs.ODriveError.WATCHDOG_TIMER_EXPIRED
