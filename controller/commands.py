@@ -5,18 +5,23 @@ demo) and the control loop that executes them. Parsing checks the schema and tha
 is finite; it knows nothing of the robot's state or workspace: the loop checks those and refuses
 with `CommandRefused`.
 
-Bounded cost: whoever sends a command must not be able to hold the interpreter. Python's JSON
-decoder holds the GIL for the whole document (about 30 us per KiB on a slow machine), during
+Bounded cost: whoever sends a command must not be able to hold the interpreter. Python's C JSON
+decoder holds the GIL for the whole document (about 35 us per KiB on a slow machine), during
 which no other thread runs, the control loop and e-stop included. So before any decoding a
 payload is refused when it is larger than `MAX_PAYLOAD_BYTES[verb]` (`check_payload_size`),
 or when its brackets nest deeper than `MAX_JSON_DEPTH` (a byte scan at C speed; the decoder's
-own recursion limit is the backstop for brackets hidden in strings). A path has at most
+own recursion limit is the backstop for brackets hidden in strings). Payloads up to
+`C_DECODE_MAX_BYTES` go to the C decoder (well under a millisecond); larger ones (only a path
+may be larger) to the json module's pure-Python scanner, which is 6-30 times slower but is
+ordinary bytecode: the interpreter hands the GIL to a waiting thread (the loop, an e-stop)
+every switch interval instead of after the whole document. A path has at most
 `MAX_PATH_POINTS` points. Error messages quote at most `QUOTE_CHARS` characters of the input.
 """
 
 from __future__ import annotations
 
 import json
+import json.scanner
 import math
 import reprlib
 from collections.abc import Mapping
@@ -119,6 +124,9 @@ MAX_JSON_DEPTH: Final = 8
 QUOTE_CHARS: Final = 80
 """The most characters of a client's input that an error message quotes."""
 
+C_DECODE_MAX_BYTES: Final = 16 * 1024
+"""Larger payloads are decoded by the interruptible pure-Python scanner (see above)."""
+
 _BRACKETS = bytes.maketrans(b"{}", b"[]")
 _NOT_BRACKETS = bytes(b for b in range(256) if b not in b"[]{}")
 _repr = reprlib.Repr()
@@ -179,6 +187,23 @@ def _too_deep() -> str:
     return f"nested too deeply: at most {MAX_JSON_DEPTH} levels of [ and {{"
 
 
+class _InterruptibleDecoder(json.JSONDecoder):
+    """json.JSONDecoder on the pure-Python scanner (strings are still scanned in C)."""
+
+    def __init__(self) -> None:
+        super().__init__(parse_constant=_reject_constant)
+        self.scan_once = json.scanner.py_make_scanner(self)  # type: ignore[attr-defined]
+
+
+def _decode(data: bytes) -> Any:
+    """`data` decoded as JSON (see the module docstring on which decoder). Raises ValueError
+    (UnicodeDecodeError, JSONDecodeError), CommandError for a non-finite constant and
+    RecursionError."""
+    if len(data) <= C_DECODE_MAX_BYTES:
+        return json.loads(data, parse_constant=_reject_constant)
+    return _InterruptibleDecoder().decode(data.decode(json.detect_encoding(data)))
+
+
 def _finite(value: Any, field: str) -> float:
     """Return `value` as a finite float or raise CommandError naming `field`."""
     if isinstance(value, bool) or not isinstance(value, int | float):
@@ -221,7 +246,7 @@ def _object(data: bytes, allowed: set[str], required: set[str]) -> dict[str, Any
     else:
         _check_depth(data)
         try:
-            obj = json.loads(data, parse_constant=_reject_constant)
+            obj = _decode(data)
         except RecursionError:  # brackets hidden from _check_depth in strings
             raise CommandError(_too_deep()) from None
         except (ValueError, UnicodeDecodeError) as exc:

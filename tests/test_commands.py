@@ -11,6 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from controller.commands import (
+    C_DECODE_MAX_BYTES,
     MAX_JSON_DEPTH,
     MAX_PATH_POINTS,
     MAX_PAYLOAD_BYTES,
@@ -193,6 +194,61 @@ def test_brackets_hidden_in_strings_meet_the_decoders_limit() -> None:
     with pytest.raises(CommandError) as info:
         parse_command("path", payload)
     assert str(info.value) == f"nested too deeply: at most {MAX_JSON_DEPTH} levels of [ and {{"
+
+
+def _padded(payload: bytes) -> bytes:
+    """`payload` with trailing whitespace beyond C_DECODE_MAX_BYTES: the same JSON, decoded by
+    the interruptible scanner."""
+    return payload + b" " * (C_DECODE_MAX_BYTES + 1 - len(payload))
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        (b'{"points_m": [[0, 0, 1], [0, 0, NaN]]}', "non-finite number NaN"),
+        (b'{"points_m": [[0, 0, 1], [0, 0, Infinity]]}', "non-finite number Infinity"),
+        (b'{"points_m": [[0, 0, 1], [0, 0 1]]}', "malformed JSON"),
+        (b'{"points_m": [[0, 0, 1]], "x": 1}', "unknown field(s): x"),
+        (b'{"points_m": [[0, 0, 1e999]]}', "points_m[0][2]: must be a finite number"),
+        (b'{"points_m": [[0, 0, 1]]} []', "malformed JSON: Extra data"),
+        (b'\xff{"points_m": [[0, 0, 1]]}', "malformed JSON"),
+        (b'{"points_m": ' + b'["]", ' * 1200 + b"1" + b"]" * 1200 + b"}", "nested too deeply"),
+    ],
+)
+def test_a_large_payload_is_judged_as_a_small_one(payload: bytes, reason: str) -> None:
+    for data in (payload, _padded(payload)):
+        with pytest.raises(CommandError) as info:
+            parse_command("path", data)
+        assert reason in str(info.value)
+
+
+def test_a_large_valid_path_decodes_exactly() -> None:
+    points = [[i * 0.001, -i * 1e-7, 2.0 + i] for i in range(MAX_PATH_POINTS)]
+    payload = json.dumps({"points_m": points, "speed_mps": 0.25}).encode()
+    assert len(payload) > C_DECODE_MAX_BYTES
+    cmd = parse_command("path", payload)
+    assert cmd == Path(tuple((float(x), float(y), float(z)) for x, y, z in points), 0.25)
+
+
+@given(
+    st.recursive(
+        st.none() | st.booleans() | finite | st.integers() | st.text(max_size=5),
+        lambda inner: (
+            st.lists(inner, max_size=4)
+            | st.dictionaries(st.sampled_from(["points_m", "speed_mps", "x"]), inner, max_size=3)
+        ),
+        max_leaves=12,
+    )
+)
+def test_both_decoders_agree(obj: object) -> None:
+    small = json.dumps(obj).encode()
+    outcomes = []
+    for data in (small, _padded(small)):
+        try:
+            outcomes.append(parse_command("path", data))
+        except CommandError as exc:
+            outcomes.append(str(exc))
+    assert outcomes[0] == outcomes[1]
 
 
 def test_nesting_up_to_the_cap_reaches_the_schema_check() -> None:
