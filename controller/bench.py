@@ -1,7 +1,7 @@
 """`cablebot bench [--quick] [--json FILE]`: where the time goes, measured on this machine.
 
 Prints one table (figure, value, target, PASS/MISSED, how many repeats) and with `--json FILE`
-writes exactly the keys of issue 8. The exit code is 0 even when a target is missed (this is a
+writes exactly the keys of `JSON_KEYS`. The exit code is 0 even when a target is missed (this is a
 measurement); it is 1 only when a figure could not be measured at all.
 
 Method
@@ -67,6 +67,18 @@ Method
   second is sent before the pose arrives does it shorten that sample. Frames
   superseded before any tick used them produce no pose and no sample; a pose dropped by Zenoh
   makes the next pose count, as the subscriber saw it.
+* `estop_latency_flood_ms` (`reply_p50`/`reply_p99`, `frame_p50`/`frame_p99`): e-stop while a
+  hostile client floods the daemon (`bench_estop_flood`). A daemon-like process
+  (`python -m controller.bench daemon`: the daemon's `build_stack` and `start_loop`, the paper
+  robot at its default rate with in-process simulated nodes, udp_multicast with hop limit 0)
+  is armed. A flooding process keeps `ESTOP_FLOOD_THREADS` queries in flight, in turn a path,
+  a move, a set-point put and a home each exactly at its verb's byte cap and malformed only at
+  its last byte (so all of it is decoded before the refusal), and the original 10 MB move.
+  After a second of flood this process sends e-stops, each after a random 30-80 ms pause and
+  followed by `reset`, and times from just before the query to the reply, and to the moment an
+  observer bus on the same channel (in this process) has heard an Estop frame for every axis.
+  Percentiles are nearest-rank over the tries (100, 50 with `--quick`: p99 is then the worst
+  or second worst); the table also shows the flood's rate and any fault of the robot.
 """
 
 from __future__ import annotations

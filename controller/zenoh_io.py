@@ -21,12 +21,12 @@ Bounded cost per message, so that no client holds the interpreter (the GIL) long
 delay the loop or an e-stop: the payload's size is read from Zenoh's buffer and checked against
 `commands.MAX_PAYLOAD_BYTES` before it is copied or decoded; `commands.parse_command` then caps
 the nesting; refusals and log lines quote at most `commands.QUOTE_CHARS` characters of the
-input, and no reply reason is longer than `MAX_REASON_CHARS`. E-stop takes the same checks
-(its cap is 1 KiB: microseconds), on its own thread, and `Controller.submit` hands it to the
-next tick through a flag, never through the command queue. With the biggest accepted payload
-(a 128 KiB path decodes in about 4 ms on a slow machine) the GIL is back within milliseconds, so
-e-stop's latency stays bounded under a flood: `cablebot bench` measures it
-(`estop_latency_flood_ms`).
+input, and no reply reason is longer than `MAX_REASON_CHARS`; payloads over 16 KiB (paths) are
+decoded by an interruptible scanner, so no message holds the GIL for more than about a
+millisecond. E-stop takes the same checks (its cap is 1 KiB: microseconds) on its own thread,
+so it never waits behind another verb's parsing, and `Controller.submit` hands it to the next
+tick through a flag, never through the command queue. `cablebot bench` measures its latency
+while another process floods the daemon (`estop_latency_flood_ms`).
 
 Publishing: the pose publisher uses congestion control DROP, so a put never waits on the
 network. But a put releases the GIL and must take it back, and in the daemon other Python
