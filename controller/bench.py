@@ -74,11 +74,12 @@ Method
   is armed. A flooding process keeps `ESTOP_FLOOD_THREADS` queries in flight, in turn a path,
   a move, a set-point put and a home each exactly at its verb's byte cap and malformed only at
   its last byte (so all of it is decoded before the refusal), and the original 10 MB move.
-  After a second of flood this process sends e-stops, each after a random 30-80 ms pause and
-  followed by `reset`, and times from just before the query to the reply, and to the moment an
-  observer bus on the same channel (in this process) has heard an Estop frame for every axis.
-  Percentiles are nearest-rank over the tries (100, 50 with `--quick`: p99 is then the worst
-  or second worst); the table also shows the flood's rate and any fault of the robot.
+  After a second of flood this process arms the robot and sends e-stops, each to the robot
+  holding, after a random 30-80 ms pause, then resets and re-arms it. It times each from just
+  before the query to the reply, and to the moment an observer bus on the same channel (in
+  this process) has heard an Estop frame for every axis. Percentiles are nearest-rank over the
+  tries: of 100, p99 is the second worst; of 50 (`--quick`), the worst. The table also shows
+  the flood's rate and any fault of the robot (leaving HOLDING by itself).
 """
 
 from __future__ import annotations
@@ -1116,10 +1117,12 @@ def bench_estop_flood(tries: int, flood_threads: int = ESTOP_FLOOD_THREADS) -> d
     A daemon-like process (`role_daemon`: the daemon's own stack with in-process simulated
     nodes) is armed; a second process (`role_flood`) keeps `flood_threads` queries of
     `flood_payloads()` in flight; this process, after a second of flood, sends `tries` e-stops
-    (each after a random 30-80 ms pause, then `reset`) and measures for each the time to the
-    e-stop's reply and the time until an observer on the same bus has heard an Estop frame for
-    every axis. Returns milliseconds (`reply_p50`/`reply_p99`, `frame_p50`/`frame_p99`,
-    nearest-rank), `tries`, the flood's query count and rate, and the faults the robot showed.
+    to the robot holding (`_hold` resets and re-arms it after each), each after a random
+    30-80 ms pause, and measures for each the time to the e-stop's reply and the time until an
+    observer on the same bus has heard an Estop frame for every axis. Returns milliseconds
+    (`reply_p50`/`reply_p99`, `frame_p50`/`frame_p99`, nearest-rank; `reply_max`, `frame_max`),
+    `tries`, the flood's query count and rate, the faults the robot showed and the loop
+    thread's scheduling.
     Raises BenchError when a helper fails, an e-stop gets no reply or no frames.
     """
     import zenoh
@@ -1160,8 +1163,12 @@ def bench_estop_flood(tries: int, flood_threads: int = ESTOP_FLOOD_THREADS) -> d
             flood.wait_line("FLOODING", CHILD_START_TIMEOUT_S)
             time.sleep(1.0)
             t_flood0 = time.monotonic()
+            _hold(session, prefix, faults)
             for _ in range(tries):
                 time.sleep(rng.uniform(0.03, 0.08))
+                st = _query_json(session, f"{prefix}/status")
+                if st.get("state") != "HOLDING":  # it left HOLDING by itself: a fault
+                    faults.append(f"{st.get('state')}: {st.get('reason')}")
                 start = len(watch.frames)
                 t0 = time.monotonic()
                 replies = list(session.get(f"{prefix}/cmd/estop", timeout=5.0))
@@ -1173,13 +1180,7 @@ def bench_estop_flood(tries: int, flood_threads: int = ESTOP_FLOOD_THREADS) -> d
                     raise BenchError(f"no Estop frame for every axis\n{daemon.tail()}")
                 reply_ms.append((t1 - t0) * 1e3)
                 frame_ms.append((t_frames - t0) * 1e3)
-                body = json.loads(replies[0].ok.payload.to_bytes())
-                if body.get("state") == "FAULT":
-                    faults.append("FAULT before e-stop")
-                st = _query_json(session, f"{prefix}/status")
-                if st.get("state") == "FAULT" or (st.get("reason") or "estop") != "estop":
-                    faults.append(str(st.get("reason")))
-                list(session.get(f"{prefix}/cmd/reset", timeout=5.0))
+                _hold(session, prefix, faults)
             flood_s = time.monotonic() - t_flood0
             flood.stop()
             sent_line = next((ln for ln in flood.out if ln.startswith("SENT ")), "SENT 0")
@@ -1206,6 +1207,26 @@ def bench_estop_flood(tries: int, flood_threads: int = ESTOP_FLOOD_THREADS) -> d
         "fault_reasons": sorted(set(faults))[:5],
         "scheduling": sched,
     }
+
+
+def _hold(session: Any, prefix: str, faults: list[str], timeout_s: float = 15.0) -> None:
+    """Reset and arm the robot over Zenoh until it holds; faults met on the way are appended
+    to `faults`. Raises BenchError if it does not hold within `timeout_s`."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        st = _query_json(session, f"{prefix}/status")
+        state = st.get("state")
+        if state == "HOLDING":
+            return
+        if state == "FAULT":
+            faults.append(f"FAULT: {st.get('reason')}")
+        if state in ("ESTOPPED", "FAULT"):
+            _query_json(session, f"{prefix}/cmd/reset")
+        elif state == "DISARMED":
+            _query_json(session, f"{prefix}/cmd/arm")
+        if time.monotonic() > deadline:
+            raise BenchError(f"the robot does not hold: {state} {st.get('reason')}")
+        time.sleep(0.02)
 
 
 def _query_json(session: Any, key: str) -> dict[str, Any]:
