@@ -1235,12 +1235,14 @@ def _hold(session: Any, prefix: str, faults: list[str], timeout_s: float = 15.0)
     """Reset and arm the robot over Zenoh until it holds; faults met on the way are appended
     to `faults`. Raises BenchError if it does not hold within `timeout_s`."""
     deadline = time.monotonic() + timeout_s
+    last_fault = None
     while True:
         st = _query_json(session, f"{prefix}/status")
         state = st.get("state")
         if state == "HOLDING":
             return
-        if state == "FAULT":
+        if state == "FAULT" and st.get("state_stamp_ns", st.get("reason")) != last_fault:
+            last_fault = st.get("state_stamp_ns", st.get("reason"))  # each fault once
             faults.append(f"FAULT: {st.get('reason')}")
         if state in ("ESTOPPED", "FAULT"):
             _query_json(session, f"{prefix}/cmd/reset")
