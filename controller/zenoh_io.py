@@ -1,4 +1,4 @@
-"""The Zenoh interface of the controller daemon (issue 6).
+"""The Zenoh interface of the controller daemon.
 
 Key space, under a configurable prefix (default `cablebot/default`):
 
@@ -10,9 +10,23 @@ Key space, under a configurable prefix (default `cablebot/default`):
 - `<prefix>/setpoint`  subscriber, `{"position_m": [x, y, z]}` handed to `submit_setpoint`
 - `<prefix>/alive`     liveliness token while the interface is open
 
+Only the exact keys drive the robot: a query on `<prefix>/cmd/*` or a put on `cablebot/**`
+reaches the queryables and the subscriber too, and is refused (counted, never executed).
+
 Threads: zenoh-python runs each declared callback on its own Python thread, so every verb has
 its own thread. A command waits there (bounded) for the loop's reply; a slow `home` never delays
 an `estop`.
+
+Bounded cost per message, so that no client holds the interpreter (the GIL) long enough to
+delay the loop or an e-stop: the payload's size is read from Zenoh's buffer and checked against
+`commands.MAX_PAYLOAD_BYTES` before it is copied or decoded; `commands.parse_command` then caps
+the nesting; refusals and log lines quote at most `commands.QUOTE_CHARS` characters of the
+input, and no reply reason is longer than `MAX_REASON_CHARS`; payloads over 16 KiB (paths) are
+decoded by an interruptible scanner, so no message holds the GIL for more than about a
+millisecond. E-stop takes the same checks (its cap is 1 KiB: microseconds) on its own thread,
+so it never waits behind another verb's parsing, and `Controller.submit` hands it to the next
+tick through a flag, never through the command queue. `cablebot bench` measures its latency
+while another process floods the daemon (`estop_latency_flood_ms`).
 
 Publishing: the pose publisher uses congestion control DROP, so a put never waits on the
 network. But a put releases the GIL and must take it back, and in the daemon other Python
@@ -49,6 +63,8 @@ from controller.commands import (
     Move,
     Path,
     Setpoint,
+    check_payload_size,
+    clip,
     parse_command,
 )
 
@@ -57,6 +73,8 @@ log = logging.getLogger(__name__)
 DEFAULT_PREFIX = "cablebot/default"
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 JSON = zenoh.Encoding.APPLICATION_JSON
+MAX_REASON_CHARS = 300
+"""The longest reason an error reply carries (longer ones are cut)."""
 _FIELD_KEYS = ("mode", "listen/endpoints", "connect/endpoints", "scouting/multicast/enabled")
 
 
@@ -176,8 +194,8 @@ def dumps(value: Any) -> bytes:
 
 
 def error_payload(reason: str) -> bytes:
-    """The JSON body of an error reply."""
-    return dumps({"error": reason})
+    """The JSON body of an error reply; the reason is cut to MAX_REASON_CHARS characters."""
+    return dumps({"error": clip(reason, MAX_REASON_CHARS)})
 
 
 class _Timings:
@@ -482,7 +500,7 @@ class ZenohInterface:
             query.reply(key, dumps(status), encoding=JSON)
         except Exception as exc:
             log.exception("status query failed")
-            _reply_err(query, f"internal error: {exc}")
+            _reply_err(query, f"internal error: {clip(str(exc))}")
         finally:
             _finish(query)
 
@@ -494,7 +512,7 @@ class ZenohInterface:
                 self._handle_command(verb, key, query)
             except Exception as exc:  # a bug here must still answer the client
                 log.exception("command %s failed", verb)
-                _reply_err(query, f"internal error: {exc}")
+                _reply_err(query, f"internal error: {clip(str(exc))}")
             finally:
                 _finish(query)
 
@@ -506,9 +524,11 @@ class ZenohInterface:
             self._count("malformed")
             _reply_err(query, f"commands need the exact key {key}, not a wildcard")
             return
-        payload = query.payload.to_bytes() if query.payload is not None else None
+        zbytes = query.payload
         try:
-            cmd = parse_command(verb, payload)
+            # The size first, from Zenoh's buffer: an oversized payload is never copied.
+            check_payload_size(verb, len(zbytes) if zbytes is not None else 0)
+            cmd = parse_command(verb, zbytes.to_bytes() if zbytes is not None else None)
         except CommandError as exc:
             self._count("malformed")
             _reply_err(query, str(exc))
@@ -566,13 +586,18 @@ class ZenohInterface:
 
     def _on_setpoint(self, sample: zenoh.Sample) -> None:
         try:
+            key = f"{self.prefix}/setpoint"
+            if str(sample.key_expr) != key:
+                # A put on `cablebot/**` must not drive every robot that hears it.
+                raise CommandError(f"set-points need the exact key {key}, not a wildcard")
+            check_payload_size("setpoint", len(sample.payload))  # before any copy
             cmd = parse_command("setpoint", sample.payload.to_bytes())
             assert isinstance(cmd, Setpoint)
             self.controller.submit_setpoint(cmd.position_m)
         except Exception as exc:  # counted and logged, never raised into Zenoh
             with self._lock:
                 self.setpoints_bad += 1
-            self._bad_setpoint_log.warning("bad set-point ignored: %s", exc)
+            self._bad_setpoint_log.warning("bad set-point ignored: %s", clip(str(exc), 200))
             return
         with self._lock:
             self.setpoints_ok += 1

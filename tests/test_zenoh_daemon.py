@@ -1,7 +1,7 @@
 """The Zenoh interface with the real daemon process (`cablebot run`, simulated ODrives in-process).
 
 - a separate subscriber process receives the poses at the loop rate (within 10 %), every sample
-  has the issue-6 schema (strict JSON: NaN/Infinity rejected), and the poses follow a move
+  has the pose schema (strict JSON: NaN/Infinity rejected), and the poses follow a move
   commanded with the CLI (`cablebot move X Y Z --wait`) to its end point within 1 mm;
 - every malformed or refused command gets an error reply and leaves the state, the pose and
   the set-point unchanged;
@@ -72,7 +72,7 @@ def strict_json(data: bytes | str) -> Any:
 
 
 def check_pose_schema(p: dict[str, Any]) -> None:
-    """Assert the issue-6 pose schema, exactly."""
+    """Assert the pose schema, exactly."""
     assert set(p) == POSE_KEYS, p
     assert isinstance(p["seq"], int) and p["seq"] >= 0
     assert isinstance(p["stamp_ns"], int) and p["stamp_ns"] > 1_600_000_000 * 10**9
@@ -382,6 +382,9 @@ HOLDING_CASES = [
     ("arm", b'{"force": true}', "unknown field(s): force"),
     ("reset", b"", "not allowed in HOLDING"),
     ("stop", b"[]", "expected a JSON object"),
+    ("move", b'{"position_m": [' + b"1.0, " * 2_600_000 + b"1.0]}", "payload too large"),
+    ("move", b"[" * 1200 + b"]" * 1200, "nested too deeply"),
+    ("path", b'{"points_m": [' + b"[0, 0, 2], " * 1000 + b"[0, 0, 2]]}", "at most 1000 points"),
 ]
 
 # refused while DISARMED
@@ -447,6 +450,24 @@ def test_wildcard_command_query_changes_nothing(daemon: Daemon) -> None:
     for r in replies:
         assert r.err is not None
         assert "wildcard" in strict_json(r.err.payload.to_bytes())["error"]
+    _assert_unchanged(daemon, before)
+
+
+def test_wildcard_setpoint_puts_change_nothing(daemon: Daemon) -> None:
+    ensure_state(daemon, "HOLDING")
+    before = _snapshot(daemon)
+    counts = daemon.status()["zenoh"]["setpoints"]
+    keys = [f"{daemon.prefix}/*", f"{daemon.prefix}/**", "cablebot/**", "**"]
+    for key in keys:
+        daemon.session.put(key, json.dumps({"position_m": [1.5, 1.0, 2.0]}))
+    deadline = time.monotonic() + 10.0
+    while True:
+        now = daemon.status()["zenoh"]["setpoints"]
+        if now["ok"] + now["bad"] >= counts["ok"] + counts["bad"] + len(keys):
+            break
+        assert time.monotonic() < deadline, (counts, now)
+        time.sleep(0.05)
+    assert now == {"ok": counts["ok"], "bad": counts["bad"] + len(keys)}
     _assert_unchanged(daemon, before)
 
 

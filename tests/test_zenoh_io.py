@@ -15,7 +15,7 @@ import pytest
 import zenoh
 
 from controller import zenoh_io
-from controller.commands import Move, Setpoint
+from controller.commands import MAX_JSON_DEPTH, MAX_PAYLOAD_BYTES, QUOTE_CHARS, Move, Setpoint
 from tests.fakes_zenoh import FakeController, FakePose, ZCfg, free_port
 
 
@@ -192,6 +192,70 @@ def test_wildcard_command_query_is_refused(rig: Rig) -> None:
     assert rig.fake.state == "DISARMED"
 
 
+def _raw_err(rig: Rig, suffix: str, payload: bytes) -> bytes:
+    replies = list(rig.client.get(f"{rig.prefix}/{suffix}", payload=payload, timeout=10.0))
+    assert len(replies) == 1
+    assert replies[0].err is not None
+    raw: bytes = replies[0].err.payload.to_bytes()
+    return raw
+
+
+def test_an_oversized_command_is_refused_by_its_size_and_not_echoed(rig: Rig) -> None:
+    # 10 MB: 2.6 million numbers, as a hostile client sent them
+    big = b'{"position_m": [' + b"1.0, " * 2_600_000 + b"1.0]}"
+    raw = _raw_err(rig, "cmd/move", big)
+    assert _strict(raw) == {
+        "error": f"payload too large: {len(big)} bytes, move takes at most "
+        f"{MAX_PAYLOAD_BYTES['move']}"
+    }
+    raw = _raw_err(rig, "cmd/path", b"[" * (MAX_PAYLOAD_BYTES["path"] + 1))
+    assert b"payload too large" in raw
+    assert rig.iface.stats()["commands"]["malformed"] == 2
+    assert rig.fake.submitted == []
+
+
+@pytest.mark.parametrize(
+    ("verb", "payload"),
+    [
+        ("move", b'{"position_m": [' + b"1.0, " * 800 + b"1.0]}"),
+        ("move", b'{"position_m": "' + b"x" * 4000 + b'"}'),
+        ("path", b'{"points_m": [[0, 0, 1], [' + b"7, " * 40_000 + b"7]]}"),
+        ("path", b'{"' + b"y" * 100_000 + b'": 1}'),
+        ("home", b'{"position_m": [0, 0, 1], "' + rb"\u0000" * 600 + b'": 1}'),
+    ],
+)
+def test_a_refusal_quotes_at_most_a_short_prefix(
+    rig: Rig, verb: str, payload: bytes, caplog: pytest.LogCaptureFixture
+) -> None:
+    assert len(payload) <= MAX_PAYLOAD_BYTES[verb]
+    raw = _raw_err(rig, f"cmd/{verb}", payload)
+    assert len(raw) <= 80 + QUOTE_CHARS, raw
+    assert all(len(r.getMessage()) <= 400 for r in caplog.records)
+    assert rig.iface.stats()["commands"]["malformed"] == 1
+
+
+@pytest.mark.parametrize("verb", ["move", "path", "estop"])
+def test_deep_nesting_is_malformed_and_logs_no_traceback(
+    rig: Rig, verb: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    depth = min(1200, MAX_PAYLOAD_BYTES[verb] // 2 - 10)
+    payload = b"[" * depth + b"]" * depth
+    for _ in range(3):
+        assert rig.get(f"cmd/{verb}", payload) == (
+            "err",
+            {"error": f"nested too deeply: at most {MAX_JSON_DEPTH} levels of [ and {{"},
+        )
+    assert rig.iface.stats()["commands"]["malformed"] == 3
+    assert [r for r in caplog.records if r.exc_info or r.levelname == "ERROR"] == []
+    assert rig.fake.submitted == []
+
+
+def test_reply_reasons_are_cut_to_a_bounded_length() -> None:
+    body = _strict(zenoh_io.error_payload("z" * 100_000))
+    assert len(body["error"]) == zenoh_io.MAX_REASON_CHARS
+    assert body["error"].endswith("...")
+
+
 def test_reply_timeout_when_the_loop_does_not_answer(rig: Rig) -> None:
     rig.fake.hang = True
     t0 = time.monotonic()
@@ -311,6 +375,33 @@ def test_setpoints_good_and_bad(rig: Rig, caplog: pytest.LogCaptureFixture) -> N
     assert rig.iface.setpoints_bad == 4
     # logged at most once per second, not once per bad sample
     assert sum("bad set-point" in r.getMessage() for r in caplog.records) <= 2
+
+
+@pytest.mark.parametrize("key", ["cablebot/test/*", "cablebot/test/**", "cablebot/**", "**"])
+def test_a_wildcard_put_is_never_taken_as_a_setpoint(rig: Rig, key: str) -> None:
+    rig.client.put(key, b'{"position_m": [1.5, 1, 2]}')
+    rig.client.put(f"{rig.prefix}/setpoint", b'{"position_m": [0.1, 0.2, 1.5]}')  # exact key
+    _wait(lambda: rig.iface.setpoints_ok + rig.iface.setpoints_bad == 2)
+    assert rig.fake.setpoints == [(0.1, 0.2, 1.5)]
+    assert rig.iface.setpoints_bad == 1
+
+
+def test_bad_setpoints_are_refused_by_size_and_logged_briefly(
+    rig: Rig, caplog: pytest.LogCaptureFixture
+) -> None:
+    pub = rig.client.declare_publisher(f"{rig.prefix}/setpoint")
+    time.sleep(0.3)
+    long_list = b'{"position_m": [' + b"1.0, " * 800 + b"1.0]}"
+    assert len(long_list) <= MAX_PAYLOAD_BYTES["setpoint"]
+    pub.put(long_list)  # logged: at most a short prefix of it
+    pub.put(b'{"position_m": [' + b"1.0, " * 2_600_000 + b"1.0]}")  # 13 MB: refused by size
+    pub.put(b'{"position_m": [0.3, 0.2, 1.5]}')
+    _wait(lambda: rig.iface.setpoints_ok + rig.iface.setpoints_bad == 3, 10.0)
+    assert rig.fake.setpoints == [(0.3, 0.2, 1.5)]
+    assert rig.iface.setpoints_bad == 2
+    messages = [r.getMessage() for r in caplog.records if "bad set-point" in r.getMessage()]
+    assert messages
+    assert all(len(m) <= 300 for m in messages), [m[:300] for m in messages]
 
 
 def test_open_fails_cleanly_when_the_port_is_taken() -> None:
