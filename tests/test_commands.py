@@ -120,7 +120,8 @@ def test_too_many_path_points() -> None:
 def test_the_longest_path_fits_the_byte_cap_even_pretty_printed() -> None:
     worst = -1.2345678901234567e-05  # the longest repr of a float
     points = [[worst, worst, worst]] * MAX_PATH_POINTS
-    payload = json.dumps({"points_m": points, "speed_mps": worst * -1}, indent=2).encode()
+    speed = 0.0012345678901234567  # as long, and above the minimum speed
+    payload = json.dumps({"points_m": points, "speed_mps": speed}, indent=2).encode()
     assert len(payload) <= MAX_PAYLOAD_BYTES["path"]
     cmd = parse_command("path", payload)
     assert isinstance(cmd, Path) and len(cmd.points_m) == MAX_PATH_POINTS
