@@ -17,6 +17,7 @@ _MODULES: tuple[str, ...] = (
     "controller.sim_cmd",  # sim
     "controller.client",  # pose, status, move, path, stop, estop, arm, disarm, reset, home
     "controller.offline",  # ipk, fpk
+    "controller.config_cmd",  # check-config, init-config
     "controller.demo",  # demo
     "controller.bench",  # bench
 )
