@@ -18,6 +18,7 @@ _MODULES: tuple[str, ...] = (
     "controller.client",  # pose, status, move, path, stop, estop, arm, disarm, reset, home
     "controller.offline",  # ipk, fpk
     "controller.config_cmd",  # check-config, init-config
+    "controller.monitor",  # monitor
     "controller.demo",  # demo
     "controller.bench",  # bench
 )
