@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -16,6 +17,8 @@ _MODULES: tuple[str, ...] = (
     "controller.sim_cmd",  # sim
     "controller.client",  # pose, status, move, path, stop, estop, arm, disarm, reset, home
     "controller.offline",  # ipk, fpk
+    "controller.config_cmd",  # check-config, init-config
+    "controller.monitor",  # monitor
     "controller.demo",  # demo
     "controller.bench",  # bench
 )
@@ -50,11 +53,37 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the `cablebot` command line; returns the process exit code."""
+    """Run the `cablebot` command line; returns the process exit code (`controller.exitcodes`).
+
+    A reader that goes away (`cablebot pose | head`) ends the verb quietly, without a
+    traceback; so does Ctrl-C.
+    """
+    from controller import exitcodes
+
     parser = build_parser()
     args = parser.parse_args(argv)
-    code: int = args.func(args)
+    try:
+        code: int = args.func(args)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _silence_stdout()
+        return exitcodes.BROKEN_PIPE
+    except KeyboardInterrupt:
+        return exitcodes.INTERRUPTED
     return code
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's last flush does not fail again."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        return  # not a real file (tests capture it): nothing to flush at exit
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, fd)
+    finally:
+        os.close(devnull)
 
 
 if __name__ == "__main__":

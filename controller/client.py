@@ -1,10 +1,10 @@
-"""Client CLI verbs that talk to a running daemon over Zenoh (issue 6).
+"""Client CLI verbs that talk to a running daemon over Zenoh.
 
 `cablebot pose|status|move|path|stop|estop|arm|disarm|reset|home`, connecting to
-`tcp/127.0.0.1:7447` by default (`--connect ENDPOINT`, `--prefix PREFIX`).
+`tcp/127.0.0.1:7447` by default (`--connect ENDPOINT` or `HOST:PORT`, `--prefix PREFIX`).
 
-Exit codes: 0 done; 1 the daemon refused (the reason is printed) or the input is invalid;
-2 no daemon answered (nothing listening, wrong prefix, or no reply in time).
+Exit codes: `controller.exitcodes` (0 done; 1 refused or invalid input, the reason printed;
+2 usage; 3 no daemon answered; 4 `--wait` timed out; 130 Ctrl-C).
 """
 
 from __future__ import annotations
@@ -15,23 +15,36 @@ import io
 import json
 import math
 import queue
+import re
 import sys
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
+from controller import exitcodes
 from controller.cli import add_xyz_arguments, xyz_from_args
 from controller.motion import MIN_SPEED_MPS, check_speed
 
-EXIT_OK = 0
-EXIT_REFUSED = 1
-EXIT_ABSENT = 2
+EXIT_OK = exitcodes.OK
+EXIT_REFUSED = exitcodes.REFUSED
+EXIT_USAGE = exitcodes.USAGE
+EXIT_ABSENT = exitcodes.NO_DAEMON
+EXIT_WAIT_TIMEOUT = exitcodes.WAIT_TIMEOUT
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 DEFAULT_PREFIX = "cablebot/default"
 ARRIVED_TOL_M = 1e-3
+DEFAULT_POSE_RATE_HZ = 5.0
+PROGRESS_PERIOD_S = 0.1
+
+# Zenoh link protocols a client may name in an endpoint; those with HOST:PORT addresses are
+# checked here so that a typo gets a one-line answer instead of a connection attempt.
+_PORT_PROTOCOLS = frozenset({"tcp", "udp", "tls", "quic", "ws"})
+_OTHER_PROTOCOLS = frozenset({"unixsock-stream", "unixpipe", "serial", "vsock"})
+_HOST_PORT = re.compile(r"(\[[0-9A-Fa-f:.%a-zA-Z]+\]|[A-Za-z0-9_.-]+):([0-9]{1,5})")
+_RUST_LOCATION = re.compile(r" at /\S+\.rs:\d+\.?")
 
 
 class DaemonAbsent(RuntimeError):
@@ -46,33 +59,71 @@ class InputError(ValueError):
     """The user's input (numbers, path file) is invalid; nothing was sent."""
 
 
+class UsageError(ValueError):
+    """A command-line value that cannot be used (e.g. `--connect`); nothing was sent."""
+
+
+class WaitTimeout(RuntimeError):
+    """`--wait`: the robot did not reach the end point in time."""
+
+
 # --------------------------------------------------------------------------------------------
 # Session and queries
+
+
+def normalize_endpoint(text: str) -> str:
+    """The Zenoh endpoint for a `--connect` value: `HOST:PORT` becomes `tcp/HOST:PORT`.
+
+    Accepts `PROTO/ADDRESS` for Zenoh's link protocols (`tcp`, `udp`, `tls`, `quic`, `ws` need
+    `HOST:PORT` with a port 1..65535). Raises UsageError (one line) for anything else.
+    """
+    t = text.strip()
+    bad = UsageError(f"--connect: expected tcp/HOST:PORT or HOST:PORT, got {text!r}")
+    if "/" in t:
+        proto, _, address = t.partition("/")
+        if proto in _OTHER_PROTOCOLS and address:
+            return t
+        if proto not in _PORT_PROTOCOLS:
+            raise bad
+        host_port = re.split(r"[?#]", address, maxsplit=1)[0]
+    else:
+        host_port = t
+    m = _HOST_PORT.fullmatch(host_port)
+    if m is None or not 1 <= int(m.group(2)) <= 65535:
+        raise bad
+    return t if "/" in t else f"tcp/{t}"
+
+
+def clean_zenoh_error(text: str) -> str:
+    """A Zenoh error message on one line, without the Rust source locations."""
+    one = " ".join(text.split())
+    return _RUST_LOCATION.sub("", one)
 
 
 @contextmanager
 def open_session(endpoint: str, *, config_file: str | None = None) -> Iterator[Any]:
     """Open a client-mode Zenoh session connected to `endpoint`; close it on exit.
 
-    Raises DaemonAbsent when nothing accepts the connection (or the endpoint is invalid).
+    Raises UsageError for an endpoint or `--zenoh-config` file that Zenoh rejects, and
+    DaemonAbsent when nothing accepts the connection.
     """
     import zenoh
 
     from controller.zenoh_io import client_config
 
     try:
-        session = zenoh.open(client_config([endpoint], config_file=config_file))
+        conf = client_config([endpoint], config_file=config_file)
     except zenoh.ZError as exc:
-        raise DaemonAbsent(f"cannot connect to {endpoint}: {_first_line(str(exc))}") from None
+        what = f"--zenoh-config {config_file}" if config_file else f"--connect {endpoint}"
+        raise UsageError(f"{what}: {clean_zenoh_error(str(exc))}") from None
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError as exc:
+        raise DaemonAbsent(f"cannot connect to {endpoint}: {clean_zenoh_error(str(exc))}") from None
     try:
         yield session
     finally:
         session.close()  # type: ignore[no-untyped-call]
-
-
-def _first_line(text: str) -> str:
-    line = text.strip().splitlines()[0] if text.strip() else text
-    return line.split("  at ")[0].strip()
 
 
 def query(session: Any, key: str, payload: dict[str, Any] | None, timeout_s: float) -> Any:
@@ -110,12 +161,20 @@ def _absent_message(args: argparse.Namespace, detail: str) -> str:
     return f"no cablebot daemon answered on {args.prefix} via {args.connect} ({detail})"
 
 
-def _run(args: argparse.Namespace, body: Any) -> int:
-    """Run `body(session)` with the CLI's error handling and exit codes."""
+def run_with_session(args: argparse.Namespace, body: Callable[[Any], int]) -> int:
+    """Run `body(session)` with the CLI's error handling; returns the exit code.
+
+    Every failure is one line on stderr: a refusal prints the daemon's reason verbatim.
+    """
     try:
-        with open_session(args.connect, config_file=args.zenoh_config) as session:
+        endpoint = normalize_endpoint(args.connect)
+        args.connect = endpoint
+        with open_session(endpoint, config_file=args.zenoh_config) as session:
             code: int = body(session)
             return code
+    except UsageError as exc:
+        print(f"cablebot: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     except DaemonAbsent as exc:
         print(f"cablebot: {_absent_message(args, str(exc))}", file=sys.stderr)
         return EXIT_ABSENT
@@ -125,8 +184,14 @@ def _run(args: argparse.Namespace, body: Any) -> int:
     except InputError as exc:
         print(f"cablebot: {exc}", file=sys.stderr)
         return EXIT_REFUSED
+    except WaitTimeout as exc:
+        print(f"cablebot: {exc}", file=sys.stderr)
+        return EXIT_WAIT_TIMEOUT
     except KeyboardInterrupt:
-        return 130
+        return exitcodes.INTERRUPTED
+
+
+_run = run_with_session
 
 
 # --------------------------------------------------------------------------------------------
@@ -145,8 +210,37 @@ def format_pose(sample: dict[str, Any]) -> str:
     return f"seq {sample.get('seq')}  state {sample.get('state')}  {where}{resid}"
 
 
+def axis_state_name(value: Any) -> str:
+    """The ODrive axis state's name (e.g. "CLOSED_LOOP_CONTROL"), or "state N" if unknown."""
+    from drivers.cansimple import AxisState
+
+    try:
+        return AxisState(int(value)).name
+    except (TypeError, ValueError):
+        return f"state {value}"
+
+
+def axis_error_text(value: Any) -> str:
+    """The ODrive error bits by name with the raw value, e.g. "ESTOP_REQUESTED (0x2000000)"."""
+    from drivers.cansimple import error_names
+
+    try:
+        bits = int(value)
+    except (TypeError, ValueError):
+        return f"{value}"
+    return "none" if bits == 0 else f"{error_names(bits)} (0x{bits:x})"
+
+
+def status_tensions_n(st: dict[str, Any]) -> list[float | None] | None:
+    """The cable tensions (N, cable order) a status carries, or None when it has none."""
+    for holder in (st, st.get("statics"), st.get("pose")):
+        if isinstance(holder, dict) and isinstance(holder.get("tensions_n"), list):
+            return [v if isinstance(v, int | float) else None for v in holder["tensions_n"]]
+    return None
+
+
 def format_status(st: dict[str, Any]) -> str:
-    """A short multi-line summary of a status reply."""
+    """A short multi-line summary of a status reply (axis states and errors by name)."""
     lines = [f"state      {st.get('state')}" + (f" ({st['reason']})" if st.get("reason") else "")]
     pose = st.get("pose") or {}
     if pose.get("position_m") is not None:
@@ -154,14 +248,21 @@ def format_status(st: dict[str, Any]) -> str:
         lines.append(f"position   x={x:+.4f} y={y:+.4f} z={z:+.4f} m")
     else:
         lines.append("position   not valid")
+    sp = st.get("setpoint_m")
+    if isinstance(sp, list) and len(sp) == 3:
+        lines.append(f"set-point  x={sp[0]:+.4f} y={sp[1]:+.4f} z={sp[2]:+.4f} m")
     if "homed" in st:
         lines.append(f"homed      {st.get('homed')} ({st.get('home_source')})")
-    for ax in st.get("axes", []):
+    tensions = status_tensions_n(st)
+    for i, ax in enumerate(st.get("axes", [])):
         age = ax.get("age_s")
         age_s = "never" if age is None else f"{age * 1e3:.1f} ms ago"
+        tension = ""
+        if tensions is not None and i < len(tensions) and tensions[i] is not None:
+            tension = f"  tension {tensions[i]:.1f} N"
         lines.append(
-            f"axis {ax.get('node_id')}     state {ax.get('axis_state')}"
-            f" error {ax.get('axis_error')}  reading {age_s}"
+            f"axis {ax.get('node_id')!s:<5} {axis_state_name(ax.get('axis_state'))}, error"
+            f" {axis_error_text(ax.get('axis_error'))}, reading {age_s}{tension}"
         )
     lp = st.get("loop")
     if lp:
@@ -204,12 +305,164 @@ def format_status(st: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _xyz(p: Sequence[Any], digits: int = 3) -> str:
+    return " ".join(f"{a}={float(v):+.{digits}f}" for a, v in zip("xyz", p, strict=False)) + " m"
+
+
+def format_reply(verb: str, reply: Any) -> str:
+    """One readable line for a command's reply (what the robot does now)."""
+    if not isinstance(reply, dict):
+        return f"{verb}: ok"
+    state = reply.get("state")
+    if verb == "stop":
+        if state == "MOVING":
+            return "stop: braking to a hold"
+        if state == "HOLDING":
+            return "stop: holding (nothing was moving)"
+        return f"stop: nothing to stop (state {state})"
+    if verb == "home":
+        return format_home(reply)
+    known = {"ok", "state"}
+    if verb in ("move", "path"):
+        known |= {"target_m", "points", "speed_mps", "speed_limited_to_mps"}
+        speed = reply.get("speed_mps")
+        at = "" if not isinstance(speed, int | float) else f" at {speed:.3f} m/s"
+        limited = reply.get("speed_limited_to_mps")
+        if isinstance(limited, int | float):
+            at += f" (speed limited to the robot's maximum, {limited:.3f} m/s)"
+        target = reply.get("target_m")
+        if verb == "move" and isinstance(target, list):
+            text = f"move: to {_xyz(target)}{at}"
+        elif verb == "path" and isinstance(reply.get("points"), int):
+            text = f"path: {reply['points']} points{at}"
+        else:
+            text = f"{verb}: ok{at}"
+    else:
+        text = f"{verb}: ok" + (f", state {state}" if state is not None else "")
+    extra = " ".join(f"{k}={v}" for k, v in reply.items() if k not in known)
+    return f"{text} {extra}".rstrip()
+
+
+def format_home(reply: dict[str, Any]) -> str:
+    """The `home` reply: the declared position, the offsets (4 decimals of a turn), saved where."""
+    parts = ["home:"]
+    pos = reply.get("position_m")
+    if isinstance(pos, list):
+        parts.append(f"at {_xyz(pos, 4)};")
+    offsets = reply.get("offsets_rev")
+    if isinstance(offsets, dict) and offsets:
+        parts.append(
+            "offsets (turns) "
+            + ", ".join(f"node {k} {float(v):+.4f}" for k, v in offsets.items())
+            + ";"
+        )
+    if reply.get("saved"):
+        parts.append(f"saved to {reply.get('state_file')}")
+    elif reply.get("error"):
+        parts.append(f"NOT SAVED: {reply['error']}")
+    else:
+        parts.append("not saved (no [homing] state_file)")
+    return " ".join(parts)
+
+
 def _ms(v: Any) -> str:
     return "-" if v is None else f"{float(v) * 1e3:.2f} ms"
 
 
 def _us(v: Any) -> str:
     return "-" if v is None else f"{float(v):.0f} us"
+
+
+# --------------------------------------------------------------------------------------------
+# Following a stream: sequence gaps, rate limiting, progress
+
+
+class SeqGaps:
+    """Counts samples missed from a stream numbered by `seq` (one per published sample).
+
+    `update(seq)` returns how many samples were missed just before this one (0 when in
+    order). A `seq` that goes backwards means the daemon restarted: counting starts again.
+    """
+
+    def __init__(self) -> None:
+        self.last: int | None = None
+        self.received = 0
+        self.missed = 0
+        self.restarts = 0
+
+    def update(self, seq: Any) -> int:
+        """Record one received `seq`; returns the samples missed before it."""
+        self.received += 1
+        if not isinstance(seq, int):
+            return 0
+        gap = 0
+        if self.last is not None:
+            if seq <= self.last:
+                self.restarts += 1
+            else:
+                gap = seq - self.last - 1
+        self.last = seq
+        self.missed += gap
+        return gap
+
+
+def path_remaining_m(
+    legs: Sequence[tuple[Sequence[float], Sequence[float]]], pos: Sequence[float], leg: int
+) -> tuple[int, float]:
+    """Distance (m) still to travel along `legs` from `pos`, and the leg it is on now.
+
+    `leg` is the leg the effector was on before; it only moves forward (to the nearest of this
+    leg and the next two), so a path that crosses itself is followed in order. The distance is
+    from `pos` to the end of its leg plus the lengths of the legs after it.
+    """
+    best, best_d = leg, math.inf
+    for k in range(leg, min(leg + 3, len(legs))):
+        d = _point_segment_m(pos, legs[k][0], legs[k][1])
+        if d < best_d - 1e-9:
+            best, best_d = k, d
+    rest = sum(math.dist(a, b) for a, b in legs[best + 1 :])
+    return best, math.dist(pos, legs[best][1]) + rest
+
+
+def _point_segment_m(p: Sequence[float], a: Sequence[float], b: Sequence[float]) -> float:
+    ab = [b[i] - a[i] for i in range(3)]
+    ap = [p[i] - a[i] for i in range(3)]
+    den = sum(v * v for v in ab)
+    t = 0.0 if den <= 0.0 else max(0.0, min(1.0, sum(ab[i] * ap[i] for i in range(3)) / den))
+    return math.dist(p, [a[i] + t * ab[i] for i in range(3)])
+
+
+class StatusLine:
+    """One line of progress rewritten in place on a terminal; does nothing elsewhere."""
+
+    def __init__(self, stream: TextIO, *, enabled: bool) -> None:
+        self.stream = stream
+        self.enabled = enabled
+        self._shown = False
+        self._next_s = 0.0
+
+    def show(self, text: str, now_s: float) -> None:
+        """Replace the line with `text` (at most every PROGRESS_PERIOD_S)."""
+        if not self.enabled or now_s < self._next_s:
+            return
+        self._next_s = now_s + PROGRESS_PERIOD_S
+        self.stream.write("\r\x1b[K" + text)
+        self.stream.flush()
+        self._shown = True
+
+    def clear(self) -> None:
+        """Erase the line (before printing a normal line)."""
+        if self._shown:
+            self.stream.write("\r\x1b[K")
+            self.stream.flush()
+            self._shown = False
+
+
+def _isatty(stream: Any) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
 
 
 # --------------------------------------------------------------------------------------------
@@ -298,15 +551,9 @@ def _command(args: argparse.Namespace, verb: str, payload: dict[str, Any] | None
 
 def _print_reply(verb: str, reply: Any, args: argparse.Namespace) -> None:
     if getattr(args, "json", False):
-        print(json.dumps(reply))
-        return
-    extra = ""
-    if isinstance(reply, dict):
-        extra = " ".join(f"{k}={v}" for k, v in reply.items() if k != "ok")
-    print(f"{verb}: ok {extra}".rstrip())
-    limited = reply.get("speed_limited_to_mps") if isinstance(reply, dict) else None
-    if isinstance(limited, int | float):
-        print(f"{verb}: speed limited to {limited:g} m/s, the robot's maximum")
+        print(json.dumps(reply), flush=True)
+    else:
+        print(format_reply(verb, reply), flush=True)
 
 
 def cmd_simple(args: argparse.Namespace) -> int:
@@ -336,7 +583,7 @@ def cmd_move(args: argparse.Namespace) -> int:
     except InputError as exc:
         print(f"cablebot: {exc}", file=sys.stderr)
         return EXIT_REFUSED
-    return _motion(args, "move", payload, target)
+    return _motion(args, "move", payload, [target])
 
 
 def cmd_path(args: argparse.Namespace) -> int:
@@ -349,10 +596,13 @@ def cmd_path(args: argparse.Namespace) -> int:
     except InputError as exc:
         print(f"cablebot: {exc}", file=sys.stderr)
         return EXIT_REFUSED
-    return _motion(args, "path", payload, list(payload["points_m"][-1]))
+    points = [[float(v) for v in p] for p in payload["points_m"]]
+    return _motion(args, "path", payload, points)
 
 
-def _motion(args: argparse.Namespace, verb: str, payload: dict[str, Any], end: list[float]) -> int:
+def _motion(
+    args: argparse.Namespace, verb: str, payload: dict[str, Any], points: list[list[float]]
+) -> int:
     def body(session: Any) -> int:
         poses: queue.Queue[bytes] = queue.Queue()
         sub = None
@@ -365,7 +615,7 @@ def _motion(args: argparse.Namespace, verb: str, payload: dict[str, Any], end: l
             _print_reply(verb, reply, args)
             if not args.wait:
                 return EXIT_OK
-            return _wait_arrival(args, poses, end)
+            return _wait_arrival(args, verb, poses, points)
         finally:
             if sub is not None:
                 sub.undeclare()
@@ -373,35 +623,57 @@ def _motion(args: argparse.Namespace, verb: str, payload: dict[str, Any], end: l
     return _run(args, body)
 
 
-def _wait_arrival(args: argparse.Namespace, poses: queue.Queue[bytes], end: list[float]) -> int:
-    """Follow the pose until it is within 1 mm of `end` in a still state (HOLDING)."""
-    deadline = time.monotonic() + args.wait_timeout
-    last_rx = time.monotonic()
+def _wait_arrival(
+    args: argparse.Namespace, verb: str, poses: queue.Queue[bytes], points: list[list[float]]
+) -> int:
+    """Follow the pose until it is within 1 mm of the last point in a still state (HOLDING).
+
+    On a terminal (and without `--json`) one line shows the distance still to travel, rewritten
+    in place. Raises WaitTimeout, Refused (the robot left the motion states) or DaemonAbsent.
+    """
+    end = points[-1]
+    line = StatusLine(sys.stdout, enabled=_isatty(sys.stdout) and not args.json)
+    t0 = time.monotonic()
+    deadline = t0 + args.wait_timeout
+    last_rx = t0
     last: dict[str, Any] | None = None
-    while True:
-        now = time.monotonic()
-        if now >= deadline:
-            where = "" if last is None else f"; last {format_pose(last)}"
-            print(
-                f"cablebot: not at the target after {args.wait_timeout:g} s{where}", file=sys.stderr
+    legs: list[tuple[list[float], list[float]]] | None = None
+    leg = 0
+    try:
+        while True:
+            now = time.monotonic()
+            if now >= deadline:
+                where = "" if last is None else f"; last {format_pose(last)}"
+                raise WaitTimeout(f"not at the target after {args.wait_timeout:g} s{where}")
+            try:
+                data = poses.get(timeout=min(0.5, deadline - now))
+            except queue.Empty:
+                if time.monotonic() - last_rx > args.timeout:
+                    raise DaemonAbsent(f"no pose sample for {args.timeout:g} s") from None
+                continue
+            last_rx = time.monotonic()
+            last = json.loads(data)
+            state = str(last.get("state"))
+            if state in ("FAULT", "ESTOPPED", "DISARMED"):
+                raise Refused(f"the robot went {state} during the motion: {format_pose(last)}")
+            pos = last.get("position_m")
+            if pos is None:
+                continue
+            if state == "HOLDING" and math.dist(pos, end) <= ARRIVED_TOL_M:
+                line.clear()
+                if not args.json:
+                    print(f"arrived: {format_pose(last)}", flush=True)
+                return EXIT_OK
+            if legs is None:
+                starts = [list(pos), *points[:-1]]
+                legs = list(zip(starts, points, strict=True))
+            leg, remaining = path_remaining_m(legs, pos, leg)
+            line.show(
+                f"{verb}: {remaining:.3f} m to go  {state}  {_xyz(pos)}  {last_rx - t0:.1f} s",
+                last_rx,
             )
-            return EXIT_ABSENT
-        try:
-            data = poses.get(timeout=min(0.5, deadline - now))
-        except queue.Empty:
-            if time.monotonic() - last_rx > args.timeout:
-                raise DaemonAbsent(f"no pose sample for {args.timeout:g} s") from None
-            continue
-        last_rx = time.monotonic()
-        last = json.loads(data)
-        state = str(last.get("state"))
-        if state in ("FAULT", "ESTOPPED", "DISARMED"):
-            raise Refused(f"the robot went {state} during the motion: {format_pose(last)}")
-        pos = last.get("position_m")
-        if pos is not None and state == "HOLDING" and math.dist(pos, end) <= ARRIVED_TOL_M:
-            if not getattr(args, "json", False):
-                print(f"arrived: {format_pose(last)}")
-            return EXIT_OK
+    finally:
+        line.clear()
 
 
 def cmd_status(args: argparse.Namespace) -> int:
@@ -409,14 +681,29 @@ def cmd_status(args: argparse.Namespace) -> int:
 
     def body(session: Any) -> int:
         st = query(session, _key(args, "status"), None, args.timeout)
-        print(json.dumps(st, indent=2) if args.json else format_status(st))
+        print(json.dumps(st, indent=2) if args.json else format_status(st), flush=True)
         return EXIT_OK
 
     return _run(args, body)
 
 
 def cmd_pose(args: argparse.Namespace) -> int:
-    """pose [--count N] [--json]: follow the pose until N samples (or Ctrl-C)."""
+    """pose [--count N] [--rate HZ] [--json]: follow the pose until N lines (or Ctrl-C).
+
+    Human lines come at most `--rate` times a second (default 5; a state change is shown at
+    once); `--json` prints every sample unless `--rate` is given. Samples missed in between
+    (gaps in `seq`) are reported: a line "gap: N samples missed" (on stderr with `--json`).
+    """
+    rate_hz = args.rate
+    if rate_hz is None:
+        rate_hz = 0.0 if args.json else DEFAULT_POSE_RATE_HZ
+    if not math.isfinite(rate_hz) or rate_hz < 0.0:
+        print(
+            f"cablebot: --rate must be a number >= 0 (0: every sample), got {rate_hz}",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    min_interval_s = 0.0 if rate_hz == 0.0 else 1.0 / rate_hz
 
     def body(session: Any) -> int:
         poses: queue.Queue[bytes] = queue.Queue(maxsize=10_000)
@@ -425,21 +712,49 @@ def cmd_pose(args: argparse.Namespace) -> int:
             with suppress(queue.Full):
                 poses.put_nowait(s.payload.to_bytes())
 
+        gaps = SeqGaps()
         sub = session.declare_subscriber(_key(args, "pose"), on_sample)
+        ended = False
         try:
-            n = 0
-            while args.count is None or n < args.count:
+            printed = 0
+            unreported = 0
+            next_s = 0.0
+            last_state: Any = None
+            while args.count is None or printed < args.count:
                 try:
                     data = poses.get(timeout=args.timeout)
                 except queue.Empty:
                     raise DaemonAbsent(f"no pose sample within {args.timeout:g} s") from None
-                if args.json:
-                    print(data.decode(), flush=True)
-                else:
-                    print(format_pose(json.loads(data)), flush=True)
-                n += 1
+                sample = json.loads(data)
+                unreported += gaps.update(sample.get("seq"))
+                now = time.monotonic()
+                state = sample.get("state")
+                if now < next_s and state == last_state:
+                    continue
+                next_s = now + min_interval_s
+                last_state = state
+                if unreported:
+                    print(
+                        f"gap: {unreported} samples missed",
+                        file=sys.stderr if args.json else sys.stdout,
+                        flush=True,
+                    )
+                    unreported = 0
+                print(data.decode() if args.json else format_pose(sample), flush=True)
+                printed += 1
+            ended = True
+        except KeyboardInterrupt:
+            ended = True
+            raise
         finally:
             sub.undeclare()
+            # Not after a failure (a closed pipe, no daemon): that has its own message.
+            if ended and gaps.missed:
+                print(
+                    f"pose: {gaps.received} samples received, {gaps.missed} missed",
+                    file=sys.stderr,
+                    flush=True,
+                )
         return EXIT_OK
 
     return _run(args, body)
@@ -449,12 +764,13 @@ def cmd_pose(args: argparse.Namespace) -> int:
 # Registration
 
 
-def _common(p: argparse.ArgumentParser) -> None:
+def add_connection_arguments(p: argparse.ArgumentParser) -> None:
+    """Add `--connect`, `--prefix`, `--zenoh-config` and `--timeout` to a verb's parser."""
     p.add_argument(
         "--connect",
         default=DEFAULT_ENDPOINT,
         metavar="ENDPOINT",
-        help=f"Zenoh endpoint of the daemon (default {DEFAULT_ENDPOINT})",
+        help=f"the daemon's endpoint, PROTO/HOST:PORT or HOST:PORT (default {DEFAULT_ENDPOINT})",
     )
     p.add_argument(
         "--prefix",
@@ -479,19 +795,29 @@ def _common(p: argparse.ArgumentParser) -> None:
 def register(sub: argparse._SubParsersAction[Any]) -> None:
     """Register pose, status, move, path, stop, estop, arm, disarm, reset, home."""
     p = sub.add_parser("pose", help="follow the published pose")
-    _common(p)
-    p.add_argument("--count", type=int, default=None, metavar="N", help="stop after N samples")
+    add_connection_arguments(p)
+    p.add_argument("--count", type=int, default=None, metavar="N", help="stop after N lines")
+    p.add_argument(
+        "--rate",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help=(
+            f"at most HZ lines a second (default {DEFAULT_POSE_RATE_HZ:g}; with --json every"
+            " sample); 0: every sample"
+        ),
+    )
     p.add_argument("--json", action="store_true", help="print the raw JSON samples")
     p.set_defaults(func=cmd_pose)
 
     p = sub.add_parser("status", help="print the daemon's status")
-    _common(p)
+    add_connection_arguments(p)
     p.add_argument("--json", action="store_true", help="print the raw JSON status")
     p.set_defaults(func=cmd_status)
 
     for verb, what in (("move", "move in a straight line to X Y Z"), ("path", "follow a path")):
         p = sub.add_parser(verb, help=what)
-        _common(p)
+        add_connection_arguments(p)
         if verb == "move":
             add_xyz_arguments(p)
         else:
@@ -525,12 +851,12 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         ("reset", "clear FAULT or ESTOPPED back to DISARMED"),
     ):
         p = sub.add_parser(verb, help=what)
-        _common(p)
+        add_connection_arguments(p)
         p.add_argument("--json", action="store_true", help="print the raw JSON reply")
         p.set_defaults(func=cmd_simple)
 
     p = sub.add_parser("home", help="declare that the effector is now at X Y Z")
-    _common(p)
+    add_connection_arguments(p)
     add_xyz_arguments(p)
     p.add_argument("--json", action="store_true", help="print the raw JSON reply")
     p.set_defaults(func=cmd_home)

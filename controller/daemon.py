@@ -54,7 +54,7 @@ STOP_MARGIN_FACTOR = 1.25
 loaded loop runs the motion slower than the wall clock), plus `STOP_MARGIN_S`."""
 STOP_WAIT_MAX_S = 10.0
 """The longest shutdown waits for a brake, whatever the speed and acceleration (systemd's
-TimeoutStopSec in config/cablebot.service is longer)."""
+TimeoutStopSec in config/cablebot@.service is longer)."""
 SILENT_WARN_EVERY_S = 5.0
 """Warning period for silent nodes when status lines are off (`--status-every 0`)."""
 

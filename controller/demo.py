@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import importlib.util
 import itertools
 import logging
 import math
@@ -666,6 +667,29 @@ def _step_axis(run: CircleRun) -> FloatArray:
     return np.interp(run.t_s, ts, np.arange(len(ts), dtype=np.float64))
 
 
+ZOOM_BELOW = 0.25
+"""Zoom the 3-D figure to the path when it spans less than this fraction of the robot."""
+
+
+def zoom_box_3d(anchors_m: FloatArray, path_m: FloatArray) -> tuple[FloatArray, FloatArray] | None:
+    """The (low, high) corners of a cube around `path_m` for the 3-D figure, or None.
+
+    None when the path spans at least `ZOOM_BELOW` of the anchors' plan-view extent (draw the
+    whole robot). Otherwise the cube is centred on the path with 30 % room, all three sides
+    equal so that the figure keeps the path's true shape.
+    """
+    robot_span = float(max(np.ptp(anchors_m[:, 0]), np.ptp(anchors_m[:, 1])))
+    lo = np.min(path_m, axis=0)
+    hi = np.max(path_m, axis=0)
+    span = float(np.max(hi - lo))
+    if robot_span <= 0.0 or span >= ZOOM_BELOW * robot_span:
+        return None
+    half = max(span, 1e-3) * 0.65
+    centre = (lo + hi) / 2.0
+    centre[2] = max(float(centre[2]), half)  # keep the cube above the floor (z = 0)
+    return centre - half, centre + half
+
+
 def plot_circle(run: CircleRun, out_dir: Path, summary: CircleSummary | None = None) -> list[Path]:
     """Write the four PNG figures (`PLOT_FILES`) into `out_dir` and return their paths.
 
@@ -676,6 +700,7 @@ def plot_circle(run: CircleRun, out_dir: Path, summary: CircleSummary | None = N
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
 
     s = summary if summary is not None else summarize(run)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -697,29 +722,40 @@ def plot_circle(run: CircleRun, out_dir: Path, summary: CircleSummary | None = N
     deg = 360.0 / spec.steps
     note_kw: dict[str, Any] = {"ha": "center", "fontsize": 9, "color": "0.3"}
 
-    # 1. The robot and the path in 3D (the paper's Figure 3).
+    # 1. The robot and the path in 3D (the paper's Figure 3). A path small beside the robot
+    # gets axes zoomed to it (equal aspect) and the anchors in a plan-view inset.
     fig = plt.figure(figsize=(11, 5.8))
     ax: Any = fig.add_axes((-0.04, 0.0, 0.84, 0.96), projection="3d")
     A = run.anchors_m  # noqa: N806
-    for i in range(n):
-        ax.plot([A[i, 0]] * 2, [A[i, 1]] * 2, [0.0, A[i, 2]], color="0.45", lw=2.5)
-    ring = np.vstack([A, A[:1]])
-    ax.plot(ring[:, 0], ring[:, 1], np.zeros(len(ring)), color="0.6", lw=1, ls=":")
-    ax.scatter(A[:, 0], A[:, 1], A[:, 2], color="k", marker="v", s=50, label="anchors B1..B4")
-    for i in range(n):
-        ax.text(A[i, 0], A[i, 1], A[i, 2] + 1.0, f"B{i + 1}", ha="center", fontsize=11)
-    p_end = run.fpk_m[idx[-1]]
-    for i in range(n):
-        ax.plot(
-            [A[i, 0], p_end[0]],
-            [A[i, 1], p_end[1]],
-            [A[i, 2], p_end[2]],
-            color=colours[i],
-            lw=1.8,
-            label=f"cable {i + 1}",
-        )
     pts = run.points_m
     f = run.fpk_m[sl]
+    p_end = run.fpk_m[idx[-1]]
+    box = zoom_box_3d(A, np.vstack([pts, f]))
+    if box is None:
+        for i in range(n):
+            ax.plot([A[i, 0]] * 2, [A[i, 1]] * 2, [0.0, A[i, 2]], color="0.45", lw=2.5)
+        ring = np.vstack([A, A[:1]])
+        ax.plot(ring[:, 0], ring[:, 1], np.zeros(len(ring)), color="0.6", lw=1, ls=":")
+        ax.scatter(A[:, 0], A[:, 1], A[:, 2], color="k", marker="v", s=50, label="anchors B1..B4")
+        for i in range(n):
+            ax.text(A[i, 0], A[i, 1], A[i, 2] + 1.0, f"B{i + 1}", ha="center", fontsize=11)
+        cable_ends = A
+    else:
+        # Cables drawn toward their anchors only as far as the zoomed box reaches.
+        u = (A - p_end) / np.linalg.norm(A - p_end, axis=1)[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            to_wall = np.where(u > 0, (box[1] - p_end) / u, (box[0] - p_end) / u)
+        reach = np.nanmin(np.where(np.abs(u) > 1e-12, to_wall, np.inf), axis=1)
+        cable_ends = p_end + u * reach[:, None]
+    for i in range(n):
+        ax.plot(
+            [cable_ends[i, 0], p_end[0]],
+            [cable_ends[i, 1], p_end[1]],
+            [cable_ends[i, 2], p_end[2]],
+            color=colours[i],
+            lw=1.8,
+            label=f"cable {i + 1}" + ("" if box is None else f" (toward B{i + 1})"),
+        )
     ax.plot(
         pts[:, 0],
         pts[:, 1],
@@ -734,22 +770,59 @@ def plot_circle(run: CircleRun, out_dir: Path, summary: CircleSummary | None = N
     )
     ax.plot(f[:, 0], f[:, 1], f[:, 2], color="#1f77b4", lw=1.8, label="FPK measured")
     ax.scatter(*p_end, color="#d62728", s=45, depthshade=False, label="P, final = initial")
-    lx, ly = np.ptp(A[:, 0]), np.ptp(A[:, 1])
-    zmax = float(np.max(A[:, 2]))
-    z_scale = 3.0
-    ax.set_box_aspect((lx, ly, zmax * z_scale), zoom=1.0)
-    ax.set_zlim(0.0, zmax * 1.1)
+    if box is None:
+        lx, ly = np.ptp(A[:, 0]), np.ptp(A[:, 1])
+        zmax = float(np.max(A[:, 2]))
+        z_scale = 3.0
+        ax.set_box_aspect((lx, ly, zmax * z_scale), zoom=1.0)
+        ax.set_zlim(0.0, zmax * 1.1)
+        scale_note = f"Vertical scale x{z_scale:g}."
+    else:
+        ax.set_xlim(box[0][0], box[1][0])
+        ax.set_ylim(box[0][1], box[1][1])
+        ax.set_zlim(box[0][2], box[1][2])
+        ax.set_box_aspect((1.0, 1.0, 1.0), zoom=0.85)
+        scale_note = "Equal scales."
+        fig.text(0.89, 0.57, "the 3-D view: red box", ha="center", fontsize=8, color="0.3")
+        ins = fig.add_axes((0.80, 0.64, 0.18, 0.28))
+        ring = np.vstack([A, A[:1]])
+        ins.plot(ring[:, 0], ring[:, 1], color="0.6", lw=1, ls=":")
+        ins.plot(A[:, 0], A[:, 1], "kv", ms=5)
+        for i in range(n):
+            ins.annotate(
+                f"B{i + 1}",
+                (A[i, 0], A[i, 1]),
+                fontsize=8,
+                ha="center",
+                xytext=(0, 5),
+                textcoords="offset points",
+            )
+        ins.plot(pts[:, 0], pts[:, 1], color="#1f77b4", lw=1.5)
+        ins.add_patch(
+            Rectangle(
+                (box[0][0], box[0][1]),
+                box[1][0] - box[0][0],
+                box[1][1] - box[0][1],
+                fill=False,
+                ec="#d62728",
+                lw=1.0,
+            )
+        )
+        ins.set_aspect("equal", adjustable="datalim")
+        ins.set_title("plan view", fontsize=9)
+        ins.tick_params(labelsize=7)
     ax.set_xlabel("x (m)", labelpad=8)
     ax.set_ylabel("y (m)", labelpad=8)
     ax.set_zlabel("z (m)", labelpad=4)
     ax.view_init(elev=26, azim=-62)
     fig.suptitle(f"Robot {run.robot!r} and the circle: {title_circle}", y=0.97)
-    fig.legend(loc="center right", bbox_to_anchor=(0.99, 0.5), fontsize=10, framealpha=0.9)
+    legend_at = (0.99, 0.5) if box is None else (0.99, 0.33)
+    fig.legend(loc="center right", bbox_to_anchor=legend_at, fontsize=10, framealpha=0.9)
     fig.text(
         0.45,
         0.025,
         "Cables drawn at the final (= initial) point. Measured path: FPK of the encoder "
-        f"lengths at every control tick. Vertical scale x{z_scale:g}.",
+        f"lengths at every control tick. {scale_note}",
         **note_kw,
     )
     fig.savefig(paths[0], dpi=110)
@@ -862,6 +935,12 @@ def cmd_circle(args: argparse.Namespace) -> int:
     def say(line: str) -> None:
         print(line, flush=True)
 
+    if args.plot is not None and importlib.util.find_spec("matplotlib") is None:
+        print(
+            "cablebot demo: --plot needs matplotlib: pip install 'cablebot[plot]'",
+            file=sys.stderr,
+        )
+        return 1
     try:
         cfg = load_config(args.config)
     except (ConfigError, OSError) as exc:

@@ -1,4 +1,4 @@
-"""Offline kinematics tools that need no daemon: `cablebot ipk` and `cablebot fpk` (issue 6).
+"""Offline kinematics tools that need no daemon: `cablebot ipk` and `cablebot fpk`.
 
 Pure geometry from the configuration's anchors: reel homing offsets play no part.
 
@@ -18,10 +18,11 @@ import math
 import sys
 from typing import Any
 
+from controller import exitcodes
 from controller.cli import add_xyz_arguments
 
-EXIT_OK = 0
-EXIT_ERROR = 1
+EXIT_OK = exitcodes.OK
+EXIT_ERROR = exitcodes.REFUSED
 
 
 def _fail(msg: str) -> int:

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from controller import client, zenoh_io
+from controller import client, exitcodes, zenoh_io
 from controller.cli import main
 from tests.fakes_zenoh import FakeController, ZCfg, free_port
 
@@ -53,20 +53,20 @@ def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
 # ------------------------------------------------------------------------------ no daemon
 
 
-def test_no_daemon_exits_2_with_a_clear_message(capsys: pytest.CaptureFixture[str]) -> None:
+def test_no_daemon_exits_3_with_a_clear_message(capsys: pytest.CaptureFixture[str]) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     t0 = time.monotonic()
     for verb in (["status"], ["arm"], ["move", "0", "0", "1"], ["pose", "--count", "1"]):
         code, out, err = run(capsys, *verb, "--connect", endpoint)
-        assert code == 2, verb
+        assert code == exitcodes.NO_DAEMON, verb
         assert out == ""
         assert f"no cablebot daemon answered on cablebot/default via {endpoint}" in err
     assert time.monotonic() - t0 < 10.0  # fails fast: nothing listens
 
 
-def test_wrong_prefix_exits_2(daemon: Daemon, capsys: pytest.CaptureFixture[str]) -> None:
+def test_wrong_prefix_exits_3(daemon: Daemon, capsys: pytest.CaptureFixture[str]) -> None:
     code, _, err = run(capsys, "status", "--connect", daemon.endpoint, "--prefix", "cablebot/x")
-    assert code == 2
+    assert code == exitcodes.NO_DAEMON
     assert "no cablebot daemon answered on cablebot/x" in err
 
 
@@ -81,7 +81,7 @@ def test_pose_times_out_when_nothing_is_published(capsys: pytest.CaptureFixture[
         )
     finally:
         iface.close()
-    assert code == 2
+    assert code == exitcodes.NO_DAEMON
     assert "no pose sample within 0.5 s" in err
 
 
@@ -126,7 +126,7 @@ def test_refusal_exits_1_with_the_reason(
 
 
 def test_arm_move_wait_stop_estop_reset(daemon: Daemon, capsys: pytest.CaptureFixture[str]) -> None:
-    assert run(capsys, "arm", *daemon.args())[:2] == (0, "arm: ok state=HOLDING\n")
+    assert run(capsys, "arm", *daemon.args())[:2] == (0, "arm: ok, state HOLDING\n")
     code, out, err = run(
         capsys, "move", "0.2", "-0.1", "2.1", "--speed", "1.0", "--wait", *daemon.args()
     )
@@ -185,7 +185,7 @@ def test_move_wait_timeout(daemon: Daemon, capsys: pytest.CaptureFixture[str]) -
         "0.5",
         *daemon.args(),
     )
-    assert code == 2
+    assert code == exitcodes.WAIT_TIMEOUT
     assert "not at the target after 0.5 s" in err
 
 
@@ -277,5 +277,5 @@ def test_cli_process_exit_code_without_daemon() -> None:
         timeout=60,
         check=False,
     )
-    assert proc.returncode == 2
+    assert proc.returncode == exitcodes.NO_DAEMON
     assert "no cablebot daemon answered" in proc.stderr

@@ -301,7 +301,7 @@ def test_systemd_unit_is_type_notify_with_watchdog() -> None:
 
     unit = configparser.ConfigParser(strict=False, interpolation=None)
     unit.optionxform = str  # type: ignore[assignment,method-assign]
-    unit.read(REPO / "config" / "cablebot.service")
+    unit.read(REPO / "config" / "cablebot@.service")
     svc = unit["Service"]
     assert svc["Type"] == "notify"
     assert svc["NotifyAccess"] == "main"

@@ -45,8 +45,10 @@ def test_the_cli_says_when_the_speed_was_limited(capsys: pytest.CaptureFixture[s
     reply = {"ok": True, "target_m": [1.0, 0.0, 2.0], "speed_mps": 2.0, "speed_limited_to_mps": 2.0}
     client._print_reply("move", reply, args)
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0].startswith("move: ok ") and "speed_mps=2.0" in lines[0]
-    assert lines[1] == "move: speed limited to 2 m/s, the robot's maximum"
+    assert lines == [
+        "move: to x=+1.000 y=+0.000 z=+2.000 m at 2.000 m/s "
+        "(speed limited to the robot's maximum, 2.000 m/s)"
+    ]
     client._print_reply("move", {"ok": True, "speed_mps": 1.0}, args)
     assert "limited" not in capsys.readouterr().out
     client._print_reply("path", reply, argparse.Namespace(json=True))

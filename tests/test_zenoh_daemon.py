@@ -6,7 +6,7 @@
 - every malformed or refused command gets an error reply and leaves the state, the pose and
   the set-point unchanged;
 - state changes are published, the status queryable and the liveliness token work, streamed
-  set-points are followed, and the CLI exits 0 / 1 / 2 as documented.
+  set-points are followed, and the CLI exits 0 / 1 / 3 as documented.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from typing import Any
 
 import pytest
 
+from controller import exitcodes
 from controller.config import paper_robot_data
 from tests.daemon_procs import CABLEBOT, REPO, Proc, free_tcp_port, to_toml, zenoh_session
 
@@ -488,7 +489,7 @@ def test_cli_refusal_and_bad_input_exit_1_and_change_nothing(daemon: Daemon) -> 
     _assert_unchanged(daemon, before)
 
 
-def test_cli_wrong_prefix_exits_2(daemon: Daemon) -> None:
+def test_cli_wrong_prefix_exits_3(daemon: Daemon) -> None:
     proc = subprocess.run(
         [*CABLEBOT, "status", "--connect", daemon.endpoint, "--prefix", "cablebot/nobody"],
         cwd=REPO,
@@ -497,7 +498,7 @@ def test_cli_wrong_prefix_exits_2(daemon: Daemon) -> None:
         timeout=60,
         check=False,
     )
-    assert proc.returncode == 2
+    assert proc.returncode == exitcodes.NO_DAEMON
     assert "no cablebot daemon answered on cablebot/nobody" in proc.stderr
 
 
@@ -527,5 +528,5 @@ def test_session_is_gone_after_the_daemon_stops(tmp_path: Path) -> None:
         timeout=60,
         check=False,
     )
-    assert cli.returncode == 2
+    assert cli.returncode == exitcodes.NO_DAEMON
     assert f"no cablebot daemon answered on {prefix} via {endpoint}" in cli.stderr

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from controller import zenoh_io
+from controller import exitcodes, zenoh_io
 from controller.commands import MAX_JSON_DEPTH, MAX_PAYLOAD_BYTES, QUOTE_CHARS, Move, Setpoint
 from tests.fakes_zenoh import FakeController, FakePose, ZCfg, free_port
 
@@ -489,14 +489,14 @@ def test_tls_acl_example_lets_only_the_operator_command(
     try:
         # no client certificate: the TLS handshake fails, no session at all
         code = main(["status", *common, "--zenoh-config", _client_file(tmp_path, None)])
-        assert code == 2
+        assert code == exitcodes.NO_DAEMON
         assert "cannot connect" in capsys.readouterr().err
         # a valid certificate that is not the operator's: may watch, may not command
         viewer = ["--zenoh-config", _client_file(tmp_path, "viewer")]
         assert main(["status", *common, *viewer]) == 0
         assert main(["pose", "--count", "3", "--json", *common, *viewer]) == 0
         capsys.readouterr()
-        assert main(["arm", *common, *viewer]) == 2
+        assert main(["arm", *common, *viewer]) == exitcodes.NO_DAEMON
         assert "no cablebot daemon answered" in capsys.readouterr().err
         assert fake.submitted == []
         assert fake.state == "DISARMED"

@@ -1,0 +1,50 @@
+"""The exit codes of the `cablebot` command line: one table, used by every verb.
+
+The README's exit-code table is checked against `TABLE` by a test, so the two cannot drift.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+OK: Final = 0
+"""Done."""
+REFUSED: Final = 1
+"""The daemon refused the command (its reason is printed), the input (numbers, a path or
+configuration file) is invalid, `run` could not start (Zenoh, bus), or the robot stopped
+(FAULT/ESTOPPED/DISARMED) while `--wait`ed on."""
+USAGE: Final = 2
+"""Usage error (argparse: unknown option, missing argument, bad `--connect`); for `run`, `sim`
+and `demo` also a configuration error: restarting cannot help."""
+NO_DAEMON: Final = 3
+"""No daemon answered: nothing listening on the endpoint, wrong prefix, no reply or no pose in
+time."""
+WAIT_TIMEOUT: Final = 4
+"""`--wait`: the robot did not reach the end point within `--wait-timeout`."""
+INTERRUPTED: Final = 130
+"""Ctrl-C (SIGINT)."""
+BROKEN_PIPE: Final = 141
+"""The reader of the output went away (`cablebot pose | head`): stopped quietly, as a process
+killed by SIGPIPE would be."""
+
+TABLE: Final[tuple[tuple[int, str], ...]] = (
+    (OK, "done"),
+    (
+        REFUSED,
+        "refused by the daemon (its reason is printed), invalid input, or `run` could not start;"
+        " a `--wait`ed motion ended in FAULT, ESTOPPED or DISARMED",
+    ),
+    (
+        USAGE,
+        "usage error (unknown option, missing argument, bad `--connect`); `run`, `sim`, `demo`:"
+        " configuration error (restarting cannot help)",
+    ),
+    (
+        NO_DAEMON,
+        "no daemon answered (nothing listening, wrong `--prefix`, no reply or pose in time)",
+    ),
+    (WAIT_TIMEOUT, "`--wait`: not at the end point within `--wait-timeout`"),
+    (INTERRUPTED, "interrupted (Ctrl-C)"),
+    (BROKEN_PIPE, "the output's reader went away (e.g. `head` closed the pipe); nothing printed"),
+)
+"""(code, meaning) rows, in the order of the README's table."""
