@@ -300,7 +300,7 @@ def test_move_reply_names_target_speed_and_a_limited_speed() -> None:
         client.format_reply("move", reply) == "move: to x=+0.500 y=+0.000 z=+2.000 m at 2.000 m/s"
     )
     reply["speed_limited_to_mps"] = 2.0
-    assert client.format_reply("move", reply).endswith("(speed limited to 2.000 m/s)")
+    assert client.format_reply("move", reply).endswith("(speed limited to the robot's maximum, 2.000 m/s)")
     assert client.format_reply("path", {"ok": True, "points": 4, "speed_mps": 0.3}) == (
         "path: 4 points at 0.300 m/s"
     )
