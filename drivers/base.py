@@ -2,8 +2,8 @@
 
 `AxisReading` is the latest known state of one reel motor, `BusStats` the receive/transmit
 counters of one bus, and `ReelDriver` the protocol every driver implements (the ODrive one is
-`drivers.odrive.ODriveReels`). Only the standard library is imported here, so the loop can depend
-on this module without pulling in python-can.
+`drivers.odrive.driver.ODriveReels`). Only the standard library is imported here, so the loop
+can depend on this module without pulling in python-can.
 """
 
 from __future__ import annotations

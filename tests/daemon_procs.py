@@ -77,7 +77,7 @@ def write_config(
     loop: Mapping[str, Any] | None = None,
 ) -> tuple[Path, dict[str, Any]]:
     """Write a paper-robot config for a test (own bus, own Zenoh port, state file in tmp)."""
-    from controller.config import paper_robot_data
+    from controller.service.config import paper_robot_data
 
     name = f"t{uuid.uuid4().hex[:8]}"
     data = paper_robot_data(name)
@@ -188,7 +188,7 @@ def zenoh_session(endpoint: str, timeout_s: float = 20.0) -> Any:
     """A Zenoh client session to the daemon at `endpoint` (retried until it listens)."""
     import zenoh
 
-    from controller.zenoh_io import client_config
+    from controller.service.zenoh_io import client_config
 
     deadline = time.monotonic() + timeout_s
     while True:

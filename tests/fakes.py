@@ -171,7 +171,7 @@ def make_config(**sections: dict[str, Any]) -> Any:
     `make_config(loop={"rate_hz": 1000}, faults={"tracking_max_m": 0.01})`; a top-level
     field is replaced with `make_config(top={"name": "x"})`.
     """
-    from controller.config import default_config
+    from controller.service.config import default_config
 
     cfg = default_config()
     top = dict(sections.pop("top", {}))
@@ -182,7 +182,7 @@ def make_config(**sections: dict[str, Any]) -> Any:
 
 def power_up_turns(cfg: Any) -> list[float]:
     """Motor turns of the config's reels at its power-up pose (what the sim starts at)."""
-    from controller import kinematics
+    from controller.core import kinematics
 
     lengths = kinematics.ipk_point(cfg.geometry, cfg.homing.power_up_position_m)
     return [r.reel.position_rev(L) for r, L in zip(cfg.reels, lengths, strict=True)]

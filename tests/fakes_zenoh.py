@@ -1,8 +1,9 @@
 """A fake controller for the Zenoh interface and client tests, and Zenoh test helpers.
 
-`FakeController` mimics the contract of controller.loop.Controller that zenoh_io uses: submit()
-queues a command that a tick thread executes (state checks, a box workspace, straight moves at
-constant speed), submit_setpoint(), status(), and a `publisher` receiving poses and states.
+`FakeController` mimics the contract of controller.service.loop.Controller that zenoh_io uses:
+submit() queues a command that a tick thread executes (state checks, a box workspace, straight
+moves at constant speed), submit_setpoint(), status(), and a `publisher` receiving poses and
+states.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from controller.commands import (
+from controller.core.commands import (
     Arm,
     Command,
     CommandRefused,
@@ -44,7 +45,7 @@ def free_port() -> int:
 
 @dataclass
 class ZCfg:
-    """A stand-in for controller.config.ZenohConfig."""
+    """A stand-in for controller.service.config.ZenohConfig."""
 
     prefix: str = "cablebot/test"
     mode: str = "peer"

@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from controller.homing import save_offsets
+from controller.service.offsets import save_offsets
 
 PAD_CHARS = 100_000  # a big record keeps the write window wide
 

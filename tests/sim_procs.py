@@ -13,15 +13,15 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from drivers.odrive import ODriveReels
+from drivers.odrive.driver import ODriveReels
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def start_sim(args: list[str], ready_timeout_s: float = 30.0) -> subprocess.Popen[str]:
-    """Start `python -m drivers.sim_odrive ARGS` and wait (bounded) for its READY line."""
+    """Start `python -m drivers.odrive.sim ARGS` and wait (bounded) for its READY line."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "drivers.sim_odrive", *args],
+        [sys.executable, "-m", "drivers.odrive.sim", *args],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

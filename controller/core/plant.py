@@ -7,8 +7,8 @@ the effector goes and what each cable pulls.
 Model
 -----
 * World frame z up, SI units. Cable ``i`` runs from its anchor ``A_i`` (pulley exit point) to the
-  effector ``P``, a point mass ``m``. Its unstretched length ``L0_i`` is what the reel has paid
-  out: the caller turns motor positions into metres (``drivers.reel.ReelModel.length_m`` gives
+  effector ``P``, a point mass ``m``. Its unstretched length ``L0_i`` is what the reel has paid out:
+  the caller turns motor positions into metres (``controller.core.reel.ReelModel.length_m`` gives
   the unstretched length) and passes metres in; the reel model stays out of the plant.
 * Cable stiffness ``k_i = EA_i / L0_i`` (``EA`` in newtons: about 1e5 N for a desk rig's braided
   line, 1e6-1e7 N for steel rope). With ``L_i = |A_i - P|`` and ``u_i = (A_i - P) / L_i``, the

@@ -1,0 +1,90 @@
+"""The `cablebot` command line: one entry point, one module per group of subcommands.
+
+Each module in `_MODULES` exposes `register(subparsers)`, which adds its subcommands and sets
+`func` on each: a callable taking the parsed namespace and returning the exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from collections.abc import Sequence
+
+_MODULES: tuple[str, ...] = (
+    "controller.service.daemon",  # run
+    "controller.cli.sim",  # sim
+    "controller.cli.client",  # pose, status, move, path, stop, estop, arm, disarm, reset, home
+    "controller.cli.offline",  # ipk, fpk
+    "controller.cli.configs",  # check-config, init-config
+    "controller.cli.monitor",  # monitor
+    "controller.cli.demo",  # demo
+    "controller.cli.bench",  # bench
+)
+
+
+def add_xyz_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the positional X Y Z arguments (metres) to a subcommand's parser."""
+    # Three positionals rather than nargs=3 with a tuple metavar: argparse (3.11) crashes
+    # formatting some errors for the latter.
+    p.add_argument("x", type=float, metavar="X", help="x in m")
+    p.add_argument("y", type=float, metavar="Y", help="y in m")
+    p.add_argument("z", type=float, metavar="Z", help="z in m")
+
+
+def xyz_from_args(args: argparse.Namespace) -> list[float]:
+    """The [x, y, z] given with `add_xyz_arguments`."""
+    return [float(args.x), float(args.y), float(args.z)]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the argument parser with every registered subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="cablebot",
+        description="Controller service and tools for cable-suspended robots.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in _MODULES:
+        module = importlib.import_module(name)
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the `cablebot` command line; returns the process exit code (`controller.cli.exitcodes`).
+
+    A reader that goes away (`cablebot pose | head`) ends the verb quietly, without a
+    traceback; so does Ctrl-C.
+    """
+    from controller.cli import exitcodes
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        code: int = args.func(args)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _silence_stdout()
+        return exitcodes.BROKEN_PIPE
+    except KeyboardInterrupt:
+        return exitcodes.INTERRUPTED
+    return code
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's last flush does not fail again."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        return  # not a real file (tests capture it): nothing to flush at exit
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, fd)
+    finally:
+        os.close(devnull)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

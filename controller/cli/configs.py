@@ -1,0 +1,354 @@
+"""`cablebot check-config FILE` and `cablebot init-config --example NAME [OUT]`.
+
+`check-config` validates a robot file (every problem at once, as `load_config` reports them)
+and prints what it means: anchors, the footprint, the workspace box, the cable lengths the
+workspace needs against the allowed range, limits, loop, faults, homing, bus and Zenoh.
+Exit 0 when the file is valid, 1 with the problems on stderr otherwise.
+
+`init-config` writes one of the example files that ship with the package (the robot files,
+the example path and the systemd unit, from the top-level `config/` directory) so that a
+`pip install` has them too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from controller.cli import exitcodes
+
+EXAMPLES_PACKAGE = "cablebot_examples"
+"""The package the top-level `config/` directory is installed as (see pyproject.toml)."""
+
+Point2 = tuple[float, float]
+
+
+# --------------------------------------------------------------------------------------------
+# The shipped examples
+
+
+def examples_dir() -> Path:
+    """The directory holding the shipped example files.
+
+    Raises FileNotFoundError when the package was installed without them.
+    """
+    try:
+        pkg = importlib.import_module(EXAMPLES_PACKAGE)
+    except ImportError:
+        pkg = None
+    for entry in getattr(pkg, "__path__", []):
+        # An editable install adds a path-hook entry next to the real directory: skip it.
+        if Path(entry).is_dir():
+            return Path(entry)
+    raise FileNotFoundError(f"the example files ({EXAMPLES_PACKAGE}) are not installed")
+
+
+def list_examples() -> list[str]:
+    """File names of the shipped examples, sorted."""
+    d = examples_dir()
+    return sorted(p.name for p in d.iterdir() if p.is_file() and not p.name.startswith(("_", ".")))
+
+
+def find_example(name: str) -> Path:
+    """The example called `name` (a file name, or a robot file's name without `.toml`).
+
+    Raises FileNotFoundError naming the examples there are.
+    """
+    names = list_examples()
+    for candidate in (name, f"{name}.toml"):
+        if candidate in names:
+            return examples_dir() / candidate
+    raise FileNotFoundError(f"no example {name!r}; there are: {', '.join(names)}")
+
+
+# --------------------------------------------------------------------------------------------
+# Geometry of the workspace (pure)
+
+
+def shrink_polygon(polygon: Sequence[Point2], margin_m: float) -> list[Point2]:
+    """The convex counter-clockwise `polygon` with every edge moved `margin_m` inwards.
+
+    Returns the vertices of the shrunk polygon (empty when nothing is left).
+    """
+    out = [(float(x), float(y)) for x, y in polygon]
+    n = len(polygon)
+    for k in range(n):
+        (ax, ay), (bx, by) = polygon[k], polygon[(k + 1) % n]
+        length = math.hypot(bx - ax, by - ay)
+        if length == 0.0:
+            continue
+        nx, ny = (by - ay) / length, -(bx - ax) / length  # outward normal
+        c = nx * ax + ny * ay - margin_m
+        out = _clip(out, nx, ny, c)
+        if not out:
+            return []
+    return out
+
+
+def _clip(poly: list[Point2], nx: float, ny: float, c: float) -> list[Point2]:
+    """Keep the part of `poly` where nx*x + ny*y <= c (Sutherland-Hodgman, one half-plane)."""
+    out: list[Point2] = []
+    for i, p in enumerate(poly):
+        q = poly[(i + 1) % len(poly)]
+        dp = nx * p[0] + ny * p[1] - c
+        dq = nx * q[0] + ny * q[1] - c
+        if dp <= 0.0:
+            out.append(p)
+        if (dp < 0.0 < dq) or (dq < 0.0 < dp):
+            t = dp / (dp - dq)
+            out.append((p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])))
+    return out
+
+
+def polygon_area_m2(poly: Sequence[Point2]) -> float:
+    """Area of a simple polygon (shoelace formula)."""
+    n = len(poly)
+    twice = sum(
+        poly[i][0] * poly[(i + 1) % n][1] - poly[(i + 1) % n][0] * poly[i][1] for i in range(n)
+    )
+    return abs(twice) / 2.0
+
+
+def _distance_to_polygon_m(p: Point2, poly: Sequence[Point2]) -> float:
+    """Plan-view distance from `p` to the convex counter-clockwise `poly` (0 inside)."""
+    n = len(poly)
+    inside = True
+    best = math.inf
+    for k in range(n):
+        a, b = poly[k], poly[(k + 1) % n]
+        ex, ey = b[0] - a[0], b[1] - a[1]
+        if ex * (p[1] - a[1]) - ey * (p[0] - a[0]) < 0.0:
+            inside = False
+        den = ex * ex + ey * ey
+        t = 0.0 if den == 0.0 else ((p[0] - a[0]) * ex + (p[1] - a[1]) * ey) / den
+        t = max(0.0, min(1.0, t))
+        best = min(best, math.hypot(p[0] - a[0] - t * ex, p[1] - a[1] - t * ey))
+    return 0.0 if inside else best
+
+
+def workspace_cable_range_m(
+    anchors_m: Sequence[Sequence[float]], poly: Sequence[Point2], floor_z_m: float, top_z_m: float
+) -> tuple[float, float]:
+    """Shortest and longest cable any point of the workspace prism needs.
+
+    The prism is `poly` (convex) between `floor_z_m` and `top_z_m`; the longest cable is at
+    one of its corners, the shortest at the point of the prism nearest an anchor.
+    """
+    longest = 0.0
+    shortest = math.inf
+    for ax, ay, az in anchors_m:
+        for x, y in poly:
+            for z in (floor_z_m, top_z_m):
+                longest = max(longest, math.dist((ax, ay, az), (x, y, z)))
+        dxy = _distance_to_polygon_m((ax, ay), poly)
+        dz = az - min(max(az, floor_z_m), top_z_m)
+        shortest = min(shortest, math.hypot(dxy, dz))
+    return shortest, longest
+
+
+# --------------------------------------------------------------------------------------------
+# Describing a configuration
+
+
+def _range(lo: float, hi: float) -> str:
+    return f"{lo:+.3f}..{hi:+.3f} m"
+
+
+def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
+    """What a valid RobotConfig means: (lines to print, notes, the same as JSON-ready data).
+
+    Notes are not errors: e.g. parts of the workspace that need cables outside the allowed
+    range (moves there will be refused).
+    """
+    from controller.core.workspace import Limits
+
+    lim = cfg.limits
+    top_z = Limits(lim, cfg.geometry).top_z_m  # raises ValueError for an empty workspace
+    anchors = [tuple(float(v) for v in a) for a in cfg.anchors_m]
+    footprint = [(float(x), float(y)) for x, y in cfg.geometry.footprint_m]
+    work = shrink_polygon(footprint, lim.xy_margin_m)
+    lines = [f"robot      {cfg.name!r} from {cfg.source}"]
+    lines.append(f"anchors    {len(anchors)} cables (in cable order)")
+    for i, r in enumerate(cfg.reels):
+        m = r.reel
+        x, y, z = anchors[i]
+        lines.append(
+            f"  cable {i + 1}  node {r.node_id:2d}  anchor ({x:+.3f}, {y:+.3f}, {z:+.3f}) m"
+            f"  {m.metres_per_rev * 1e3:.2f} mm/drum turn, gear {m.gear_ratio:g},"
+            f" direction {m.direction:+d}, advantage {m.mechanical_advantage:g}"
+        )
+    fx = [p[0] for p in footprint]
+    fy = [p[1] for p in footprint]
+    lines.append(
+        f"footprint  x {_range(min(fx), max(fx))}, y {_range(min(fy), max(fy))},"
+        f" {polygon_area_m2(footprint):.3f} m² (the anchors' plan view)"
+    )
+    notes: list[str] = []
+    data: dict[str, Any] = {
+        "name": cfg.name,
+        "source": cfg.source,
+        "anchors_m": [list(a) for a in anchors],
+        "node_ids": list(cfg.node_ids),
+        "footprint_m": [list(p) for p in footprint],
+    }
+    if work:
+        wx = [p[0] for p in work]
+        wy = [p[1] for p in work]
+        lo, hi = workspace_cable_range_m(anchors, work, lim.floor_z_m, top_z)
+        lines.append(
+            f"workspace  x {_range(min(wx), max(wx))}, y {_range(min(wy), max(wy))},"
+            f" z {_range(lim.floor_z_m, top_z)} (footprint shrunk by {lim.xy_margin_m:g} m,"
+            f" {polygon_area_m2(work):.3f} m²)"
+        )
+        lines.append(
+            f"cables     allowed {lim.min_cable_m:.3f}..{lim.max_cable_m:.3f} m;"
+            f" the workspace needs {lo:.3f}..{hi:.3f} m"
+        )
+        if hi > lim.max_cable_m:
+            notes.append(
+                f"parts of the workspace need cables up to {hi:.3f} m, longer than max_cable_m"
+                f" ({lim.max_cable_m:g} m): moves there will be refused"
+            )
+        if lo < lim.min_cable_m:
+            notes.append(
+                f"parts of the workspace need cables down to {lo:.3f} m, shorter than"
+                f" min_cable_m ({lim.min_cable_m:g} m): moves there will be refused"
+            )
+        data["workspace"] = {
+            "polygon_m": [list(p) for p in work],
+            "x_m": [min(wx), max(wx)],
+            "y_m": [min(wy), max(wy)],
+            "z_m": [lim.floor_z_m, top_z],
+            "cable_range_m": [lo, hi],
+        }
+    else:
+        lines.append(f"workspace  empty: xy_margin_m {lim.xy_margin_m:g} m leaves nothing")
+        notes.append("the workspace is empty: every move will be refused")
+    lines.append(
+        f"limits     speed {lim.max_speed_mps:g} m/s (default {lim.default_speed_mps:g}),"
+        f" accel {lim.max_accel_mps2:g} m/s², cable speed {lim.max_cable_speed_mps:g} m/s"
+    )
+    lp = cfg.loop
+    pub_hz = lp.rate_hz / max(1, lp.publish_every)
+    lines.append(
+        f"loop       {lp.rate_hz:g} Hz, pose published at {pub_hz:g} Hz,"
+        f" {'real-time (SCHED_FIFO ' + str(lp.rt_priority) + ')' if lp.realtime else 'normal'}"
+        f" scheduling, auto-arm {'when simulated' if lp.auto_arm is None else lp.auto_arm}"
+    )
+    f = cfg.faults
+    lines.append(
+        f"faults     stale encoder {f.stale_timeout_s:g} s, heartbeat {f.heartbeat_timeout_s:g} s,"
+        f" residual {f.residual_max_m * 1e3:g} mm, tracking {f.tracking_max_m * 1e3:g} mm,"
+        f" arming {f.arm_timeout_s:g} s, bus errors {f.bus_error_timeout_s:g} s"
+    )
+    h = cfg.homing
+    pu = h.power_up_position_m
+    lines.append(
+        "homing     "
+        + ("no power-up pose (run `cablebot home X Y Z`)" if pu is None else f"power-up {pu} m")
+        + (f", offsets saved to {h.state_file}" if h.state_file else ", offsets not saved")
+    )
+    b = cfg.bus
+    opts = "".join(f", {k}={v}" for k, v in b.options.items())
+    rate = "" if b.bitrate is None else f", {b.bitrate} bit/s"
+    sim = ", simulated ODrives in the daemon" if cfg.sim.enabled else ""
+    lines.append(f"bus        {b.interface} {b.channel}{rate}{opts}{sim}")
+    zc = cfg.zenoh
+    lines.append(
+        f"zenoh      {zc.mode}, listen {', '.join(zc.listen) or 'nowhere'}"
+        + (f", connect {', '.join(zc.connect)}" if zc.connect else "")
+        + f", prefix {zc.prefix}"
+        + (f", config {zc.config_file}" if zc.config_file else "")
+    )
+    data["config"] = cfg.summary()
+    return lines, notes, data
+
+
+def cmd_check_config(args: argparse.Namespace) -> int:
+    """`cablebot check-config FILE`: validate and describe; exit 1 with every problem."""
+    from controller.service.config import ConfigError, load_config
+
+    try:
+        cfg = load_config(args.file)
+        lines, notes, data = describe(cfg)
+    except (ConfigError, ValueError, OSError) as exc:
+        print(f"{exc}", file=sys.stderr)
+        print(f"cablebot: {args.file}: not a valid robot configuration", file=sys.stderr)
+        return exitcodes.REFUSED
+    if args.json:
+        print(json.dumps({**data, "notes": notes}, indent=2))
+        return exitcodes.OK
+    for line in lines:
+        print(line)
+    for note in notes:
+        print(f"note: {note}")
+    print(f"ok: {args.file} is valid")
+    return exitcodes.OK
+
+
+def cmd_init_config(args: argparse.Namespace) -> int:
+    """`cablebot init-config --example NAME [OUT]`: write a shipped example file."""
+    try:
+        if args.list or args.example is None:
+            names = list_examples()
+            print("\n".join(names))
+            if args.example is None and not args.list:
+                print("cablebot: init-config: name one with --example NAME", file=sys.stderr)
+                return exitcodes.USAGE
+            return exitcodes.OK
+        src = find_example(args.example)
+    except FileNotFoundError as exc:
+        print(f"cablebot: {exc}", file=sys.stderr)
+        return exitcodes.REFUSED
+    text = src.read_text()
+    if args.out == "-":
+        sys.stdout.write(text)
+        return exitcodes.OK
+    out = Path(args.out) if args.out else Path(src.name)
+    if out.is_dir():
+        out = out / src.name
+    if out.exists() and not args.force:
+        print(f"cablebot: {out} exists; --force to overwrite it", file=sys.stderr)
+        return exitcodes.REFUSED
+    try:
+        out.write_text(text)
+    except OSError as exc:
+        print(f"cablebot: cannot write {out}: {exc.strerror or exc}", file=sys.stderr)
+        return exitcodes.REFUSED
+    print(f"wrote {out}")
+    return exitcodes.OK
+
+
+def register(sub: argparse._SubParsersAction[Any]) -> None:
+    """Register `check-config` and `init-config`."""
+    p = sub.add_parser(
+        "check-config",
+        help="validate a robot file and print what it means (exit 1 on problems)",
+    )
+    p.add_argument("file", metavar="FILE", help="robot TOML file")
+    p.add_argument("--json", action="store_true", help="print the description as JSON")
+    p.set_defaults(func=cmd_check_config)
+
+    p = sub.add_parser(
+        "init-config",
+        help="write an example file that ships with cablebot (robot TOML, path, systemd unit)",
+    )
+    p.add_argument(
+        "--example", metavar="NAME", default=None, help="e.g. desk, paper-acre, cablebot@.service"
+    )
+    p.add_argument(
+        "out",
+        nargs="?",
+        default=None,
+        metavar="OUT",
+        help="file or directory to write (default: the example's name here; - for stdout)",
+    )
+    p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
+    p.add_argument("--list", action="store_true", help="list the examples")
+    p.set_defaults(func=cmd_init_config)

@@ -1,0 +1,141 @@
+"""Offline kinematics tools that need no daemon: `cablebot ipk` and `cablebot fpk`.
+
+Pure geometry from the configuration's anchors: reel homing offsets play no part.
+
+- `cablebot ipk [--config FILE] X Y Z` prints the cable length per reel (by node id).
+- `cablebot fpk [--config FILE] L1 L2 ...` prints the position and the RMS residual.
+
+`--json` prints one JSON object instead. Exit 0 on success; 1 with a message on stderr for a
+bad configuration, a non-finite number, a wrong number of lengths, lengths that cannot meet in
+one point, or (ipk, unless `--no-limits`) a point outside the configured workspace.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from typing import Any
+
+from controller.cli import add_xyz_arguments, exitcodes
+
+EXIT_OK = exitcodes.OK
+EXIT_ERROR = exitcodes.REFUSED
+
+
+def _fail(msg: str) -> int:
+    print(f"cablebot: {msg}", file=sys.stderr)
+    return EXIT_ERROR
+
+
+def _load(path: str | None) -> Any:
+    """The RobotConfig at `path` (built-in default when None); raises ConfigError."""
+    from controller.service.config import load_config
+
+    return load_config(path)
+
+
+def ipk_lengths(cfg: Any, position_m: tuple[float, float, float]) -> dict[int, float]:
+    """Cable length (m) per node id for the effector at `position_m`.
+
+    Raises kinematics.KinematicsError for a non-finite position.
+    """
+    from controller.core import kinematics
+
+    lengths = kinematics.ipk_point(cfg.geometry, position_m)
+    return {int(r.node_id): float(length) for r, length in zip(cfg.reels, lengths, strict=True)}
+
+
+def workspace_problem(cfg: Any, position_m: tuple[float, float, float]) -> str | None:
+    """Why `position_m` is outside the configured workspace, or None when it is inside."""
+    from controller.core.workspace import Limits
+
+    limits = Limits(cfg.limits, cfg.geometry)
+    reason: str | None = limits.check_point(position_m)
+    if reason is None:
+        reason = limits.check_lengths(limits.lengths_at(position_m))
+    return reason
+
+
+def cmd_ipk(args: argparse.Namespace) -> int:
+    """`cablebot ipk`: print the cable lengths for a position."""
+    from controller.core.kinematics import KinematicsError
+    from controller.service.config import ConfigError
+
+    p = (float(args.x), float(args.y), float(args.z))
+    if not all(math.isfinite(v) for v in p):
+        return _fail(f"position must be three finite numbers, got {list(p)}")
+    try:
+        cfg = _load(args.config)
+        lengths = ipk_lengths(cfg, p)
+    except (ConfigError, KinematicsError, OSError) as exc:
+        return _fail(str(exc))
+    problem = None if args.no_limits else workspace_problem(cfg, p)
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "position_m": list(p),
+                    "node_ids": list(lengths),
+                    "cable_lengths_m": list(lengths.values()),
+                    "in_workspace": problem is None,
+                    "problem": problem,
+                }
+            )
+        )
+    else:
+        print(f"position x={p[0]:+.4f} y={p[1]:+.4f} z={p[2]:+.4f} m")
+        for node_id, length in lengths.items():
+            print(f"node {node_id:2d}  {length:.6f} m")
+    if problem is not None:
+        return _fail(f"outside the workspace: {problem} (--no-limits to ignore)")
+    return EXIT_OK
+
+
+def cmd_fpk(args: argparse.Namespace) -> int:
+    """`cablebot fpk`: print the position (and residual) for cable lengths."""
+    from controller.core import kinematics
+    from controller.service.config import ConfigError
+
+    lengths = [float(v) for v in args.lengths]
+    if not all(math.isfinite(v) and v > 0.0 for v in lengths):
+        return _fail(f"cable lengths must be finite and > 0, got {args.lengths}")
+    try:
+        cfg = _load(args.config)
+    except (ConfigError, OSError) as exc:
+        return _fail(str(exc))
+    n = len(cfg.reels)
+    if len(lengths) != n:
+        ids = ", ".join(str(r.node_id) for r in cfg.reels)
+        return _fail(f"expected {n} cable lengths (nodes {ids}), got {len(lengths)}")
+    try:
+        res = kinematics.fpk(cfg.geometry, lengths)
+    except kinematics.KinematicsError as exc:
+        return _fail(f"no position for these lengths: {exc}")
+    x, y, z = (float(v) for v in res.position_m)
+    if args.json:
+        print(json.dumps({"position_m": [x, y, z], "residual_m": float(res.residual_m)}))
+    else:
+        print(
+            f"position x={x:+.6f} y={y:+.6f} z={z:+.6f} m  residual {res.residual_m * 1e3:.3f} mm"
+        )
+    return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction[Any]) -> None:
+    """Register `ipk` and `fpk`."""
+    p = sub.add_parser("ipk", help="cable lengths for a position (offline, no daemon)")
+    p.add_argument("--config", default=None, metavar="FILE", help="robot TOML (default built-in)")
+    add_xyz_arguments(p)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument(
+        "--no-limits", action="store_true", help="do not check the point against the workspace"
+    )
+    p.set_defaults(func=cmd_ipk)
+
+    p = sub.add_parser("fpk", help="position for cable lengths (offline, no daemon)")
+    p.add_argument("--config", default=None, metavar="FILE", help="robot TOML (default built-in)")
+    p.add_argument("lengths", type=float, nargs="+", metavar="L", help="lengths in m, reel order")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_fpk)

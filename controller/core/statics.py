@@ -1,0 +1,752 @@
+"""Statics of a point-mass cable robot: cable tensions that hold the effector still.
+
+Pure module: ``math`` and ``numpy`` only (``scipy`` for more than four cables, imported when
+first needed), no I/O, no global state.
+
+Model
+-----
+A point mass ``m`` at P hangs from N straight massless cables; ``u_i`` is the unit vector from
+P to anchor ``A_i`` (z up).  In equilibrium ``sum_i t_i u_i = m g e_z`` (``g = G_MPS2``), and
+each tension must stay within ``t_min_n <= t_i <= t_max_n``.  The distance of a distribution to
+the limits is ``min_i min(t_i - t_min_n, t_max_n - t_i)``; the answer is the equilibrium
+distribution that maximises it, and that maximum is ``margin_n`` (negative when no distribution
+keeps every cable in range: then it is the distribution that violates the limits least, and
+``limiting_cable`` is the cable that cannot be kept in range).
+
+* N = 3: ``U t = m g e_z`` has the unique solution (Cramer's rule).
+* N = 4: the solutions are ``t = t_p + lambda n`` (``t_p`` the minimum-norm solution, ``n``
+  the null vector of the 3x4 matrix U, its signed 3x3 minors).  The distance to each limit is
+  a linear function of lambda; the largest smallest distance, a max-min of eight lines in one
+  variable, is the smallest crossing value of a rising and a falling line (LP duality), and
+  lambda is the middle of the interval where every line is at least that value.  Closed form,
+  no iteration, vectorised for maps.
+* N > 4: the linear program "maximise s subject to U t = m g e_z, t_min + s <= t_i <=
+  t_max - s" (``scipy.optimize.linprog``, HiGHS), solved in units of the weight and then
+  projected back onto ``U t = m g e_z`` so equilibrium holds to rounding.
+
+``feasible`` is ``margin_n >= 0``.  Cable *indices* in data are 0-based; cable *names* in
+messages are 1-based (``cable 1`` is row 0), as in ``controller.core.kinematics``.
+
+Examples (the paper robot of config/paper-acre.toml: anchors at (+/-40.45, +/-25, 7.62) m)
+---------------------------------------------------------------------------------------
+A 5 kg effector (49.03 N) with limits 5..500 N: at (0, 0, 2) m each cable carries
+m g / (4 u_z) = 104.44 N (margin 99.44 N, to t_min); at (0, 0, 6.62) m, 1 m below the
+anchors, each needs 583.04 N: infeasible, margin -83.04 N.  Sampled on a 0.25 m grid, the
+tension-feasible part of its geometric workspace (x +/-38.45, y +/-23, z 0..6.62 m,
+23418 m^3) is about 22400 m^3 (96 %): only a layer under the anchors, thinnest at the
+corners, needs more than 500 N.  ``tests/test_statics.py`` checks these.
+
+Errors (nothing here returns NaN or inf)
+---------------------------------------
+* ``StaticsInputError``: wrong shapes, non-finite numbers, ``mass_kg <= 0``, limits not
+  ``0 <= t_min_n < t_max_n``.
+* ``SingularConfiguration``: P at (within ``ANCHOR_TOL_M`` of) an anchor; no cable pulls
+  upward (P at or above every anchor, e.g. in the plane of level anchors); the cable directions
+  do not span space (``sqrt(det(U U^T)) < RANK_TOL``: coplanar directions, P on the line of
+  two anchors, coincident or parallel cables for N = 3).
+* ``SolverUnavailable``: N > 4 without scipy.
+
+The batch form never raises for a bad row: singular or non-finite rows get ``feasible`` False,
+``limiting`` ``SINGULAR_ROW`` (-1), tensions 0.0 and margin ``SINGULAR_MARGIN_N`` (finite).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "ANCHOR_TOL_M",
+    "G_MPS2",
+    "RANK_TOL",
+    "SINGULAR_MARGIN_N",
+    "SINGULAR_ROW",
+    "CableStatics",
+    "FeasibleWorkspace",
+    "SingularConfiguration",
+    "SolverUnavailable",
+    "StaticsError",
+    "StaticsInputError",
+    "Tensions",
+    "feasible_workspace",
+    "solve_tensions",
+    "tensions_batch",
+]
+
+G_MPS2 = 9.80665
+"""Standard gravity (m/s^2)."""
+
+ANCHOR_TOL_M = 1e-9
+"""P closer than this to an anchor has no cable direction."""
+
+RANK_TOL = 1e-9
+"""Smallest ``sqrt(det(U U^T))`` (unit columns, dimensionless) accepted as spanning space.
+
+Below it the tensions would exceed about 1e9 times the weight."""
+
+UP_TOL = 1e-12
+"""A cable whose unit vector rises by at most this pulls no weight up."""
+
+SINGULAR_ROW = -1
+"""``limiting`` of a batch row with no distribution (singular configuration or bad input)."""
+
+SINGULAR_MARGIN_N = -1.0e300
+"""``margin`` of a batch row with no distribution: finite, below any real margin."""
+
+# N = 4: lambda is chosen among the lines within this fraction of the largest intercept of the
+# optimum (see _maxmin_lambda); the margin given up is at most that, ~1e-12 relative.
+_SLACK = 1e-12
+
+_BATCH_CHUNK = 65536  # rows per vectorised chunk: bounds the temporaries (~30 MB for N = 4)
+
+
+class StaticsError(ValueError):
+    """Base class of the errors of this module."""
+
+
+class StaticsInputError(StaticsError):
+    """Bad input: wrong shape, non-finite number, non-positive mass, inverted limits."""
+
+
+class SingularConfiguration(StaticsError):
+    """No tension distribution exists or is defined at this pose (see the module docstring)."""
+
+
+class SolverUnavailable(StaticsError):
+    """More than four cables need scipy's linear-programming solver, which is not installed."""
+
+
+@dataclass(frozen=True, slots=True)
+class Tensions:
+    """The equilibrium tension distribution farthest from the limits at one pose.
+
+    ``tensions_n``: one tension per cable (N), balancing the weight.  ``margin_n``: the smallest
+    distance of any tension to either limit (negative when infeasible).  ``limiting_cable``:
+    0-based index of the cable at that smallest distance (when infeasible, the cable that cannot
+    be kept in range), ``limiting_bound`` which limit it is nearest to or beyond.  ``method``:
+    ``"unique"`` (N = 3), ``"closed-form"`` (N = 4) or ``"lp"`` (N > 4).
+    """
+
+    tensions_n: tuple[float, ...]
+    feasible: bool
+    margin_n: float
+    limiting_cable: int
+    limiting_bound: Literal["min", "max"]
+    t_min_n: float
+    t_max_n: float
+    method: str
+
+    def reason(self) -> str | None:
+        """None when feasible, else why: the cable (1-based), its tension and the limit."""
+        if self.feasible:
+            return None
+        i = self.limiting_cable
+        t = self.tensions_n[i]
+        limit = (
+            f"below t_min {self.t_min_n:g} N"
+            if self.limiting_bound == "min"
+            else f"above t_max {self.t_max_n:g} N"
+        )
+        return (
+            f"cable {i + 1} cannot be kept in range: at best it carries {t:.4g} N, {limit} "
+            f"(margin {self.margin_n:.4g} N)"
+        )
+
+
+def _finite(x: float) -> bool:
+    return math.isfinite(x)
+
+
+def _check_mass(mass_kg: float) -> float:
+    try:
+        m = float(mass_kg)
+    except (TypeError, ValueError):
+        raise StaticsInputError(f"mass_kg must be a number, got {mass_kg!r}") from None
+    if not (_finite(m) and m > 0.0):
+        raise StaticsInputError(f"mass_kg must be finite and > 0, got {mass_kg!r}")
+    return m
+
+
+def _check_tension_limits(t_min_n: float, t_max_n: float) -> tuple[float, float]:
+    try:
+        lo, hi = float(t_min_n), float(t_max_n)
+    except (TypeError, ValueError):
+        raise StaticsInputError(
+            f"tension limits must be numbers, got {t_min_n!r}, {t_max_n!r}"
+        ) from None
+    if not (_finite(lo) and _finite(hi) and 0.0 <= lo < hi):
+        raise StaticsInputError(
+            f"tension limits must be finite with 0 <= t_min_n < t_max_n, got {t_min_n!r}, "
+            f"{t_max_n!r}"
+        )
+    return lo, hi
+
+
+def _anchor_array(anchors_m: ArrayLike) -> NDArray[np.float64]:
+    try:
+        a = np.array(anchors_m, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise StaticsInputError(f"anchors_m must be an (N, 3) array of numbers: {e}") from None
+    if a.ndim != 2 or a.shape[1] != 3 or a.shape[0] < 3:
+        raise StaticsInputError(f"anchors_m must have shape (N, 3) with N >= 3, got {a.shape}")
+    if not np.isfinite(a).all():
+        raise StaticsInputError("anchors_m has a non-finite coordinate")
+    a.setflags(write=False)
+    return a
+
+
+def _det3(
+    ax: float,
+    ay: float,
+    az: float,
+    bx: float,
+    by: float,
+    bz: float,
+    cx: float,
+    cy: float,
+    cz: float,
+) -> float:
+    return ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
+
+
+# For N = 4: the triple left when cable j is removed, in ascending order.
+_TRIPLES4 = ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2))
+
+
+class CableStatics:
+    """Tension solver for one anchor layout and one pair of tension limits.
+
+    Validates once; ``solve`` is then the per-pose call.  Raises ``StaticsInputError`` for an
+    anchor array not of shape (N, 3) with N >= 3, non-finite numbers, or limits not
+    ``0 <= t_min_n < t_max_n``.
+    """
+
+    __slots__ = ("_anchors_t", "anchors_m", "n_cables", "t_max_n", "t_min_n")
+
+    def __init__(self, anchors_m: ArrayLike, t_min_n: float, t_max_n: float) -> None:
+        self.anchors_m = _anchor_array(anchors_m)
+        self.n_cables = int(self.anchors_m.shape[0])
+        self.t_min_n, self.t_max_n = _check_tension_limits(t_min_n, t_max_n)
+        self._anchors_t: tuple[tuple[float, float, float], ...] = tuple(
+            (float(r[0]), float(r[1]), float(r[2])) for r in self.anchors_m.tolist()
+        )
+
+    # -- single pose -------------------------------------------------------------------------
+
+    def _units(self, point_m: Sequence[float]) -> list[tuple[float, float, float]]:
+        if len(point_m) != 3:
+            raise StaticsInputError(f"point_m needs 3 coordinates, got {len(point_m)}")
+        px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
+        if not (_finite(px) and _finite(py) and _finite(pz)):
+            raise StaticsInputError(f"point_m ({px}, {py}, {pz}) is not finite")
+        units: list[tuple[float, float, float]] = []
+        up = -1.0
+        for i, (ax, ay, az) in enumerate(self._anchors_t):
+            dx, dy, dz = ax - px, ay - py, az - pz
+            d = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if not d > ANCHOR_TOL_M:
+                raise SingularConfiguration(
+                    f"P = ({px:.6g}, {py:.6g}, {pz:.6g}) m is at anchor {i + 1}: cable {i + 1} "
+                    "has no direction"
+                )
+            uz = dz / d
+            if uz > up:
+                up = uz
+            units.append((dx / d, dy / d, uz))
+        if not up > UP_TOL:
+            raise SingularConfiguration(
+                f"P = ({px:.6g}, {py:.6g}, {pz:.6g}) m is at or above every anchor: no cable "
+                "pulls upward, the weight cannot be held"
+            )
+        return units
+
+    def solve(self, point_m: Sequence[float], mass_kg: float) -> Tensions:
+        """The equilibrium tensions farthest from the limits for a mass ``mass_kg`` at P.
+
+        Raises ``StaticsInputError`` (bad point or mass), ``SingularConfiguration`` (see the
+        module docstring), ``SolverUnavailable`` (N > 4 without scipy) and ``StaticsError``
+        if the linear program fails.
+        """
+        m = _check_mass(mass_kg)
+        u = self._units(point_m)
+        w = m * G_MPS2
+        if self.n_cables == 3:
+            t = self._solve3(u, w)
+            method = "unique"
+        elif self.n_cables == 4:
+            t = self._solve4(u, w)
+            method = "closed-form"
+        else:
+            t = self._solve_lp(u, w)
+            method = "lp"
+        return self._result(t, method)
+
+    def _result(self, t: list[float], method: str) -> Tensions:
+        lo, hi = self.t_min_n, self.t_max_n
+        margin = math.inf
+        limiting = 0
+        bound: Literal["min", "max"] = "min"
+        for i, ti in enumerate(t):
+            d_lo = ti - lo
+            d_hi = hi - ti
+            if d_lo < margin:
+                margin, limiting, bound = d_lo, i, "min"
+            if d_hi < margin:
+                margin, limiting, bound = d_hi, i, "max"
+        if not math.isfinite(margin):  # overflow on a pathological pose: never return inf
+            raise SingularConfiguration("tensions overflow: the configuration is singular")
+        return Tensions(
+            tensions_n=tuple(t),
+            feasible=margin >= 0.0,
+            margin_n=margin,
+            limiting_cable=limiting,
+            limiting_bound=bound,
+            t_min_n=lo,
+            t_max_n=hi,
+            method=method,
+        )
+
+    @staticmethod
+    def _solve3(u: list[tuple[float, float, float]], w: float) -> list[float]:
+        (ax, ay, az), (bx, by, bz), (cx, cy, cz) = u
+        det = _det3(ax, ay, az, bx, by, bz, cx, cy, cz)
+        if not abs(det) >= RANK_TOL:
+            raise SingularConfiguration(
+                "the three cable directions are coplanar (det = "
+                f"{det:.3g}): they cannot balance the weight"
+            )
+        # Cramer with right-hand side (0, 0, w): the numerators are z of pairwise cross products.
+        return [
+            w * (bx * cy - by * cx) / det,
+            w * (cx * ay - cy * ax) / det,
+            w * (ax * by - ay * bx) / det,
+        ]
+
+    def _solve4(self, u: list[tuple[float, float, float]], w: float) -> list[float]:
+        # D_j: determinant of the triple without cable j; the null vector is n_j = (-1)^j D_j.
+        # The minimum-norm solution is sum_j D_j^2 t^(j) / |n|^2 where t^(j) solves the triple
+        # without cable j (t^(j)_j = 0): the weights sum to 1 and make it orthogonal to n.
+        tp = [0.0, 0.0, 0.0, 0.0]
+        n = [0.0, 0.0, 0.0, 0.0]
+        nn = 0.0
+        for j, (a, b, c) in enumerate(_TRIPLES4):
+            ax, ay, az = u[a]
+            bx, by, bz = u[b]
+            cx, cy, cz = u[c]
+            d = _det3(ax, ay, az, bx, by, bz, cx, cy, cz)
+            n[j] = -d if j & 1 else d
+            nn += d * d
+            # D_j^2 t^(j) = D_j * (Cramer numerators)
+            tp[a] += d * (bx * cy - by * cx)
+            tp[b] += d * (cx * ay - cy * ax)
+            tp[c] += d * (ax * by - ay * bx)
+        norm = math.sqrt(nn)
+        if not norm >= RANK_TOL:
+            raise SingularConfiguration(
+                f"the four cable directions do not span space (sqrt(det(U U^T)) = {norm:.3g}): "
+                "they cannot balance the weight"
+            )
+        scale = w / nn
+        tp = [x * scale for x in tp]
+        s = [x / norm for x in n]
+        lam = _maxmin_lambda(tp, s, self.t_min_n, self.t_max_n)
+        return [tp[i] + lam * s[i] for i in range(4)]
+
+    def _solve_lp(self, u: list[tuple[float, float, float]], w: float) -> list[float]:
+        um = np.array(u, dtype=np.float64).T  # (3, N)
+        gram = um @ um.T
+        rank = math.sqrt(max(float(np.linalg.det(gram)), 0.0))
+        if not rank >= RANK_TOL:
+            raise SingularConfiguration(
+                f"the cable directions do not span space (sqrt(det(U U^T)) = {rank:.3g}): "
+                "they cannot balance the weight"
+            )
+        t = _lp_maxmin(um, w, self.t_min_n, self.t_max_n)
+        # Project onto U t = w (the LP meets it only to its tolerance).
+        r = np.array([0.0, 0.0, w]) - um @ t
+        t = t + um.T @ np.linalg.solve(gram, r)
+        if not np.isfinite(t).all():
+            raise SingularConfiguration("tensions overflow: the configuration is singular")
+        return [float(x) for x in t]
+
+    # -- many poses --------------------------------------------------------------------------
+
+    def solve_batch(
+        self, points_m: ArrayLike, mass_kg: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64]]:
+        """``solve`` for M points at once: ``(tensions (M, N), margin (M,), feasible (M,),
+        limiting (M,))``.
+
+        Vectorised for N = 3 and N = 4, one linear program per row for N > 4.  A row that is
+        singular or not finite does not raise: feasible False, limiting ``SINGULAR_ROW``,
+        tensions 0.0, margin ``SINGULAR_MARGIN_N``.  No NaN or inf in any output.
+        Raises ``StaticsInputError`` if ``points_m`` is not (M, 3) numbers or the mass is bad,
+        ``SolverUnavailable`` for N > 4 without scipy.
+        """
+        m = _check_mass(mass_kg)
+        lo, hi = self.t_min_n, self.t_max_n
+        try:
+            p = np.asarray(points_m, dtype=np.float64)
+        except (TypeError, ValueError) as e:
+            raise StaticsInputError(f"points_m must be an (M, 3) array of numbers: {e}") from None
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise StaticsInputError(f"points_m must have shape (M, 3), got {p.shape}")
+        rows = p.shape[0]
+        nc = self.n_cables
+        tens = np.zeros((rows, nc))
+        margin = np.full(rows, SINGULAR_MARGIN_N)
+        limiting = np.full(rows, SINGULAR_ROW, dtype=np.int64)
+        w = m * G_MPS2
+        for start in range(0, rows, _BATCH_CHUNK):
+            sl = slice(start, min(rows, start + _BATCH_CHUNK))
+            if nc <= 4:
+                t, ok = _batch_closed(self.anchors_m, p[sl], w, lo, hi)
+            else:
+                t, ok = self._batch_lp(p[sl], m)
+            mg, lim = _batch_margin(t, lo, hi)
+            ok &= np.isfinite(mg)
+            tens[sl] = np.where(ok[:, None], t, 0.0)
+            margin[sl] = np.where(ok, mg, SINGULAR_MARGIN_N)
+            limiting[sl] = np.where(ok, lim, SINGULAR_ROW)
+        feasible = (limiting != SINGULAR_ROW) & (margin >= 0.0)
+        return tens, margin, feasible, limiting
+
+    def _batch_lp(
+        self, p: NDArray[np.float64], mass_kg: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        t = np.zeros((p.shape[0], self.n_cables))
+        ok = np.zeros(p.shape[0], dtype=bool)
+        for k, row in enumerate(p.tolist()):
+            try:
+                r = self.solve(row, mass_kg)
+            except SolverUnavailable:
+                raise
+            except StaticsError:  # singular or non-finite row (or, never seen, an LP failure)
+                continue
+            t[k] = r.tensions_n
+            ok[k] = True
+        return t, ok
+
+
+def _maxmin_lambda(tp: list[float], s: list[float], lo: float, hi: float) -> float:
+    """lambda maximising min_i min(tp_i + lambda s_i - lo, hi - tp_i - lambda s_i) (|s| = 1).
+
+    Cable i contributes a rising line (intercept a_i, slope |s_i|) and a falling one
+    (intercept b_i, slope |s_i|): (tp_i - lo, hi - tp_i) when s_i >= 0, the other way round
+    when s_i < 0.  The maximum of the lower envelope is the least crossing value of a rising
+    and a falling line (a flat line, s_i = 0, enters through its pairs with sloped lines), and
+    lambda is the middle of the interval where every line is within ``_SLACK`` of it (a point
+    up to rounding unless a flat line binds; the slack keeps a nearly flat line from turning
+    the rounding of the maximum into a large error in lambda).
+    """
+    ra: list[float] = []
+    fa: list[float] = []
+    rs: list[float] = []
+    big = hi
+    for ti, si in zip(tp, s, strict=True):
+        if si >= 0.0:
+            ra.append(ti - lo)
+            fa.append(hi - ti)
+            rs.append(si)
+        else:
+            ra.append(hi - ti)
+            fa.append(ti - lo)
+            rs.append(-si)
+        if abs(ti) > big:
+            big = abs(ti)
+    best = math.inf
+    for a, r in zip(ra, rs, strict=True):
+        for b, f in zip(fa, rs, strict=True):
+            den = r + f
+            if den > 0.0:
+                v = (a * f + b * r) / den
+                if v < best:
+                    best = v
+    floor = best - _SLACK * (big + hi)
+    lam_lo = -math.inf
+    lam_hi = math.inf
+    for a, b, r in zip(ra, fa, rs, strict=True):
+        if r > 0.0:
+            x = (floor - a) / r
+            if x > lam_lo:
+                lam_lo = x
+            x = (b - floor) / r
+            if x < lam_hi:
+                lam_hi = x
+    return 0.5 * (lam_lo + lam_hi)
+
+
+def _lp_maxmin(um: NDArray[np.float64], w: float, lo: float, hi: float) -> NDArray[np.float64]:
+    """Max-min tensions for N > 4 by linear programming, in units of the weight ``w``."""
+    try:
+        from scipy.optimize import linprog
+    except ImportError:
+        raise SolverUnavailable(
+            "more than four cables need scipy (scipy.optimize.linprog); install scipy"
+        ) from None
+    nc = um.shape[1]
+    lo_w, hi_w = lo / w, hi / w
+    # Variables x = (t / w, s / w); minimise -s.
+    c = np.zeros(nc + 1)
+    c[-1] = -1.0
+    a_eq = np.hstack([um, np.zeros((3, 1))])
+    b_eq = np.array([0.0, 0.0, 1.0])
+    eye = np.eye(nc)
+    ones = np.ones((nc, 1))
+    a_ub = np.vstack([np.hstack([-eye, ones]), np.hstack([eye, ones])])
+    b_ub = np.concatenate([np.full(nc, -lo_w), np.full(nc, hi_w)])
+    res: Any = linprog(
+        c,
+        A_ub=a_ub,
+        b_ub=b_ub,
+        A_eq=a_eq,
+        b_eq=b_eq,
+        bounds=[(None, None)] * (nc + 1),
+        method="highs",
+    )
+    if res.status != 0 or res.x is None:
+        raise StaticsError(f"the tension linear program failed: {res.message}")
+    x: NDArray[np.float64] = np.asarray(res.x[:nc], dtype=np.float64) * w
+    return x
+
+
+def _batch_margin(
+    t: NDArray[np.float64], lo: float, hi: float
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Smallest distance to a limit per row and the cable (0-based) at it."""
+    d = np.minimum(t - lo, hi - t)
+    with np.errstate(invalid="ignore"):
+        d = np.where(np.isfinite(d), d, -np.inf)
+    lim = np.argmin(d, axis=1).astype(np.int64)
+    mg = np.take_along_axis(d, lim[:, None], axis=1)[:, 0]
+    return mg, lim
+
+
+def _batch_closed(
+    anchors: NDArray[np.float64], p: NDArray[np.float64], w: float, lo: float, hi: float
+) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Vectorised N = 3 / N = 4 tensions; ``ok`` False for singular or non-finite rows (their
+    tensions are garbage, possibly NaN, and are replaced by the caller)."""
+    nc = anchors.shape[0]
+    rows = p.shape[0]
+    ok = np.asarray(np.isfinite(p).all(axis=1), dtype=np.bool_)
+    p = np.where(ok[:, None], p, 0.0)
+    with np.errstate(all="ignore"):
+        dv = anchors[None, :, :] - p[:, None, :]  # (M, N, 3)
+        dist = np.sqrt(np.einsum("mij,mij->mi", dv, dv))
+        ok &= (dist > ANCHOR_TOL_M).all(axis=1)
+        u = dv / np.where(dist > ANCHOR_TOL_M, dist, 1.0)[:, :, None]
+        ok &= (u[:, :, 2] > UP_TOL).any(axis=1)
+        ux, uy, uz = u[:, :, 0], u[:, :, 1], u[:, :, 2]
+        if nc == 3:
+            a, b, c = 0, 1, 2
+            det = (
+                ux[:, a] * (uy[:, b] * uz[:, c] - uz[:, b] * uy[:, c])
+                - uy[:, a] * (ux[:, b] * uz[:, c] - uz[:, b] * ux[:, c])
+                + uz[:, a] * (ux[:, b] * uy[:, c] - uy[:, b] * ux[:, c])
+            )
+            ok &= np.abs(det) >= RANK_TOL
+            inv = w / np.where(ok, det, 1.0)
+            t = np.empty((rows, 3))
+            t[:, a] = (ux[:, b] * uy[:, c] - uy[:, b] * ux[:, c]) * inv
+            t[:, b] = (ux[:, c] * uy[:, a] - uy[:, c] * ux[:, a]) * inv
+            t[:, c] = (ux[:, a] * uy[:, b] - uy[:, a] * ux[:, b]) * inv
+            return t, ok
+        # N = 4: cz[k, l] = z of u_k x u_l, shared by the four triples.
+        cz = ux[:, :, None] * uy[:, None, :] - uy[:, :, None] * ux[:, None, :]  # (M, 4, 4)
+        tp = np.zeros((rows, 4))
+        n = np.empty((rows, 4))
+        for j, (a, b, c) in enumerate(_TRIPLES4):
+            d = (
+                ux[:, a] * (uy[:, b] * uz[:, c] - uz[:, b] * uy[:, c])
+                - uy[:, a] * (ux[:, b] * uz[:, c] - uz[:, b] * ux[:, c])
+                + uz[:, a] * cz[:, b, c]
+            )
+            n[:, j] = -d if j & 1 else d
+            tp[:, a] += d * cz[:, b, c]
+            tp[:, b] += d * cz[:, c, a]
+            tp[:, c] += d * cz[:, a, b]
+        nn = np.einsum("mi,mi->m", n, n)
+        norm = np.sqrt(nn)
+        ok &= norm >= RANK_TOL
+        nn_safe = np.where(ok, nn, 1.0)
+        tp *= (w / nn_safe)[:, None]
+        s = n / np.where(ok, norm, 1.0)[:, None]
+        rising = s >= 0.0
+        ra = np.where(rising, tp - lo, hi - tp)  # (M, 4)
+        fa = np.where(rising, hi - tp, tp - lo)
+        r = np.abs(s)
+        den = r[:, :, None] + r[:, None, :]  # rising i, falling j
+        valid = den > 0.0
+        v = (ra[:, :, None] * r[:, None, :] + fa[:, None, :] * r[:, :, None]) / np.where(
+            valid, den, 1.0
+        )
+        v = np.where(valid, v, np.inf)
+        best = v.reshape(rows, 16).min(axis=1)
+        pos = r > 0.0
+        r_safe = np.where(pos, r, 1.0)
+        big = np.maximum(np.abs(tp).max(axis=1), hi)
+        floor = (best - _SLACK * (big + hi))[:, None]
+        lam_lo = np.where(pos, (floor - ra) / r_safe, -np.inf).max(axis=1)
+        lam_hi = np.where(pos, (fa - floor) / r_safe, np.inf).min(axis=1)
+        lam = 0.5 * (lam_lo + lam_hi)
+        t = tp + lam[:, None] * s
+        ok &= np.isfinite(t).all(axis=1)
+    return t, ok
+
+
+# -- module-level conveniences ---------------------------------------------------------------
+
+
+def solve_tensions(
+    anchors_m: ArrayLike, point_m: Sequence[float], mass_kg: float, t_min_n: float, t_max_n: float
+) -> Tensions:
+    """One-off ``CableStatics(anchors_m, t_min_n, t_max_n).solve(point_m, mass_kg)``.
+
+    Raises what ``CableStatics`` and ``CableStatics.solve`` raise.  For many calls with one
+    layout build a ``CableStatics`` once.
+    """
+    return CableStatics(anchors_m, t_min_n, t_max_n).solve(point_m, mass_kg)
+
+
+def tensions_batch(
+    anchors_m: ArrayLike, points_m: ArrayLike, mass_kg: float, t_min_n: float, t_max_n: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.int64]]:
+    """``(tensions (M, N), margin (M,), feasible (M,), limiting (M,))`` for M points.
+
+    See ``CableStatics.solve_batch`` (singular rows: feasible False, limiting ``SINGULAR_ROW``,
+    tensions 0.0, margin ``SINGULAR_MARGIN_N``).  Raises what it and ``CableStatics`` raise.
+    """
+    return CableStatics(anchors_m, t_min_n, t_max_n).solve_batch(points_m, mass_kg)
+
+
+@dataclass(frozen=True, slots=True)
+class FeasibleWorkspace:
+    """Tension-feasible part of a box, sampled at cell centres on a regular grid.
+
+    ``feasible[i, j, k]`` is the cell centred at ``(xs_m[i], ys_m[j], zs_m[k])``.
+    ``volume_m3`` = ``n_feasible * cell_volume_m3``.  ``uncertainty_m3`` =
+    ``n_boundary * cell_volume_m3``, where a boundary cell is one whose centre differs from a
+    face neighbour's centre or, on the box's surface, from the centre of its outer face (sampled
+    too): the limit surface crosses only such cells (at this resolution) and each can be
+    misattributed by at most its volume, so this bounds the error of ``volume_m3``
+    (conservatively: cells on both sides of the surface are counted) unless a feature smaller
+    than a cell falls between samples.  Halving the step should change ``volume_m3`` by less.
+    """
+
+    xs_m: NDArray[np.float64]
+    ys_m: NDArray[np.float64]
+    zs_m: NDArray[np.float64]
+    feasible: NDArray[np.bool_]
+    margin_n: NDArray[np.float64]
+    cell_m: tuple[float, float, float]
+    cell_volume_m3: float
+    box_volume_m3: float
+    n_feasible: int
+    n_boundary: int
+    volume_m3: float
+    uncertainty_m3: float
+
+
+def _axis(rng: Sequence[float], step_m: float, name: str) -> tuple[NDArray[np.float64], float]:
+    if len(rng) != 2:
+        raise StaticsInputError(f"{name} must be (low, high), got {rng!r}")
+    a, b = float(rng[0]), float(rng[1])
+    if not (_finite(a) and _finite(b) and a < b):
+        raise StaticsInputError(f"{name} must be finite with low < high, got {rng!r}")
+    cells = max(1, round((b - a) / step_m))
+    if cells > 100_000:
+        raise StaticsInputError(f"{name}: step {step_m:g} m gives {cells} cells, too many")
+    h = (b - a) / cells
+    centres: NDArray[np.float64] = a + (np.arange(cells, dtype=np.float64) + 0.5) * h
+    return centres, h
+
+
+def feasible_workspace(
+    anchors_m: ArrayLike,
+    x_range_m: Sequence[float],
+    y_range_m: Sequence[float],
+    z_range_m: Sequence[float],
+    step_m: float,
+    mass_kg: float,
+    t_min_n: float,
+    t_max_n: float,
+) -> FeasibleWorkspace:
+    """Sample the box on a regular grid and return where the tensions can stay in range.
+
+    The box is cut into cells of about ``step_m`` (each axis into a whole number of equal
+    cells, so the cells tile the box exactly; the actual sizes are ``cell_m``) and each cell
+    centre is solved with ``tensions_batch`` (singular centres count as infeasible), and so is
+    the centre of each outer face of the cells on the box's surface (for the uncertainty).  Raises
+    ``StaticsInputError`` for a bad box, step, mass or limits or more than 2e8 cells, and what
+    ``tensions_batch`` raises.
+    """
+    try:
+        step = float(step_m)
+    except (TypeError, ValueError):
+        raise StaticsInputError(f"step_m must be a number, got {step_m!r}") from None
+    if not (_finite(step) and step > 0.0):
+        raise StaticsInputError(f"step_m must be finite and > 0, got {step_m!r}")
+    xs, hx = _axis(x_range_m, step, "x_range_m")
+    ys, hy = _axis(y_range_m, step, "y_range_m")
+    zs, hz = _axis(z_range_m, step, "z_range_m")
+    shape = (xs.size, ys.size, zs.size)
+    total = shape[0] * shape[1] * shape[2]
+    if total > 200_000_000:
+        raise StaticsInputError(f"{total} cells is too many; use a larger step")
+    statics = CableStatics(anchors_m, t_min_n, t_max_n)
+    gx, gy, gz = np.meshgrid(xs, ys, zs, indexing="ij")
+    pts = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
+    _, margin, feasible, _ = statics.solve_batch(pts, mass_kg)
+    feas = feasible.reshape(shape)
+    boundary = np.zeros(shape, dtype=bool)
+    axes = (xs, ys, zs)
+    # the box's faces: first and last centre -/+ half a cell
+    bounds = tuple(
+        (float(a[0]) - 0.5 * h, float(a[-1]) + 0.5 * h)
+        for a, h in zip(axes, (hx, hy, hz), strict=True)
+    )
+    for ax in range(3):
+        lo_sl: list[slice] = [slice(None)] * 3
+        hi_sl: list[slice] = [slice(None)] * 3
+        lo_sl[ax] = slice(None, -1)
+        hi_sl[ax] = slice(1, None)
+        diff = feas[tuple(lo_sl)] != feas[tuple(hi_sl)]
+        boundary[tuple(lo_sl)] |= diff
+        boundary[tuple(hi_sl)] |= diff
+        # The outer half of a face cell has no neighbour: sample the box face itself there.
+        for side, layer in ((0, 0), (1, shape[ax] - 1)):
+            face_axes = [a if k != ax else np.array([bounds[ax][side]]) for k, a in enumerate(axes)]
+            fx, fy, fz = np.meshgrid(*face_axes, indexing="ij")
+            face_pts = np.stack([fx.ravel(), fy.ravel(), fz.ravel()], axis=1)
+            face_ok = statics.solve_batch(face_pts, mass_kg)[2].reshape(fx.shape)
+            sl: list[slice] = [slice(None)] * 3
+            sl[ax] = slice(layer, layer + 1)
+            boundary[tuple(sl)] |= feas[tuple(sl)] != face_ok
+    cell = hx * hy * hz
+    n_feasible = int(feas.sum())
+    n_boundary = int(boundary.sum())
+    for arr in (xs, ys, zs, feas):
+        arr.setflags(write=False)
+    mg = margin.reshape(shape)
+    mg.setflags(write=False)
+    box = (xs.size * hx) * (ys.size * hy) * (zs.size * hz)
+    return FeasibleWorkspace(
+        xs_m=xs,
+        ys_m=ys,
+        zs_m=zs,
+        feasible=feas,
+        margin_n=mg,
+        cell_m=(hx, hy, hz),
+        cell_volume_m3=cell,
+        box_volume_m3=box,
+        n_feasible=n_feasible,
+        n_boundary=n_boundary,
+        volume_m3=n_feasible * cell,
+        uncertainty_m3=n_boundary * cell,
+    )

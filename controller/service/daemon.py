@@ -1,0 +1,638 @@
+"""`cablebot run`: the controller daemon.
+
+Loads the configuration, opens the bus, starts the simulated ODrive nodes in-process when
+`[sim] enabled`, creates the reel driver, the `Controller` and the Zenoh interface, runs the
+fixed-rate loop in its own thread and waits for SIGTERM/SIGINT.
+
+Start-up: READY=1 (systemd `Type=notify`) only once every reel has answered (a heartbeat and
+an encoder estimate from each node) and, with auto-arm, the arm has been tried (the robot
+holds, or the arm was refused or faulted: the daemon is up and says why). A node that stays
+silent gets a WARNING naming it, after `faults.arm_timeout_s` and then every status period
+(`--status-every`, 1 s at least, 5 s when status lines are off) until it answers; auto-arm waits
+for every reel too. WATCHDOG=1 comes from the loop thread, STATUS=<state> from here.
+
+Shutdown: on a signal new motion is refused (`Controller.begin_shutdown`) and any motion brakes
+to a hold at `limits.max_accel_mps2`; the daemon waits for it as long as the actual speed needs
+(speed / acceleration, with a margin, at most `STOP_WAIT_MAX_S`), stops the loop, sends the
+last set-point once more with zero velocity feed-forward (`Controller.send_final_hold`), closes
+Zenoh and the bus and exits 0. Logs go to stderr (no timestamps under journald).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import ctypes
+import gc
+import logging
+import math
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from controller.core.commands import Arm
+from controller.core.states import State
+
+log = logging.getLogger("cablebot.daemon")
+
+PR_SET_TIMERSLACK = 29
+RT_PRIORITY = 50
+"""Default SCHED_FIFO priority of the loop thread (`loop.rt_priority` overrides it)."""
+TIMER_SLACK_NS = 1_000
+SWITCH_INTERVAL_S = 0.0005
+STOP_MARGIN_S = 0.5
+STOP_MARGIN_FACTOR = 1.25
+"""Shutdown waits for braking: the set-point's speed / max acceleration, times this factor (a
+loaded loop runs the motion slower than the wall clock), plus `STOP_MARGIN_S`."""
+STOP_WAIT_MAX_S = 10.0
+"""The longest shutdown waits for a brake, whatever the speed and acceleration (systemd's
+TimeoutStopSec in config/cablebot@.service is longer)."""
+SILENT_WARN_EVERY_S = 5.0
+"""Warning period for silent nodes when status lines are off (`--status-every 0`)."""
+
+
+# -------------------------------------------------------------------------------- sd_notify
+
+
+class Notifier:
+    """systemd notification over $NOTIFY_SOCKET (a datagram socket); a no-op without it."""
+
+    def __init__(self, env: dict[str, str] | None = None) -> None:
+        env = dict(os.environ) if env is None else env
+        self._addr: str | None = env.get("NOTIFY_SOCKET") or None
+        self._sock: socket.socket | None = None
+        if self._addr is not None:
+            if self._addr.startswith("@"):
+                self._addr = "\0" + self._addr[1:]
+            try:
+                self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+            except OSError as exc:
+                log.warning("sd_notify unavailable: %s", exc)
+        usec = env.get("WATCHDOG_USEC")
+        pid = env.get("WATCHDOG_PID")
+        self.watchdog_period_s = 0.0
+        if usec and (pid is None or pid == str(os.getpid())):
+            try:
+                self.watchdog_period_s = int(usec) / 2e6
+            except ValueError:
+                log.warning("bad WATCHDOG_USEC %r ignored", usec)
+
+    @property
+    def enabled(self) -> bool:
+        """True if a notification socket is configured."""
+        return self._sock is not None
+
+    def notify(self, message: str) -> None:
+        """Send one notification (e.g. "READY=1"); errors are ignored (never blocks)."""
+        if self._sock is None or self._addr is None:
+            return
+        with contextlib.suppress(OSError):
+            self._sock.sendto(message.encode(), socket.MSG_DONTWAIT, self._addr)
+
+    def close(self) -> None:
+        """Close the socket."""
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+
+# -------------------------------------------------------------------------------- real-time
+
+
+def set_realtime(priority: int, tid: int = 0) -> str:
+    """Try SCHED_FIFO at `priority` for thread `tid` (0: the calling thread); return what
+    happened, for the log. Raises nothing."""
+    try:
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+    except (OSError, AttributeError) as exc:
+        return f"SCHED_FIFO {priority} not available ({exc}); running SCHED_OTHER"
+    return f"SCHED_FIFO priority {priority}"
+
+
+def set_timer_slack(slack_ns: int) -> str:
+    """Try prctl(PR_SET_TIMERSLACK) for the calling thread; return what happened, for the log."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        rc = libc.prctl(PR_SET_TIMERSLACK, ctypes.c_ulong(slack_ns), 0, 0, 0)
+    except (OSError, AttributeError) as exc:
+        return f"timer slack unchanged ({exc})"
+    if rc != 0:
+        return f"timer slack unchanged (errno {ctypes.get_errno()})"
+    return f"timer slack {slack_ns} ns"
+
+
+# -------------------------------------------------------------------------------- logging
+
+
+def setup_logging(level: str) -> None:
+    """Log to stderr; no timestamps under journald (JOURNAL_STREAM set), which adds its own."""
+    if os.environ.get("JOURNAL_STREAM"):
+        fmt = "%(levelname)s %(name)s: %(message)s"
+    else:
+        fmt = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(fmt))
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(level.upper())
+
+
+# -------------------------------------------------------------------------------- the daemon
+
+
+def status_line(st: dict[str, Any]) -> str:
+    """One human line from `Controller.status()`: state, pose, loop rate and jitter."""
+    pose = st["pose"]
+    if pose["valid"]:
+        p = pose["position_m"]
+        res_mm = pose["residual_m"] * 1e3
+        pos = f"pose [{p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}] m residual {res_mm:.2f} mm"
+    else:
+        pos = "pose invalid"
+    lp = st["loop"]
+    j = lp["jitter_p99_s"]
+    c = lp["compute_p99_s"]
+    timing = (
+        f"jitter p99 {j * 1e3:.3f} ms compute p99 {c * 1e3:.3f} ms"
+        if j is not None and c is not None
+        else "no ticks yet"
+    )
+    reason = f" ({st['reason']})" if st["reason"] else ""
+    return (
+        f"{st['state']}{reason} {pos}; loop {lp['rate_hz']:.0f} Hz ticks {lp['ticks']}"
+        f" overruns {lp['overruns']} {timing}"
+    )
+
+
+@dataclass
+class Stack:
+    """A robot's running pieces, built by `build_stack` as `cablebot run` builds them."""
+
+    cfg: Any
+    bus: Any
+    driver: Any
+    controller: Any
+    zenoh: Any | None
+    closers: list[tuple[str, Callable[[], object]]] = field(default_factory=list)
+
+    def close(self) -> None:
+        """Close Zenoh, the simulated nodes and the buses (newest first); never raises."""
+        _close_all(self.closers)
+        self.closers = []
+
+
+def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> Stack:
+    """Open the bus, start in-process simulated nodes when `cfg.sim.enabled` (initialised from
+    `sim_cfg`, default `cfg`), create the ODrive driver, the Controller and, with `zenoh`, the
+    Zenoh interface as the controller's publisher.
+
+    Raises whatever fails (bus, simulated nodes, Zenoh: e.g. its port is taken) after closing
+    what was opened.
+    """
+    from controller.cli.sim import start_sim_bank
+    from controller.service.loop import Controller
+    from drivers.bus import open_bus
+    from drivers.odrive.driver import ODriveReels
+
+    closers: list[tuple[str, Callable[[], object]]] = []
+    b = cfg.bus
+    try:
+        bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
+        closers.append(("bus", bus.shutdown))
+        if cfg.sim.enabled:
+            # python-can `virtual` buses only hear other bus objects: the sim gets its own.
+            sim_bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
+            closers.append(("sim bus", sim_bus.shutdown))
+            bank = start_sim_bank(sim_cfg if sim_cfg is not None else cfg, sim_bus)
+            closers.append(("sim", bank.stop))
+            sim_rt = "SCHED_OTHER"
+            if cfg.loop.realtime:
+                # The simulated nodes stand in for hardware: a starved sim thread on a busy
+                # machine would look like a stale node. One step below the loop.
+                for t in threading.enumerate():
+                    if t.name == "sim-odrive" and t.native_id is not None:
+                        sim_rt = set_realtime(max(1, _rt_priority(cfg) - 1), t.native_id)
+            log.info(
+                "simulated ODrive nodes %s started in-process (%s)",
+                [r.node_id for r in cfg.reels],
+                sim_rt,
+            )
+        # After a loop stall, read through the queued frames to the newest in one poll rather
+        # than show frames from before the stall (they carry their arrival time).
+        driver = ODriveReels(
+            bus,
+            [r.node_id for r in cfg.reels],
+            encoder_rtr=bool(cfg.loop.encoder_rtr),
+            catch_up_age_s=float(cfg.faults.stale_timeout_s) / 2.0,
+        )
+        controller = Controller(cfg, driver)
+        iface = None
+        if zenoh:
+            from controller.service import zenoh_io
+
+            iface = zenoh_io.ZenohInterface(cfg.zenoh, controller)
+            try:
+                iface.open()
+            except Exception as exc:
+                raise RuntimeError(zenoh_open_problem(cfg.zenoh, exc)) from exc
+            closers.append(("zenoh", iface.close))
+            controller.publisher = iface
+    except BaseException:
+        _close_all(closers)
+        raise
+    return Stack(cfg, bus, driver, controller, iface, closers)
+
+
+def zenoh_open_problem(zcfg: Any, exc: BaseException) -> str:
+    """The start-up error for a Zenoh session that failed to open: what failed, the `[zenoh]`
+    keys that decide it, and, only when the address is taken, the hint that another daemon
+    may be running."""
+    keys = [f"listen = {list(zcfg.listen)}"]
+    if zcfg.connect:
+        keys.append(f"connect = {list(zcfg.connect)}")
+    if zcfg.config_file:
+        keys.append(f"config_file = {zcfg.config_file!r}")
+    text = str(exc)
+    msg = f"Zenoh interface failed to open ([zenoh] {', '.join(keys)}): {text}"
+    if "in use" in text.lower() or "os error 98" in text.lower():
+        return (
+            msg + " (the address is taken: is another cablebot daemon running? set [zenoh] listen)"
+        )
+    return msg + " (check [zenoh] listen, connect and config_file)"
+
+
+def silent_nodes(readings: Any) -> list[tuple[int, int, str]]:
+    """(node id, cable number from 1, what is missing) for every axis that has not sent both a
+    heartbeat and an encoder estimate yet."""
+    out = []
+    for i, r in enumerate(readings):
+        missing = []
+        if not math.isfinite(r.heartbeat_stamp_s):
+            missing.append("no heartbeat")
+        if not math.isfinite(r.stamp_s):
+            missing.append("no encoder estimate")
+        if missing:
+            out.append((int(r.node_id), i + 1, " and ".join(missing)))
+    return out
+
+
+def brake_wait_s(brake_time_s: float, max_speed_mps: float, max_accel_mps2: float) -> float:
+    """How long shutdown waits for a brake that needs `brake_time_s` at the set-point's speed:
+    times `STOP_MARGIN_FACTOR` plus `STOP_MARGIN_S`, at most what the fastest allowed motion
+    needs, and never more than `STOP_WAIT_MAX_S`. Raises nothing (a non-finite input gives the
+    cap)."""
+    longest = max_speed_mps / max_accel_mps2 * STOP_MARGIN_FACTOR + STOP_MARGIN_S
+    wait = brake_time_s * STOP_MARGIN_FACTOR + STOP_MARGIN_S
+    if not math.isfinite(wait) or not math.isfinite(longest):
+        return STOP_WAIT_MAX_S
+    return min(wait, longest, STOP_WAIT_MAX_S)
+
+
+class StartupWatch:
+    """The daemon's start-up duties, stepped from its main thread (every 50 ms).
+
+    * Names every node that has not answered yet (no heartbeat or no encoder estimate) in a
+      WARNING, first after `faults.arm_timeout_s`, then every `status_every_s` (1 s at least;
+      `SILENT_WARN_EVERY_S` when status lines are off) until it answers, then logs that it did.
+    * Looks at each node's first heartbeat: an axis already in closed loop before cablebot armed
+      it is driven by someone else, or its watchdog is off and a previous controller left it
+      running (WARNING); WATCHDOG_TIMER_EXPIRED shows that its watchdog works (INFO).
+    * With `want_arm`, submits Arm once every reel has answered.
+    * Sends READY=1 once every reel has answered and, with `want_arm`, the arm has been tried
+      (holding, faulted or refused: the daemon is up and its status says how it is).
+
+    STATUS= follows the controller's state (or names the nodes waited for). Raises nothing.
+    """
+
+    def __init__(
+        self,
+        cfg: Any,
+        controller: Any,
+        driver: Any,
+        notifier: Notifier,
+        *,
+        want_arm: bool,
+        status_every_s: float,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.cfg = cfg
+        self.controller = controller
+        self.driver = driver
+        self.notifier = notifier
+        self.want_arm = want_arm
+        self.ready = False
+        self.arm_future: Any = None
+        self._clock = clock
+        self._started = clock()
+        self._warn_every_s = max(1.0, status_every_s if status_every_s > 0 else SILENT_WARN_EVERY_S)
+        self._next_warn = self._started + float(cfg.faults.arm_timeout_s)
+        self._warned: set[int] = set()
+        self._seen: set[int] = set()
+        self._last_status: str | None = None
+        self._bus_name = f"{cfg.bus.interface} {cfg.bus.channel}"
+
+    def step(self) -> bool:
+        """Do what is due now; True exactly once, when the daemon has become ready."""
+        now = self._clock()
+        readings = self.driver.read()
+        self._first_heartbeats(readings)
+        silent = silent_nodes(readings)
+        if silent and now >= self._next_warn:
+            self._next_warn = now + self._warn_every_s
+            log.warning(
+                "no answer from ODrive %s on %s after %.1f s: check power, wiring, CAN node ids "
+                "and bit rate; READY withheld until every reel answers",
+                ", ".join(f"node {n} (cable {c}: {what})" for n, c, what in silent),
+                self._bus_name,
+                now - self._started,
+            )
+            self._warned.update(n for n, _, _ in silent)
+            self._status(f"waiting for ODrive node(s) {[n for n, _, _ in silent]}")
+        if self._warned:
+            answered = self._warned - {n for n, _, _ in silent}
+            for n in sorted(answered):
+                log.info("ODrive node %d answered after %.1f s", n, now - self._started)
+            self._warned -= answered
+        if self.want_arm and self.arm_future is None and not silent:
+            self.arm_future = self.controller.submit(Arm())
+            log.info("auto-arm requested (every reel answered)")
+        state = self.controller.state.value
+        if not self._warned:
+            reason = self.controller.reason
+            self._status(state + (f" {reason}" if reason else ""))
+        if self.ready or silent:
+            return False
+        fut = self.arm_future
+        if self.want_arm and not (fut is not None and fut.done() and state != State.ARMING.value):
+            return False
+        self.ready = True
+        if fut is not None and fut.exception() is not None:
+            log.warning("auto-arm refused: %s", fut.exception())
+        self.notifier.notify("READY=1")
+        log.info("ready: %s", status_line(self.controller.status()))
+        return True
+
+    def _status(self, text: str) -> None:
+        if text != self._last_status:
+            self._last_status = text
+            self.notifier.notify(f"STATUS={text}")
+
+    def _first_heartbeats(self, readings: Any) -> None:
+        from drivers.odrive import cansimple as cs
+
+        for r in readings:
+            if r.node_id in self._seen or not math.isfinite(r.heartbeat_stamp_s):
+                continue
+            self._seen.add(r.node_id)
+            if self.arm_future is None and r.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL:
+                log.warning(
+                    "ODrive node %d is in closed loop before cablebot armed it: another "
+                    "controller drives it, or its watchdog (axis.config.enable_watchdog) is off "
+                    "and a previous controller left it running",
+                    r.node_id,
+                )
+            elif r.axis_error & cs.ODriveError.WATCHDOG_TIMER_EXPIRED:
+                log.info(
+                    "ODrive node %d reports WATCHDOG_TIMER_EXPIRED: its watchdog stopped it "
+                    "after the previous controller went quiet (arming clears it)",
+                    r.node_id,
+                )
+
+
+def start_loop(
+    stack: Stack,
+    stop: threading.Event,
+    *,
+    on_watchdog: Callable[[], None] | None = None,
+    watchdog_period_s: float = 0.0,
+    on_crash: Callable[[BaseException], None] | None = None,
+) -> tuple[threading.Thread, list[str]]:
+    """Run `stack.controller.run(stop)` in a loop thread, as the daemon does: SCHED_FIFO and a
+    1 us timer slack for that thread (with `loop.realtime`), a short GIL switch interval, and
+    the garbage collector frozen after start-up (`loop.gc_freeze`).
+
+    Returns the thread and a list that the thread fills with the scheduling it obtained.
+    If the loop raises, it is logged and `on_crash` is called from the loop thread; nothing
+    is raised.
+    """
+    cfg = stack.cfg
+    controller = stack.controller
+    report: list[str] = []
+
+    def loop_main() -> None:
+        if cfg.loop.realtime:
+            report.append(set_realtime(_rt_priority(cfg)))
+        else:
+            report.append("SCHED_OTHER (loop.realtime = false)")
+        report.append(set_timer_slack(TIMER_SLACK_NS))
+        try:
+            controller.run(stop, on_watchdog=on_watchdog, watchdog_period_s=watchdog_period_s)
+        except BaseException as exc:
+            log.exception("control loop crashed")
+            if on_crash is not None:
+                on_crash(exc)
+
+    # A woken loop thread waits for the GIL up to the switch interval (5 ms by default):
+    # shorten it so other Python threads (Zenoh callbacks, an in-process sim) yield sooner.
+    sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
+    if cfg.loop.gc_freeze:
+        gc.collect()
+        gc.freeze()
+    thread = threading.Thread(target=loop_main, name="cablebot-loop", daemon=True)
+    thread.start()
+    return thread, report
+
+
+def run_daemon(
+    config: Path | None,
+    *,
+    status_every_s: float = 5.0,
+    auto_arm: bool | None = None,
+    ready: Callable[[], None] | None = None,
+) -> int:
+    """Run the controller until SIGTERM/SIGINT; return the exit code (0 on a clean stop).
+
+    Raises nothing for configuration or bus errors: they are logged and give exit code 2 / 1.
+    """
+    from controller.service.config import ConfigError, load_config
+
+    try:
+        cfg = load_config(config)
+    except (ConfigError, OSError) as exc:
+        log.error("configuration: %s", exc)
+        return 2
+    log.info("config: %s", _summary_text(cfg))
+    log.debug("config details: %s", cfg.summary())
+
+    shutdown = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        shutdown.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+
+    notifier = Notifier()
+    try:
+        stack = build_stack(cfg)
+    except Exception as exc:
+        # A robot nobody can watch or stop over the network must not start: nothing is armed
+        # yet, so failing here is safe (and systemd reports it).
+        log.error("start-up failed: %s", exc)
+        return 1
+    controller = stack.controller
+    driver = stack.driver
+
+    stop_loop = threading.Event()
+    crashed = threading.Event()
+
+    def on_crash(exc: BaseException) -> None:
+        crashed.set()
+        shutdown.set()
+
+    thread, rt_report = start_loop(
+        stack,
+        stop_loop,
+        on_watchdog=lambda: notifier.notify("WATCHDOG=1"),
+        watchdog_period_s=notifier.watchdog_period_s,
+        on_crash=on_crash,
+    )
+    log.info(
+        "control loop at %.0f Hz (%s)",
+        cfg.loop.rate_hz,
+        "gc frozen" if cfg.loop.gc_freeze else "gc normal",
+    )
+
+    watch = StartupWatch(
+        cfg,
+        controller,
+        driver,
+        notifier,
+        want_arm=auto_arm if auto_arm is not None else _auto_arm(cfg),
+        status_every_s=status_every_s,
+    )
+    next_status = time.monotonic() + status_every_s
+    while not shutdown.is_set():
+        if rt_report:
+            log.info("loop thread: %s", "; ".join(rt_report))
+            rt_report.clear()
+        if watch.step() and ready is not None:
+            ready()
+        now = time.monotonic()
+        if now >= next_status:
+            next_status = now + (status_every_s if status_every_s > 0 else 5.0)
+            line = status_line(controller.status())
+            notifier.notify(f"STATUS={line}")
+            if status_every_s > 0:
+                log.info("%s", line)
+        shutdown.wait(0.05)
+
+    log.info("signal received: refusing new motion, braking to a hold")
+    notifier.notify("STOPPING=1")
+    t0 = time.monotonic()
+    lim = cfg.limits
+    brake_s = controller.brake_time_s()
+    start_sp = controller.setpoint_m
+    controller.begin_shutdown()
+    wait_s = brake_wait_s(brake_s, float(lim.max_speed_mps), float(lim.max_accel_mps2))
+    deadline = t0 + wait_s
+    while controller.state is State.MOVING and time.monotonic() < deadline:
+        time.sleep(0.01)
+    if controller.state is State.MOVING:
+        log.warning("motion not at rest after %.2f s; holding the last set-point", wait_s)
+    elif brake_s > 0.0:
+        end_sp = controller.setpoint_m
+        travel = (
+            math.dist(start_sp, end_sp) if start_sp is not None and end_sp is not None else math.nan
+        )
+        log.info(
+            "braked from %.3f m/s to rest in %.3f s over %.3f m",
+            brake_s * float(lim.max_accel_mps2),
+            time.monotonic() - t0,
+            travel,
+        )
+    controller.wait_for_saves(0.3)
+    stop_loop.set()
+    thread.join(1.0)
+    if thread.is_alive():
+        log.error("control loop thread did not stop: final hold not sent")
+    elif controller.send_final_hold():
+        log.info("final hold sent: last set-point, zero velocity feed-forward")
+    final = controller.status()
+    stack.close()
+    notifier.close()
+    log.info("stopped in %.3f s: %s", time.monotonic() - t0, status_line(final))
+    return 1 if crashed.is_set() else 0
+
+
+def _auto_arm(cfg: Any) -> bool:
+    """`loop.auto_arm` if the config has it, else arm by itself only on the simulated robot."""
+    value = cfg.loop.auto_arm
+    if value is None:
+        return bool(cfg.sim.enabled)
+    return bool(value)
+
+
+def _rt_priority(cfg: Any) -> int:
+    return int(cfg.loop.rt_priority)
+
+
+def _summary_text(cfg: Any) -> str:
+    """One line: robot, source, bus, rate, homing, Zenoh, sim."""
+    h = cfg.homing
+    homing = (
+        f"power-up pose {list(h.power_up_position_m)}"
+        if h.power_up_position_m is not None
+        else "no power-up pose"
+    ) + (f", state file {h.state_file}" if h.state_file else ", no state file")
+    return (
+        f"robot {cfg.name!r} from {cfg.source}: {len(cfg.reels)} reels (nodes "
+        f"{[r.node_id for r in cfg.reels]}) on {cfg.bus.interface} {cfg.bus.channel}; "
+        f"{cfg.loop.rate_hz:g} Hz; {homing}; Zenoh prefix {cfg.zenoh.prefix}; "
+        f"sim {'in-process' if cfg.sim.enabled else 'off'}"
+    )
+
+
+def _close_all(closers: list[tuple[str, Callable[[], object]]]) -> None:
+    for name, close in reversed(closers):
+        try:
+            close()
+        except Exception as exc:
+            log.warning("closing %s: %s", name, exc)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    """Entry point of `cablebot run`."""
+    setup_logging(args.log_level)
+    return run_daemon(args.config, status_every_s=args.status_every)
+
+
+def register(sub: argparse._SubParsersAction[Any]) -> None:
+    """Register `cablebot run`."""
+    p = sub.add_parser(
+        "run",
+        help="run the controller daemon",
+        description="Run the controller: fixed-rate loop, Zenoh interface, until SIGTERM.",
+    )
+    p.add_argument("--config", type=Path, default=None, help="robot TOML (default: built-in)")
+    p.add_argument(
+        "--log-level",
+        default=os.environ.get("CABLEBOT_LOG_LEVEL", "INFO"),
+        choices=["DEBUG", "INFO", "WARNING", "ERROR", "debug", "info", "warning", "error"],
+    )
+    p.add_argument(
+        "--status-every",
+        type=float,
+        default=5.0,
+        metavar="S",
+        help="log a status line every S seconds (0: never)",
+    )
+    p.set_defaults(func=cmd_run)

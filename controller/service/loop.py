@@ -1,0 +1,1335 @@
+"""The control loop: one `Controller` owns the states, faults, commands and the fixed-rate tick.
+
+Every tick (`Controller.tick`): poll the bus without blocking, read the axes, check staleness,
+heartbeats and axis errors, turn motor turns into cable lengths, solve the pose by FPK, take
+queued commands, advance the motion planner, check the limits, solve the set-point's cable
+lengths by IPK, check the cable speeds, command the motors and publish the pose. `run` calls
+`tick` against absolute deadlines on the monotonic clock.
+
+Velocity feed-forward: every set-point goes out with the motor velocity that follows it, so an
+ODrive in position control + passthrough (vel_cmd = vel_ff + pos_gain * position error) tracks a
+moving set-point without the steady lag velocity / pos_gain. The set-point velocity v (the
+planner's) maps to cable length rates dL_i/dt = u_i . v, with u_i the unit vector from anchor i to
+the set-point, and to motor rev/s through the reel model's slope at the commanded turns. It is
+zero while holding and in FAULT (the hold re-sends the last good position with no feed-forward).
+
+Stalls: the planner advances by the elapsed time, but by at most `MAX_PLANNER_DT_PERIODS` loop
+periods per tick. After a CPU stall the motion therefore resumes where it was (it runs a little
+slower in wall time) instead of jumping ahead by the whole gap, which the reels could not follow
+and which would trip the cable-speed check; `status()["loop"]["dt_clamped"]` counts such ticks.
+
+Threading: the loop thread calls `tick`/`run` and is the only one that touches the driver.
+Other threads (Zenoh, the daemon) use `submit`, `submit_setpoint`, `request_estop` and
+`status`, which are thread-safe.
+
+Safety: on FAULT the motors keep receiving the last good set-point (a suspended load must not
+fall); nothing non-finite is ever commanded (a non-finite set-point is itself a fault); e-stop
+is taken at the start of the next tick, ahead of every queued command.
+
+Commands: which verbs each state accepts is `controller.core.states.COMMAND_RULES`, asked for every
+command and every streamed set-point. A set-point is taken only while HOLDING or MOVING and only
+within the armed session it arrived in: one that arrives while disarmed, arming, in FAULT or
+ESTOPPED is discarded (counted in `status()["stream"]["discarded"]`), so arming always starts
+by holding the measured pose.
+
+Paths: a move or path is checked against the limits and prepared (speed, repeated points) in the
+thread that submits it, vectorised (`Limits.path_failure`); the tick only checks the first leg
+from where the set-point comes to rest and hands the prepared points to the planner, which
+builds each leg when it reaches it. A path of any length costs the tick the same.
+
+E-stop confirmation: after an e-stop every axis must report, by a heartbeat newer than the
+e-stop, that it left closed loop within `ESTOP_CONFIRM_S`. An axis that does not is named in the
+state reason (`estop_unconfirmed: ...`, published on `<prefix>/state`) and in
+`status()["estop"]`, and the Estop is sent again with an IDLE request every `ESTOP_CONFIRM_S`
+until every axis complies (a node that ignores Estop may still obey IDLE).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import logging
+import math
+import queue
+import threading
+import time
+from array import array
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from controller.core import kinematics
+from controller.core.commands import (
+    Arm,
+    Command,
+    CommandRefused,
+    Disarm,
+    Estop,
+    Home,
+    Move,
+    Path,
+    Reset,
+    Setpoint,
+    Stop,
+    Vec3,
+)
+from controller.core.motion import MotionPlanner, check_speed, dedupe_path
+from controller.core.reel import ReelModel
+from controller.core.states import ARMED_STATES, State, check_transition, refusal
+from controller.core.workspace import Limits, points_array
+from controller.service.config import RobotConfig
+from drivers.base import AxisReading, BusError, ReelDriver
+
+log = logging.getLogger("cablebot.loop")
+
+AXIS_CLOSED_LOOP = 8
+"""ODrive AxisState CLOSED_LOOP_CONTROL."""
+
+COMMAND_QUEUE_SIZE = 32
+ESTOP_CONFIRM_S = 0.2
+"""Every axis must confirm leaving closed loop this soon after an e-stop (module docstring)."""
+MAX_PLANNER_DT_PERIODS = 4.0
+"""The planner advances at most this many loop periods per tick (see the module docstring)."""
+STATS_WINDOW = 4096
+"""Ticks kept in the jitter / compute-time ring buffers."""
+_MAX_COMMANDS_PER_TICK = 8
+
+
+# --------------------------------------------------------------------------------------------
+# Publishing contract
+
+
+@dataclass(frozen=True, slots=True)
+class PoseSample:
+    """One published pose (the `<prefix>/pose` schema)."""
+
+    seq: int
+    stamp_ns: int
+    position_m: tuple[float, float, float] | None
+    cable_lengths_m: tuple[float, ...]
+    residual_m: float | None
+    valid: bool
+    state: str
+
+    def to_json_bytes(self) -> bytes:
+        """Encode as compact JSON; non-finite numbers become null, so the output is valid JSON.
+
+        Hand-formatted (about 4x faster than json.dumps for this fixed schema); float repr is
+        the shortest round-tripping decimal, as json.dumps writes it.
+        """
+        pos = self.position_m
+        if pos is not None and self.valid and all(map(math.isfinite, pos)):
+            pos_s = f"[{_num(pos[0])},{_num(pos[1])},{_num(pos[2])}]"
+            valid = "true"
+        else:
+            pos_s = "null"
+            valid = "false"
+        lengths = ",".join(map(_num, self.cable_lengths_m))
+        res = "null" if self.residual_m is None else _num(self.residual_m)
+        return (
+            f'{{"seq":{int(self.seq)},"stamp_ns":{int(self.stamp_ns)},"position_m":{pos_s},'
+            f'"cable_lengths_m":[{lengths}],"residual_m":{res},"valid":{valid},'
+            f'"state":"{_state_name(self.state)}"}}'
+        ).encode()
+
+
+def _num(x: float) -> str:
+    """JSON number for a float; `null` if not finite."""
+    return repr(float(x)) if math.isfinite(x) else "null"
+
+
+def _state_name(s: str) -> str:
+    """A state name safe to put between JSON quotes (state names are plain identifiers)."""
+    return s if s.isidentifier() else "UNKNOWN"
+
+
+class Publisher(Protocol):
+    """Where the loop hands its poses and state changes (the Zenoh interface, or nothing)."""
+
+    def publish_pose(self, sample: PoseSample) -> None:
+        """Publish one pose sample; must not block the tick."""
+        ...
+
+    def publish_state(self, state: str, reason: str | None, stamp_ns: int) -> None:
+        """Publish a state change."""
+        ...
+
+
+class NullPublisher:
+    """A Publisher that drops everything."""
+
+    def publish_pose(self, sample: PoseSample) -> None:
+        """Drop the sample."""
+
+    def publish_state(self, state: str, reason: str | None, stamp_ns: int) -> None:
+        """Drop the state change."""
+
+
+# --------------------------------------------------------------------------------------------
+# Statistics
+
+
+class _Ring:
+    """Preallocated ring buffer of floats; written by index in the tick, read by `status()`."""
+
+    __slots__ = ("buf", "count", "size")
+
+    def __init__(self, size: int) -> None:
+        self.buf = array("d", bytes(8 * size))
+        self.size = size
+        self.count = 0
+
+    def add(self, value: float) -> None:
+        self.buf[self.count % self.size] = value
+        self.count += 1
+
+    def summary(self) -> dict[str, float | None]:
+        """p50, p99 and max over the window (None when empty)."""
+        n = min(self.count, self.size)
+        if n == 0:
+            return {"p50": None, "p99": None, "max": None}
+        # numpy: ~50x faster than sorted() on the array, so a status request holds the GIL
+        # (and so delays the loop thread) for tens of microseconds, not milliseconds.
+        vals = np.sort(np.frombuffer(self.buf, dtype=np.float64, count=n))
+        return {
+            "p50": float(vals[(n - 1) // 2]),
+            "p99": float(vals[min(n - 1, math.ceil(0.99 * n) - 1)]),
+            "max": float(vals[-1]),
+        }
+
+
+# --------------------------------------------------------------------------------------------
+# The controller
+
+
+class _Fault(Exception):
+    """Raised inside the tick to abort the step and enter FAULT with `reason`."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+class _Deferred(Exception):
+    """Internal: the command's reply comes later, from `future` (homing save)."""
+
+    def __init__(self, future: concurrent.futures.Future[dict[str, Any]]) -> None:
+        super().__init__("deferred")
+        self.future = future
+
+
+@dataclass(frozen=True, slots=True)
+class _Motion:
+    """A move or path checked and prepared outside the tick (see `Controller._prepare_motion`)."""
+
+    points_m: tuple[Vec3, ...]
+    """The points, consecutive repeats dropped."""
+    speed_mps: float
+    """The speed to run at (the requested one, limited to the maximum)."""
+    limited_to_mps: float | None
+    """The maximum speed, when the requested one was above it."""
+    refusal: str | None
+    """Why the command is refused whatever the state (a point or leg outside the limits, a
+    speed below the minimum), or None."""
+
+
+_VERBS: Mapping[type, str] = {
+    Move: "move",
+    Path: "path",
+    Stop: "stop",
+    Estop: "estop",
+    Arm: "arm",
+    Disarm: "disarm",
+    Reset: "reset",
+    Home: "home",
+    Setpoint: "setpoint",
+}
+
+_Pending = tuple[Command, "concurrent.futures.Future[dict[str, Any]]", _Motion | None]
+
+
+class Controller:
+    """The cable robot's controller: states, faults, commands, motion and the fixed-rate loop.
+
+    `cfg` is a `controller.service.config.RobotConfig`; `driver` a `drivers.base.ReelDriver` whose
+    `node_ids` are those of `cfg.reels`, in the same order. `offsets_rev` (node id -> motor
+    offset) overrides the state file. Raises ValueError if the driver's axes do not match.
+    """
+
+    def __init__(
+        self,
+        cfg: RobotConfig,
+        driver: ReelDriver,
+        publisher: Publisher | None = None,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        wall_clock_ns: Callable[[], int] = time.time_ns,
+        offsets_rev: Mapping[int, float] | None = None,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        self.cfg = cfg
+        self._sleep = sleep
+        self.driver = driver
+        self.publisher: Publisher = publisher if publisher is not None else NullPublisher()
+        self._clock = clock
+        self._wall_ns = wall_clock_ns
+        node_ids = tuple(int(r.node_id) for r in cfg.reels)
+        if tuple(driver.node_ids) != node_ids:
+            raise ValueError(f"driver node ids {driver.node_ids} != config {node_ids}")
+        self.node_ids = node_ids
+        self.n = len(node_ids)
+        self.geometry = cfg.geometry
+        self._anchors: tuple[tuple[float, float, float], ...] = tuple(
+            (float(a[0]), float(a[1]), float(a[2])) for a in self.geometry.anchors_m
+        )
+        self.period_s = 1.0 / float(cfg.loop.rate_hz)
+        self._max_plan_dt_s = MAX_PLANNER_DT_PERIODS * self.period_s
+        self.publish_every = max(1, int(cfg.loop.publish_every))
+        self.limits = Limits(cfg.limits, self.geometry)
+        self._default_speed_mps = min(
+            float(cfg.limits.default_speed_mps),
+            float(cfg.limits.max_speed_mps),
+        )
+        self.planner = MotionPlanner(
+            cfg.limits.max_speed_mps, cfg.limits.max_accel_mps2, self._default_speed_mps
+        )
+        f = cfg.faults
+        self._stale_s = float(f.stale_timeout_s)
+        self._hb_timeout_s = float(f.heartbeat_timeout_s)
+        self._residual_max_m = float(f.residual_max_m)
+        self._tracking_max_m = float(f.tracking_max_m)
+        self._arm_timeout_s = float(f.arm_timeout_s)
+        self._bus_err_timeout_s = float(f.bus_error_timeout_s)
+        self._bus_err_since_s: float | None = None
+
+        self._base_reels: tuple[ReelModel, ...] = tuple(r.reel for r in cfg.reels)
+        self.reels: list[ReelModel] = list(self._base_reels)
+        self.homed = False
+        self.home_source = "none"
+        self._state_file: str | None = cfg.homing.state_file
+        self._power_up: Vec3 | None = (
+            None
+            if cfg.homing.power_up_position_m is None
+            else tuple(float(v) for v in cfg.homing.power_up_position_m)  # type: ignore[assignment]
+        )
+        if offsets_rev is not None:
+            self._apply_offsets(offsets_rev, "given")
+        elif self._state_file:
+            self._load_state_file()
+
+        self.state = State.DISARMED
+        self.reason: str | None = None
+        self.state_stamp_ns = self._wall_ns()
+        self._queue: queue.Queue[_Pending] = queue.Queue(maxsize=COMMAND_QUEUE_SIZE)
+        self._estop_futures: list[concurrent.futures.Future[dict[str, Any]]] = []
+        self._estop_lock = threading.Lock()
+        self._estop_flag = False
+        self._stream_target: tuple[Vec3, int] | None = None
+        """The latest streamed set-point and the armed session (`_arm_epoch`) it arrived in."""
+        self._arm_epoch = 0
+        """Counts `arm` commands taken: a set-point from an earlier session is discarded."""
+        self.stream_refused = 0
+        self.stream_last_refusal: str | None = None
+        self.stream_discarded = 0
+        """Set-points discarded because the state takes none (written by the submitting thread)."""
+        self._estop_at_s = 0.0
+        self._estop_check_s = 0.0
+        self._estop_confirmed = True
+        self._estop_unconfirmed: tuple[int, ...] = ()
+        self.estop_repeats = 0
+
+        # Per-tick working values (the last tick's).
+        self.lengths_m: list[float] = [math.nan] * self.n
+        self._fpk_lengths_m: list[float] = [math.nan] * self.n
+        """The lengths the current pose was solved from (NaN: none yet)."""
+        self.fpk_solves = 0
+        self.pose_m: Vec3 | None = None
+        self.residual_m: float | None = None
+        self.pose_valid = False
+        self.pose_stamp_ns = 0
+        """Wall-clock arrival time of the newest encoder reading the pose came from."""
+        self.setpoint_m: Vec3 | None = None
+        """Set-point commanded on the last good tick (the hold set-point in FAULT)."""
+        self.setpoint_lengths_m: tuple[float, ...] | None = None
+        self.commanded_rev: list[float] | None = None
+        """Last good motor set-points; re-sent every tick in FAULT."""
+        self.commanded_ff_rps: list[float] = [0.0] * self.n
+        """Velocity feed-forward sent with the last set-point (motor rev/s)."""
+        self._zero_ff: tuple[float, ...] = (0.0,) * self.n
+        self.dt_clamped = 0
+        """Ticks whose planner step was cut to MAX_PLANNER_DT_PERIODS periods (stalls)."""
+        self._arm_start_s = 0.0
+        self._arm_rev: list[float] | None = None
+        self._last_tick_s: float | None = None
+        self._bus_errors_seen = driver.stats.bus_errors
+        self.seq = 0
+        self.ticks = 0
+        self.command_errors = 0
+        self.hold_failures = 0
+
+        self.overruns = 0
+        self.skipped = 0
+        self.jitter = _Ring(STATS_WINDOW)
+        self.compute = _Ring(STATS_WINDOW)
+        self.sleep_spin_s = 0.0002
+        self._save_threads: list[threading.Thread] = []
+        self._closing = False
+        """Set by `begin_shutdown`: no new motion is taken."""
+
+    # ---------------------------------------------------------------- homing / offsets
+
+    def _apply_offsets(self, offsets_rev: Mapping[int, float], source: str) -> None:
+        """Use motor offsets (node id -> offset_rev) for the reel models; marks homed."""
+        models = []
+        for nid, base in zip(self.node_ids, self._base_reels, strict=True):
+            off = float(offsets_rev[nid])
+            if not math.isfinite(off):
+                raise ValueError(f"offset of node {nid} is not finite")
+            models.append(_with_offset(base, off))
+        self.reels = models
+        self.homed = True
+        self.home_source = source
+
+    def _load_state_file(self) -> None:
+        from controller.service import offsets as homing  # lazily: only with a state file
+
+        assert self._state_file is not None
+        try:
+            data = homing.load_offsets(self._state_file)
+        except Exception as exc:  # a broken file must not stop the daemon; stay unhomed
+            log.error("homing state file %s unusable: %s", self._state_file, exc)
+            return
+        if data is None:
+            log.info("no homing state file at %s", self._state_file)
+            return
+        try:
+            rec = homing.parse_record(data, self._state_file, self.cfg.name, self.node_ids)
+        except homing.HomingError as exc:
+            log.warning("homing state file ignored: %s", exc)
+            return
+        offsets = rec.offsets_rev
+        self._apply_offsets(offsets, "state_file")
+        log.info("homing offsets loaded from %s", self._state_file)
+
+    def _home_at(self, readings: Sequence[AxisReading], position_m: Vec3) -> tuple[float, ...]:
+        """Set the reel offsets so that the current readings map to `position_m`."""
+        lengths = kinematics.ipk_point(self.geometry, position_m)
+        self.reels = [
+            base.with_home(r.position_rev, L)
+            for base, r, L in zip(self._base_reels, readings, lengths, strict=True)
+        ]
+        self.homed = True
+        return tuple(m.offset_rev for m in self.reels)
+
+    # ---------------------------------------------------------------- thread-safe API
+
+    def submit(self, cmd: Command) -> concurrent.futures.Future[dict[str, Any]]:
+        """Queue `cmd` for the loop; the future resolves with a reply dict or CommandRefused.
+
+        Estop bypasses the queue (it is never refused as busy). A full queue refuses at once
+        with CommandRefused("busy"). Setpoint commands go to `submit_setpoint`.
+        """
+        fut: concurrent.futures.Future[dict[str, Any]] = concurrent.futures.Future()
+        if isinstance(cmd, Estop):
+            with self._estop_lock:
+                self._estop_futures.append(fut)
+                self._estop_flag = True
+            return fut
+        if isinstance(cmd, Setpoint):
+            why = self._offer_setpoint(cmd.position_m)
+            if why is None:
+                fut.set_result({"ok": True})
+            else:
+                fut.set_exception(CommandRefused(why))
+            return fut
+        motion = None
+        if isinstance(cmd, Move | Path):
+            # Here, in the submitting thread: O(number of points), so never in the tick.
+            motion = self._prepare_motion(cmd)
+        try:
+            self._queue.put_nowait((cmd, fut, motion))
+        except queue.Full:
+            fut.set_exception(CommandRefused("busy: command queue full"))
+        return fut
+
+    def request_estop(self) -> None:
+        """Ask for an e-stop at the start of the next tick (thread-safe, never blocks)."""
+        with self._estop_lock:
+            self._estop_flag = True
+
+    def submit_setpoint(self, position_m: Sequence[float]) -> None:
+        """Stream a target position; the latest one wins, validated and limited in the tick.
+
+        Taken only while HOLDING or MOVING (`COMMAND_RULES`); otherwise discarded and counted.
+        Raises ValueError/TypeError/IndexError for a position that is not three numbers.
+        """
+        self._offer_setpoint(position_m)
+
+    def _offer_setpoint(self, position_m: Sequence[float]) -> str | None:
+        """Store a streamed set-point for the tick, or return why the state discards it."""
+        p = (float(position_m[0]), float(position_m[1]), float(position_m[2]))
+        # Read the session before the state: if the state then says armed, the session read is
+        # that one or an earlier one (discarded by the tick), never a later one.
+        epoch = self._arm_epoch
+        state = self.state
+        why = refusal(state, "setpoint")
+        if why is not None:
+            self.stream_discarded += 1
+            return self._refusal_text(state, why)
+        self._stream_target = (p, epoch)  # one reference assignment: atomic
+        return None
+
+    def _prepare_motion(self, cmd: Move | Path) -> _Motion:
+        """Check a move's or path's points, legs and speed and prepare them for the planner.
+
+        Reads only immutable limits and configuration: safe in any thread. Vectorised over the
+        points; the leg from where the set-point comes to rest to the first point depends on
+        the state and is checked in the tick. Raises nothing (a problem becomes `refusal`).
+        """
+        limited: float | None = None
+        if cmd.speed_mps is None:
+            speed = self._default_speed_mps
+        else:
+            why = check_speed(cmd.speed_mps)
+            if why is not None:
+                return _Motion((), 0.0, None, f"speed_mps: {why}")
+            speed = float(cmd.speed_mps)
+            vmax = float(self.cfg.limits.max_speed_mps)
+            if speed > vmax:
+                speed = limited = vmax
+        if isinstance(cmd, Move):
+            points: Sequence[Vec3] = (cmd.position_m,)
+        else:
+            points = cmd.points_m
+        try:
+            arr = points_array(points) if len(points) > 1 else None
+            failure = self.limits.path_failure(points, array=arr)
+            if failure is not None:
+                i, why = failure
+                where = "target" if isinstance(cmd, Move) else f"points_m[{i}]"
+                return _Motion((), speed, limited, f"{where} {_fmt(points[i])}: {why}")
+            if (
+                arr is not None
+                and type(points) is tuple
+                and bool(np.all(np.any(arr[1:] != arr[:-1], axis=1)))
+            ):
+                pts: tuple[Vec3, ...] = points  # checked finite, no repeats: as it is
+            else:
+                pts = dedupe_path(points)
+        except Exception as exc:  # e.g. a malformed point built in code: refuse, do not raise
+            return _Motion((), speed, limited, f"invalid points: {exc}")
+        return _Motion(pts, speed, limited, None)
+
+    # ---------------------------------------------------------------- state changes
+
+    def _set_state(self, new: State, reason: str | None = None) -> None:
+        if new is self.state:
+            return
+        check_transition(self.state, new)
+        old = self.state
+        self.state = new
+        self.reason = reason
+        self.state_stamp_ns = self._wall_ns()
+        if new is State.FAULT or new is State.ESTOPPED:
+            log.error("state %s -> %s: %s", old.value, new.value, reason)
+        else:
+            log.info("state %s -> %s%s", old.value, new.value, f": {reason}" if reason else "")
+        try:
+            self.publisher.publish_state(new.value, reason, self.state_stamp_ns)
+        except Exception:
+            log.exception("publish_state failed")
+
+    def _set_reason(self, reason: str) -> None:
+        """Change the reason of the current state and publish it (same state, new reason)."""
+        self.reason = reason
+        log.error("state %s: %s", self.state.value, reason)
+        try:
+            self.publisher.publish_state(self.state.value, reason, self._wall_ns())
+        except Exception:
+            log.exception("publish_state failed")
+
+    def _fault(self, reason: str) -> None:
+        """Enter FAULT (from an armed or arming state); the last good set-point stays commanded."""
+        if self.state in (State.ARMING, State.HOLDING, State.MOVING):
+            self._set_state(State.FAULT, reason)
+            self.planner_hold()
+            self.commanded_ff_rps = list(self._zero_ff)  # the hold has no feed-forward
+            self._stream_target = None
+
+    def planner_hold(self) -> None:
+        """Put the planner on hold at the last good set-point (no further motion)."""
+        if self.setpoint_m is not None:
+            self.planner.hold(self.setpoint_m)
+
+    # ---------------------------------------------------------------- the tick
+
+    def tick(self, now_s: float) -> None:
+        """Do exactly one control step at clock time `now_s` (see the module docstring).
+
+        Never raises for faults of the robot; they become the FAULT state.
+        """
+        dt = self.period_s if self._last_tick_s is None else now_s - self._last_tick_s
+        if not (dt > 0.0):
+            dt = self.period_s
+        self._last_tick_s = now_s
+        self.ticks += 1
+        drv = self.driver
+
+        if self._estop_flag:
+            self._do_estop(now_s)
+
+        try:
+            drv.poll()
+        except Exception as exc:  # the contract says poll never raises; be safe anyway
+            self._fault(f"bus_error: poll: {exc}")
+        readings = drv.read()
+        state = self.state
+
+        try:
+            if state is State.HOLDING or state is State.MOVING:
+                self._check_axes(readings, now_s)
+            be = drv.stats.bus_errors
+            if be != self._bus_errors_seen:
+                self._bus_errors_seen = be
+                self._bus_errors_persist(now_s, state)
+            else:
+                self._bus_err_since_s = None
+            self._solve_pose(readings, now_s)
+        except _Fault as f:
+            self._fault(f.reason)
+
+        if self._queue.queue:  # lock-free peek at the deque; get_nowait() takes the lock
+            self._take_commands(readings, now_s)
+
+        state = self.state
+        if state is State.ARMING:
+            try:
+                self._tick_arming(readings, now_s)
+            except _Fault as f:
+                self._fault(f.reason)
+        elif state is State.HOLDING or state is State.MOVING:
+            try:
+                self._tick_armed(dt)
+            except _Fault as f:
+                self._fault(f.reason)
+        if self.state is State.FAULT:
+            self._hold_last()
+        elif self.state is State.ESTOPPED and not self._estop_confirmed:
+            self._confirm_estop(readings, now_s)
+
+        if self.ticks % self.publish_every == 0:
+            self._publish_pose()
+
+    def _bus_errors_persist(self, now_s: float, state: State) -> None:
+        """New bus errors this tick: fault (when armed or arming) once they have gone on for
+        `faults.bus_error_timeout_s`. One lost frame at the loop rate is harmless (the ODrive
+        keeps its last set-point), a bus-off or a dead link is not."""
+        since = self._bus_err_since_s
+        if since is None:
+            self._bus_err_since_s = since = now_s
+        if (state in ARMED_STATES or state is State.ARMING) and (
+            now_s - since >= self._bus_err_timeout_s
+        ):
+            raise _Fault(
+                f"bus_error: {self.driver.stats.last_error} (failing for {now_s - since:.3f} s)"
+            )
+
+    def _check_axes(self, readings: Sequence[AxisReading], now_s: float) -> None:
+        stale = self._stale_s
+        hb = self._hb_timeout_s
+        for r in readings:
+            if r.axis_error != 0:
+                raise _Fault(f"axis_error: node {r.node_id} error 0x{r.axis_error:x}")
+            if now_s - r.stamp_s > stale:
+                raise _Fault(f"stale_encoder: node {r.node_id} age {now_s - r.stamp_s:.3f} s")
+            if now_s - r.heartbeat_stamp_s > hb:
+                raise _Fault(
+                    f"stale_heartbeat: node {r.node_id} age {now_s - r.heartbeat_stamp_s:.3f} s"
+                )
+            if r.axis_state != AXIS_CLOSED_LOOP:
+                raise _Fault(
+                    f"axis_state: node {r.node_id} left closed loop (state {r.axis_state})"
+                )
+
+    def _solve_pose(self, readings: Sequence[AxisReading], now_s: float) -> None:
+        """Lengths from the encoders, then the pose by FPK (invalid when unhomed or unheard)."""
+        lengths = self.lengths_m
+        if not self.homed:
+            if self._power_up is not None and all(
+                now_s - r.stamp_s <= self._stale_s for r in readings
+            ):
+                self._home_at(readings, self._power_up)
+                self.home_source = "power_up"
+                log.info("homed at the configured power-up pose %s", _fmt(self._power_up))
+            else:
+                self.pose_valid = False
+                return
+        newest_ns = 0
+        for i, r in enumerate(readings):
+            if r.stamp_ns > newest_ns:
+                newest_ns = r.stamp_ns
+            lengths[i] = (
+                self.reels[i].length_m(r.position_rev) if r.stamp_s > -math.inf else math.nan
+            )
+        self.pose_stamp_ns = newest_ns
+        if not all(map(math.isfinite, lengths)):
+            self.pose_valid = False
+            return
+        stale = self._stale_s
+        for r in readings:
+            if now_s - r.stamp_s > stale:
+                # Old encoder data is no pose (armed states have faulted on it already).
+                self.pose_valid = False
+                return
+        pose = self.pose_m
+        residual = self.residual_m
+        if (
+            pose is None
+            or residual is None
+            or not self.pose_valid
+            or lengths != self._fpk_lengths_m
+        ):
+            # New encoder data (at 1 kHz with 2 ms broadcasts, every other tick has none):
+            # solve; otherwise the pose of the same lengths is the one already solved.
+            try:
+                res = kinematics.fpk(self.geometry, lengths)
+            except kinematics.KinematicsError as exc:
+                self.pose_valid = False
+                if self.state is not State.DISARMED:
+                    raise _Fault(f"fpk_unreachable: {exc}") from None
+                return
+            pos = res.position_m
+            pose = (float(pos[0]), float(pos[1]), float(pos[2]))
+            residual = float(res.residual_m)
+            self.pose_m = pose
+            self.residual_m = residual
+            self._fpk_lengths_m[:] = lengths
+            self.fpk_solves += 1
+        ok = all(map(math.isfinite, pose)) and math.isfinite(residual)
+        self.pose_valid = ok
+        if not ok:
+            raise _Fault("fpk_unreachable: non-finite solution")
+        if residual > self._residual_max_m and self.state is not State.DISARMED:
+            raise _Fault(
+                f"residual: {residual * 1e3:.1f} mm > {self._residual_max_m * 1e3:.1f} mm"
+                " (slack or slipped cable)"
+            )
+        sp = self.setpoint_m
+        if sp is not None and self.state in ARMED_STATES:
+            p = pose
+            err = math.sqrt((p[0] - sp[0]) ** 2 + (p[1] - sp[1]) ** 2 + (p[2] - sp[2]) ** 2)
+            if err > self._tracking_max_m:
+                raise _Fault(
+                    f"tracking_error: {err * 1e3:.1f} mm > {self._tracking_max_m * 1e3:.1f} mm"
+                )
+
+    def _tick_arming(self, readings: Sequence[AxisReading], now_s: float) -> None:
+        fresh = all(r.stamp_s >= self._arm_start_s for r in readings)
+        if self._arm_rev is None and fresh:
+            self._arm_rev = [r.position_rev for r in readings]
+            self.commanded_rev = self._arm_rev  # what a FAULT during arming keeps holding
+        if self._arm_rev is not None:
+            # Hold the motors where they were while they enter closed loop.
+            self._send(self._arm_rev)
+        closed = all(
+            r.axis_state == AXIS_CLOSED_LOOP
+            and r.axis_error == 0
+            and r.heartbeat_stamp_s >= self._arm_start_s
+            for r in readings
+        )
+        if closed and fresh and self.pose_valid and self.pose_m is not None:
+            self.commanded_rev = list(self._arm_rev) if self._arm_rev is not None else None
+            self._hold_at(self.pose_m)
+            self._set_state(State.HOLDING)
+            return
+        if now_s - self._arm_start_s > self._arm_timeout_s:
+            bad = [
+                f"node {r.node_id} (state {r.axis_state}, error 0x{r.axis_error:x}"
+                f"{', no encoder' if r.stamp_s < self._arm_start_s else ''})"
+                for r in readings
+                if r.axis_state != AXIS_CLOSED_LOOP
+                or r.axis_error != 0
+                or r.stamp_s < self._arm_start_s
+            ]
+            why = ", ".join(bad) if bad else "no valid pose"
+            self._fault(f"arm_timeout: {why}")
+
+    def _hold_at(self, p: Vec3) -> None:
+        self.planner.hold(p)
+        self.setpoint_m = p
+        self.setpoint_lengths_m = None
+
+    def _tick_armed(self, dt: float) -> None:
+        if dt > self._max_plan_dt_s:
+            dt = self._max_plan_dt_s  # after a stall: resume, do not jump (module docstring)
+            self.dt_clamped += 1
+        item = None if self._closing else self._stream_target
+        if item is not None:
+            self._stream_target = None
+            target, epoch = item
+            if epoch != self._arm_epoch:
+                reason: str | None = "set-point from before the last `arm` discarded"
+            else:
+                reason = self._check_target(target)
+            if reason is None:
+                self.planner.stream(target)
+                if self.state is State.HOLDING:
+                    self._set_state(State.MOVING, "stream")
+            else:
+                self.stream_refused += 1
+                self.stream_last_refusal = reason
+        sp = self.planner.advance(dt)
+        sp = (float(sp[0]), float(sp[1]), float(sp[2]))
+        if not (math.isfinite(sp[0]) and math.isfinite(sp[1]) and math.isfinite(sp[2])):
+            raise _Fault(f"nan_setpoint: planner gave {sp}")
+        reason = self.limits.check_point(sp)
+        if reason is not None:
+            raise _Fault(f"limit: set-point {_fmt(sp)}: {reason}")
+        try:
+            lengths = tuple(kinematics.ipk_point(self.geometry, sp))
+        except kinematics.KinematicsError as exc:
+            raise _Fault(f"ipk: {exc}") from None
+        reason = self.limits.check_lengths(lengths)
+        if reason is not None:
+            raise _Fault(f"limit: {reason}")
+        prev = self.setpoint_lengths_m
+        if prev is not None:
+            reason = self.limits.check_cable_speeds(prev, lengths, dt)
+            if reason is not None:
+                raise _Fault(f"cable_speed: {reason}")
+        reels = self.reels
+        rev = [reels[i].position_rev(lengths[i]) for i in range(self.n)]
+        ff = self._velocity_ff(sp, self.planner.velocity_mps, lengths, rev)
+        self._send(rev, ff)
+        self.commanded_rev = rev
+        self.commanded_ff_rps = ff
+        self.setpoint_m = sp
+        self.setpoint_lengths_m = lengths
+        if self.state is State.MOVING and not self.planner.moving:
+            self._set_state(State.HOLDING)
+
+    def _velocity_ff(
+        self, sp: Vec3, v_mps: Vec3, lengths: Sequence[float], rev: Sequence[float]
+    ) -> list[float]:
+        """Motor velocity feed-forward (rev/s) for set-point `sp` moving at `v_mps`.
+
+        `lengths` are the cable lengths at `sp` (IPK), `rev` the motor turns commanded for them.
+        dL_i/dt = (sp - anchor_i) . v / L_i, then rev/s through reel i's slope at `rev[i]`.
+        Raises _Fault if a value comes out non-finite (it cannot for a checked set-point).
+        """
+        vx, vy, vz = v_mps
+        if vx == 0.0 and vy == 0.0 and vz == 0.0:
+            return list(self._zero_ff)
+        x, y, z = sp
+        reels = self.reels
+        out = []
+        for i, (ax, ay, az) in enumerate(self._anchors):
+            rate = ((x - ax) * vx + (y - ay) * vy + (z - az) * vz) / lengths[i]
+            try:
+                w = reels[i].velocity_rps(rev[i], rate)
+            except ValueError:  # reel slope zero (spool fully paid out): no usable feed-forward
+                w = 0.0
+            if not math.isfinite(w):
+                raise _Fault(f"nan_setpoint: velocity feed-forward of cable {i + 1} is {w!r}")
+            out.append(w)
+        return out
+
+    def _send(self, rev: Sequence[float], ff: Sequence[float] | None = None) -> None:
+        """Command motor turns with velocity feed-forward `ff` (rev/s; None = zero); a
+        non-finite value or a bus error faults instead."""
+        for v in rev:
+            if not math.isfinite(v):
+                raise _Fault(f"nan_setpoint: {list(rev)}")
+        try:
+            self.driver.command(rev, ff if ff is not None else self._zero_ff)
+        except BusError:
+            # Counted in driver.stats.bus_errors; the next tick faults if they persist.
+            pass
+        except ValueError as exc:
+            raise _Fault(f"nan_setpoint: driver refused: {exc}") from None
+
+    def _hold_last(self) -> None:
+        """In FAULT: keep sending the last good set-point, with zero velocity feed-forward, so
+        the motors hold the load."""
+        rev = self.commanded_rev
+        if rev is None:
+            return
+        try:
+            self.driver.command(rev, self._zero_ff)
+        except Exception:  # already in FAULT; keep trying every tick
+            self.hold_failures += 1
+
+    def _publish_pose(self) -> None:
+        valid = self.pose_valid
+        self.seq += 1
+        sample = PoseSample(
+            self.seq,
+            self.pose_stamp_ns if self.pose_stamp_ns > 0 else self._wall_ns(),
+            self.pose_m if valid else None,
+            tuple(self.lengths_m),
+            self.residual_m if valid else None,
+            valid,
+            self.state.value,
+        )
+        try:
+            self.publisher.publish_pose(sample)
+        except Exception:
+            self.command_errors += 1
+
+    # ---------------------------------------------------------------- commands
+
+    def _do_estop(self, now_s: float) -> None:
+        with self._estop_lock:
+            futures = self._estop_futures
+            self._estop_futures = []
+            self._estop_flag = False
+        err: str | None = None
+        try:
+            self.driver.estop()
+        except Exception as exc:
+            err = str(exc)
+        if self.state is not State.ESTOPPED:
+            self._set_state(State.ESTOPPED, "estop" if err is None else f"estop (bus: {err})")
+            self._estop_unconfirmed = ()
+            self.estop_repeats = 0
+        # Every e-stop (a repeated one too) restarts the confirmation from its own time.
+        self._estop_at_s = now_s
+        self._estop_check_s = now_s + ESTOP_CONFIRM_S
+        self._estop_confirmed = False
+        self.commanded_rev = None
+        self.setpoint_m = None
+        self.setpoint_lengths_m = None
+        self._stream_target = None
+        for fut in futures:
+            fut.set_result({"ok": True, "state": self.state.value})
+
+    def _confirm_estop(self, readings: Sequence[AxisReading], now_s: float) -> None:
+        """In ESTOPPED until confirmed: has every axis reported leaving closed loop since the
+        e-stop? Past the deadline: name the axes that have not, send Estop and IDLE again."""
+        since = self._estop_at_s
+        for r in readings:
+            if r.heartbeat_stamp_s <= since or r.axis_state == AXIS_CLOSED_LOOP:
+                break
+        else:
+            self._estop_confirmed = True
+            if self._estop_unconfirmed:
+                late = ", ".join(f"node {n}" for n in self._estop_unconfirmed)
+                self._estop_unconfirmed = ()
+                self._set_reason(
+                    f"estop (confirmed: {late} left closed loop only after "
+                    f"{self.estop_repeats} repeat(s) of Estop and IDLE)"
+                )
+            return
+        if now_s < self._estop_check_s:
+            return
+        self._estop_check_s = now_s + ESTOP_CONFIRM_S
+        bad = [
+            r for r in readings if r.heartbeat_stamp_s <= since or r.axis_state == AXIS_CLOSED_LOOP
+        ]
+        self.estop_repeats += 1
+        errors = []
+        for send in (self.driver.estop, self.driver.disarm):
+            try:
+                send()
+            except Exception as exc:
+                errors.append(str(exc))
+        nodes = tuple(r.node_id for r in bad)
+        if nodes != self._estop_unconfirmed:
+            self._estop_unconfirmed = nodes
+            what = ", ".join(
+                f"node {r.node_id} still in closed loop (state {r.axis_state})"
+                if r.heartbeat_stamp_s > since
+                else f"node {r.node_id} silent (no heartbeat since the Estop)"
+                for r in bad
+            )
+            bus = f" (bus: {'; '.join(errors)})" if errors else ""
+            self._set_reason(
+                f"estop_unconfirmed: {what} {now_s - since:.2f} s after Estop; "
+                f"Estop repeated and IDLE requested{bus}"
+            )
+
+    def _take_commands(self, readings: Sequence[AxisReading], now_s: float) -> None:
+        for _ in range(_MAX_COMMANDS_PER_TICK):
+            try:
+                cmd, fut, motion = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            if not fut.set_running_or_notify_cancel():
+                continue
+            try:
+                reply = self._execute(cmd, readings, now_s, motion)
+            except _Deferred as d:
+                d.future.add_done_callback(_chain(fut))
+            except CommandRefused as exc:
+                log.info("refused %s: %s", type(cmd).__name__.lower(), exc)
+                fut.set_exception(exc)
+            except Exception as exc:  # a bug must not kill the loop
+                log.exception("command %r failed", cmd)
+                fut.set_exception(CommandRefused(f"internal error: {exc}"))
+            else:
+                fut.set_result(reply)
+
+    def _refusal_text(self, state: State, why: str) -> str:
+        """The refusal message for a verb `state` refuses with reason `why` (COMMAND_RULES)."""
+        if state is State.FAULT or state is State.ESTOPPED:
+            return f"not allowed in {state.value} ({self.reason}): {why}"
+        return f"not allowed in {state.value}: {why}"
+
+    def check_target(self, p: Sequence[float]) -> str | None:
+        """Why `p` is not an allowed target (workspace, cable lengths), or None if it is.
+
+        Reads only the immutable limits and geometry: safe from any thread (the Zenoh interface
+        refuses out-of-workspace commands with it before they reach the queue).
+        """
+        return self._check_target(p)
+
+    def _check_target(self, p: Sequence[float]) -> str | None:
+        if len(p) != 3 or not all(math.isfinite(float(v)) for v in p):
+            return f"non-finite position {list(p)}"
+        reason = self.limits.check_point((float(p[0]), float(p[1]), float(p[2])))
+        if reason is not None:
+            return reason
+        try:
+            lengths = kinematics.ipk_point(self.geometry, (float(p[0]), float(p[1]), float(p[2])))
+        except kinematics.KinematicsError as exc:
+            return str(exc)
+        return self.limits.check_lengths(tuple(lengths))
+
+    def _execute(
+        self,
+        cmd: Command,
+        readings: Sequence[AxisReading],
+        now_s: float,
+        motion: _Motion | None = None,
+    ) -> dict[str, Any]:
+        S = State  # noqa: N806
+        verb = _VERBS.get(type(cmd))
+        if verb is None:
+            raise CommandRefused(f"unsupported command {type(cmd).__name__}")
+        if self._closing and isinstance(cmd, Move | Path | Arm | Home):
+            raise CommandRefused("shutting down: no new motion")
+        why = refusal(self.state, verb)
+        if why is not None:
+            raise CommandRefused(self._refusal_text(self.state, why))
+        if isinstance(cmd, Move | Path):
+            if motion is None:  # not submitted through `submit`: prepare it here
+                motion = self._prepare_motion(cmd)
+            self._start_motion(motion, cmd)
+            reply: dict[str, Any] = {"ok": True}
+            if isinstance(cmd, Move):
+                reply["target_m"] = list(cmd.position_m)
+            else:
+                reply["points"] = len(cmd.points_m)
+            reply["speed_mps"] = motion.speed_mps
+            if motion.limited_to_mps is not None:
+                reply["speed_limited_to_mps"] = motion.limited_to_mps
+            return reply
+        if isinstance(cmd, Stop):
+            if self.state in ARMED_STATES:
+                self.planner.stop()
+            return {"ok": True, "state": self.state.value}
+        if isinstance(cmd, Arm):
+            if not self.homed:
+                raise CommandRefused("not homed: run `home` at a known pose first")
+            try:
+                self.driver.arm()
+            except Exception as exc:
+                raise CommandRefused(f"bus_error: arm: {exc}") from None
+            self._arm_start_s = now_s
+            self._arm_rev = None
+            self.commanded_rev = None
+            self.setpoint_m = None
+            self.setpoint_lengths_m = None
+            # A new armed session: set-points streamed before it are never taken.
+            self._arm_epoch += 1
+            self._stream_target = None
+            self._set_state(S.ARMING)
+            return {"ok": True, "state": S.ARMING.value}
+        if isinstance(cmd, Disarm):
+            self._disarm("disarm")
+            return {"ok": True, "state": self.state.value}
+        if isinstance(cmd, Reset):
+            if self.state is not S.DISARMED:
+                self._disarm("reset")
+            return {"ok": True, "state": self.state.value}
+        if isinstance(cmd, Home):
+            return self._execute_home(cmd, readings, now_s)
+        raise CommandRefused(f"unsupported command {type(cmd).__name__}")
+
+    def _start_motion(self, motion: _Motion, cmd: Move | Path) -> None:
+        """Start a prepared move or path (a move is a one-point path): O(1) in its length.
+
+        Raises CommandRefused (nothing changed) if the preparation refused it or if the first
+        leg leaves the limits; that leg starts where the set-point will come to rest (a motion
+        that arrives while moving first brakes to a stop).
+        """
+        if motion.refusal is not None:
+            raise CommandRefused(motion.refusal)
+        first = motion.points_m[0]
+        if self.setpoint_m is not None:
+            start = self.planner.rest_point_m
+            reason = self.limits.check_segment(start, first)
+            if reason is not None:
+                where = "target" if isinstance(cmd, Move) else "points_m[0]"
+                raise CommandRefused(
+                    f"{where} {_fmt(first)}: on the leg to it from {_fmt(start)}: {reason}"
+                )
+        self.planner.follow_points(motion.points_m, motion.speed_mps)
+        if self.state is State.HOLDING:
+            self._set_state(State.MOVING, "move" if isinstance(cmd, Move) else "path")
+
+    def _disarm(self, why: str) -> None:
+        try:
+            self.driver.disarm()
+        except Exception as exc:
+            log.error("disarm failed on the bus: %s", exc)
+        self.commanded_rev = None
+        self.setpoint_m = None
+        self.setpoint_lengths_m = None
+        self._stream_target = None
+        self._estop_unconfirmed = ()
+        self._set_state(State.DISARMED, why)
+
+    def _execute_home(
+        self, cmd: Home, readings: Sequence[AxisReading], now_s: float
+    ) -> dict[str, Any]:
+        old = [r.node_id for r in readings if now_s - r.stamp_s > self._stale_s]
+        if old:
+            raise CommandRefused(f"stale_encoder: no fresh encoder reading from nodes {old}")
+        reason = self._check_target(cmd.position_m)
+        if reason is not None:
+            raise CommandRefused(f"home position {_fmt(cmd.position_m)}: {reason}")
+        offsets = self._home_at(readings, cmd.position_m)
+        self.home_source = "home"
+        if self.state is State.HOLDING:
+            # Keep the motors where they are: the same turns now mean the home pose.
+            self._hold_at(cmd.position_m)
+            self.setpoint_lengths_m = None
+        log.info("homed at %s: offsets_rev %s", _fmt(cmd.position_m), offsets)
+        reply: dict[str, Any] = {
+            "ok": True,
+            "position_m": list(cmd.position_m),
+            "offsets_rev": dict(zip(map(str, self.node_ids), offsets, strict=True)),
+            "saved": False,
+        }
+        if not self._state_file:
+            return reply
+        from controller.service import offsets as homing
+
+        state = homing.make_record(
+            self.cfg.name, dict(zip(self.node_ids, offsets, strict=True)), cmd.position_m
+        )
+        path = self._state_file
+        # fsync can take tens of ms: save off the loop thread and answer when it is on disk.
+        outer: concurrent.futures.Future[dict[str, Any]] = concurrent.futures.Future()
+
+        def save() -> None:
+            try:
+                homing.save_offsets(path, state)
+            except Exception as exc:
+                log.error("saving homing offsets to %s failed: %s", path, exc)
+                outer.set_result({**reply, "saved": False, "error": str(exc)})
+            else:
+                log.info("homing offsets saved to %s", path)
+                outer.set_result({**reply, "saved": True, "state_file": path})
+
+        t = threading.Thread(target=save, name="cablebot-home-save", daemon=True)
+        self._save_threads = [th for th in self._save_threads if th.is_alive()] + [t]
+        t.start()
+        raise _Deferred(outer)
+
+    # ---------------------------------------------------------------- status
+
+    def status(self) -> dict[str, Any]:
+        """A JSON-ready snapshot of the controller (thread-safe, for `<prefix>/status`)."""
+        now = self._clock()
+        axes = []
+        for r in self.driver.read():
+            r = r.snapshot()
+            axes.append(
+                {
+                    "node_id": r.node_id,
+                    "axis_state": r.axis_state,
+                    "axis_error": r.axis_error,
+                    "position_rev": r.position_rev,
+                    "age_s": _finite_or_none(now - r.stamp_s),
+                    "heartbeat_age_s": _finite_or_none(now - r.heartbeat_stamp_s),
+                }
+            )
+        j = self.jitter.summary()
+        c = self.compute.summary()
+        bs = self.driver.stats.snapshot()
+        valid = self.pose_valid
+        pose = self.pose_m
+        sp = self.setpoint_m
+        return {
+            "state": self.state.value,
+            "reason": self.reason,
+            "state_stamp_ns": self.state_stamp_ns,
+            "homed": self.homed,
+            "home_source": self.home_source,
+            "pose": {
+                "valid": valid,
+                "position_m": list(pose) if valid and pose is not None else None,
+                "residual_m": self.residual_m if valid else None,
+                "cable_lengths_m": [_finite_or_none(v) for v in self.lengths_m],
+            },
+            "setpoint_m": list(sp) if sp is not None else None,
+            "axes": axes,
+            "loop": {
+                "rate_hz": 1.0 / self.period_s,
+                "ticks": self.ticks,
+                "overruns": self.overruns,
+                "skipped": self.skipped,
+                "jitter_p50_s": j["p50"],
+                "jitter_p99_s": j["p99"],
+                "jitter_max_s": j["max"],
+                "compute_p50_s": c["p50"],
+                "compute_p99_s": c["p99"],
+                "compute_max_s": c["max"],
+                "dt_clamped": self.dt_clamped,
+            },
+            "stream": {
+                "refused": self.stream_refused,
+                "last_refusal": self.stream_last_refusal,
+                "discarded": self.stream_discarded,
+            },
+            "estop": (
+                {
+                    "confirmed": self._estop_confirmed,
+                    "unconfirmed_nodes": list(self._estop_unconfirmed),
+                    "repeats": self.estop_repeats,
+                }
+                if self.state is State.ESTOPPED
+                else None
+            ),
+            "bus": {
+                "frames_rx": bs.frames_rx,
+                "frames_tx": bs.frames_tx,
+                "decode_errors": bs.decode_errors,
+                "dropped": bs.dropped,
+                "bus_errors": bs.bus_errors,
+                "ff_clamped": bs.ff_clamped,
+                "last_error": bs.last_error,
+                "errors_by_kind": dict(bs.errors_by_kind),
+            },
+            "config": self.cfg.summary(),
+        }
+
+    # ---------------------------------------------------------------- the fixed-rate loop
+
+    def run(
+        self,
+        stop: threading.Event,
+        *,
+        on_watchdog: Callable[[], None] | None = None,
+        watchdog_period_s: float = 0.0,
+    ) -> None:
+        """Call `tick` at the configured rate until `stop` is set.
+
+        Absolute deadlines (`next += period`) on the monotonic clock; a tick that ends past the
+        next deadline counts an overrun, and the deadlines already passed are skipped (counted
+        in `skipped`): the loop resumes on the grid, never bunching ticks to catch up.
+        `on_watchdog` is called from this thread every `watchdog_period_s` (systemd
+        WATCHDOG=1), after the tick.
+        """
+        clock = self._clock
+        period = self.period_s
+        sleep = self._sleep
+        spin = self.sleep_spin_s
+        jitter = self.jitter
+        compute = self.compute
+        next_s = clock() + period
+        next_wd = clock() + watchdog_period_s
+        while not stop.is_set():
+            remaining = next_s - clock()
+            if remaining > spin:
+                sleep(remaining - spin)
+            while clock() < next_s:
+                pass
+            start = clock()
+            self.tick(start)
+            end = clock()
+            jitter.add(start - next_s)
+            compute.add(end - start)
+            next_s += period
+            if end > next_s:
+                # Missed deadline(s): resume on the first deadline still ahead, on the grid.
+                self.overruns += 1
+                behind = int((end - next_s) / period) + 1
+                self.skipped += behind
+                next_s += behind * period
+            if on_watchdog is not None and end >= next_wd:
+                next_wd = end + watchdog_period_s
+                on_watchdog()
+
+    # ---------------------------------------------------------------- shutdown
+
+    def begin_shutdown(self) -> concurrent.futures.Future[dict[str, Any]]:
+        """Start a shutdown: from now on no new motion is taken (move, path, streamed set-points,
+        arm, home are refused or ignored) and any motion brakes to a hold at `max_accel_mps2`
+        (a queued Stop, whose future is returned). Thread-safe; the loop keeps running."""
+        self._closing = True
+        return self.submit(Stop())
+
+    def brake_time_s(self) -> float:
+        """Seconds the set-point needs to come to rest from its current speed at the configured
+        acceleration (0 when still). Thread-safe (reads one tuple)."""
+        vx, vy, vz = self.planner.velocity_mps
+        return math.sqrt(vx * vx + vy * vy + vz * vz) / float(self.cfg.limits.max_accel_mps2)
+
+    def send_final_hold(self) -> bool:
+        """Shutdown, after the loop thread has stopped: command the last set-point once more with
+        zero velocity feed-forward, so the drives hold still on it instead of running on to
+        `vel_ff / pos_gain` past it. Only while the motors are commanded (ARMING, HOLDING,
+        MOVING, FAULT with a set-point). Returns True if it was sent; never raises.
+
+        Call it only when `run` has returned: the loop thread is otherwise the driver's only user.
+        """
+        rev = self.commanded_rev
+        commanded = (State.ARMING, State.HOLDING, State.MOVING, State.FAULT)
+        if rev is None or self.state not in commanded:
+            return False
+        try:
+            self.driver.command(rev, self._zero_ff)
+        except Exception as exc:
+            log.error("final hold not sent: %s", exc)
+            return False
+        self.commanded_ff_rps = list(self._zero_ff)
+        return True
+
+    def wait_for_saves(self, timeout_s: float = 2.0) -> None:
+        """Wait (bounded) for homing saves in flight, e.g. before exiting."""
+        deadline = time.monotonic() + timeout_s
+        for t in list(self._save_threads):
+            t.join(max(0.0, deadline - time.monotonic()))
+
+
+# --------------------------------------------------------------------------------------------
+# helpers
+
+
+def _with_offset(model: ReelModel, offset_rev: float) -> ReelModel:
+    from dataclasses import replace
+
+    return replace(model, offset_rev=offset_rev)
+
+
+def _chain(
+    outer: concurrent.futures.Future[dict[str, Any]],
+) -> Callable[[concurrent.futures.Future[dict[str, Any]]], None]:
+    """A done-callback that copies a future's result into `outer`."""
+
+    def done(f: concurrent.futures.Future[dict[str, Any]]) -> None:
+        outer.set_result(f.result())
+
+    return done
+
+
+def _finite_or_none(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+def _fmt(p: Sequence[float]) -> str:
+    return "[" + ", ".join(f"{float(v):.4f}" for v in p) + "]"

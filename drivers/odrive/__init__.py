@@ -1,0 +1,1 @@
+"""ODrive drives over CANSimple: the codec, the driver and a simulated node."""

@@ -1,0 +1,407 @@
+"""`ODriveReels`: the `ReelDriver` for ODrive axes speaking CANSimple (firmware 0.6).
+
+Receive path (`poll`): drains the bus without blocking (at most `max_frames_per_poll` frames a
+call, so a flooded bus cannot stretch a tick; a backlog of old frames left by a loop stall is read
+through up to `CATCH_UP_FACTOR` times that, see `catch_up_age_s`), decodes each frame with
+`drivers.odrive.cansimple`, and updates one mutable `AxisReading` per axis: encoder estimates from
+the cyclic broadcast (or the RTR replies), axis state and axis error from the heartbeat. Each update
+is stamped with the frame's arrival time, not the time it was taken off the queue, so frames
+that waited in the receive queue (a stalled loop) are as old as they are: python-can's
+`Message.timestamp` is a wall-clock (time.time()) reading on the interfaces cablebot uses, so
+its age against the wall clock now, taken from the injected clock (time.monotonic by default)
+now, gives the arrival on that clock; the age is clamped at 0 (no frame arrives in the future).
+A timestamp more than `TIMESTAMP_FUTURE_TOLERANCE_S` ahead of the wall clock or more than
+`TIMESTAMP_MAX_AGE_S` behind it is on some other clock: that frame is stamped at poll time
+instead and counted in `stats.untimed_frames`. Nothing raises out of `poll`: bad frames are
+counted in `stats` by kind and dropped, frames from nodes not in `node_ids` are counted
+("unknown_node") and dropped, and a receive-side bus error is counted.
+
+Transmit path: `command`, `arm`, `disarm`, `estop`, `request_encoders`. A failed send is counted
+in `stats.bus_errors`/`stats.last_error`; the method still tries every axis, then raises
+`BusError` naming what failed so the loop can fault.
+
+Velocity feed-forward travels as an int16 in 0.001 rev/s, so it is limited to ±32.767 rev/s:
+`command` clamps it to that range (counting `stats.ff_clamped`) instead of refusing the set-point,
+because the feed-forward only shapes tracking; the position set-point itself is never altered.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+import can
+
+from drivers.base import AxisReading, BusError, BusStats
+from drivers.odrive import cansimple as cs
+
+DEFAULT_SEND_TIMEOUT_S = 0.005
+TIMESTAMP_FUTURE_TOLERANCE_S = 1.0
+"""A frame timestamp further ahead of the wall clock than this is not a wall-clock reading."""
+TIMESTAMP_MAX_AGE_S = 3600.0
+"""A frame timestamp further behind the wall clock than this is not a wall-clock reading."""
+CATCH_UP_FACTOR = 8
+"""A poll that catches up with a backlog takes at most this many times `max_frames_per_poll`."""
+
+
+@dataclass(frozen=True, slots=True)
+class AxisFault:
+    """A named problem with one axis found by `ODriveReels.check`."""
+
+    node_id: int
+    kind: str
+    """"silent" (no encoder frames), "no_heartbeat", "axis_error" or "bad_frames"."""
+    detail: str
+
+
+class ODriveReels:
+    """Reel motors on ODrive axes (CANSimple node ids `node_ids`) over one python-can bus.
+
+    The bus is owned by the caller (open it with `drivers.bus.open_bus`, shut it down after).
+    Not thread-safe: one thread (the control loop) calls every method.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        node_ids: Iterable[int],
+        *,
+        encoder_rtr: bool = False,
+        encoder_rtr_period_s: float = 0.0,
+        max_frames_per_poll: int = 256,
+        catch_up_age_s: float = math.inf,
+        send_timeout_s: float = DEFAULT_SEND_TIMEOUT_S,
+        clock: Callable[[], float] = time.monotonic,
+        wall_clock_ns: Callable[[], int] = time.time_ns,
+    ) -> None:
+        """Set up readings for `node_ids` (0..63, unique, at least one).
+
+        `encoder_rtr`: also request encoder estimates by RTR at the end of every `poll()`
+        (answers arrive by the next poll), for ODrives whose cyclic broadcast is off, at most
+        once per `encoder_rtr_period_s` (0 = every poll). Mind the bus load: each round is
+        2 frames per axis, so 4 axes polled at 1 kHz fill a 1 Mbit/s bus; 2-5 ms is sane there.
+        `catch_up_age_s`: when a poll reaches `max_frames_per_poll` and the last frame taken
+        arrived longer ago than this, the queue holds a backlog (the loop stalled), not a flood:
+        that poll goes on, up to `CATCH_UP_FACTOR` times the cap, so the readings reach the
+        newest frames instead of showing frames from before the stall (inf = never).
+        Raises ValueError on bad node ids, a non-positive `max_frames_per_poll` or
+        `catch_up_age_s`, or a negative `encoder_rtr_period_s`.
+        """
+        ids = tuple(int(n) for n in node_ids)
+        if not ids:
+            raise ValueError("ODriveReels needs at least one node id")
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"duplicate node ids in {ids}")
+        for n in ids:
+            if not 0 <= n <= cs.MAX_NODE_ID:
+                raise ValueError(f"node id {n} is outside 0..63")
+        if max_frames_per_poll <= 0:
+            raise ValueError("max_frames_per_poll must be > 0")
+        if not catch_up_age_s > 0.0:
+            raise ValueError("catch_up_age_s must be > 0")
+        if not (math.isfinite(encoder_rtr_period_s) and encoder_rtr_period_s >= 0.0):
+            raise ValueError("encoder_rtr_period_s must be finite and >= 0")
+        self.node_ids: tuple[int, ...] = ids
+        self._bus = bus
+        self._encoder_rtr = encoder_rtr
+        self._encoder_rtr_period_s = encoder_rtr_period_s
+        self._next_rtr_s = -math.inf
+        self._max_frames = max_frames_per_poll
+        self._catch_up_age_s = catch_up_age_s
+        self._send_timeout_s = send_timeout_s
+        self._clock = clock
+        self._wall_ns = wall_clock_ns
+        self._readings: tuple[AxisReading, ...] = tuple(AxisReading(n) for n in ids)
+        self._by_node: list[AxisReading | None] = [None] * (cs.MAX_NODE_ID + 1)
+        for r in self._readings:
+            self._by_node[r.node_id] = r
+        self._stats = BusStats()
+        self._bad_frames_by_node: dict[int, int] = {}
+        self._last_decode_error: dict[int, cs.DecodeError] = {}
+        self._last_get_error: dict[int, cs.GetError] = {}
+
+    # --- receive ----------------------------------------------------------------------------
+
+    def poll(self) -> int:
+        """Drain up to `max_frames_per_poll` received frames without blocking (more to catch up
+        with a backlog, see `catch_up_age_s`); update readings.
+
+        Returns the number of frames taken off the bus. Never raises: bad frames, unknown nodes
+        and receive errors are counted in `stats`.
+        """
+        recv = self._bus.recv
+        by_node = self._by_node
+        clock = self._clock
+        decode = cs.decode
+        encoder_type = cs.EncoderEstimates
+        heartbeat_type = cs.Heartbeat
+        handled = 0
+        # One clock pair per poll: a frame's age against the wall clock now, subtracted from the
+        # loop's clock now, is its arrival on the loop's clock (module docstring).
+        now_s = clock()
+        now_ns = self._wall_ns()
+        wall_s = now_ns * 1e-9
+        future_tol = TIMESTAMP_FUTURE_TOLERANCE_S
+        max_age = TIMESTAMP_MAX_AGE_S
+        limit = self._max_frames
+        while handled < limit:
+            try:
+                msg = recv(0.0)
+            except Exception as exc:  # a receive error must never escape into the loop
+                self._count_bus_error(f"receive: {type(exc).__name__}: {exc}")
+                break
+            if msg is None:
+                break
+            handled += 1
+            if (
+                handled == limit == self._max_frames
+                and self._catch_up_age_s < wall_s - msg.timestamp < max_age
+            ):
+                limit *= CATCH_UP_FACTOR  # a backlog from a stall: read on to the newest
+                self._stats.catch_up_polls += 1
+            if msg.is_error_frame:
+                # SocketCAN error frame: bus-off, controller or protocol trouble. A bus error
+                # for the loop (which faults when they persist), not a dropped data frame.
+                self._count_bus_error(f"CAN error frame 0x{msg.arbitration_id:x}")
+                errs = self._stats.errors_by_kind
+                errs["error_frame"] = errs.get("error_frame", 0) + 1
+                continue
+            m = decode(msg.arbitration_id, msg.data, msg.is_remote_frame, msg.is_extended_id)
+            mtype = type(m)
+            if mtype is encoder_type or mtype is heartbeat_type:
+                rec = by_node[m.node_id]
+                if rec is None:
+                    self._count("unknown_node", decode_error=False)
+                    continue
+                age = wall_s - msg.timestamp
+                if age < 0.0:
+                    if age < -future_tol:
+                        self._stats.untimed_frames += 1
+                    age = 0.0
+                elif age > max_age:
+                    self._stats.untimed_frames += 1
+                    age = 0.0
+                if mtype is encoder_type:
+                    rec.position_rev = m.pos_estimate_rev  # type: ignore[union-attr]
+                    rec.velocity_rps = m.vel_estimate_rps  # type: ignore[union-attr]
+                    rec.stamp_s = now_s - age
+                    rec.stamp_ns = now_ns - int(age * 1e9)
+                else:
+                    rec.axis_state = m.axis_state  # type: ignore[union-attr]
+                    rec.axis_error = m.axis_error  # type: ignore[union-attr]
+                    rec.heartbeat_stamp_s = now_s - age
+            else:
+                self._handle_other(m)
+        self._stats.frames_rx += handled
+        if self._encoder_rtr:
+            now = now_s
+            if now >= self._next_rtr_s:
+                self._next_rtr_s = now + self._encoder_rtr_period_s
+                with contextlib.suppress(BusError):  # counted in stats; poll never raises
+                    self.request_encoders()
+        return handled
+
+    def _handle_other(self, m: cs.Message | cs.DecodeError) -> None:
+        if isinstance(m, cs.DecodeError):
+            node = m.node_id
+            self._bad_frames_by_node[node] = self._bad_frames_by_node.get(node, 0) + 1
+            self._last_decode_error[node] = m
+            self._count(m.kind.value, decode_error=True)
+        elif isinstance(m, cs.GetError):
+            if self._by_node[m.node_id] is None:
+                self._count("unknown_node", decode_error=False)
+            else:
+                self._last_get_error[m.node_id] = m
+        else:
+            # Host-to-ODrive commands and RTR requests: our own frames echoed back (e.g. by
+            # udp_multicast) or another master on the bus. Not for us.
+            self._count("not_for_host", decode_error=False)
+
+    def _count(self, kind: str, *, decode_error: bool) -> None:
+        stats = self._stats
+        if decode_error:
+            stats.decode_errors += 1
+        else:
+            stats.dropped += 1
+        stats.errors_by_kind[kind] = stats.errors_by_kind.get(kind, 0) + 1
+
+    def _count_bus_error(self, text: str) -> None:
+        self._stats.bus_errors += 1
+        self._stats.last_error = text
+
+    def read(self) -> Sequence[AxisReading]:
+        """Latest reading per axis, in `node_ids` order (live objects updated by `poll`)."""
+        return self._readings
+
+    def reading(self, node_id: int) -> AxisReading:
+        """The live reading of axis `node_id`. Raises KeyError if it is not one of ours."""
+        rec = self._by_node[node_id] if 0 <= node_id <= cs.MAX_NODE_ID else None
+        if rec is None:
+            raise KeyError(node_id)
+        return rec
+
+    @property
+    def stats(self) -> BusStats:
+        """Traffic counters (live; copy with `snapshot()`)."""
+        return self._stats
+
+    def last_get_error(self, node_id: int) -> cs.GetError | None:
+        """The last Get_Error reply of `node_id` (see `request_errors`), or None."""
+        return self._last_get_error.get(node_id)
+
+    def last_decode_error(self, node_id: int) -> cs.DecodeError | None:
+        """The last undecodable frame that claimed to come from `node_id`, or None."""
+        return self._last_decode_error.get(node_id)
+
+    def check(
+        self,
+        max_encoder_age_s: float,
+        max_heartbeat_age_s: float,
+        now_s: float | None = None,
+    ) -> tuple[AxisFault, ...]:
+        """Name what is wrong with each axis now: silent, no heartbeat, axis error, bad frames.
+
+        `now_s` defaults to the driver's clock. "bad_frames" reports axes that sent undecodable
+        frames since the last `check` (the per-axis count is reset).
+        """
+        now = self._clock() if now_s is None else now_s
+        faults: list[AxisFault] = []
+        for r in self._readings:
+            age = now - r.stamp_s
+            if age > max_encoder_age_s:
+                faults.append(
+                    AxisFault(r.node_id, "silent", f"no encoder estimate for {age:.3f} s")
+                )
+            hb_age = now - r.heartbeat_stamp_s
+            if hb_age > max_heartbeat_age_s:
+                faults.append(
+                    AxisFault(r.node_id, "no_heartbeat", f"no heartbeat for {hb_age:.3f} s")
+                )
+            if r.axis_error:
+                faults.append(
+                    AxisFault(
+                        r.node_id,
+                        "axis_error",
+                        f"axis error 0x{r.axis_error:x} ({cs.error_names(r.axis_error)})",
+                    )
+                )
+            bad = self._bad_frames_by_node.pop(r.node_id, 0)
+            if bad:
+                last = self._last_decode_error.get(r.node_id)
+                what = f"{last.kind.value}: {last.detail}" if last else "?"
+                faults.append(
+                    AxisFault(r.node_id, "bad_frames", f"{bad} bad frame(s), last {what}")
+                )
+        return tuple(faults)
+
+    # --- transmit ---------------------------------------------------------------------------
+
+    def _send_all(self, frames: Sequence[cs.Frame], what: str) -> None:
+        failures: list[str] = []
+        bus = self._bus
+        timeout = self._send_timeout_s
+        for arb_id, data, is_remote in frames:
+            msg = can.Message(
+                arbitration_id=arb_id,
+                data=data,
+                is_extended_id=False,
+                is_remote_frame=is_remote,
+                dlc=8 if is_remote else len(data),
+            )
+            try:
+                bus.send(msg, timeout=timeout)
+            except Exception as exc:  # CanError, OSError, or anything an interface raises
+                text = f"send {what} to node {arb_id >> 5}: {type(exc).__name__}: {exc}"
+                self._count_bus_error(text)
+                failures.append(text)
+            else:
+                self._stats.frames_tx += 1
+        if failures:
+            raise BusError("; ".join(failures))
+
+    def command(
+        self, positions_rev: Sequence[float], velocity_ff_rps: Sequence[float] | None = None
+    ) -> None:
+        """Send Set_Input_Pos to every axis (motor turns, `node_ids` order).
+
+        Raises ValueError, sending nothing, if a sequence has the wrong length or any value is
+        not finite (or a position exceeds float32). Velocity feed-forward is clamped to
+        ±32.767 rev/s (counted in `stats.ff_clamped`). Raises BusError if a send fails (after
+        trying every axis).
+        """
+        ids = self.node_ids
+        n = len(ids)
+        if len(positions_rev) != n:
+            raise ValueError(f"command needs {n} positions, got {len(positions_rev)}")
+        if velocity_ff_rps is not None and len(velocity_ff_rps) != n:
+            raise ValueError(
+                f"command needs {n} velocity feed-forwards, got {len(velocity_ff_rps)}"
+            )
+        frames: list[cs.Frame] = []
+        vmax = cs.VEL_FF_MAX_RPS
+        for i in range(n):
+            p = positions_rev[i]
+            if not math.isfinite(p) or abs(p) > 3.0e38:
+                raise ValueError(f"position for node {ids[i]} is not a finite float32: {p!r}")
+            v = 0.0 if velocity_ff_rps is None else velocity_ff_rps[i]
+            if not math.isfinite(v):
+                raise ValueError(f"velocity feed-forward for node {ids[i]} is not finite: {v!r}")
+            if v > vmax or v < -vmax:
+                v = vmax if v > 0.0 else -vmax
+                self._stats.ff_clamped += 1
+            frames.append(cs.encode_set_input_pos(ids[i], p, v))
+        self._send_all(frames, "Set_Input_Pos")
+
+    def arm(self) -> None:
+        """Clear errors, select POSITION_CONTROL + PASSTHROUGH, hold, enter CLOSED_LOOP_CONTROL.
+
+        Before the state request each axis with an encoder reading gets Set_Input_Pos at its
+        current position, so closed loop starts holding where the reel is. Confirmation comes
+        by heartbeat (axis_state 8). Raises BusError if a send fails.
+        """
+        frames: list[cs.Frame] = []
+        for r in self._readings:
+            frames.append(cs.encode_clear_errors(r.node_id))
+            frames.append(
+                cs.encode_set_controller_mode(
+                    r.node_id, cs.ControlMode.POSITION_CONTROL, cs.InputMode.PASSTHROUGH
+                )
+            )
+            if r.stamp_ns:
+                frames.append(cs.encode_set_input_pos(r.node_id, r.position_rev))
+            frames.append(cs.encode_set_axis_state(r.node_id, cs.AxisState.CLOSED_LOOP_CONTROL))
+        self._send_all(frames, "arm")
+
+    def disarm(self) -> None:
+        """Request IDLE on every axis. Raises BusError if a send fails."""
+        self._send_all(
+            [cs.encode_set_axis_state(n, cs.AxisState.IDLE) for n in self.node_ids], "disarm"
+        )
+
+    def estop(self) -> None:
+        """Send Estop to every axis (each tried even if one fails). Raises BusError on failure."""
+        self._send_all([cs.encode_estop(n) for n in self.node_ids], "Estop")
+
+    def clear_errors(self) -> None:
+        """Send Clear_Errors to every axis. Raises BusError if a send fails."""
+        self._send_all([cs.encode_clear_errors(n) for n in self.node_ids], "Clear_Errors")
+
+    def set_limits(self, velocity_limit_rps: float, current_limit_a: float) -> None:
+        """Send Set_Limits to every axis. Raises ValueError if not finite, BusError on failure."""
+        self._send_all(
+            [cs.encode_set_limits(n, velocity_limit_rps, current_limit_a) for n in self.node_ids],
+            "Set_Limits",
+        )
+
+    def request_encoders(self) -> None:
+        """RTR-request Get_Encoder_Estimates from every axis. Raises BusError on failure."""
+        self._send_all(
+            [cs.encode_rtr(n, cs.GET_ENCODER_ESTIMATES) for n in self.node_ids], "encoder RTR"
+        )
+
+    def request_errors(self) -> None:
+        """RTR-request Get_Error from every axis (see `last_get_error`). Raises BusError."""
+        self._send_all([cs.encode_rtr(n, cs.GET_ERROR) for n in self.node_ids], "Get_Error RTR")

@@ -1,0 +1,565 @@
+"""Simulated ODrive axes speaking CANSimple (firmware 0.6) on any python-can bus.
+
+`SimODriveAxis` is a pure state object: `handle(msg)` applies one decoded command and returns the
+frames the axis answers with; `step(dt_s)` advances the motion and returns the cyclic broadcasts
+(encoder estimates, heartbeat) that fall due. `SimODriveBank` runs a set of axes on a bus in a
+thread; `run_sim` is the same loop for a process (`python -m drivers.odrive.sim ...`).
+
+Behaviour mirrored from firmware 0.6: IDLE until CLOSED_LOOP_CONTROL is requested; entering
+closed loop is refused while an axis error is active and holds the current position
+(input_pos := position, input_vel := 0); Estop drops to IDLE and latches ESTOP_REQUESTED;
+Clear_Errors clears the error. In IDLE the simulated reel is braked: its position stays where it
+is (a real unpowered reel under cable tension would not; that is outside the model).
+
+Axis watchdog (`watchdog_timeout_s` > 0, the drive's `axis.config.enable_watchdog` and
+`axis.config.watchdog_timeout`): every CANSimple frame a host sends to the axis feeds it (as in
+the firmware's CANSimple handler; the axis's own broadcasts heard back do not); an axis in
+closed loop that goes `watchdog_timeout_s` without one disarms to IDLE with
+WATCHDOG_TIMER_EXPIRED (reported by heartbeat and Get_Error), so a host that dies mid-move does
+not leave the axis running on its last velocity feed-forward. The timer runs only in closed loop
+here (an idle axis has nothing to stop).
+
+Motion model (POSITION_CONTROL with INPUT_MODE_PASSTHROUGH, the firmware's cascaded loop):
+Set_Input_Pos sets input_pos and input_vel (its Vel_FF field), and the velocity command is
+
+    vel_cmd = clamp(input_vel + pos_gain * (input_pos - position), -vel_limit, +vel_limit)
+
+(ODrive docs, control.md: "vel_cmd = pos_error * pos_gain + vel_feedforward"; pos_gain default
+20 (rev/s)/rev). The velocity loop and the current loop are modelled as an ideal velocity
+response limited by the motor's torque, i.e. the velocity moves toward vel_cmd by at most
+`max_accel_rps2 * dt` (no first-order lag: the real velocity loop's bandwidth, hundreds of Hz, is
+far above the position loop's 20 rad/s). So a streamed set-point with the right feed-forward is
+tracked with a lag of about one command period's worth of motion, a set-point without
+feed-forward with the steady lag velocity / pos_gain, and a big step overshoots when braking needs
+more than `max_accel_rps2` (as a current-limited drive does). In VELOCITY_CONTROL the velocity
+command is input_vel (Set_Input_Vel). The dynamics are integrated in sub-steps of at most
+`MAX_SUBSTEP_S` so a late `step` (a stalled thread) cannot make the discrete P loop unstable.
+At rest (no feed-forward, within `REST_SNAP_REV` of input_pos, velocity below
+`REST_SNAP_RPS`) the position snaps onto input_pos, so a settled axis reports input_pos exactly.
+
+Fault injection for tests: `silence(True)` (no frames in or out), `set_axis_error(code)` (disarm
+with that error, reported by heartbeat), `send_corrupt()` (a wrong-length encoder frame),
+`send_nan()` (an encoder frame with a NaN position), `drift(rate)` (encoder estimate drifts from
+the true position at `rate` rev/s).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import signal
+import struct
+import sys
+import threading
+import time
+from collections.abc import Iterable, Sequence
+from types import FrameType, TracebackType
+from typing import Any
+
+import can
+
+from drivers.bus import open_bus
+from drivers.odrive import cansimple as cs
+
+_NAN_ENCODER = struct.pack("<ff", math.nan, 0.0)
+
+DEFAULT_POS_GAIN = 20.0
+"""Firmware 0.6 default `controller.service.config.pos_gain`, (rev/s)/rev."""
+MAX_SUBSTEP_S = 0.001
+"""Longest integration step of the axis dynamics (a longer `step` is split)."""
+_MAX_SUBSTEPS = 10_000
+_AXIS_TX_TYPES = (cs.Heartbeat, cs.EncoderEstimates, cs.GetError)
+"""What an axis sends itself: heard back (udp_multicast loops frames back), they feed nothing."""
+REST_SNAP_REV = 1e-9
+REST_SNAP_RPS = 1e-6
+
+
+class SimODriveAxis:
+    """One simulated ODrive axis; thread-safe (an internal lock guards every method)."""
+
+    def __init__(
+        self,
+        node_id: int,
+        *,
+        initial_position_rev: float = 0.0,
+        max_velocity_rps: float = 20.0,
+        max_accel_rps2: float = 200.0,
+        encoder_period_s: float = 0.01,
+        heartbeat_period_s: float = 0.1,
+        pos_gain: float = DEFAULT_POS_GAIN,
+        watchdog_timeout_s: float = 0.0,
+    ) -> None:
+        """Create an IDLE axis at `initial_position_rev`.
+
+        `max_velocity_rps` is the drive's vel_limit, `max_accel_rps2` its torque-limited
+        acceleration, `pos_gain` the position loop gain in (rev/s)/rev, `watchdog_timeout_s`
+        the axis watchdog (0 = off; see the module docstring). Raises ValueError on a node id
+        outside 0..63, a non-finite position, a non-positive limit, gain or period, or a
+        negative or non-finite watchdog timeout.
+        """
+        if not 0 <= node_id <= cs.MAX_NODE_ID:
+            raise ValueError(f"node id {node_id} is outside 0..63")
+        if not math.isfinite(initial_position_rev):
+            raise ValueError("initial_position_rev must be finite")
+        for name, value in (
+            ("max_velocity_rps", max_velocity_rps),
+            ("max_accel_rps2", max_accel_rps2),
+            ("encoder_period_s", encoder_period_s),
+            ("heartbeat_period_s", heartbeat_period_s),
+            ("pos_gain", pos_gain),
+        ):
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        if not (math.isfinite(watchdog_timeout_s) and watchdog_timeout_s >= 0.0):
+            raise ValueError(
+                f"watchdog_timeout_s must be finite and >= 0, got {watchdog_timeout_s!r}"
+            )
+        self.node_id = node_id
+        self.max_velocity_rps = max_velocity_rps
+        self.max_accel_rps2 = max_accel_rps2
+        self.encoder_period_s = encoder_period_s
+        self.heartbeat_period_s = heartbeat_period_s
+        self.pos_gain = pos_gain
+        self.watchdog_timeout_s = watchdog_timeout_s
+        self._since_feed_s = 0.0
+        self.position_rev = float(initial_position_rev)
+        self.velocity_rps = 0.0
+        self.input_pos_rev = self.position_rev
+        self.input_vel_rps = 0.0
+        self.axis_state: int = cs.AxisState.IDLE
+        self.axis_error: int = 0
+        self.disarm_reason: int = 0
+        self.procedure_result = 0
+        self.control_mode: int = cs.ControlMode.POSITION_CONTROL
+        self.input_mode: int = cs.InputMode.PASSTHROUGH
+        self.commands_received = 0
+        self._silent = False
+        self._drift_rate_rps = 0.0
+        self._drift_rev = 0.0
+        self._pending_corrupt = 0
+        self._pending_nan = 0
+        self._encoder_due_s = 0.0
+        self._heartbeat_due_s = 0.0
+        self._lock = threading.Lock()
+
+    # --- fault injection --------------------------------------------------------------------
+
+    def silence(self, silent: bool = True) -> None:
+        """Go silent (no frames received or sent), or speak again."""
+        with self._lock:
+            self._silent = silent
+
+    def set_axis_error(self, code: int) -> None:
+        """Raise axis error `code` (ODriveError bits): the axis disarms to IDLE, like firmware."""
+        with self._lock:
+            self.axis_error |= code
+            self.disarm_reason = code
+            self._disarm()
+
+    def send_corrupt(self, count: int = 1) -> None:
+        """Emit `count` wrong-length (5 byte) encoder frames with the next step."""
+        with self._lock:
+            self._pending_corrupt += count
+
+    def send_nan(self, count: int = 1) -> None:
+        """Emit `count` encoder frames with a NaN position with the next step."""
+        with self._lock:
+            self._pending_nan += count
+
+    def drift(self, rate_rev_per_s: float) -> None:
+        """Let the reported encoder estimate drift from the true position at this rate."""
+        if not math.isfinite(rate_rev_per_s):
+            raise ValueError("drift rate must be finite")
+        with self._lock:
+            self._drift_rate_rps = rate_rev_per_s
+
+    @property
+    def encoder_estimate_rev(self) -> float:
+        """The position this axis reports (true position plus accumulated drift)."""
+        return self.position_rev + self._drift_rev
+
+    # --- protocol ---------------------------------------------------------------------------
+
+    def _disarm(self) -> None:
+        self.axis_state = cs.AxisState.IDLE
+        self.velocity_rps = 0.0
+
+    def _encoder_frame(self) -> cs.Frame:
+        return cs.encode_encoder_estimates(
+            self.node_id, self.position_rev + self._drift_rev, self.velocity_rps
+        )
+
+    def _heartbeat_frame(self) -> cs.Frame:
+        traj_done = self.position_rev == self.input_pos_rev and self.velocity_rps == 0.0
+        return cs.encode_heartbeat(
+            self.node_id, self.axis_error, self.axis_state, self.procedure_result, traj_done
+        )
+
+    def handle(self, msg: cs.Message) -> list[cs.Frame]:
+        """Apply one decoded frame addressed to this axis; return the frames sent in answer.
+
+        Frames for other nodes and ODrive-to-host messages are ignored (empty list).
+        """
+        with self._lock:
+            if self._silent or msg.node_id != self.node_id:
+                return []
+            return self._handle(msg)
+
+    def _handle(self, msg: cs.Message) -> list[cs.Frame]:
+        t = type(msg)
+        if t not in _AXIS_TX_TYPES:
+            self._since_feed_s = 0.0  # any frame from a host to the axis feeds its watchdog
+        if t is cs.SetInputPos:
+            assert isinstance(msg, cs.SetInputPos)
+            self.commands_received += 1
+            self.input_pos_rev = msg.input_pos_rev
+            self.input_vel_rps = msg.vel_ff_rps
+        elif t is cs.SetAxisState:
+            assert isinstance(msg, cs.SetAxisState)
+            if msg.requested_state == cs.AxisState.CLOSED_LOOP_CONTROL:
+                if self.axis_error:
+                    self.procedure_result = 13  # INVALID_STATE: refused while an error is active
+                else:
+                    if self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
+                        self.input_pos_rev = self.position_rev  # hold where the reel is
+                        self.input_vel_rps = 0.0
+                    self.axis_state = cs.AxisState.CLOSED_LOOP_CONTROL
+                    self.procedure_result = 0
+            elif msg.requested_state == cs.AxisState.IDLE:
+                self._disarm()
+        elif t is cs.Estop:
+            self.axis_error |= cs.ODriveError.ESTOP_REQUESTED
+            self.disarm_reason = cs.ODriveError.ESTOP_REQUESTED
+            self._disarm()
+        elif t is cs.ClearErrors:
+            self.axis_error = 0
+            self.procedure_result = 0
+        elif t is cs.SetControllerMode:
+            assert isinstance(msg, cs.SetControllerMode)
+            self.control_mode = cs.ControlMode(msg.control_mode & 3)
+            try:
+                self.input_mode = cs.InputMode(msg.input_mode)
+            except ValueError:
+                self.input_mode = cs.InputMode.INACTIVE
+        elif t is cs.SetInputVel:
+            assert isinstance(msg, cs.SetInputVel)
+            self.input_vel_rps = msg.input_vel_rps
+        elif t is cs.SetLimits:
+            assert isinstance(msg, cs.SetLimits)
+            if msg.velocity_limit_rps > 0.0:
+                self.max_velocity_rps = msg.velocity_limit_rps
+        elif t is cs.RemoteRequest:
+            assert isinstance(msg, cs.RemoteRequest)
+            if msg.cmd_id == cs.GET_ENCODER_ESTIMATES:
+                return [self._encoder_frame()]
+            if msg.cmd_id == cs.HEARTBEAT:
+                return [self._heartbeat_frame()]
+            if msg.cmd_id == cs.GET_ERROR:
+                return [cs.encode_get_error(self.node_id, self.axis_error, self.disarm_reason)]
+        return []
+
+    def step(self, dt_s: float) -> list[cs.Frame]:
+        """Advance the simulation by `dt_s` seconds; return the broadcasts that fall due."""
+        with self._lock:
+            if dt_s > 0.0:
+                self._watchdog(dt_s)
+                self._move(dt_s)
+                self._drift_rev += self._drift_rate_rps * dt_s
+            if self._silent:
+                return []
+            out: list[cs.Frame] = []
+            enc_id = cs.arbitration_id(self.node_id, cs.GET_ENCODER_ESTIMATES)
+            while self._pending_corrupt:
+                self._pending_corrupt -= 1
+                out.append((enc_id, b"\x00\x00\x80\x3f\x00", False))
+            while self._pending_nan:
+                self._pending_nan -= 1
+                out.append((enc_id, _NAN_ENCODER, False))
+            self._encoder_due_s -= dt_s
+            if self._encoder_due_s <= 0.0:
+                self._encoder_due_s = max(self._encoder_due_s + self.encoder_period_s, 0.0)
+                out.append(self._encoder_frame())
+            self._heartbeat_due_s -= dt_s
+            if self._heartbeat_due_s <= 0.0:
+                self._heartbeat_due_s = max(self._heartbeat_due_s + self.heartbeat_period_s, 0.0)
+                out.append(self._heartbeat_frame())
+            return out
+
+    def _watchdog(self, dt: float) -> None:
+        if self.watchdog_timeout_s <= 0.0 or self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
+            return
+        # Checked before the step is counted: after a stall of the simulation thread the
+        # commands that queued meanwhile are handled before the expiry is judged, so a slow
+        # simulator does not look like a silent host (a dead host is caught one step later).
+        if self._since_feed_s > self.watchdog_timeout_s:
+            self.axis_error |= cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+            self.disarm_reason = cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+            self._disarm()
+            return
+        self._since_feed_s += dt
+
+    def _move(self, dt: float) -> None:
+        if self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
+            return
+        if (
+            self.velocity_rps == 0.0
+            and self.input_vel_rps == 0.0
+            and (
+                self.control_mode == cs.ControlMode.VELOCITY_CONTROL
+                or self.position_rev == self.input_pos_rev
+            )
+        ):
+            return  # at rest on the set-point: nothing to integrate
+        n = min(_MAX_SUBSTEPS, math.ceil(dt / MAX_SUBSTEP_S))
+        h = dt / n
+        for _ in range(n):
+            self._substep(h)
+
+    def _substep(self, h: float) -> None:
+        """One integration step of the cascaded loop (see the module docstring)."""
+        vmax = self.max_velocity_rps
+        dv_max = self.max_accel_rps2 * h
+        v = self.velocity_rps
+        mode = self.control_mode
+        if mode == cs.ControlMode.POSITION_CONTROL:
+            vel_cmd = self.input_vel_rps + self.pos_gain * (self.input_pos_rev - self.position_rev)
+        elif mode == cs.ControlMode.VELOCITY_CONTROL:
+            vel_cmd = self.input_vel_rps
+        else:
+            vel_cmd = 0.0
+        vel_cmd = max(-vmax, min(vmax, vel_cmd))
+        v_new = v + max(-dv_max, min(dv_max, vel_cmd - v))
+        p_new = self.position_rev + 0.5 * (v + v_new) * h
+        if (
+            mode == cs.ControlMode.POSITION_CONTROL
+            and self.input_vel_rps == 0.0
+            and abs(self.input_pos_rev - p_new) <= REST_SNAP_REV
+            and abs(v_new) <= REST_SNAP_RPS
+        ):
+            p_new = self.input_pos_rev  # settled (the exponential approach never ends exactly)
+            v_new = 0.0
+        self.position_rev = p_new
+        self.velocity_rps = v_new
+
+
+def _to_can(frame: cs.Frame) -> can.Message:
+    arb_id, data, is_remote = frame
+    return can.Message(
+        arbitration_id=arb_id,
+        data=data,
+        is_extended_id=False,
+        is_remote_frame=is_remote,
+        dlc=8 if is_remote else len(data),
+    )
+
+
+def run_sim(
+    bus: can.BusABC,
+    axes: Sequence[SimODriveAxis],
+    stop_event: threading.Event,
+    *,
+    tick_s: float = 0.001,
+) -> None:
+    """Serve `axes` on `bus` until `stop_event` is set: answer commands, broadcast every tick.
+
+    Receive errors and send errors are swallowed (a simulated node keeps running); undecodable
+    frames are ignored. Returns within about one tick after `stop_event` is set.
+    """
+    by_node: dict[int, SimODriveAxis] = {a.node_id: a for a in axes}
+    if len(by_node) != len(axes):
+        raise ValueError("duplicate node ids among simulated axes")
+    clock = time.monotonic
+    last = clock()
+    next_tick = last + tick_s
+
+    def send(frames: Iterable[cs.Frame]) -> None:
+        for f in frames:
+            with contextlib.suppress(Exception):  # a simulated node survives a broken bus
+                bus.send(_to_can(f), timeout=0.01)
+
+    while not stop_event.is_set():
+        now = clock()
+        remaining = next_tick - now
+        if remaining > 0.0:
+            try:
+                msg = bus.recv(timeout=remaining)
+            except Exception:
+                msg = None
+                time.sleep(min(remaining, 0.001))
+            if msg is not None and not msg.is_error_frame:
+                m = cs.decode(msg.arbitration_id, msg.data, msg.is_remote_frame, msg.is_extended_id)
+                if not isinstance(m, cs.DecodeError):
+                    axis = by_node.get(m.node_id)
+                    if axis is not None:
+                        send(axis.handle(m))
+            continue
+        dt = now - last
+        last = now
+        next_tick = next_tick + tick_s if remaining > -tick_s else now + tick_s
+        for axis in axes:
+            send(axis.step(dt))
+
+
+class SimODriveBank:
+    """Simulated ODrive axes served on `bus` by a background thread (a context manager).
+
+    The bank does not own the bus: the caller shuts it down after `stop()`.
+    """
+
+    def __init__(
+        self, bus: can.BusABC, axes: Sequence[SimODriveAxis], *, tick_s: float = 0.001
+    ) -> None:
+        """Prepare (not start) the bank. Raises ValueError on duplicate node ids or tick_s <= 0."""
+        if len({a.node_id for a in axes}) != len(axes):
+            raise ValueError("duplicate node ids among simulated axes")
+        if not (math.isfinite(tick_s) and tick_s > 0.0):
+            raise ValueError("tick_s must be finite and > 0")
+        self.bus = bus
+        self.axes: tuple[SimODriveAxis, ...] = tuple(axes)
+        self.tick_s = tick_s
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def axis(self, node_id: int) -> SimODriveAxis:
+        """The simulated axis with this node id. Raises KeyError if there is none."""
+        for a in self.axes:
+            if a.node_id == node_id:
+                return a
+        raise KeyError(node_id)
+
+    def start(self) -> SimODriveBank:
+        """Start the serving thread (once). Returns self."""
+        if self._thread is not None:
+            raise RuntimeError("SimODriveBank already started")
+        self._thread = threading.Thread(
+            target=run_sim,
+            args=(self.bus, self.axes, self._stop),
+            kwargs={"tick_s": self.tick_s},
+            name="sim-odrive",
+            daemon=True,
+        )
+        self._thread.start()
+        return self
+
+    def stop(self, timeout_s: float = 2.0) -> bool:
+        """Stop the thread and join it within `timeout_s`; return True if it has ended."""
+        self._stop.set()
+        if self._thread is None:
+            return True
+        self._thread.join(timeout_s)
+        return not self._thread.is_alive()
+
+    def __enter__(self) -> SimODriveBank:
+        return self.start()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+
+def _floats(text: str, n: int) -> list[float]:
+    values = [float(v) for v in text.split(",")] if text else [0.0]
+    if len(values) == 1:
+        values = values * n
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"need 1 or {n} finite values, got {text!r}")
+    return values
+
+
+def _option(text: str) -> tuple[str, Any]:
+    key, sep, raw = text.partition("=")
+    if not sep or not key:
+        raise SystemExit(f"--option needs KEY=VALUE, got {text!r}")
+    value: Any = raw
+    if raw.lower() in ("true", "false"):
+        value = raw.lower() == "true"
+    else:
+        for conv in (int, float):
+            try:
+                value = conv(raw)
+                break
+            except ValueError:
+                pass
+    return key, value
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """`python -m drivers.odrive.sim`: serve simulated axes on a bus until SIGTERM/SIGINT.
+
+    Prints "READY <nodes>" on stdout once the bus is open and the axes are served.
+    """
+    p = argparse.ArgumentParser(prog="python -m drivers.odrive.sim", description=__doc__)
+    p.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
+    p.add_argument("--channel", required=True, help="channel, e.g. vcan0 or a multicast group")
+    p.add_argument("--bitrate", type=int, default=None)
+    p.add_argument("--port", type=int, default=None, help="udp_multicast port")
+    p.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="further python-can interface keyword (repeatable); numbers and true/false parsed",
+    )
+    p.add_argument("--nodes", default="0,1,2,3", help="comma-separated node ids")
+    p.add_argument("--initial-rev", default="0", help="one value, or one per node")
+    p.add_argument("--max-velocity-rps", type=float, default=20.0)
+    p.add_argument("--max-accel-rps2", type=float, default=200.0)
+    p.add_argument(
+        "--pos-gain", type=float, default=DEFAULT_POS_GAIN, help="position gain, (rev/s)/rev"
+    )
+    p.add_argument("--encoder-period-s", type=float, default=0.01)
+    p.add_argument("--heartbeat-period-s", type=float, default=0.1)
+    p.add_argument("--tick-s", type=float, default=0.001)
+    p.add_argument(
+        "--watchdog-timeout-s",
+        type=float,
+        default=0.0,
+        help="axis watchdog: IDLE after this long in closed loop without a command (0: off)",
+    )
+    p.add_argument("--duration-s", type=float, default=None, help="exit after this long")
+    args = p.parse_args(argv)
+    nodes = [int(n) for n in args.nodes.split(",")]
+    initial = _floats(args.initial_rev, len(nodes))
+    axes = [
+        SimODriveAxis(
+            n,
+            initial_position_rev=x,
+            max_velocity_rps=args.max_velocity_rps,
+            max_accel_rps2=args.max_accel_rps2,
+            pos_gain=args.pos_gain,
+            encoder_period_s=args.encoder_period_s,
+            heartbeat_period_s=args.heartbeat_period_s,
+            watchdog_timeout_s=args.watchdog_timeout_s,
+        )
+        for n, x in zip(nodes, initial, strict=True)
+    ]
+    options: dict[str, Any] = dict(_option(o) for o in args.option)
+    if args.port is not None:
+        options["port"] = args.port
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    if args.duration_s is not None:
+        timer = threading.Timer(args.duration_s, stop.set)
+        timer.daemon = True
+        timer.start()
+    bus = open_bus(args.interface, args.channel, args.bitrate, **options)
+    try:
+        print("READY " + ",".join(str(n) for n in nodes), flush=True)
+        run_sim(bus, axes, stop, tick_s=args.tick_s)
+    finally:
+        bus.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

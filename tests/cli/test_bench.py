@@ -1,0 +1,201 @@
+"""`cablebot bench`: the JSON has exactly the documented keys, finite numbers in sane ranges.
+
+Performance targets are not asserted here (a shared, noisy machine): the benchmark reports them.
+The end-to-end matcher is checked on hand-made logs with known latencies.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from controller.cli import bench
+from controller.core.reel import ReelModel
+
+TOP_KEYS = {
+    "fpk_simplified_us",
+    "fpk_general_us",
+    "fpk_simplified_over_general",
+    "fpk4_us",
+    "scipy_over_fpk4",
+    "batch_over_copy",
+    "decode_frames_per_s",
+    "zenoh_put_us",
+    "loop",
+    "e2e_p50_us",
+    "e2e_p99_us",
+    "estop_latency_flood_ms",
+}
+ESTOP_KEYS = {"reply_p50", "reply_p99", "frame_p50", "frame_p99"}
+LOOP_KEYS = {
+    "ticks",
+    "overruns",
+    "jitter_p50_frac",
+    "jitter_p99_frac",
+    "compute_p50_frac",
+    "compute_p99_frac",
+}
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(210)
+def test_bench_quick_json(tmp_path: Path) -> None:
+    out = tmp_path / "bench.json"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "controller.cli",
+            "bench",
+            "--quick",
+            "--json",
+            str(out),
+            "--batch-poses",
+            "20000",
+            "--loop-seconds",
+            "1.5",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=200,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    data = json.loads(out.read_text())
+    assert set(data) == TOP_KEYS
+    assert set(data["loop"]) == {"500", "1000"}
+    for rate, lp in data["loop"].items():
+        assert set(lp) == LOOP_KEYS, rate
+        assert all(_number(v) for v in lp.values()), lp
+        assert isinstance(lp["ticks"], int) and isinstance(lp["overruns"], int)
+        # About rate x 1.5 s of ticks (generous: a loaded machine overruns and skips).
+        assert 0.3 * int(rate) * 1.5 < lp["ticks"] <= 1.2 * int(rate) * 1.5, (rate, lp)
+        assert 0 <= lp["overruns"] <= lp["ticks"]
+        assert 0.0 <= lp["jitter_p50_frac"] <= lp["jitter_p99_frac"]
+        assert 0.0 < lp["compute_p50_frac"] <= lp["compute_p99_frac"]
+    es = data["estop_latency_flood_ms"]
+    assert set(es) == ESTOP_KEYS
+    assert all(_number(v) for v in es.values()), es
+    assert 0.0 < es["reply_p50"] <= es["reply_p99"] and 0.0 < es["frame_p50"] <= es["frame_p99"]
+    for key in TOP_KEYS - {"loop", "estop_latency_flood_ms"}:
+        assert _number(data[key]), (key, data[key])
+        assert data[key] > 0.0, (key, data[key])
+    assert data["fpk_simplified_us"] < 1e3 and data["fpk_general_us"] < 1e3
+    ratio = data["fpk_simplified_us"] / data["fpk_general_us"]
+    assert 0.2 < data["fpk_simplified_over_general"] < 5.0
+    assert abs(math.log(data["fpk_simplified_over_general"] / ratio)) < math.log(3.0)
+    assert data["scipy_over_fpk4"] > 1.0  # scipy is slower by any measure
+    assert data["decode_frames_per_s"] > 100.0
+    # A frame can arrive just before a tick, but it cannot beat two process hops and a tick.
+    assert 10.0 < data["e2e_p50_us"] <= data["e2e_p99_us"] < 1e6
+    assert data["zenoh_put_us"] < 1e4
+    table = proc.stdout
+    for name in (
+        "fpk_simplified_us",
+        "loop.1000.jitter_p99_frac",
+        "e2e_p50_us",
+        "estop_latency_flood_ms.reply_p99",
+        "repeats",
+    ):
+        assert name in table
+    assert ("MISSED" in table) or ("all targets met" in table)
+
+
+def _frame_hex(pos_rev: float) -> str:
+    return struct.pack("<ff", pos_rev, 0.0).hex()
+
+
+def _pose(seq: int, stamp_ns: int, lengths: list[float]) -> str:
+    return json.dumps({"seq": seq, "stamp_ns": stamp_ns, "cable_lengths_m": lengths})
+
+
+def test_match_e2e_known_latencies() -> None:
+    reels = [ReelModel(0.05, offset_rev=10.0, reference_length_m=20.0), ReelModel(0.05)]
+    nodes = (3, 7)
+    f32 = [struct.unpack("<f", struct.pack("<f", x))[0] for x in (1.0, 1.5, 2.0, 0.25)]
+    # Node 3 sends 1.0 at t=1000, 1.5 at 2000 (superseded), 2.0 at 3000 and 2.0 again at 5000;
+    # node 7 sends 0.25 at 1500 and again at 4000.
+    sent = [
+        [1000, 3 << 5 | 9, _frame_hex(1.0)],
+        [1500, 7 << 5 | 9, _frame_hex(0.25)],
+        [2000, 3 << 5 | 9, _frame_hex(1.5)],
+        [3000, 3 << 5 | 9, _frame_hex(2.0)],
+        [4000, 7 << 5 | 9, _frame_hex(0.25)],
+        [5000, 3 << 5 | 9, _frame_hex(2.0)],
+        [5100, 5 << 5 | 9, _frame_hex(9.0)],  # a node the robot does not have
+    ]
+    lens = [[reels[0].length_m(f32[0]), 0.5], [reels[0].length_m(f32[2]), 0.5]]
+    lens.append([reels[0].length_m(f32[2]), reels[1].length_m(f32[3])])
+    poses = [
+        [1800, _pose(1, 1700, lens[0])],  # first pose: no previous value, no sample
+        [3600, _pose(2, 3500, lens[1])],  # node 3 changed to 2.0: sent 3000 -> 600 ns
+        [4400, _pose(3, 4300, lens[2])],  # node 7 changed to 0.25: latest send <= 4400 is 4000
+        [5600, _pose(4, 5500, lens[2])],  # nothing changed: no sample (2.0 at 5000 is a repeat)
+        [5700, _pose(5, 5650, [lens[2][0], 123.0])],  # a value no frame carried: unmatched
+    ]
+    got = bench.match_e2e(sent, poses, reels, nodes, 0, 10_000)
+    assert got["total_us"] == [0.6, 0.4]
+    assert got["to_publish_us"] == [0.5, 0.3]
+    assert got["after_publish_us"] == [0.1, 0.1]
+    assert got["unmatched"] == 1
+    # Frames sent outside the window do not count.
+    assert bench.match_e2e(sent, poses, reels, nodes, 3500, 10_000)["total_us"] == [0.4]
+
+
+def test_percentile_nearest_rank() -> None:
+    vals = [float(v) for v in range(1, 101)]
+    assert bench.percentile(vals, 0.5) == 50.0
+    assert bench.percentile(vals, 0.99) == 99.0
+    assert bench.percentile([3.0], 0.99) == 3.0
+    with pytest.raises(ValueError):
+        bench.percentile([], 0.5)
+
+
+def test_format_table_marks_missed() -> None:
+    rows = [
+        bench.Row("a_us", 1.5, "us", "< 2", True, "median of 3"),
+        bench.Row("b", 0.7, "ratio", "<= 0.6", False, "median of 3"),
+        bench.Row("c", 12345.0, "1/s", "", None, "1"),
+    ]
+    text = bench.format_table(rows)
+    lines = text.splitlines()
+    assert lines[0].split() == ["figure", "value", "unit", "target", "result", "repeats"]
+    assert "PASS" in lines[2] and "MISSED" in lines[3] and lines[3].endswith("<--")
+    assert "12,345" in lines[4]
+
+
+def test_merge_runs_medians_and_sums() -> None:
+    runs = [
+        {"ticks": 10, "jitter_p99_frac": 0.3, "faults": 1, "fault_reasons": ["b"], "note": "x"},
+        {"ticks": 30, "jitter_p99_frac": 0.1, "faults": 0, "fault_reasons": [], "note": "y"},
+        {
+            "ticks": 20,
+            "jitter_p99_frac": 0.2,
+            "faults": 2,
+            "fault_reasons": ["a", "b"],
+            "note": "z",
+        },
+    ]
+    got = bench.merge_runs(runs)
+    assert got == {
+        "runs": 3,
+        "ticks": 20,
+        "jitter_p99_frac": 0.2,
+        "faults": 3,
+        "fault_reasons": ["a", "b"],
+        "note": "x",
+    }
+    assert isinstance(got["ticks"], int)
+    with pytest.raises(ValueError):
+        bench.merge_runs([])

@@ -1,0 +1,97 @@
+"""`cablebot demo circle --plot`: matplotlib is checked before the run; a small path is drawn
+zoomed with equal scales and the whole robot in an inset."""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from controller.cli import demo, main
+from controller.core.motion import circle_path
+from controller.service.config import load_config
+from tests.cli.test_demo import _synthetic_run, png_size
+
+
+def test_plot_without_matplotlib_fails_before_the_run(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    real = importlib.util.find_spec
+
+    def find_spec(name: str, *args: Any) -> Any:
+        return None if name == "matplotlib" else real(name, *args)
+
+    def run_circle(*args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("the circle ran although the pictures cannot be drawn")
+
+    monkeypatch.setattr(importlib.util, "find_spec", find_spec)
+    monkeypatch.setattr(demo, "run_circle", run_circle)
+    code = main(["demo", "circle", "--steps", "4", "--no-zenoh", "--plot", str(tmp_path)])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert err == "cablebot demo: --plot needs matplotlib: pip install 'cablebot[plot]'\n"
+
+
+def _circle(radius_m: float, z_m: float = 2.0) -> np.ndarray:
+    return np.asarray(circle_path(radius_m, (0.0, 0.0), z_m, 12))
+
+
+def test_zoom_box_around_a_small_path_with_equal_sides() -> None:
+    anchors = np.asarray(load_config(None).anchors_m, dtype=np.float64)  # 80.9 m x 50 m
+    assert demo.zoom_box_3d(anchors, _circle(20.0)) is None  # the paper's circle: whole robot
+    box = demo.zoom_box_3d(anchors, _circle(2.0))
+    assert box is not None
+    lo, hi = box
+    sides = hi - lo
+    assert sides == pytest.approx([sides[0]] * 3)  # a cube: equal scales on x, y and z
+    assert sides[0] == pytest.approx(4.0 * 1.3)
+    path = _circle(2.0)
+    assert np.all(path >= lo) and np.all(path <= hi)
+    assert lo[2] >= 0.0  # never below the floor
+
+
+@pytest.mark.parametrize("radius_m", [2.0, 20.0])
+def test_plot_zooms_a_small_circle_and_shows_the_robot_in_an_inset(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, radius_m: float
+) -> None:
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    figures: list[Any] = []
+    real_close = plt.close
+
+    def close(fig: Any = None) -> None:
+        figures.append(fig)
+        real_close(fig)
+
+    monkeypatch.setattr(plt, "close", close)
+    run = _synthetic_run(0.0)
+    pts = _circle(radius_m)
+    run = replace(
+        run,
+        spec=replace(run.spec, radius_m=radius_m),
+        points_m=pts,
+        setpoint_m=pts.copy(),
+        fpk_m=pts.copy(),
+    )
+    paths = demo.plot_circle(run, tmp_path)
+    assert png_size(paths[0]) == (1210, 638)
+    axes = figures[0].get_axes()
+    ax3d = axes[0]
+    if radius_m == 2.0:
+        assert len(axes) == 2  # the 3-D view and the plan-view inset
+        lo, hi = demo.zoom_box_3d(run.anchors_m, np.vstack([pts, pts]))
+        assert ax3d.get_xlim() == pytest.approx((lo[0], hi[0]))
+        assert ax3d.get_zlim() == pytest.approx((lo[2], hi[2]))
+        inset = axes[1]
+        assert inset.get_title() == "plan view"
+        x0, x1 = inset.get_xlim()
+        assert x0 < -40.0 and x1 > 40.0  # every anchor in the inset
+    else:
+        assert len(axes) == 1
+        x0, x1 = ax3d.get_xlim()
+        assert x0 <= -40.0 and x1 >= 40.0  # the whole robot

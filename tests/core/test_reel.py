@@ -1,0 +1,135 @@
+"""Reel model: known values, exact inverses (hypothesis), homing, validation."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import assume, given
+from hypothesis import strategies as st
+
+from controller.core.reel import ReelModel, spool_buildup
+
+EPS = 2.0**-52
+
+
+def test_plain_drum_known_values() -> None:
+    m = ReelModel.from_drum_radius(0.02)
+    assert m.metres_per_rev == pytest.approx(2 * math.pi * 0.02)
+    assert m.length_m(0.0) == 0.0
+    assert m.length_m(10.0) == pytest.approx(10 * 2 * math.pi * 0.02)
+    assert m.position_rev(2 * math.pi * 0.02) == pytest.approx(1.0)
+
+
+def test_gear_direction_and_mechanical_advantage() -> None:
+    m = ReelModel(metres_per_rev=0.1, gear_ratio=5.0, direction=-1, mechanical_advantage=2.0)
+    # 10 motor turns = 2 drum turns = 0.2 m spooled, wound in (direction -1), halved by the block
+    assert m.length_m(10.0) == pytest.approx(-0.1)
+    assert m.position_rev(-0.1) == pytest.approx(10.0)
+    assert m.length_rate_mps(0.0, 5.0) == pytest.approx(-0.05)
+    assert m.velocity_rps(0.0, -0.05) == pytest.approx(5.0)
+
+
+def test_spool_buildup_known_value() -> None:
+    b = spool_buildup(0.001, turns_per_layer=10.0)
+    assert b == pytest.approx(2 * math.pi * 0.0001)
+    m = ReelModel(metres_per_rev=0.1, spool_buildup_m_per_rev2=0.01)
+    # s(n) = 0.1 n - 0.01 n^2 / 2 ; n = 4 -> 0.4 - 0.08 = 0.32
+    assert m.length_m(4.0) == pytest.approx(0.32)
+    assert m.position_rev(0.32) == pytest.approx(4.0)
+    # winding in (negative n) the radius grows: more metres per turn
+    assert m.length_m(-4.0) == pytest.approx(-0.48)
+    assert m.position_rev(-0.48) == pytest.approx(-4.0)
+    # the spool cannot pay out more than its maximum 0.1^2 / (2*0.01) = 0.5 m
+    with pytest.raises(ValueError, match="spool"):
+        m.position_rev(0.51)
+
+
+def test_with_home() -> None:
+    m = ReelModel.from_drum_radius(0.03, gear_ratio=3.0, reference_length_m=1.2)
+    h = m.with_home(position_rev=123.4, length_m=2.5)
+    assert h.length_m(123.4) == pytest.approx(2.5, abs=1e-12)
+    assert h.position_rev(2.5) == pytest.approx(123.4, abs=1e-12)
+    # homing changes only the offset, not the scale
+    assert h.length_m(126.4) - h.length_m(123.4) == pytest.approx(2 * math.pi * 0.03)
+    assert h.metres_per_rev == m.metres_per_rev
+    with pytest.raises(ValueError):
+        m.with_home(math.nan, 1.0)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"metres_per_rev": 0.0}, "metres_per_rev"),
+        ({"metres_per_rev": -0.1}, "metres_per_rev"),
+        ({"metres_per_rev": math.nan}, "metres_per_rev"),
+        ({"metres_per_rev": 0.1, "gear_ratio": 0.0}, "gear_ratio"),
+        ({"metres_per_rev": 0.1, "direction": 0}, "direction"),
+        ({"metres_per_rev": 0.1, "direction": 2}, "direction"),
+        ({"metres_per_rev": 0.1, "mechanical_advantage": -1.0}, "mechanical_advantage"),
+        ({"metres_per_rev": 0.1, "spool_buildup_m_per_rev2": -0.01}, "spool_buildup"),
+        ({"metres_per_rev": 0.1, "offset_rev": math.inf}, "offset_rev"),
+    ],
+)
+def test_validation(kwargs: dict[str, float], match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        ReelModel(**kwargs)  # type: ignore[arg-type]
+
+
+def test_from_drum_radius_validation() -> None:
+    with pytest.raises(ValueError, match="radius"):
+        ReelModel.from_drum_radius(0.0)
+    with pytest.raises(ValueError, match="cable_diameter"):
+        ReelModel.from_drum_radius(0.02, cable_diameter_m=-1.0)
+
+
+models = st.builds(
+    ReelModel,
+    metres_per_rev=st.floats(0.005, 1.0),
+    gear_ratio=st.floats(0.1, 100.0),
+    direction=st.sampled_from([1, -1]),
+    mechanical_advantage=st.floats(1.0, 8.0),
+    spool_buildup_m_per_rev2=st.one_of(st.just(0.0), st.floats(0.0, 1e-3)),
+    offset_rev=st.floats(-1e4, 1e4),
+    reference_length_m=st.floats(0.0, 20.0),
+)
+
+
+def _in_domain(m: ReelModel, p: float) -> bool:
+    # the model holds while the metres per drum turn stay clearly positive
+    n = m.direction * (p - m.offset_rev) / m.gear_ratio
+    return m.metres_per_rev - m.spool_buildup_m_per_rev2 * n > 0.5 * m.metres_per_rev
+
+
+@given(models, st.floats(-1e4, 1e4))
+def test_round_trip_position_length_position(m: ReelModel, p: float) -> None:
+    assume(_in_domain(m, p))
+    length = m.length_m(p)
+    back = m.position_rev(length)
+    slope = abs(m.length_rate_mps(p, 1.0))
+    # float rounding of length (|L| ulps) mapped through the slope, plus p's own ulps
+    tol = 8 * EPS * (abs(length) + m.reference_length_m + 1.0) / slope + 8 * EPS * (
+        abs(p) + abs(m.offset_rev)
+    )
+    assert abs(back - p) <= tol
+
+
+@given(models, st.floats(-50.0, 50.0))
+def test_round_trip_length_position_length(m: ReelModel, length: float) -> None:
+    try:
+        p = m.position_rev(length)
+    except ValueError:
+        assume(False)
+        return
+    assume(_in_domain(m, p))
+    assert m.length_m(p) == pytest.approx(length, rel=1e-12, abs=1e-9)
+
+
+@given(models, st.floats(-1e3, 1e3), st.floats(0.0, 20.0))
+def test_with_home_round_trip(m: ReelModel, p_home: float, length_home: float) -> None:
+    try:
+        h = m.with_home(p_home, length_home)
+    except ValueError:
+        assume(False)
+        return
+    assert h.length_m(p_home) == pytest.approx(length_home, rel=1e-9, abs=1e-9)

@@ -1,0 +1,214 @@
+"""The daemon as a process: `cablebot sim`, `cablebot run` and an observer over udp_multicast.
+
+Three processes on one host: the simulated ODrive nodes, the controller daemon and a Zenoh
+observer that arms, moves 1 m and watches the pose arrive within 1 mm. Then SIGTERM must end
+the daemon with exit code 0 within 2 s. A kill test SIGKILLs the daemon while it saves homing
+offsets: the state file must be the old or a new complete record, never a torn one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import random
+import signal
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from controller.service.offsets import load_offsets, parse_record
+from tests.daemon_procs import (
+    CABLEBOT,
+    OBSERVER,
+    Proc,
+    write_config,
+    zenoh_session,
+    zquery,
+)
+
+
+def _udp_bus() -> dict[str, Any]:
+    group = f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}"
+    return {
+        "interface": "udp_multicast",
+        "channel": group,
+        "options": {"port": random.randint(40000, 49000)},
+    }
+
+
+def run_three_processes(cfg: Path, info: dict[str, Any], slow: float = 1.0) -> None:
+    """Start sim and daemon, run the observer to completion, SIGTERM the daemon (asserted)."""
+    sim = Proc([*CABLEBOT, "sim", "--config", str(cfg)], "sim")
+    daemon: Proc | None = None
+    obs: Proc | None = None
+    try:
+        sim.wait_line("READY", 20 * slow)
+        daemon = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "1"], "daemon")
+        daemon.wait_line("ready:", 20 * slow, stderr=True)
+        obs = Proc(
+            [sys.executable, "-c", OBSERVER, info["endpoint"], info["prefix"], str(slow)],
+            "observer",
+        )
+        try:
+            line = obs.wait_line("ARRIVED", 60 * slow)
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}\n{daemon.log()}\n{sim.log()}") from None
+        err_m = float(line.split()[1])
+        assert err_m < 1e-3
+        status = json.loads(obs.wait_line("STATUS", 10 * slow)[len("STATUS ") :])
+        assert status["state"] == "HOLDING"
+        assert status["loop"]["ticks"] > 100
+        assert status["bus"]["frames_rx"] > 100
+        assert obs.p.wait(10 * slow) == 0, obs.log()
+        poses = json.loads(obs.wait_line("POSE", 1)[len("POSE ") :])
+        assert poses["valid"] and len(poses["cable_lengths_m"]) == 4
+        # SIGTERM: stop, hold, close, exit 0 within 2 s.
+        t0 = time.monotonic()
+        daemon.p.send_signal(signal.SIGTERM)
+        rc = daemon.p.wait(10 * slow)
+        took = time.monotonic() - t0
+        assert rc == 0, daemon.log()
+        assert took < 2.0 * slow, f"exit took {took:.2f} s"
+        daemon.wait_line("stopped in", 2, stderr=True)
+    finally:
+        if obs is not None:
+            obs.kill()
+        if daemon is not None:
+            daemon.kill()
+        assert sim.terminate() == 0, sim.log()
+
+
+@pytest.mark.slow
+def test_daemon_sim_observer_over_udp_multicast(tmp_path: Path) -> None:
+    cfg, info = write_config(tmp_path, _udp_bus())
+    run_three_processes(cfg, info)
+
+
+@pytest.mark.slow
+def test_sigkill_during_home_save_leaves_old_or_new_file(tmp_path: Path) -> None:
+    cfg, info = write_config(tmp_path, _udp_bus())
+    state_file: Path = info["state_file"]
+    sim = Proc([*CABLEBOT, "sim", "--config", str(cfg)], "sim")
+    try:
+        sim.wait_line("READY", 20)
+        sent: set[tuple[float, ...]] = set()
+        kills = 0
+        for round_ in range(3):
+            daemon = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "0"], "d")
+            try:
+                daemon.wait_line("ready:", 20, stderr=True)
+                session = zenoh_session(info["endpoint"])
+                # A first home that completes: the file exists before the kills start.
+                if round_ == 0:
+                    first = (0.0, 0.0, 2.0)
+                    r = zquery(session, f"{info['prefix']}/cmd/home", {"position_m": first})
+                    assert r.get("saved") is True, r
+                    sent.add(first)
+                stop = threading.Event()
+
+                def hammer(sess: Any = session, stop_ev: threading.Event = stop) -> None:
+                    i = 0
+                    while not stop_ev.is_set():
+                        p = (round(0.001 * (i % 500), 6), 0.0, 2.0)
+                        sent.add(p)
+                        zquery(sess, f"{info['prefix']}/cmd/home", {"position_m": p}, 2.0)
+                        i += 1
+
+                t = threading.Thread(target=hammer, daemon=True)
+                t.start()
+                time.sleep(0.3 + random.random() * 0.3)
+                daemon.p.send_signal(signal.SIGKILL)
+                daemon.p.wait(5)
+                kills += 1
+                stop.set()
+                t.join(5)
+                session.close()
+            finally:
+                daemon.kill()
+            data = load_offsets(state_file)  # raises on a torn or invalid file
+            assert data is not None
+            rec = parse_record(data, str(state_file), info["name"], [0, 1, 2, 3])
+            assert tuple(rec.home_position_m) in sent
+            assert all(math.isfinite(v) for v in rec.offsets_rev.values())
+        assert kills == 3
+        # A restart reloads the surviving offsets.
+        daemon = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "0"], "d")
+        try:
+            daemon.wait_line("homing offsets loaded", 20, stderr=True)
+        finally:
+            assert daemon.terminate() == 0, daemon.log()
+    finally:
+        sim.terminate()
+
+
+def test_sd_notify_ready_watchdog_status_and_sigint(tmp_path: Path) -> None:
+    """In-process sim (`[sim] enabled`, auto-armed): READY=1 once holding, WATCHDOG=1 pings,
+    STATUS= lines; SIGINT during a move brakes to a hold and exits 0 within 2 s."""
+    cfg, _info = write_config(
+        tmp_path, {"interface": "virtual", "channel": f"t-{random.random()}"}, sim_enabled=True
+    )
+    sock_path = str(tmp_path / "notify.sock")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(sock_path)
+    sock.settimeout(0.2)
+    env = {"NOTIFY_SOCKET": sock_path, "WATCHDOG_USEC": "200000"}
+    daemon = Proc([*CABLEBOT, "run", "--config", str(cfg)], "daemon", env=env)
+    got: list[str] = []
+    try:
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            with contextlib.suppress(TimeoutError):
+                got.append(sock.recv(4096).decode())
+            if "READY=1" in got and got.count("WATCHDOG=1") >= 3:
+                break
+        assert "READY=1" in got, (got, daemon.log())
+        assert got.count("WATCHDOG=1") >= 3, got
+        statuses = [m for m in got if m.startswith("STATUS=")]
+        assert any("HOLDING" in m for m in statuses), statuses
+        # READY only once the robot holds (auto-arm of the simulated robot).
+        ready_at = got.index("READY=1")
+        assert any(m.startswith("STATUS=HOLDING") for m in got[:ready_at]), got[: ready_at + 1]
+        # Interrupt a move at full default speed: the daemon brakes to a hold, then exits.
+        session = zenoh_session(_info["endpoint"])
+        try:
+            r = zquery(session, f"{_info['prefix']}/cmd/move", {"position_m": [5.0, 0.0, 2.0]})
+            assert r.get("ok") is True, (r, daemon.log())
+            time.sleep(1.2)
+            st = zquery(session, f"{_info['prefix']}/status")
+            assert st["state"] == "MOVING", (st.get("state"), st.get("reason"), daemon.log())
+        finally:
+            session.close()
+        t0 = time.monotonic()
+        daemon.p.send_signal(signal.SIGINT)
+        assert daemon.p.wait(10) == 0, daemon.log()
+        assert time.monotonic() - t0 < 2.0, daemon.log()
+        last = daemon.wait_line("stopped in", 2, stderr=True)
+        assert ": HOLDING pose" in last, last
+    finally:
+        daemon.kill()
+        sock.close()
+
+
+def test_daemon_refuses_to_start_when_its_zenoh_port_is_taken(tmp_path: Path) -> None:
+    # A robot that nobody can watch or stop over the network must not run: the daemon exits 1
+    # at start-up (nothing armed yet) with the reason, instead of running unreachable.
+    cfg, info = write_config(tmp_path, _udp_bus(), sim_enabled=True)
+    port = int(info["endpoint"].rsplit(":", 1)[1])
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", port))
+        s.listen()
+        d = Proc([*CABLEBOT, "run", "--config", str(cfg)], "daemon")
+        try:
+            d.wait_line("Zenoh interface failed to open", 30, stderr=True)
+            rc = d.p.wait(timeout=30)
+        finally:
+            d.p.kill()
+    err = "\n".join(d.err)
+    assert rc == 1, err
+    assert "ARMING" not in err and "HOLDING" not in err
