@@ -18,6 +18,9 @@ _MODULES: tuple[str, ...] = (
     "controller.offline",  # ipk, fpk
     "controller.demo",  # demo
     "controller.bench",  # bench
+    "controller.record",  # record
+    "controller.replay",  # replay
+    "controller.plot",  # plot
 )
 
 
