@@ -18,6 +18,7 @@ _MODULES: tuple[str, ...] = (
     "controller.offline",  # ipk, fpk
     "controller.demo",  # demo
     "controller.bench",  # bench
+    "controller.view",  # view
     "controller.record",  # record
     "controller.replay",  # replay
     "controller.plot",  # plot
