@@ -160,6 +160,27 @@ def test_tracking_sample() -> None:
     assert tracking_sample({"pose": {}, "setpoint_m": None})["error_m"] is None
 
 
+def test_geometry_comes_from_the_status_and_the_config_file_is_the_fallback() -> None:
+    from controller.config import paper_robot_data, parse_config
+    from controller.view import LiveView
+
+    file_shape = RobotShape.from_summary(default_config().summary())
+    view = LiveView(foxglove.Context(), prefix="cablebot/t", fallback_shape=file_shape)
+    assert view.shape is file_shape
+    view.on_status(json.dumps({"state": "HOLDING", "setpoint_m": [0.0, 0.0, 2.0]}).encode())
+    assert view.shape is file_shape  # the status carries no configuration: the file's
+    assert view.setpoint_m == [0.0, 0.0, 2.0]
+    data = paper_robot_data("other")
+    data["reels"][0]["anchor_m"] = [-30.0, -20.0, 7.62]
+    other = parse_config(data, "test").summary()
+    view.on_status(json.dumps({"state": "HOLDING", "setpoint_m": None, "config": other}).encode())
+    assert view.shape is not None and view.shape.anchors_m[0] == (-30.0, -20.0, 7.62)
+    assert view.setpoint_m is None
+    view.on_status(b"not json")  # ignored
+    view.on_pose(b'{"no": "stamp"}')  # ignored
+    assert view.poses == 0 and view.shape.anchors_m[0] == (-30.0, -20.0, 7.62)
+
+
 def test_shipped_layout_is_current_and_names_the_view_topics() -> None:
     text = (REPO / "docs" / "foxglove-layout.json").read_text()
     assert text == layout_json(), "regenerate docs/foxglove-layout.json from layout_config()"
@@ -232,14 +253,23 @@ def test_view_serves_the_live_robot_over_the_foxglove_protocol(
 ) -> None:
     d, cfg_path = robot
     wait_holding_at_rest(d)
-    # every pose the daemon publishes, by its stamp, as a separate Zenoh subscriber sees it
-    by_stamp: dict[int, dict[str, Any]] = {}
-    sub = d.session.declare_subscriber(
-        f"{d.prefix}/pose",
-        lambda s: by_stamp.__setitem__(
-            json.loads(s.payload.to_bytes())["stamp_ns"], json.loads(s.payload.to_bytes())
-        ),
-    )
+    # every pose the daemon publishes, as a separate Zenoh subscriber sees it, by seq
+    published: dict[int, dict[str, Any]] = {}
+
+    def on_pose(s: Any) -> None:
+        p = json.loads(s.payload.to_bytes())
+        published[p["seq"]] = p
+
+    sub = d.session.declare_subscriber(f"{d.prefix}/pose", on_pose)
+
+    def drawn_from(stamp_ns: int) -> dict[str, Any]:
+        """The pose a scene or transform stamped `stamp_ns` was drawn from. Ticks without a
+        new encoder reading repeat the stamp, and then also the lengths and the position."""
+        refs = [p for p in list(published.values()) if p["stamp_ns"] == stamp_ns]
+        assert refs, f"no published pose has the stamp {stamp_ns}"
+        assert all(r["position_m"] == refs[0]["position_m"] for r in refs), refs
+        return refs[0]
+
     proc, url = _start_view(d)
     client = None
     try:
@@ -287,7 +317,7 @@ def test_view_serves_the_live_robot_over_the_foxglove_protocol(
         for m in scenes:
             eff = next(e for e in m.message["entities"] if e["id"] == "effector")
             p = eff["spheres"][0]["pose"]["position"]
-            ref = by_stamp[m.log_time_ns]  # the pose this scene was drawn from
+            ref = drawn_from(m.log_time_ns)
             assert [p["x"], p["y"], p["z"]] == ref["position_m"]
             cables = next(e for e in m.message["entities"] if e["id"] == "cables")
             assert [float(t["text"].split()[1]) for t in cables["texts"]] == pytest.approx(
@@ -297,13 +327,13 @@ def test_view_serves_the_live_robot_over_the_foxglove_protocol(
         assert moved >= 10, "the scene did not follow the move"
         for m in tfs:
             tr = m.message["translation"]
-            assert [tr["x"], tr["y"], tr["z"]] == by_stamp[m.log_time_ns]["position_m"]
+            assert [tr["x"], tr["y"], tr["z"]] == drawn_from(m.log_time_ns)["position_m"]
             assert (m.message["parent_frame_id"], m.message["child_frame_id"]) == (
                 "world",
                 "effector",
             )
         for m in poses:
-            assert m.message == by_stamp[m.message["stamp_ns"]]
+            assert m.message == published[m.message["seq"]]
         seqs = [m.message["seq"] for m in poses]
         assert seqs == sorted(seqs)
         tracking = [m.message for m in got if m.topic == TOPICS["tracking"]]
