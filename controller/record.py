@@ -367,7 +367,8 @@ class Recording:
 # The verb
 
 
-def _finite_positive(text: str) -> float:
+def positive_number(text: str) -> float:
+    """argparse type: a finite number > 0 (rates, durations, speed factors)."""
     value = float(text)
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
@@ -532,18 +533,18 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     _common(p)
     p.add_argument("file", metavar="FILE.mcap", help="the file to write (replaced)")
     p.add_argument(
-        "--duration", type=_finite_positive, default=None, metavar="S", help="stop after S s"
+        "--duration", type=positive_number, default=None, metavar="S", help="stop after S s"
     )
     p.add_argument(
         "--status-hz",
-        type=_finite_positive,
+        type=positive_number,
         default=DEFAULT_STATUS_HZ,
         metavar="HZ",
         help=f"status queries per second (default {DEFAULT_STATUS_HZ:g})",
     )
     p.add_argument(
         "--flush-s",
-        type=_finite_positive,
+        type=positive_number,
         default=DEFAULT_FLUSH_S,
         metavar="S",
         help=f"close a chunk and flush at least every S s (default {DEFAULT_FLUSH_S:g})",

@@ -20,7 +20,6 @@ router or another peer instead or as well.
 from __future__ import annotations
 
 import argparse
-import math
 import signal
 import sys
 import threading
@@ -31,7 +30,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-from controller.record import RecordedMessage, Recording
+from controller.record import RecordedMessage, Recording, positive_number
 
 EXIT_OK = 0
 EXIT_REFUSED = 1
@@ -239,13 +238,6 @@ def cmd_replay(args: argparse.Namespace) -> int:
         session.close()  # type: ignore[no-untyped-call]
 
 
-def _rate(text: str) -> float:
-    value = float(text)
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
-
-
 def register(sub: argparse._SubParsersAction[Any]) -> None:
     """Register `cablebot replay`."""
     from controller.zenoh_io import DEFAULT_ENDPOINT
@@ -261,7 +253,9 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         ),
     )
     p.add_argument("file", metavar="FILE.mcap", help="a recording made by `cablebot record`")
-    p.add_argument("--rate", type=_rate, default=1.0, metavar="X", help="speed factor (default 1)")
+    p.add_argument(
+        "--rate", type=positive_number, default=1.0, metavar="X", help="speed factor (default 1)"
+    )
     p.add_argument(
         "--prefix", default=None, help="publish under this prefix (default: the recorded one)"
     )

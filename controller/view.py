@@ -1,9 +1,10 @@
 """`cablebot view`: the robot live in 3-D, in Foxglove, from a Zenoh client process.
 
-A Foxglove WebSocket server (the `foxglove-sdk` package, protocol `foxglove.websocket.v1`) fed by
-a Zenoh client session, like any other subscriber: the daemon's loop does not notice it. Open
-the Foxglove app (desktop or browser), connect to `ws://HOST:PORT` (default
-`ws://127.0.0.1:8765`) and import `docs/foxglove-layout.json` (`layout_config()`).
+A Foxglove WebSocket server (the `foxglove-sdk` package: the `foxglove.websocket.v1` protocol,
+named `foxglove.sdk.v1` in the handshake) fed by a Zenoh client session, like any other
+subscriber: the daemon's loop does not notice it. Open the Foxglove app (desktop or browser),
+connect to `ws://HOST:PORT` (default `ws://127.0.0.1:8765`) and import
+`docs/foxglove-layout.json` (`layout_config()`).
 
 Topics (Foxglove's own schemas where one fits, so the app draws them without configuration):
 
@@ -39,7 +40,7 @@ from collections.abc import Sequence
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
-from controller.record import KEY_SCHEMAS
+from controller.record import KEY_SCHEMAS, positive_number
 from controller.shape import RobotShape, ShapeError, length_colour
 
 if TYPE_CHECKING:
@@ -707,13 +708,6 @@ def layout_json() -> str:
 # The verb
 
 
-def _positive(text: str) -> float:
-    value = float(text)
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
-
-
 def cmd_view(args: argparse.Namespace) -> int:
     """Entry point of `cablebot view`: runs until Ctrl-C / SIGTERM (exit 0); 1 bad input or the
     WebSocket port is taken; 2 no daemon answered."""
@@ -867,21 +861,21 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     )
     p.add_argument(
         "--scene-hz",
-        type=_positive,
+        type=positive_number,
         default=DEFAULT_SCENE_HZ,
         metavar="HZ",
         help=f"3-D scene updates per second (default {DEFAULT_SCENE_HZ:g})",
     )
     p.add_argument(
         "--status-hz",
-        type=_positive,
+        type=positive_number,
         default=DEFAULT_STATUS_HZ,
         metavar="HZ",
         help=f"status queries per second (default {DEFAULT_STATUS_HZ:g})",
     )
     p.add_argument(
         "--trail-s",
-        type=_positive,
+        type=positive_number,
         default=DEFAULT_TRAIL_S,
         metavar="S",
         help=f"length of the fading trail in seconds (default {DEFAULT_TRAIL_S:g})",
