@@ -21,6 +21,10 @@ _MODULES: tuple[str, ...] = (
     "controller.cli.monitor",  # monitor
     "controller.cli.demo",  # demo
     "controller.cli.bench",  # bench
+    "controller.cli.view",  # view
+    "controller.cli.record",  # record
+    "controller.cli.replay",  # replay
+    "controller.cli.plot",  # plot
 )
 
 

@@ -1,0 +1,126 @@
+"""The robot's drawable shape: anchors, footprint and workspace, from a configuration summary.
+
+The tools that draw the robot (`cablebot view`, `cablebot plot`) get its geometry from the
+configuration summary the daemon reports in its status (`status["config"]`, the dict of
+`RobotConfig.summary()`), from the one stored in a recording, or from a TOML file
+(`load_config(path).summary()`): the same dict in all three cases. `RobotShape.from_summary`
+turns it into points to draw; the workspace comes from `controller.core.workspace.Limits`, so the
+drawn workspace is the one the daemon enforces.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+Vec3 = tuple[float, float, float]
+Vec2 = tuple[float, float]
+
+
+class ShapeError(ValueError):
+    """The configuration summary does not describe a usable robot (missing or bad anchors)."""
+
+
+@dataclass(frozen=True, slots=True)
+class RobotShape:
+    """What a view draws of the robot: anchors, the footprint and the workspace prism (metres).
+
+    `footprint_m` is the anchors' plan-view convex hull (counter-clockwise) on the floor;
+    `workspace_m` the same polygon shrunk by `limits.xy_margin_m`, between `floor_z_m` and
+    `top_z_m`. `min_cable_m` / `max_cable_m` bound the cable lengths (used for colours).
+    """
+
+    name: str
+    anchors_m: tuple[Vec3, ...]
+    footprint_m: tuple[Vec2, ...]
+    workspace_m: tuple[Vec2, ...]
+    floor_z_m: float
+    top_z_m: float
+    min_cable_m: float
+    max_cable_m: float
+
+    @property
+    def size_m(self) -> float:
+        """A length scale of the robot: the footprint's diagonal (for marker sizes)."""
+        xs = [a[0] for a in self.anchors_m]
+        ys = [a[1] for a in self.anchors_m]
+        zs = [a[2] for a in self.anchors_m]
+        return math.hypot(max(xs) - min(xs), max(ys) - min(ys), max(zs) - min(zs))
+
+    @staticmethod
+    def from_summary(summary: Mapping[str, Any]) -> RobotShape:
+        """The shape of the robot described by a `RobotConfig.summary()` dict.
+
+        Raises ShapeError when the anchors or limits are missing, not finite, or make no
+        workspace.
+        """
+        from controller.core.kinematics import Geometry, KinematicsError
+        from controller.core.workspace import Limits
+        from controller.service.config import LimitsConfig
+
+        try:
+            anchors = tuple(
+                (float(a[0]), float(a[1]), float(a[2]))
+                for a in (r["anchor_m"] for r in summary["reels"])
+            )
+            limits_cfg = LimitsConfig(**{k: float(v) for k, v in summary["limits"].items()})
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise ShapeError(f"configuration summary without usable anchors/limits: {exc}") from exc
+        if not all(math.isfinite(c) for a in anchors for c in a):
+            raise ShapeError(f"anchors are not finite: {anchors}")
+        try:
+            geometry = Geometry(anchors)
+            limits = Limits(limits_cfg, geometry)
+        except (KinematicsError, ValueError) as exc:
+            raise ShapeError(f"configuration summary: {exc}") from exc
+        footprint = tuple((float(x), float(y)) for x, y in geometry.footprint_m)
+        return RobotShape(
+            name=str(summary.get("name", "")),
+            anchors_m=anchors,
+            footprint_m=footprint,
+            workspace_m=shrink_polygon(footprint, limits.xy_margin_m),
+            floor_z_m=limits.floor_z_m,
+            top_z_m=limits.top_z_m,
+            min_cable_m=limits.min_cable_m,
+            max_cable_m=limits.max_cable_m,
+        )
+
+
+def shrink_polygon(polygon: tuple[Vec2, ...], margin_m: float) -> tuple[Vec2, ...]:
+    """The vertices of a convex counter-clockwise polygon with every edge moved in by `margin_m`.
+
+    Each vertex is where the two shifted edges next to it meet (what `Limits` tests against
+    with half-planes). Raises ShapeError for fewer than three vertices or parallel edges.
+    """
+    n = len(polygon)
+    if n < 3:
+        raise ShapeError(f"a polygon needs three vertices, got {n}")
+    lines: list[tuple[float, float, float]] = []  # nx*x + ny*y = c, outward normal
+    for k in range(n):
+        (ax, ay), (bx, by) = polygon[k], polygon[(k + 1) % n]
+        ln = math.hypot(bx - ax, by - ay)
+        nx, ny = (by - ay) / ln, -(bx - ax) / ln
+        lines.append((nx, ny, nx * ax + ny * ay - margin_m))
+    out: list[Vec2] = []
+    for k in range(n):
+        n1x, n1y, c1 = lines[k - 1]
+        n2x, n2y, c2 = lines[k]
+        det = n1x * n2y - n1y * n2x
+        if abs(det) < 1e-12:
+            raise ShapeError(f"polygon edges {k - 1} and {k} are parallel")
+        out.append(((c1 * n2y - c2 * n1y) / det, (n1x * c2 - n2x * c1) / det))
+    return tuple(out)
+
+
+def length_colour(length_m: float, lo_m: float, hi_m: float) -> tuple[float, float, float]:
+    """RGB (0..1) for a cable length: blue at `lo_m`, green half-way, red at `hi_m` (clamped)."""
+    span = hi_m - lo_m
+    f = 0.5 if not (span > 0 and math.isfinite(length_m)) else (length_m - lo_m) / span
+    f = min(1.0, max(0.0, f))
+    if f < 0.5:
+        g = f / 0.5
+        return (0.0, g, 1.0 - g)
+    r = (f - 0.5) / 0.5
+    return (r, 1.0 - r, 0.0)
