@@ -2,7 +2,7 @@
 
 The paper (section 5) counts 25 add/subtract, 31 multiply/divide and 1 square root for its new
 algorithm and 48 / 62 / 1 for the original general one.  The numbers asserted here are the ones
-stated in the module docstring of controller.kinematics.fit.
+stated in the module docstring of controller.kinematics.spheres.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from controller import kinematics as kin
-from controller.kinematics import fit as spheres
+from controller.kinematics import spheres
 
 COUNT: Counter[str] = Counter()
 
