@@ -557,6 +557,6 @@ def test_module_has_no_numpy_in_scalar_fast_path() -> None:
         spheres._seed_equal,
         spheres._equal_xy,
         fit._planar4_solve,
-        fit._planar4_trusted,
+        fit._fit_planar4,
     ):
         assert "np." not in inspect.getsource(fn)

@@ -7,12 +7,12 @@ at one height (the usual rig), where the whole fit is a fixed sequence of arithm
 seed, one multiplier equation solved in two Newton steps, the fitted lengths' point; see
 ``fit``) that runs vectorised on columns of lengths, through the same functions as the single
 pose.  Rows that path cannot vouch for (lengths that are not finite and positive, a seed
-triple that cannot meet, or a fit ``_planar4_trusted`` rejects: rare), and every row of other
-layouts, go through the single-pose code one by one, which also names the cable to blame for
-lengths that cannot meet.  So ``fpk`` and ``fpk_batch`` agree to ~1e-12 m.  (Within about a
-millimetre of the plane of level anchors they may differ by up to ~1e-6 m: there
-z = zn - sqrt(disc) turns a rounding difference of 1e-12 m^2 in disc into 1e-6 m, and the
-lengths fix z no better.)
+triple that cannot meet, a fit ``_planar4_solve`` does not vouch for or a tangent: rare), and
+every row of other layouts, go through the single-pose code one by one, which also names the
+cable to blame for lengths that cannot meet.  So ``fpk`` and ``fpk_batch`` agree to ~1e-12 m.
+(Within about a millimetre of the plane of level anchors they may differ by up to ~1e-6 m:
+there z = zn - sqrt(disc) turns a rounding difference of 1e-12 m^2 in disc into 1e-6 m, and
+the lengths fix z no better.)
 
 Rows are processed in chunks of ``BATCH_CHUNK`` so the working set stays in cache, and the
 shared functions are written with augmented assignments so that on arrays they make few
@@ -35,7 +35,6 @@ from controller.kinematics.fit import (
     _fpk,
     _Planar4,
     _planar4_solve,
-    _planar4_trusted,
 )
 from controller.kinematics.geometry import Geometry
 from controller.kinematics.spheres import Vec3, _equal_xy
@@ -143,24 +142,22 @@ def _planar_chunk(
     act &= ~handoff
     if not act.any():
         return np.nonzero(handoff)[0]
-    lam, step, q1, q2, q3, cost = _planar4_solve(p4, l1, l2, l3, l4, s1, s2, s3, t)
-    q1 *= q1
-    q2 *= q2
-    q3 *= q3
-    dx, dy, disc = _equal_xy(sd, q1, q2, q3)
-    trusted = _planar4_trusted(p4, lam, step, big, cost, root0 * root0, root0)
-    trusted &= disc >= 0.0
+    dx, dy, disc, cost, trusted = _planar4_solve(
+        p4, l1, l2, l3, l4, s1, s2, s3, t, big, root0 * root0, root0
+    )
+    trusted &= disc >= 0.0  # a tangent (or a miss): the single-pose code decides
     handoff |= act & ~trusted
-    dx += sd.x1
-    dy += sd.y1
-    cost *= 0.25
-    np.sqrt(cost, out=cost)
     if act.all():
-        x[:] = dx
-        y[:] = dy
+        np.add(dx, sd.x1, out=x)
+        np.add(dy, sd.y1, out=y)
         _lower_z(sd.zn, disc, z)
-        residual[:] = cost
+        np.multiply(cost, 0.25, out=residual)
+        np.sqrt(residual, out=residual)
     else:  # rows needing no fit keep the seed
+        dx += sd.x1
+        dy += sd.y1
+        cost *= 0.25
+        np.sqrt(cost, out=cost)
         np.copyto(x, dx, where=act)
         np.copyto(y, dy, where=act)
         np.copyto(z, _lower_z(sd.zn, disc, disc), where=act)

@@ -48,8 +48,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from controller.kinematics.errors import KinematicsError, UnreachableError
-from controller.kinematics.spheres import Vec3, _EqualSeed, _seed_equal, _seed_general
+from controller.kinematics.errors import KinematicsError
+from controller.kinematics.spheres import (
+    Vec3,
+    _equal_xy,
+    _EqualSeed,
+    _is_tangent,
+    _seed_equal,
+    _seed_general,
+)
 
 if TYPE_CHECKING:
     from controller.kinematics.geometry import Geometry
@@ -156,12 +163,29 @@ def _make_planar4(pts: Sequence[Vec3], sd: _EqualSeed, others: tuple[int, ...]) 
 
 
 def _planar4_solve(
-    p4: _Planar4, l1: Any, l2: Any, l3: Any, l4: Any, s1: Any, s2: Any, s3: Any, t: Any
-) -> tuple[Any, Any, Any, Any, Any, Any]:
-    """The planar fit from the lengths L_i and their squares s_i (t = L4^2): lam after the
-    closed-form first step and one Newton step on phi, that step, the seed cables' fitted
-    lengths q_i = L_i / (1 + lam c_i) and the cost lam^2 (sum c_i^2 q_i^2 + d^2),
-    d = L4 / (1 - lam)."""
+    p4: _Planar4,
+    l1: Any,
+    l2: Any,
+    l3: Any,
+    l4: Any,
+    s1: Any,
+    s2: Any,
+    s3: Any,
+    t: Any,
+    big: Any,
+    cost0: Any,
+    root0: Any,
+) -> tuple[Any, Any, Any, Any, Any]:
+    """The planar fit from the lengths L_i and their squares s_i (t = L4^2).
+
+    lam takes the closed-form first step and one Newton step on phi; the seed cables' fitted
+    lengths are q_i = L_i / (1 + lam c_i) and the cost lam^2 (sum c_i^2 q_i^2 + d^2),
+    d = L4 / (1 - lam).  Returns the fitted point's dx, dy and discriminant
+    (``_equal_xy`` of the q_i), the cost, and whether the fit can be vouched for: lam away
+    from the poles, Newton converged (error ``curv`` * step^2 relative to the longest cable
+    ``big`` below ``GN_STEP_TOL_M``) and the cost not above the seed's ``cost0``
+    (= ``root0``^2) beyond rounding; NaN gives False.
+    """
     c1, c2, c3 = p4.c
     a1 = s1 * c1
     a2 = s2 * c2
@@ -175,70 +199,76 @@ def _planar4_solve(
     den += a3 * c3
     den += t
     lam /= 2.0 * den
-    w1 = 1.0 / (lam * c1 + 1.0)
-    w2 = 1.0 / (lam * c2 + 1.0)
-    w3 = 1.0 / (lam * c3 + 1.0)
-    v = 1.0 / (1.0 - lam)
-    a1 *= w1 * w1
-    a2 *= w2 * w2
-    a3 *= w3 * w3
-    tv = t * v
-    tv *= v
+    r1 = lam * c1 + 1.0
+    r2 = lam * c2 + 1.0
+    r3 = lam * c3 + 1.0
+    a1 /= r1 * r1  # c_i L_i^2 / (1 + lam c_i)^2
+    a2 /= r2 * r2
+    a3 /= r3 * r3
+    v = 1.0 - lam
+    tv = t / (v * v)
     phi = a1 + a2
     phi += a3
     phi += p4.m0
     phi -= tv  # phi(lam)
-    a1 *= w1 * c1
-    a2 *= w2 * c2
-    a3 *= w3 * c3
-    tv *= v
+    a1 *= c1 / r1
+    a2 *= c2 / r2
+    a3 *= c3 / r3
+    tv /= v
     den = a1 + a2
     den += a3
-    den += tv
-    step = phi / (2.0 * den)  # -phi / phi'
+    den += tv  # -phi'(lam) / 2
+    step = phi / (2.0 * den)
     lam += step
     q1 = l1 / (lam * c1 + 1.0)
     q2 = l2 / (lam * c2 + 1.0)
     q3 = l3 / (lam * c3 + 1.0)
+    q1 *= q1
+    q2 *= q2
+    q3 *= q3
     cost = l4 / (1.0 - lam)
     cost *= cost
-    cost += q1 * q1 * (c1 * c1)
-    cost += q2 * q2 * (c2 * c2)
-    cost += q3 * q3 * (c3 * c3)
+    cost += q1 * (c1 * c1)
+    cost += q2 * (c2 * c2)
+    cost += q3 * (c3 * c3)
     cost *= lam * lam
-    return lam, step, q1, q2, q3, cost
-
-
-def _planar4_trusted(
-    p4: _Planar4, lam: Any, step: Any, big: Any, cost: Any, cost0: Any, root0: Any
-) -> Any:
-    """Whether the multiplier is away from its poles, Newton has converged (error
-    ``curv`` * step^2 relative to the longest cable ``big`` below ``GN_STEP_TOL_M``) and the
-    cost is not above the seed's ``cost0`` (= ``root0``^2) beyond rounding; NaN gives False."""
-    return (
-        (abs(lam) * p4.curv <= 0.75)
-        & (big * p4.curv * step * step <= GN_STEP_TOL_M)
-        & (cost <= cost0 + (GN_COST_REL_TOL * cost0 + GN_COST_ROUND_M * root0))
+    trusted = (
+        (abs(lam) <= 0.75 / p4.curv)
+        & (step * step <= GN_STEP_TOL_M / (big * p4.curv))
+        & (cost <= cost0 * (1.0 + GN_COST_REL_TOL) + GN_COST_ROUND_M * root0)
     )
+    dx, dy, disc = _equal_xy(p4.sd, q1, q2, q3)
+    return dx, dy, disc, cost, trusted
 
 
 def _fit_planar4(
     p4: _Planar4, lengths: Sequence[float], cost0: float
 ) -> tuple[float, float, float, float] | None:
     """The fit for four anchors at one height; x, y, z, RMS residual, or None when it cannot
-    vouch for the result (``_planar4_trusted``, or the fitted lengths' spheres miss)."""
+    vouch for the result (see ``_planar4_solve``, or the fitted lengths' spheres miss)."""
     sd = p4.sd
     l1, l2, l3, l4 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3], lengths[p4.k4]
-    lam, step, q1, q2, q3, cost = _planar4_solve(
-        p4, l1, l2, l3, l4, l1 * l1, l2 * l2, l3 * l3, l4 * l4
+    dx, dy, disc, cost, trusted = _planar4_solve(
+        p4,
+        l1,
+        l2,
+        l3,
+        l4,
+        l1 * l1,
+        l2 * l2,
+        l3 * l3,
+        l4 * l4,
+        max(l1, l2, l3, l4),
+        cost0,
+        _sqrt(cost0),
     )
-    if not _planar4_trusted(p4, lam, step, max(l1, l2, l3, l4), cost, cost0, _sqrt(cost0)):
+    if not trusted:
         return None
-    try:
-        x, y, z = _seed_equal(sd, q1, q2, q3)
-    except UnreachableError:
-        return None
-    return x, y, z, _sqrt(cost * 0.25)
+    if disc < 0.0:  # as ``_seed_equal``: a tangent is accepted, a miss is not
+        if not _is_tangent(l1, l2, l3, -disc):
+            return None
+        disc = 0.0
+    return sd.x1 + dx, sd.y1 + dy, sd.zn - _sqrt(disc), _sqrt(cost * 0.25)
 
 
 def _mirror(tilt: tuple[Vec3, Vec3], x: float, y: float, z: float) -> Vec3:
