@@ -13,6 +13,7 @@ import re
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -38,6 +39,7 @@ class Tmux:
         assert exe is not None
         self.exe = exe
         self.socket = f"cablebot-test-{uuid.uuid4().hex[:8]}"
+        self.status_file = Path(tempfile.mkdtemp(prefix="cablebot-tmux-")) / "exit-status"
         self._tmux(
             "-f",
             "/dev/null",
@@ -53,12 +55,13 @@ class Tmux:
             str(REPO),
             # GNU readline, once loaded in this process, exports COLUMNS/LINES (80x24 without a
             # terminal); they would fix the monitor's width: the pane's own size must count.
+            # The shell writes the command's exit status to a file: tmux 3.3 does not always
+            # fill #{pane_dead_status}.
             "--",
-            "env",
-            "-u",
-            "COLUMNS",
-            "-u",
-            "LINES",
+            "sh",
+            "-c",
+            'env -u COLUMNS -u LINES "$@"; echo $? > "$0"',
+            str(self.status_file),
             *command,
         )
         self._tmux("set-option", "-t", "mon", "remain-on-exit", "on")
@@ -84,9 +87,11 @@ class Tmux:
 
     def dead_status(self) -> int | None:
         """The exit status of the pane's command, or None while it runs."""
-        out = self._tmux("display-message", "-p", "-t", "mon", "#{pane_dead} #{pane_dead_status}")
-        dead, _, status = out.strip().partition(" ")
-        return int(status) if dead == "1" else None
+        try:
+            text = self.status_file.read_text().strip()
+        except FileNotFoundError:
+            return None
+        return int(text) if text else None
 
     def wait_for(self, what: str, pred: Callable[[str], bool], timeout_s: float = 30.0) -> str:
         """Poll the screen until `pred(screen)`; AssertionError with the screen after timeout."""

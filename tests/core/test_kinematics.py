@@ -21,6 +21,7 @@ from controller.core.kinematics import (
     ipk,
     ipk_point,
     paper_anchors,
+    spheres,
     three_spheres,
     three_spheres_equal_height,
 )
@@ -378,9 +379,33 @@ def test_fpk_types(paper: Geometry) -> None:
     assert isinstance(single.position_m, tuple)
     assert all(type(v) is float for v in single.position_m)
     assert fpk(paper, tuple(ln.tolist())) == single
-    batch = fpk(paper, ln[None, :])
+    # One pose, one type: many poses at once are fpk_batch's, and fpk refuses them.
+    with pytest.raises(KinematicsError, match=r"shape \(N,\).*fpk_batch"):
+        fpk(paper, ln[None, :])
+    batch = fpk_batch(paper, ln[None, :])
     assert isinstance(batch, FpkBatchResult)
     assert batch.position_m.shape == (1, 3)
+    assert tuple(batch.position_m[0]) == pytest.approx(single.position_m, abs=1e-12)
+
+
+def test_fpk_returns_one_result_type_for_one_pose(paper: Geometry) -> None:
+    p = (-7.0, 5.0, 1.5)
+    ln = ipk(paper, p)
+    for lengths in (ln, ln.tolist(), tuple(ln.tolist()), ln.astype(np.float32)):
+        res = fpk(paper, lengths)
+        assert type(res) is FpkResult
+        assert res.position_m == pytest.approx(p, abs=1e-5)
+    # Several poses (even one, as a (1, N) array) are fpk_batch's: fpk refuses them, whatever
+    # their number, rather than answering with another type.
+    for many in (ln[None, :], np.vstack([ln, ln, ln])):
+        with pytest.raises(KinematicsError, match="fpk_batch"):
+            fpk(paper, many)
+        rows = fpk_batch(paper, many)
+        assert type(rows) is FpkBatchResult
+        for k in range(many.shape[0]):
+            assert tuple(rows.position_m[k]) == pytest.approx(
+                fpk(paper, many[k]).position_m, abs=1e-12
+            )
 
 
 def test_fpk_three_cables() -> None:
@@ -451,8 +476,8 @@ def test_batch_matches_single_with_noise(paper: Geometry) -> None:
 
 
 def test_planar_batch_every_kind_of_row_across_a_chunk_boundary(paper: Geometry) -> None:
-    # Four anchors at one height take the batch's planar path (a matrix product and one
-    # Newton step on the multiplier); rows it cannot vouch for go to the scalar fit.
+    # Four anchors at one height take the batch's planar path (the single-pose multiplier
+    # fit, vectorised); rows it cannot vouch for go to the single-pose code.
     assert paper._p4 is not None
     rng = np.random.default_rng(7)
     m = kin.BATCH_CHUNK + 40
@@ -461,7 +486,8 @@ def test_planar_batch_every_kind_of_row_across_a_chunk_boundary(paper: Geometry)
     )
     lens = ipk(paper, pts)
     lens[::2] += rng.normal(0.0, 1e-3, (len(lens[::2]), 4))  # noisy; odd rows consistent
-    lens[3, 3] += 0.5  # a slack cable: beyond the multiplier's series, the scalar fit
+    lens[3, 3] += 0.5  # a slack cable: the multiplier fit still vouches for it
+    lens[9, 3] += 3.0  # too slack for two Newton steps: the single-pose fit
     lens[5, 1] = 5.0  # far too short: the seed triple cannot meet
     lens[7, 0] = math.nan
     lens[m - 1, 2] = -2.0  # the last, partial chunk has an invalid row too
@@ -474,7 +500,7 @@ def test_planar_batch_every_kind_of_row_across_a_chunk_boundary(paper: Geometry)
     assert np.array_equal(full.position_m[rows], batch.position_m)
     assert np.array_equal(full.residual_m[rows], batch.residual_m)
     good = full.valid & (np.arange(m) % 2 == 1)
-    good[[3, 5, 7, m - 1, m - 3]] = False  # the rows made inconsistent above
+    good[[3, 5, 7, 9, m - 1, m - 3]] = False  # the rows made inconsistent above
     assert np.max(np.abs(full.position_m[good] - pts[good])) < 1e-9
 
 
@@ -523,5 +549,14 @@ def test_residual_grows_with_one_perturbed_cable(paper: Geometry) -> None:
 def test_module_has_no_numpy_in_scalar_fast_path() -> None:
     import inspect
 
-    for fn in (kin.three_spheres_equal_height, kin.three_spheres, kin._seed_equal):
+    from controller.core.kinematics import fit
+
+    for fn in (
+        kin.three_spheres_equal_height,
+        kin.three_spheres,
+        spheres._seed_equal,
+        spheres._equal_xy,
+        fit._planar4_solve,
+        fit._fit_planar4,
+    ):
         assert "np." not in inspect.getsource(fn)

@@ -2,7 +2,7 @@
 
 The paper (section 5) counts 25 add/subtract, 31 multiply/divide and 1 square root for its new
 algorithm and 48 / 62 / 1 for the original general one.  The numbers asserted here are the ones
-stated in the module docstring of controller.core.kinematics.
+stated in the module docstring of controller.core.kinematics.spheres.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from typing import Any
 import pytest
 
 from controller.core import kinematics as kin
+from controller.core.kinematics import spheres
 
 COUNT: Counter[str] = Counter()
 
@@ -71,7 +72,7 @@ def _counting_sqrt(x: float) -> CF:
 def counting(monkeypatch: pytest.MonkeyPatch) -> Iterator[Counter[str]]:
     COUNT.clear()
     with monkeypatch.context() as m:
-        m.setattr(kin, "_sqrt", _counting_sqrt)
+        m.setattr(spheres, "_sqrt", _counting_sqrt)
         yield COUNT
 
 
@@ -112,14 +113,14 @@ def test_simplified_paper_faithful_count(monkeypatch: pytest.MonkeyPatch) -> Non
 def test_simplified_hoisted_per_tick_count(monkeypatch: pytest.MonkeyPatch) -> None:
     geom = kin.Geometry([B1, B2, B3])
     sd = geom._seed
-    assert isinstance(sd, kin._EqualSeed)
+    assert isinstance(sd, spheres._EqualSeed)
     floats: dict[str, Any] = {
         f.name: CF(getattr(sd, f.name))
         for f in dataclasses.fields(sd)
         if isinstance(getattr(sd, f.name), float)
     }
     csd = dataclasses.replace(sd, **floats)
-    counts, out = _count(monkeypatch, kin._seed_equal, csd, *(CF(r) for r in RADII))
+    counts, out = _count(monkeypatch, spheres._seed_equal, csd, *(CF(r) for r in RADII))
     assert all(isinstance(v, CF) for v in out)
     assert out == pytest.approx(kin.three_spheres_equal_height(B1, B2, B3, *RADII), abs=1e-12)
     assert counts == {"add": 11, "mul": 9, "sqrt": 1, "pow": 0}
@@ -143,7 +144,7 @@ def test_general_hoisted_per_tick_count(monkeypatch: pytest.MonkeyPatch) -> None
     cs = [(-30.0, -20.0, 9.0), (-25.0, 22.0, 6.0), (35.0, 18.0, 12.0)]
     geom = kin.Geometry(cs)
     sd = geom._seed
-    assert isinstance(sd, kin._GeneralSeed)
+    assert isinstance(sd, spheres._GeneralSeed)
     floats: dict[str, Any] = {
         f.name: CF(getattr(sd, f.name))
         for f in dataclasses.fields(sd)
@@ -152,14 +153,14 @@ def test_general_hoisted_per_tick_count(monkeypatch: pytest.MonkeyPatch) -> None
     csd = dataclasses.replace(sd, **floats)
     p = (1.0, 2.0, -3.0)
     r = [math.dist(p, c) for c in cs]
-    counts, out = _count(monkeypatch, kin._seed_general, csd, *(CF(v) for v in r))
+    counts, out = _count(monkeypatch, spheres._seed_general, csd, *(CF(v) for v in r))
     assert all(isinstance(v, CF) for v in out)
     assert out == pytest.approx(p, abs=1e-10)
     assert counts == {"add": 16, "mul": 18, "sqrt": 1, "pow": 0}
 
 
 def test_module_docstring_states_the_counts() -> None:
-    doc = kin.__doc__ or ""
+    doc = spheres.__doc__ or ""
     for text in ("25 / 31 / 1", "48 / 62 / 1", "18 / 18 / 1", "11 / 9 / 1", "31 / 37 / 1"):
         assert text in doc
     assert "16 / 18 / 1" in doc

@@ -1,0 +1,452 @@
+"""Forward pose kinematics over N >= 3 cables: the three-spheres seed, then least squares.
+
+Pure Python floats (no numpy on scalars): ``fpk`` runs once per control tick.
+
+``fpk`` solves the geometry's ``seed_triple`` (see ``Geometry``) with the paper's simplified
+algorithm when its anchors share a height, the general one otherwise (``spheres``).  With three
+cables that is the answer.  With more, the other cables are checked against the seed: when
+they agree to ``GN_STEP_TOL_M`` (consistent lengths, e.g. from IPK) the seed is the answer.
+Otherwise the lengths disagree (noise, a slack or slipped cable) and ``fpk`` returns the
+least-squares point, minimising sum (|P - B_i| - L_i)^2 over all N cables;
+``residual_m`` is the RMS of |P - B_i| - L_i at the returned point.
+
+Four anchors at one height (the usual rig): one multiplier equation
+------------------------------------------------------------------------
+The fourth anchor is the plan-view barycentric combination B4 = sum c_i B_i of the seed
+triple's, so for any point on the three spheres |P - B4|^2 = sum c_i q_i^2 + m0 (q_i its
+distances to the triple, m0 = |B4|^2 - sum c_i |B_i|^2).  The fit minimises
+sum (q_i - L_i)^2 + (d - L4)^2 subject to d^2 = sum c_i q_i^2 + m0, whose Lagrange conditions
+give q_i = L_i / (1 + lam c_i), d = L4 / (1 - lam) and, for the multiplier,
+phi(lam) = sum c_i L_i^2 / (1 + lam c_i)^2 + m0 - L4^2 / (1 - lam)^2 = 0, strictly decreasing
+between its poles.  Newton from lam = 0 gives lam_1 = (D2 - L4^2) / (2 (A + L4^2)) with
+D2 = sum c_i L_i^2 + m0 and A = sum c_i^2 L_i^2; one more Newton step is taken, and its size
+bounds the error left (``curv`` * step^2).  The cost is lam^2 (sum c_i^2 q_i^2 + d^2), and
+P is the three-spheres point of the fitted lengths q_i: exact, with no linearisation in P,
+which is why two steps reach 1e-12 m.  ``_fit_planar4`` returns nothing when it cannot vouch
+for the result (multiplier near a pole, Newton not converged, the fitted lengths' spheres
+missing each other, or a cost above the seed's).
+
+Otherwise: Gauss-Newton in P
+----------------------------
+``_gauss_newton`` from the seed: the 3x3 normal equations solved in closed form, the step
+halved until the cost does not increase (near the anchor plane z is poorly determined and a
+full step can overshoot).  It stops when the step is below ``GN_STEP_TOL_M``, or is under
+1 um with the next one, predicted from the linear convergence rate, below 1e-10 m.  With all
+anchors at one height the cost is symmetric about their plane, and a point above it is
+mirrored back to the lower solution.  With a tilted seed triple the seed's mirror image in the
+triple's plane also meets the three spheres; when it is below every anchor and the other
+cables agree with it better, the fit starts there.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from controller.core.kinematics.errors import KinematicsError
+from controller.core.kinematics.spheres import (
+    Vec3,
+    _equal_xy,
+    _EqualSeed,
+    _is_tangent,
+    _seed_equal,
+    _seed_general,
+)
+
+if TYPE_CHECKING:
+    from controller.core.kinematics.geometry import Geometry
+
+__all__ = ["FpkResult", "fpk"]
+
+FloatArray = npt.NDArray[np.float64]
+
+#: Gauss-Newton stops when the step is below this; other cables agreeing with the seed to
+#: this are consistent (no fit).
+GN_STEP_TOL_M = 1e-12
+#: Gauss-Newton also stops once a step is under 1 um and the next one, predicted from the
+#: linear convergence rate (|s_k|^2 / |s_k-1|), is under sqrt(GN_NEXT_TOL2) = 1e-10 m: one
+#: evaluation fewer than waiting for a 1e-12 m step, for a difference of about 1e-11 m.
+GN_NEXT_TOL2 = 1e-20
+#: Gauss-Newton iteration cap.
+GN_MAX_ITER = 8
+#: Step halvings tried before a Gauss-Newton step is given up.
+GN_MAX_HALVINGS = 40
+#: A trial step is accepted when the cost (sum of squared residuals, m^2) does not grow by
+#: more than this fraction plus ``GN_COST_ROUND_M`` * sqrt(cost): rounding noise, not an
+#: overshoot.  Each residual |P - B| - L carries a rounding error of about 1e-16 of the cable
+#: length, so near the minimum the cost wobbles by about 2 * sqrt(N * cost) * that error.
+GN_COST_REL_TOL = 1e-9
+GN_COST_ROUND_M = 1e-11
+#: J^T J determinant (sum of unit vectors' outer products) below which the fit stops.
+GN_DET_MIN = 1e-12
+
+# Module-level alias: one global lookup per call.
+_sqrt = math.sqrt
+
+
+@dataclass(frozen=True, slots=True)
+class FpkResult:
+    """One FPK solution: position, RMS cable-length mismatch, seed triple (0-based)."""
+
+    position_m: Vec3
+    residual_m: float
+    seed_triple: tuple[int, int, int]
+
+
+@dataclass(frozen=True, slots=True)
+class _Fit:
+    """The cables outside the seed triple, and the triple's plane when it is tilted."""
+
+    others: tuple[int, ...]  # 0-based
+    anchors: tuple[Vec3, ...]  # their anchors
+    # Unit normal (n_z > 0) and a point of a tilted triple's plane (None when level): the
+    # three spheres also meet at the seed's mirror image in that plane, which can be the
+    # robot's position (above the plane yet below every anchor).
+    tilt: tuple[Vec3, Vec3] | None
+
+
+def _make_fit(pts: Sequence[Vec3], tri: tuple[int, int, int]) -> _Fit:
+    (x0, y0, z0), (x1, y1, z1), (x2, y2, z2) = (pts[k] for k in tri)
+    ux, uy, uz = x2 - x0, y2 - y0, z2 - z0
+    vx, vy, vz = x2 - x1, y2 - y1, z2 - z1
+    ax, ay, az = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx  # the plane's normal
+    norm = math.sqrt(ax * ax + ay * ay + az * az)
+    sg = 1.0 if az > 0.0 else -1.0
+    others = tuple(k for k in range(len(pts)) if k not in tri)
+    return _Fit(
+        others=others,
+        anchors=tuple(pts[j] for j in others),
+        tilt=None
+        if ax == 0.0 and ay == 0.0
+        else ((ax / norm * sg, ay / norm * sg, az / norm * sg), pts[tri[0]]),
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class _Planar4:
+    """Constants of the fit for four anchors at one height (see the module docstring)."""
+
+    sd: _EqualSeed  # the seed triple
+    k4: int  # the fourth cable (0-based)
+    b4: Vec3  # its anchor
+    c: Vec3  # barycentric coordinates of the fourth anchor
+    m0: float
+    curv: float  # bound on |phi'' / (2 phi')|: Newton's error is curv * step^2
+
+
+def _make_planar4(pts: Sequence[Vec3], sd: _EqualSeed, others: tuple[int, ...]) -> _Planar4 | None:
+    if len(others) != 1:
+        return None
+    k4 = others[0]
+    if any(pts[k][2] != sd.zn for k in (*sd.tri, k4)):
+        return None  # the identity for D2 needs the fourth anchor exactly at the seed's height
+    (x1, y1, _), (x2, y2, _), (x3, y3, _) = sd.centres
+    b4 = pts[k4]
+    # Plan-view barycentric coordinates (the triple is not collinear in plan view).
+    det = (x1 - x3) * (y2 - y3) - (x2 - x3) * (y1 - y3)
+    c1 = ((b4[0] - x3) * (y2 - y3) - (x2 - x3) * (b4[1] - y3)) / det
+    c2 = ((x1 - x3) * (b4[1] - y3) - (b4[0] - x3) * (y1 - y3)) / det
+    c3 = 1.0 - c1 - c2
+    m0 = -sum(ck * math.dist(pts[k], b4) ** 2 for ck, k in zip((c1, c2, c3), sd.tri, strict=True))
+    cmax = max(1.0, abs(c1), abs(c2), abs(c3))
+    return _Planar4(sd, k4, b4, (c1, c2, c3), m0, 3.0 * cmax)
+
+
+# The planar fit is written once for floats and numpy arrays alike: the batch (``batch``)
+# runs the same functions on columns of lengths.  They never modify their arguments; the
+# augmented assignments only save the arrays' temporaries.
+
+
+def _planar4_solve(
+    p4: _Planar4,
+    l1: Any,
+    l2: Any,
+    l3: Any,
+    l4: Any,
+    s1: Any,
+    s2: Any,
+    s3: Any,
+    t: Any,
+    big: Any,
+    cost0: Any,
+    root0: Any,
+) -> tuple[Any, Any, Any, Any, Any]:
+    """The planar fit from the lengths L_i and their squares s_i (t = L4^2).
+
+    lam takes the closed-form first step and one Newton step on phi; the seed cables' fitted
+    lengths are q_i = L_i / (1 + lam c_i) and the cost lam^2 (sum c_i^2 q_i^2 + d^2),
+    d = L4 / (1 - lam).  Returns the fitted point's dx, dy and discriminant
+    (``_equal_xy`` of the q_i), the cost, and whether the fit can be vouched for: lam away
+    from the poles, Newton converged (error ``curv`` * step^2 relative to the longest cable
+    ``big`` below ``GN_STEP_TOL_M``) and the cost not above the seed's ``cost0``
+    (= ``root0``^2) beyond rounding; NaN gives False.
+    """
+    c1, c2, c3 = p4.c
+    a1 = s1 * c1
+    a2 = s2 * c2
+    a3 = s3 * c3
+    lam = a1 + a2
+    lam += a3
+    lam += p4.m0
+    lam -= t  # D2 - L4^2
+    den = a1 * c1
+    den += a2 * c2
+    den += a3 * c3
+    den += t
+    lam /= 2.0 * den
+    r1 = lam * c1 + 1.0
+    r2 = lam * c2 + 1.0
+    r3 = lam * c3 + 1.0
+    a1 /= r1 * r1  # c_i L_i^2 / (1 + lam c_i)^2
+    a2 /= r2 * r2
+    a3 /= r3 * r3
+    v = 1.0 - lam
+    tv = t / (v * v)
+    phi = a1 + a2
+    phi += a3
+    phi += p4.m0
+    phi -= tv  # phi(lam)
+    a1 *= c1 / r1
+    a2 *= c2 / r2
+    a3 *= c3 / r3
+    tv /= v
+    den = a1 + a2
+    den += a3
+    den += tv  # -phi'(lam) / 2
+    step = phi / (2.0 * den)
+    lam += step
+    q1 = l1 / (lam * c1 + 1.0)
+    q2 = l2 / (lam * c2 + 1.0)
+    q3 = l3 / (lam * c3 + 1.0)
+    q1 *= q1
+    q2 *= q2
+    q3 *= q3
+    cost = l4 / (1.0 - lam)
+    cost *= cost
+    cost += q1 * (c1 * c1)
+    cost += q2 * (c2 * c2)
+    cost += q3 * (c3 * c3)
+    cost *= lam * lam
+    trusted = (
+        (abs(lam) <= 0.75 / p4.curv)
+        & (step * step <= GN_STEP_TOL_M / (big * p4.curv))
+        & (cost <= cost0 * (1.0 + GN_COST_REL_TOL) + GN_COST_ROUND_M * root0)
+    )
+    dx, dy, disc = _equal_xy(p4.sd, q1, q2, q3)
+    return dx, dy, disc, cost, trusted
+
+
+def _fit_planar4(
+    p4: _Planar4, lengths: Sequence[float], cost0: float
+) -> tuple[float, float, float, float] | None:
+    """The fit for four anchors at one height; x, y, z, RMS residual, or None when it cannot
+    vouch for the result (see ``_planar4_solve``, or the fitted lengths' spheres miss)."""
+    sd = p4.sd
+    l1, l2, l3, l4 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3], lengths[p4.k4]
+    dx, dy, disc, cost, trusted = _planar4_solve(
+        p4,
+        l1,
+        l2,
+        l3,
+        l4,
+        l1 * l1,
+        l2 * l2,
+        l3 * l3,
+        l4 * l4,
+        max(l1, l2, l3, l4),
+        cost0,
+        _sqrt(cost0),
+    )
+    if not trusted:
+        return None
+    if disc < 0.0:  # as ``_seed_equal``: a tangent is accepted, a miss is not
+        if not _is_tangent(l1, l2, l3, -disc):
+            return None
+        disc = 0.0
+    return sd.x1 + dx, sd.y1 + dy, sd.zn - _sqrt(disc), _sqrt(cost * 0.25)
+
+
+def _mirror(tilt: tuple[Vec3, Vec3], x: float, y: float, z: float) -> Vec3:
+    """(x, y, z) reflected in the plane of ``tilt`` (unit normal, point)."""
+    (nx, ny, nz), (cx, cy, cz) = tilt
+    t = 2.0 * ((x - cx) * nx + (y - cy) * ny + (z - cz) * nz)
+    return x - t * nx, y - t * ny, z - t * nz
+
+
+def _normal_eq(
+    anchors: tuple[Vec3, ...], lengths: Sequence[float], x: float, y: float, z: float
+) -> tuple[float, float, float, float, float, float, float, float, float, float]:
+    """Sum of squared residuals, J^T J (6 entries) and J^T r at (x, y, z)."""
+    a11 = a12 = a13 = a22 = a23 = a33 = g1 = g2 = g3 = cost = 0.0
+    for (ax, ay, az), ln in zip(anchors, lengths, strict=True):
+        dx = x - ax
+        dy = y - ay
+        dz = z - az
+        d = _sqrt(dx * dx + dy * dy + dz * dz)
+        res = d - ln
+        cost += res * res
+        t = 1.0 / d if d > 0.0 else 0.0
+        ux = dx * t
+        uy = dy * t
+        uz = dz * t
+        a11 += ux * ux
+        a12 += ux * uy
+        a13 += ux * uz
+        a22 += uy * uy
+        a23 += uy * uz
+        a33 += uz * uz
+        g1 += ux * res
+        g2 += uy * res
+        g3 += uz * res
+    return cost, a11, a12, a13, a22, a23, a33, g1, g2, g3
+
+
+def _gauss_newton(
+    anchors: tuple[Vec3, ...],
+    lengths: Sequence[float],
+    x: float,
+    y: float,
+    z: float,
+    z_mirror: float | None,
+) -> tuple[float, float, float, float]:
+    """Least-squares fit over all cables from (x, y, z); returns x, y, z, RMS residual.
+
+    Gauss-Newton in P with step halving (see the module docstring); ``z_mirror``: the height
+    of the anchors when they all share one (points above it are mirrored below).
+    """
+    n = len(anchors)
+    cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = _normal_eq(anchors, lengths, x, y, z)
+    prev2 = math.inf
+    tol2 = GN_STEP_TOL_M * GN_STEP_TOL_M
+    for _ in range(GN_MAX_ITER):
+        c11 = a22 * a33 - a23 * a23
+        c12 = a13 * a23 - a12 * a33
+        c13 = a12 * a23 - a13 * a22
+        det = a11 * c11 + a12 * c12 + a13 * c13
+        if not det > GN_DET_MIN:  # cables (nearly) coplanar with P: keep the estimate
+            break
+        c22 = a11 * a33 - a13 * a13
+        c23 = a12 * a13 - a11 * a23
+        c33 = a11 * a22 - a12 * a12
+        inv = 1.0 / det
+        sx = (c11 * g1 + c12 * g2 + c13 * g3) * inv
+        sy = (c12 * g1 + c22 * g2 + c23 * g3) * inv
+        sz = (c13 * g1 + c23 * g2 + c33 * g3) * inv
+        step2 = sx * sx + sy * sy + sz * sz
+        if step2 < 1e-12 and (step2 <= tol2 or step2 * step2 < GN_NEXT_TOL2 * prev2):
+            # Converged: take this last small step without evaluating again. The cost at the
+            # new point is the Gauss-Newton model's |r - J s|^2 = cost - g.s (exact to second
+            # order in a sub-micrometre step), so the residual belongs to the returned point.
+            x, y, z = x - sx, y - sy, z - sz
+            cost = max(0.0, cost - (g1 * sx + g2 * sy + g3 * sz))
+            if z_mirror is not None and z > z_mirror:
+                z = 2.0 * z_mirror - z
+            break
+        prev2 = step2
+        allowed = cost + (GN_COST_REL_TOL * cost + GN_COST_ROUND_M * _sqrt(cost))
+        for _halving in range(GN_MAX_HALVINGS):
+            tx, ty, tz = x - sx, y - sy, z - sz
+            if z_mirror is not None and tz > z_mirror:
+                tz = 2.0 * z_mirror - tz
+            trial = _normal_eq(anchors, lengths, tx, ty, tz)
+            if trial[0] <= allowed:
+                break
+            sx, sy, sz = 0.5 * sx, 0.5 * sy, 0.5 * sz
+        else:
+            break  # no decrease along the step: at the minimum to rounding
+        x, y, z = tx, ty, tz
+        cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = trial
+    return x, y, z, _sqrt(cost / n)
+
+
+def _others_cost(
+    anchors: tuple[Vec3, ...], lo: Sequence[float], x: float, y: float, z: float
+) -> tuple[float, float]:
+    """Sum and largest of the squared residuals of the cables outside the seed triple."""
+    sumsq = worst = 0.0
+    for (ax, ay, az), ln in zip(anchors, lo, strict=True):
+        dx = x - ax
+        dy = y - ay
+        dz = z - az
+        res = _sqrt(dx * dx + dy * dy + dz * dz) - ln
+        sq = res * res
+        sumsq += sq
+        if sq > worst:
+            worst = sq
+    return sumsq, worst
+
+
+def _refine(
+    geom: Geometry, lengths: Sequence[float], x: float, y: float, z: float
+) -> tuple[float, float, float, float]:
+    """The least-squares point over all cables from the seed (x, y, z), and its RMS residual."""
+    fit = geom._fit
+    lo = [lengths[j] for j in fit.others]
+    cost, worst = _others_cost(fit.anchors, lo, x, y, z)
+    if worst <= GN_STEP_TOL_M * GN_STEP_TOL_M:  # consistent lengths: the seed is the fit
+        return x, y, z, _sqrt(cost / geom.n_cables)
+    p4 = geom._p4
+    if p4 is not None:
+        done = _fit_planar4(p4, lengths, cost)
+        if done is not None:
+            return done
+    if fit.tilt is not None:
+        mx, my, mz = _mirror(fit.tilt, x, y, z)
+        # Only a mirror image below every anchor is a place the robot can hang (above them,
+        # with noisy lengths on a poorly conditioned layout, it can even fit better).
+        if mz < geom.anchor_height_min_m and _others_cost(fit.anchors, lo, mx, my, mz)[0] < cost:
+            # The other cables side with the mirror image: fit from there.
+            return _gauss_newton(geom._anchors_t, lengths, mx, my, mz, None)
+    sd = geom._seed
+    mirror = sd.zn if geom.equal_heights and isinstance(sd, _EqualSeed) else None
+    return _gauss_newton(geom._anchors_t, lengths, x, y, z, mirror)
+
+
+def _fpk(geom: Geometry, lengths: list[float]) -> FpkResult:
+    """``fpk`` on a list of floats."""
+    sd = geom._seed
+    n = geom.n_cables
+    if len(lengths) != n:
+        raise KinematicsError(f"expected {n} cable lengths, got {len(lengths)}")
+    total = sum(lengths)
+    # total - total is NaN for any NaN or inf; the loop only runs to name the culprit.
+    if not (min(lengths) > 0.0 and total - total == 0.0):
+        for k, ln in enumerate(lengths):
+            if not (0.0 < ln < math.inf):
+                raise KinematicsError(f"cable {k + 1} length must be finite and > 0, got {ln!r}")
+    r1, r2, r3 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3]
+    if isinstance(sd, _EqualSeed):
+        x, y, z = _seed_equal(sd, r1, r2, r3)
+    else:
+        x, y, z = _seed_general(sd, r1, r2, r3)
+    tri = geom.seed_triple
+    if n == 3:
+        return FpkResult((x, y, z), 0.0, tri)
+    x, y, z, rms = _refine(geom, lengths, x, y, z)
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(rms)):
+        raise KinematicsError("FPK produced a non-finite result")  # defensive, not expected
+    return FpkResult((x, y, z), rms, tri)
+
+
+def fpk(geom: Geometry, lengths_m: Sequence[float] | FloatArray) -> FpkResult:
+    """Forward pose kinematics of one pose: the point P where the N cables meet.
+
+    ``lengths_m``: the N cable lengths, a sequence or an array of shape (N,) (many poses at
+    once: ``fpk_batch``).  The seed triple's three-spheres point, then for N > 3 the
+    least-squares fit over all cables (see the module docstring); ``residual_m`` is the RMS
+    cable-length mismatch.  Raises ``KinematicsError`` for a wrong shape or count or for
+    non-finite / non-positive lengths, and ``UnreachableError`` (naming the 1-based cable and
+    its shortfall) when the seed triple cannot meet.
+    """
+    if isinstance(lengths_m, np.ndarray):
+        if lengths_m.ndim != 1:
+            raise KinematicsError(
+                f"lengths must have shape (N,), got {lengths_m.shape} (fpk_batch takes (M, N))"
+            )
+        return _fpk(geom, lengths_m.tolist())
+    return _fpk(geom, list(map(float, lengths_m)))
