@@ -1,0 +1,1 @@
+"""The pure core of cablebot: math, rules and motion; no I/O, no threads."""
