@@ -16,6 +16,7 @@ _MODULES: tuple[str, ...] = (
     "controller.sim_cmd",  # sim
     "controller.client",  # pose, status, move, path, stop, estop, arm, disarm, reset, home
     "controller.offline",  # ipk, fpk
+    "controller.calibrate_cmd",  # calibrate collect, calibrate solve
     "controller.demo",  # demo
     "controller.bench",  # bench
 )

@@ -511,6 +511,10 @@ def _finite_or_none(v: float) -> float | None:
     return f if math.isfinite(f) and f <= _UNBOUNDED_STD_M else None
 
 
+def _length(v: float) -> str:
+    return f"{v:.3g} m" if v >= 1.0 else f"{v * 1e3:.3g} mm"
+
+
 def minimum_poses(n_cables: int) -> int:
     """The fewest poses `calibrate` accepts for `n_cables` cables (>= 4).
 
@@ -551,14 +555,14 @@ def _check_samples(samples: Samples, n: int) -> list[str]:
     _, thick, spread = plane_fit(samples.believed_m)
     if thick < COPLANAR_POSES_RATIO * spread:
         raise CalibrationError(
-            f"the {k} poses lie within {thick * 1e3:.3g} mm (RMS) of one plane while they "
+            f"the {k} poses lie within {_length(thick)} (RMS) of one plane while they "
             f"spread {spread:.3g} m: the anchors' distance from that plane is not determined; "
             "record poses at different heights as well as different x and y"
         )
     warnings: list[str] = []
     if thick < THIN_POSES_RATIO * spread:
         warnings.append(
-            f"poses nearly coplanar: RMS {thick * 1e3:.3g} mm from one plane against a spread "
+            f"poses nearly coplanar: RMS {_length(thick)} from one plane against a spread "
             f"of {spread:.3g} m; spread them more in height"
         )
     if k < max(RECOMMENDED_POSES, 2 * k_min):
