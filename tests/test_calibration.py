@@ -229,18 +229,22 @@ def held_basis(res: cal.Calibration) -> np.ndarray:
 
 
 def check_held(res: cal.Calibration, rig: Rig, seen_max_m: float) -> None:
-    """The held directions stay near the configuration (within 3 prior widths, as reported),
-    the directions the samples see are recovered to `seen_max_m` per anchor, and overall the
-    anchors are closer to the truth than the configured ones."""
+    """Along the held directions the anchors end no farther from the truth than the
+    configured ones (within one prior width) and move as reported; the directions the samples
+    see are recovered to `seen_max_m` per anchor; overall the anchors are closer to the truth
+    than the configured ones."""
     basis = held_basis(res)
     change = basis.T @ (res.anchors_m - rig.config_anchors_m).ravel()
     assert np.allclose(change, [d.change_m for d in res.held], atol=1e-12)
-    assert np.abs(change).max() < 3 * cal.Settings().hold_std_m, change
     truth = aligned_truth(rig)
     err = (res.anchors_m - truth).ravel()
+    err_cfg = (rig.config_anchors_m - truth).ravel()
+    held_after = np.linalg.norm(basis.T @ err)
+    held_before = np.linalg.norm(basis.T @ err_cfg)
+    assert held_after <= held_before + cal.Settings().hold_std_m, (held_after, held_before)
     seen = err - basis @ (basis.T @ err)
     assert np.linalg.norm(seen.reshape(-1, 3), axis=1).max() < seen_max_m
-    assert np.linalg.norm(err) < np.linalg.norm((rig.config_anchors_m - truth).ravel())
+    assert np.linalg.norm(err) < np.linalg.norm(err_cfg)
 
 
 def test_paper_robot_blind_directions_are_reported_and_held() -> None:
@@ -280,14 +284,19 @@ def test_desk_with_one_height_in_config_holds_its_two_stretches() -> None:
     assert new.max() < 0.5e-3 < old.max()
 
 
-def test_desk_with_coplanar_truth_holds_the_two_stretches() -> None:
+@pytest.mark.parametrize("seed", [1, 11])
+def test_desk_with_coplanar_truth_holds_the_two_stretches(seed: int) -> None:
     # Anchors truly in one plane, displaced within it: the stretches are not seen at all.
-    rig = make_rig(DESK, seed=1, horizontal_only=True)
+    # (Seed 11: without keeping the poses below the anchors during the solve, a pose near the
+    # top settles in the anchors' plane with the offsets absorbing the difference.)
+    rig = make_rig(DESK, seed=seed, horizontal_only=True)
     samples, homed = sample_set(rig)
     res = cal.calibrate(rig.config_anchors_m, rig.reels, samples)
     assert res.ok, res.gates
+    assert res.poses_m[:, 2].max() < res.anchors_m[:, 2].min()
     assert len(res.held) == 2
-    assert all(d.std_m is None or d.std_m > 0.1 for d in res.held), res.held
+    hold_m = cal.Settings().hold_std_m
+    assert all(d.std_m is None or d.std_m > 3 * hold_m for d in res.held), res.held
     check_held(res, rig, seen_max_m=2e-3)
     turns = rig.turns(rig.fresh_poses(20))
     new = fresh_residuals_m(res.anchors_m, res.reels(rig.reels), turns)
@@ -425,6 +434,17 @@ def test_replace_anchor_values_changes_only_the_anchor_values(path: Path) -> Non
     cfg2 = parse_config(tomllib.loads(out), "new")
     assert np.allclose(np.array(cfg2.anchors_m), new, atol=5e-7)
     assert cfg2.limits == cfg.limits and [r.reel for r in cfg2.reels] == [r.reel for r in cfg.reels]
+
+
+def test_replace_anchor_values_keeps_a_comment_on_the_anchor_line() -> None:
+    text = DESK.read_text().replace(
+        "anchor_m = [0.5, 0.5, 0.8]\n", "  anchor_m=[0.5,0.5,0.8]   # tape, 2 mm [approx]\n"
+    )
+    new = np.array(load_config(DESK).anchors_m)
+    new[2] = (0.51, 0.49, 0.805)
+    out = cal.replace_anchor_values(text, new, "d.toml")
+    assert "  anchor_m=[0.51, 0.49, 0.805]   # tape, 2 mm [approx]\n" in out
+    assert out.replace("[0.51, 0.49, 0.805]", "[0.5,0.5,0.8]") == text
 
 
 def test_replace_anchor_values_refuses_what_it_cannot_edit() -> None:
