@@ -25,6 +25,7 @@ _MODULES: tuple[str, ...] = (
     "controller.cli.record",  # record
     "controller.cli.replay",  # replay
     "controller.cli.plot",  # plot
+    "controller.cli.calibrate",  # calibrate collect, calibrate solve
 )
 
 

@@ -1,0 +1,578 @@
+"""`cablebot calibrate collect|solve`: record encoder samples at poses, then fit the anchors.
+
+- `cablebot calibrate collect OUT.csv` (daemon running) records, at each pose, every reel's
+  motor position (`axes[].position_rev` of the daemon's status, motor turns as the drive
+  reports them) and the pose the controller believes. The operator drives the robot to each
+  pose (move, jog, or by hand while disarmed) and presses Enter; or `--auto N` visits N poses
+  spread over the configured workspace (kept `--margin-m` inside it) with the ordinary `move`
+  command. A sample is taken only once the pose is still: for `--settle-s` every published
+  pose stays within `--still-m` of their mean. Rows are written and flushed as they come.
+- `cablebot calibrate solve SAMPLES.csv --config FILE` fits the anchors and the reel offsets
+  (`controller.core.calibration`), prints the changes, residuals, observability warnings and
+  the gates; `--write NEW.toml` writes the configuration with only the anchor values changed
+  (comments kept), `--write-offsets FILE` a homing state file with the fitted offsets; both
+  only when every gate passes.
+
+Exit codes: 0 done (solve: every gate passed); 1 refused, bad input or a failed gate;
+2 no daemon answered (collect).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import json
+import math
+import os
+import queue
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import IO, Any
+
+from controller.cli.client import (
+    ARRIVED_TOL_M,
+    EXIT_OK,
+    EXIT_REFUSED,
+    DaemonAbsent,
+    InputError,
+    Refused,
+    _key,
+    _run,
+    add_connection_arguments,
+    format_pose,
+    query,
+)
+
+Vec3 = tuple[float, float, float]
+
+DEFAULT_MARGIN_RATIO = 0.05
+"""`--auto` keeps this fraction of the workspace's smallest extent inside its limits."""
+
+MAX_READING_AGE_S = 0.5
+"""An axis reading older than this is not recorded (the drive stopped reporting)."""
+
+
+def _fail(msg: str) -> int:
+    print(f"cablebot: {msg}", file=sys.stderr)
+    return EXIT_REFUSED
+
+
+# --------------------------------------------------------------------------------------------
+# collect
+
+
+def auto_poses(
+    summary: dict[str, Any], n: int, margin_m: float | None, start_m: Sequence[float]
+) -> list[Vec3]:
+    """`n` poses spread over the workspace described by a status `config` summary.
+
+    Each pose keeps `margin_m` (default: 5 % of the workspace's smallest extent) inside every
+    limit: the cube of that half-size around it passes the workspace and cable-length checks.
+    Visiting order: a nearest-neighbour tour from `start_m`. Raises InputError when the
+    summary lacks the anchors or limits, or the region holds too few poses.
+    """
+    from controller.core.calibration import CalibrationError, spread_poses
+    from controller.core.kinematics import Geometry, KinematicsError
+    from controller.core.workspace import Limits
+    from controller.service.config import LimitsConfig
+
+    try:
+        anchors = [tuple(float(c) for c in r["anchor_m"]) for r in summary["reels"]]
+        geom = Geometry(anchors)
+        lim = Limits(LimitsConfig(**summary["limits"]), geom)
+    except (KeyError, TypeError, ValueError, KinematicsError) as exc:
+        raise InputError(f"the daemon's status has no usable anchors and limits: {exc}") from None
+    xs = [x for x, _ in lim.polygon_m]
+    ys = [y for _, y in lim.polygon_m]
+    lo = (min(xs) + lim.xy_margin_m, min(ys) + lim.xy_margin_m, lim.floor_z_m)
+    hi = (max(xs) - lim.xy_margin_m, max(ys) - lim.xy_margin_m, lim.top_z_m)
+    if margin_m is None:
+        margin_m = DEFAULT_MARGIN_RATIO * min(h - low for h, low in zip(hi, lo, strict=True))
+    m = float(margin_m)
+    if not (math.isfinite(m) and m >= 0.0):
+        raise InputError(f"--margin-m must be a finite number >= 0, got {margin_m}")
+    corners = [(dx, dy, dz) for dx in (-m, m) for dy in (-m, m) for dz in (-m, m)]
+
+    def inside(p: Vec3) -> bool:
+        return all(
+            lim.check_target((p[0] + dx, p[1] + dy, p[2] + dz)) is None for dx, dy, dz in corners
+        )
+
+    try:
+        return spread_poses(n, lo, hi, inside, start_m=start_m)
+    except CalibrationError as exc:
+        raise InputError(str(exc)) from None
+
+
+class _Poses:
+    """The pose samples a subscriber queued, read with deadlines."""
+
+    def __init__(self, q: queue.Queue[bytes], timeout_s: float) -> None:
+        self.q = q
+        self.timeout_s = timeout_s
+
+    def next(self, deadline: float) -> dict[str, Any] | None:
+        """The next sample, or None at the deadline. Raises DaemonAbsent when none arrives
+        for the reply timeout, Refused when the robot is in FAULT or ESTOPPED."""
+        now = time.monotonic()
+        if now >= deadline:
+            return None
+        try:
+            data = self.q.get(timeout=min(self.timeout_s, deadline - now))
+        except queue.Empty:
+            if time.monotonic() >= deadline:
+                return None
+            raise DaemonAbsent(f"no pose sample for {self.timeout_s:g} s") from None
+        sample: dict[str, Any] = json.loads(data)
+        state = str(sample.get("state"))
+        if state in ("FAULT", "ESTOPPED"):
+            raise Refused(f"the robot went {state}: {format_pose(sample)}")
+        return sample
+
+    def drain(self) -> None:
+        while True:
+            try:
+                self.q.get_nowait()
+            except queue.Empty:
+                return
+
+
+def wait_still(
+    poses: _Poses,
+    settle_s: float,
+    still_m: float,
+    timeout_s: float,
+    target: Sequence[float] | None = None,
+) -> list[float]:
+    """Wait until, for `settle_s`, every valid pose (in a still state, at `target` within
+    1 mm when given) stays within `still_m` of their mean; return that mean.
+
+    Raises Refused when that does not happen within `timeout_s` (the last pose is named).
+    """
+    deadline = time.monotonic() + timeout_s
+    window: list[tuple[float, list[float]]] = []
+    last: dict[str, Any] | None = None
+    while True:
+        sample = poses.next(deadline)
+        if sample is None:
+            where = "no pose" if last is None else format_pose(last)
+            raise Refused(f"the pose did not come to rest within {timeout_s:g} s ({where})")
+        last = sample
+        now = time.monotonic()
+        raw = sample.get("position_m")
+        if raw is None or sample.get("state") in ("MOVING", "ARMING"):
+            window.clear()
+            continue
+        pos = [float(v) for v in raw]
+        if target is not None and (
+            sample.get("state") != "HOLDING" or math.dist(pos, target) > ARRIVED_TOL_M
+        ):
+            window.clear()
+            continue
+        window.append((now, pos))
+        mean = [sum(p[c] for _, p in window) / len(window) for c in range(3)]
+        if any(math.dist(p, mean) > still_m for _, p in window):
+            window = [window[-1]]  # moving: start the window again from this sample
+            continue
+        if now - window[0][0] >= settle_s:
+            return mean
+
+
+def read_sample(
+    session: Any, args: argparse.Namespace, node_ids: Sequence[int], near: Sequence[float]
+) -> tuple[list[float], list[float]]:
+    """Motor turns (in `node_ids` order) and the believed pose, from one status query.
+
+    Raises Refused when the pose is not valid, a reel is missing or its reading is stale, or
+    the status pose is more than 1 mm from `near` (the robot moved meanwhile).
+    """
+    st = query(session, _key(args, "status"), None, args.timeout)
+    pose = (st.get("pose") or {}).get("position_m")
+    if pose is None:
+        raise Refused("the daemon's pose is not valid (home the robot first)")
+    if math.dist(pose, near) > ARRIVED_TOL_M:
+        raise Refused(f"the robot moved while the sample was taken ({pose} vs {list(near)})")
+    by_node: dict[int, dict[str, Any]] = {int(ax["node_id"]): ax for ax in st.get("axes", [])}
+    revs: list[float] = []
+    for nid in node_ids:
+        ax = by_node.get(int(nid))
+        if ax is None:
+            raise Refused(f"the daemon's status has no axis for node {nid}")
+        age = ax.get("age_s")
+        rev = ax.get("position_rev")
+        if age is None or rev is None or not math.isfinite(float(rev)) or age > MAX_READING_AGE_S:
+            raise Refused(f"node {nid}: no fresh encoder reading (age {age} s)")
+        revs.append(float(rev))
+    return revs, [float(v) for v in pose]
+
+
+def _open_out(path: str, force: bool) -> IO[str]:
+    if os.path.exists(path) and not force:
+        raise InputError(f"{path} exists (use --force to overwrite)")
+    try:
+        return open(path, "w", newline="")
+    except OSError as exc:
+        raise InputError(f"cannot write {path}: {exc.strerror}") from None
+
+
+def _positive(name: str, v: float | None, *, allow_none: bool = True) -> None:
+    if v is None and allow_none:
+        return
+    if v is None or not (math.isfinite(v) and v > 0.0):
+        raise InputError(f"{name} must be a finite number > 0, got {v}")
+
+
+def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = None) -> int:
+    """`calibrate collect OUT.csv`: record samples (manual with Enter, or `--auto N`)."""
+    try:
+        _positive("--speed", args.speed)
+        _positive("--settle-s", args.settle_s, allow_none=False)
+        _positive("--still-m", args.still_m, allow_none=False)
+        if args.auto is not None and args.auto < 1:
+            raise InputError(f"--auto needs a number of poses >= 1, got {args.auto}")
+        if args.count is not None and args.count < 1:
+            raise InputError(f"--count must be >= 1, got {args.count}")
+        if os.path.exists(args.out) and not args.force:
+            raise InputError(f"{args.out} exists (use --force to overwrite)")
+    except InputError as exc:
+        return _fail(str(exc))
+    reader = read_line if read_line is not None else sys.stdin.readline
+
+    def body(session: Any) -> int:
+        st = query(session, _key(args, "status"), None, args.timeout)
+        summary = st.get("config") or {}
+        try:
+            node_ids = [int(r["node_id"]) for r in summary["reels"]]
+        except (KeyError, TypeError, ValueError):
+            raise Refused("the daemon's status does not list its reels") from None
+        pose_now = (st.get("pose") or {}).get("position_m")
+        targets: list[Vec3] | None = None
+        if args.auto is not None:
+            if st.get("state") != "HOLDING" or pose_now is None:
+                raise Refused(
+                    f"--auto moves the robot: it must be armed and holding a valid pose "
+                    f"(state {st.get('state')}; run `cablebot arm` first)"
+                )
+            targets = auto_poses(summary, args.auto, args.margin_m, pose_now)
+        raw: queue.Queue[bytes] = queue.Queue()
+        sub = session.declare_subscriber(
+            _key(args, "pose"), lambda s: raw.put(s.payload.to_bytes())
+        )
+        poses = _Poses(raw, args.timeout)
+        from controller.core.calibration import (
+            format_sample_row,
+            samples_header,
+            samples_preamble,
+        )
+
+        fh = _open_out(args.out, args.force)
+        n_rows = 0
+        try:
+            fh.write(
+                samples_preamble(
+                    str(summary.get("name", "?")), node_ids, time.strftime("%Y-%m-%dT%H:%M:%S%z")
+                )
+            )
+            writer = csv.writer(fh, lineterminator="\n")
+            writer.writerow(samples_header(node_ids))
+            fh.flush()
+
+            def record(target: Sequence[float] | None) -> None:
+                nonlocal n_rows
+                poses.drain()
+                mean = wait_still(poses, args.settle_s, args.still_m, args.still_timeout_s, target)
+                revs, pose = read_sample(session, args, node_ids, mean)
+                writer.writerow(format_sample_row(revs, pose))
+                fh.flush()
+                n_rows += 1
+                print(
+                    f"sample {n_rows}: x={pose[0]:+.4f} y={pose[1]:+.4f} z={pose[2]:+.4f} m  "
+                    + " ".join(f"{nid}:{r:.4f}" for nid, r in zip(node_ids, revs, strict=True)),
+                    flush=True,
+                )
+
+            if targets is not None:
+                print(f"visiting {len(targets)} poses; samples go to {args.out}", flush=True)
+                for i, target in enumerate(targets, start=1):
+                    payload: dict[str, Any] = {"position_m": list(target)}
+                    if args.speed is not None:
+                        payload["speed_mps"] = args.speed
+                    print(
+                        f"pose {i}/{len(targets)}: move to "
+                        f"x={target[0]:+.4f} y={target[1]:+.4f} z={target[2]:+.4f} m",
+                        flush=True,
+                    )
+                    query(session, _key(args, "cmd/move"), payload, args.timeout)
+                    record(target)
+            else:
+                print(
+                    "drive the robot to a pose (move, jog, or by hand while disarmed), wait, "
+                    "then press Enter to record it; q + Enter (or end of input) to finish",
+                    flush=True,
+                )
+                while args.count is None or n_rows < args.count:
+                    print(f"pose {n_rows + 1}: Enter to record, q to finish> ", end="", flush=True)
+                    line = reader()
+                    if not line or line.strip().lower() in ("q", "quit"):
+                        print()
+                        break
+                    record(None)
+        finally:
+            fh.close()
+            sub.undeclare()
+        print(f"{n_rows} sample(s) in {args.out}")
+        return EXIT_OK
+
+    return _run(args, body)
+
+
+# --------------------------------------------------------------------------------------------
+# solve
+
+
+def _mm(v: float | None) -> str:
+    return "unbounded" if v is None else f"{v * 1e3:.2f} mm"
+
+
+def format_report(result: Any, config_path: str, samples_path: str) -> str:
+    """The human-readable report of a `Calibration`."""
+    n = len(result.node_ids)
+    lines = [
+        f"calibration of {config_path} from {samples_path}: {result.poses_m.shape[0]} poses x "
+        f"{n} cables ({result.redundancy} redundant equations)",
+        "frame: the new anchors are the best-fit rigid (Kabsch) alignment to the configured ones",
+        "",
+        f"{'anchor':>6} {'node':>4}  {'configured x y z (m)':^29}  {'calibrated x y z (m)':^29}"
+        f"  {'|d| mm':>7}{'dx':>7}{'dy':>7}{'dz':>7}{'±1σ mm':>9}",
+    ]
+    for i in range(n):
+        c = result.config_anchors_m[i]
+        a = result.anchors_m[i]
+        d = (a - c) * 1e3
+        lines.append(
+            f"{i + 1:>6} {result.node_ids[i]:>4}  {c[0]:+9.4f} {c[1]:+9.4f} {c[2]:+9.4f}  "
+            f"{a[0]:+9.4f} {a[1]:+9.4f} {a[2]:+9.4f}  {math.sqrt(float(d @ d)):7.2f}"
+            f"{d[0]:+7.1f}{d[1]:+7.1f}{d[2]:+7.1f}{result.anchor_std_m[i] * 1e3:9.2f}"
+        )
+    lines.append(
+        "reel offsets (motor turns at the reference length): "
+        + "  ".join(
+            f"node {nid}: {o:.6f}"
+            for nid, o in zip(result.node_ids, result.offsets_rev, strict=True)
+        )
+    )
+    k, i = result.worst_at
+    lines.append(
+        f"residuals: RMS {result.rms_m * 1e3:.3f} mm, worst {result.worst_m * 1e3:.3f} mm "
+        f"(sample {k + 1}, cable {i + 1}); noise estimate {result.noise_m * 1e3:.3f} mm"
+    )
+    if result.warnings:
+        lines.append("warnings:")
+        lines.extend(f"  - {w}" for w in result.warnings)
+    lines.append("gates:")
+    lines.extend(f"  {'ok  ' if g.ok else 'FAIL'} {g.name}: {g.detail}" for g in result.gates)
+    failed = [g.name for g in result.gates if not g.ok]
+    lines.append(
+        "verdict: PASS (the calibrated anchors may be written)"
+        if not failed
+        else f"verdict: FAIL ({', '.join(failed)}): keep the configuration; collect better samples"
+    )
+    return "\n".join(lines)
+
+
+def _atomic_write(path: str, text: str) -> None:
+    target = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def cmd_solve(args: argparse.Namespace) -> int:
+    """`calibrate solve SAMPLES.csv --config FILE`: fit, report, and write when the gates pass."""
+    import tomllib
+
+    from controller.core.calibration import (
+        CalibrationError,
+        CalibrationUnavailable,
+        Settings,
+        calibrate,
+        parse_samples,
+        replace_anchor_values,
+    )
+    from controller.service import offsets as homing
+    from controller.service.config import ConfigError, load_config, parse_config
+
+    def refuse(msg: str) -> int:
+        if args.json:
+            print(json.dumps({"ok": False, "error": msg}))
+        return _fail(msg)
+
+    try:
+        cfg = load_config(args.config)
+        config_text = Path(args.config).read_text()
+        samples_text = Path(args.samples).read_text()
+    except ConfigError as exc:
+        return refuse(str(exc))
+    except OSError as exc:
+        return refuse(f"cannot read {exc.filename}: {exc.strerror}")
+    try:
+        settings = Settings(
+            hold_std_m=args.hold_std_m,
+            max_rms_m=args.max_rms_m,
+            max_residual_m=args.max_residual_m,
+        )
+        samples = parse_samples(samples_text, args.samples, cfg.node_ids)
+        result = calibrate(cfg.anchors_m, [r.reel for r in cfg.reels], samples, settings)
+    except (CalibrationError, CalibrationUnavailable) as exc:
+        return refuse(str(exc))
+
+    out = result.as_dict()
+    written: dict[str, str] = {}
+    problem: str | None = None
+    if (args.write or args.write_offsets) and not result.ok:
+        failed = ", ".join(g.name for g in result.gates if not g.ok)
+        problem = f"not writing: the calibration failed its gates ({failed})"
+    if problem is None and args.write:
+        try:
+            new_text = replace_anchor_values(config_text, result.anchors_m, args.config)
+            parse_config(tomllib.loads(new_text), args.write)
+            _atomic_write(args.write, new_text)
+            written["config"] = args.write
+        except (CalibrationError, ConfigError) as exc:
+            problem = f"not writing {args.write}: {exc}"
+        except OSError as exc:
+            problem = f"cannot write {args.write}: {exc.strerror}"
+    if problem is None and args.write_offsets:
+        try:
+            record = homing.make_record(
+                cfg.name,
+                dict(zip(cfg.node_ids, result.offsets_rev.tolist(), strict=True)),
+                result.poses_m[-1].tolist(),
+            )
+            homing.save_offsets(args.write_offsets, record)
+            written["offsets"] = args.write_offsets
+        except (ValueError, OSError) as exc:
+            problem = f"cannot write {args.write_offsets}: {exc}"
+    out["written"] = written
+    if problem is not None:
+        out["error"] = problem
+    if args.json:
+        print(json.dumps(out, allow_nan=False))
+    else:
+        print(format_report(result, args.config, args.samples))
+        for what, path in written.items():
+            print(f"wrote {what}: {path}")
+        if "offsets" in written:
+            print(
+                "the offsets hold only while the drives keep power; restart the daemon with "
+                "the new configuration and this state file, or home again"
+            )
+    if problem is not None:
+        return _fail(problem)
+    return EXIT_OK if result.ok else EXIT_REFUSED
+
+
+# --------------------------------------------------------------------------------------------
+# Registration
+
+
+def register(sub: argparse._SubParsersAction[Any]) -> None:
+    """Register `calibrate collect` and `calibrate solve`."""
+    from controller.core.calibration import Settings
+
+    p = sub.add_parser("calibrate", help="anchor calibration: collect samples, solve for anchors")
+    steps = p.add_subparsers(dest="step", metavar="STEP")
+    steps.required = True
+
+    c = steps.add_parser("collect", help="record motor turns and poses (daemon running)")
+    add_connection_arguments(c)
+    c.add_argument("out", metavar="OUT.csv", help="samples file to write")
+    c.add_argument(
+        "--auto",
+        type=int,
+        default=None,
+        metavar="N",
+        help="visit N poses spread over the workspace",
+    )
+    c.add_argument(
+        "--count", type=int, default=None, metavar="N", help="manual: stop after N samples"
+    )
+    c.add_argument("--speed", type=float, default=None, metavar="V", help="--auto move speed, m/s")
+    c.add_argument(
+        "--margin-m",
+        type=float,
+        default=None,
+        metavar="M",
+        help="--auto: keep this far inside the limits (default 5%% of the smallest extent)",
+    )
+    c.add_argument(
+        "--settle-s", type=float, default=0.5, metavar="S", help="still for this long (0.5)"
+    )
+    c.add_argument(
+        "--still-m",
+        type=float,
+        default=1e-4,
+        metavar="M",
+        help="still = every pose within this of the mean (1e-4)",
+    )
+    c.add_argument(
+        "--still-timeout-s",
+        type=float,
+        default=120.0,
+        metavar="S",
+        help="give up when a pose is not reached and still within this (120)",
+    )
+    c.add_argument("--force", action="store_true", help="overwrite OUT.csv")
+    c.set_defaults(func=cmd_collect)
+
+    s = steps.add_parser("solve", help="fit anchors and reel offsets to samples (offline)")
+    s.add_argument("samples", metavar="SAMPLES.csv", help="samples from `calibrate collect`")
+    s.add_argument("--config", required=True, metavar="FILE", help="the robot's TOML")
+    s.add_argument(
+        "--write",
+        default=None,
+        metavar="NEW.toml",
+        help="write the configuration with the new anchors",
+    )
+    s.add_argument(
+        "--write-offsets",
+        default=None,
+        metavar="FILE",
+        help="write the fitted reel offsets as a homing state file",
+    )
+    s.add_argument("--json", action="store_true", help="print one JSON object")
+    d = Settings()
+    s.add_argument(
+        "--hold-std-m",
+        type=float,
+        default=d.hold_std_m,
+        metavar="M",
+        help=f"hold directions seen worse than this at the config ({d.hold_std_m:g})",
+    )
+    s.add_argument(
+        "--max-rms-m",
+        type=float,
+        default=d.max_rms_m,
+        metavar="M",
+        help=f"gate: RMS residual ({d.max_rms_m:g})",
+    )
+    s.add_argument(
+        "--max-residual-m",
+        type=float,
+        default=d.max_residual_m,
+        metavar="M",
+        help=f"gate: worst residual ({d.max_residual_m:g})",
+    )
+    s.set_defaults(func=cmd_solve)

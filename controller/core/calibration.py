@@ -1,0 +1,1053 @@
+"""Anchor calibration: the anchors and reel offsets that best explain encoder samples.
+
+Pure: numpy, and scipy's `least_squares` (imported when a calibration runs); no I/O.
+
+The samples
+-----------
+At K poses of the effector the reels' motor positions are recorded (motor turns, as the drives
+report them) together with the pose the controller believed (computed from the configured
+anchors, so only a starting guess). `parse_samples` reads them from CSV text; the format is
+written by `samples_preamble` / `samples_header` / `format_sample_row`:
+
+* lines starting with ``#`` are comments, blank lines are skipped;
+* the first other line is the header: one column ``node_<id>_rev`` per reel and ``x_m``,
+  ``y_m``, ``z_m``, in any order, nothing else;
+* then one row per pose, every value a finite number.
+
+The model
+---------
+Cable i at pose k has the length the reel model gives for its motor turns, with the reel's
+offset unknown (``ReelModel.offset_rev``, what homing sets), and the straight-line distance
+from the anchor::
+
+    r_ik = reel_i.length_m(rev_ik - offset_i) - |P_k - A_i|
+
+Unknowns: the anchors A (3N), the offsets (N) and the poses P (3K). `calibrate` minimises
+sum r_ik^2 with `scipy.optimize.least_squares` (Levenberg-Marquardt, analytic Jacobian).
+Metres per turn, gear ratio, direction and build-up come from the configuration: scaling the
+anchors, the poses and every reel's metres per turn together leaves every sample consistent,
+so the scale cannot be fitted from these samples.
+
+The frame
+---------
+Every sample is unchanged by a rigid motion of the whole robot (anchors and poses together),
+so the solution is fixed by a convention: **the new anchors are the best-fit rigid (Kabsch)
+alignment to the configured ones**. Equivalently the anchor changes ``d_i = A_i - A_cfg,i``
+contain no rigid motion, ``sum d_i = 0`` and ``sum (A_cfg,i - c) x d_i = 0`` (c the configured
+centroid); for a symmetric positive-definite cross-covariance these are exactly the conditions
+under which the Kabsch rotation is the identity and its translation zero. The solve uses
+coordinates of the 3N - 6 dimensional space orthogonal to the rigid motions at the configured
+anchors, so the condition holds at every step.
+
+What the samples cannot see
+---------------------------
+The information the samples carry about the anchors, with the offsets and poses left free, is
+the Schur complement S of the Gauss-Newton matrix J^T J. Its eigenvectors (in the space
+without rigid motions) are anchor deformations; a direction's predicted standard deviation is
+sigma / sqrt(lambda), sigma the cable-length noise (assumed `Settings.assumed_noise_m` at first,
+then estimated from the residuals). Directions the samples determine worse than
+`Settings.hold_std_m` are **held near the configured values**: the fit adds, for each, the
+residual (sigma / hold_std_m) * (change of the anchors along it), a prior that trusts the
+configured anchors to `hold_std_m` along directions the samples cannot see. Where the samples
+are blind the anchors stay at the configured values, so the result is never worse than the
+configuration there; where a direction is blind only to first order but seen to second order
+(stretching a flat layout by e changes cable lengths by about e^2 / d, d the horizontal
+distance: millimetres for centimetres on a desk rig), the samples pull against the prior and
+the result moves toward them, by as much as the two balance (reported per direction). The
+blind set is found at the starting point and again at each solution (with the new noise
+estimate) until it stops growing. Directions worse than `Settings.weak_std_m` but better than
+`hold_std_m` are fitted and named as poorly determined.
+
+With all anchors in one plane (four poles of equal height, most rigs) some deformations of
+the layout change no cable length to first order (with four anchors the two stretches of the
+layout along its axes, its width and its depth; with five, one; six or more anchors in general
+position have none): they are reported and held. Anchors off one plane (Hangprinter-style, or
+poles of different heights) leave every direction observable.
+
+Quality gates (all must pass before a configuration is written): the RMS residual per
+redundant equation, sqrt(sum r^2 / (equations - unknowns)), <= `max_rms_m` (1 mm) (the plain
+RMS is smaller than the noise by sqrt(redundancy / equations), 0.4 for four cables and 25
+poses); the worst residual <= `max_residual_m` (3 mm); no direction worse than `hold_std_m`
+left free; the solver converged; every pose fitted below the anchors. Refused outright
+(`CalibrationError`): fewer than four cables, fewer poses than the unknowns need (with some
+redundancy), poses within a few per cent of one plane, or the same pose repeated.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import re
+import tomllib
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from controller.core.reel import ReelModel
+
+FloatArray = NDArray[np.float64]
+Vec3 = tuple[float, float, float]
+
+POSE_COLUMNS = ("x_m", "y_m", "z_m")
+"""The CSV columns of the pose the controller believed."""
+
+MIN_CABLES = 4
+"""With three cables every pose fits any anchors: nothing can be calibrated."""
+
+COPLANAR_POSES_RATIO = 0.05
+"""Poses whose RMS distance from their best plane is below this fraction of their RMS spread
+are refused (the height of the anchors above them is then not determined)."""
+
+THIN_POSES_RATIO = 0.2
+"""Below this fraction the poses are accepted with a warning."""
+
+DISTINCT_POSE_M = 1e-3
+"""Poses closer than this count as one pose."""
+
+RECOMMENDED_POSES = 20
+"""Fewer poses (or fewer than twice the minimum) give a warning."""
+
+ANCHORS_COPLANAR_RATIO = 1e-3
+"""Anchors within this fraction of their spread from one plane count as coplanar (reported)."""
+
+START_BELOW_ANCHORS_RATIO = 0.05
+"""Believed poses higher than the lowest anchor less this fraction of the height range (lowest
+anchor to lowest pose) start the solve at that height instead."""
+
+_UNBOUNDED_STD_M = 1e3
+"""Standard deviations above this are reported as unbounded (None in JSON)."""
+
+
+class CalibrationError(ValueError):
+    """Samples or a configuration from which no calibration can be made; the reason says why."""
+
+
+class CalibrationUnavailable(RuntimeError):
+    """scipy (needed for the least-squares solve) is not installed."""
+
+
+# --------------------------------------------------------------------------------------------
+# Samples (CSV)
+
+
+def rev_column(node_id: int) -> str:
+    """The CSV column of a reel's motor turns, e.g. ``node_3_rev``."""
+    return f"node_{int(node_id)}_rev"
+
+
+def samples_header(node_ids: Sequence[int]) -> list[str]:
+    """The CSV header: one ``node_<id>_rev`` column per reel (cable order), then x_m, y_m, z_m."""
+    return [rev_column(n) for n in node_ids] + list(POSE_COLUMNS)
+
+
+def samples_preamble(robot: str, node_ids: Sequence[int], when: str) -> str:
+    """The comment lines that open a samples file (each starts with ``#``, ends with newline)."""
+    ids = ", ".join(str(int(n)) for n in node_ids)
+    return (
+        f"# cablebot calibration samples: robot {robot!r}, nodes {ids}, recorded {when}\n"
+        "# one row per pose: each reel's motor position (node_<id>_rev, motor turns as the\n"
+        "# drive reports it) and the pose the controller believed (x_m, y_m, z_m, metres)\n"
+    )
+
+
+def format_sample_row(motor_rev: Sequence[float], position_m: Sequence[float]) -> list[str]:
+    """One CSV row (full float precision). Raises ValueError on a non-finite value."""
+    values = [float(v) for v in motor_rev] + [float(v) for v in position_m]
+    if len(position_m) != 3 or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"a sample needs finite motor turns and 3 finite pose values: {values}")
+    return [repr(v) for v in values]
+
+
+@dataclass(frozen=True, slots=True)
+class Samples:
+    """K recorded poses: motor turns (K, N) in cable order and the believed poses (K, 3)."""
+
+    node_ids: tuple[int, ...]
+    motor_rev: FloatArray
+    believed_m: FloatArray
+
+    @property
+    def n_poses(self) -> int:
+        """Number of recorded poses (K)."""
+        return int(self.motor_rev.shape[0])
+
+
+def parse_samples(text: str, source: str, node_ids: Sequence[int]) -> Samples:
+    """Read samples CSV text (format in the module docstring) for reels `node_ids` (cable order).
+
+    Raises CalibrationError naming `source` and the line for: no header, a missing, unknown or
+    repeated column, a row with the wrong number of cells, a value that is not a finite
+    number, or no rows at all.
+    """
+    ids = tuple(int(n) for n in node_ids)
+    wanted = samples_header(ids)
+    header: list[str] | None = None
+    index: list[int] = []
+    rev_rows: list[list[float]] = []
+    pose_rows: list[list[float]] = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        cells = [c.strip() for c in next(csv.reader(io.StringIO(stripped)))]
+        if header is None:
+            header = cells
+            seen: set[str] = set()
+            for name in cells:
+                if name in seen:
+                    raise CalibrationError(f"{source} line {lineno}: column {name!r} repeated")
+                seen.add(name)
+                if name not in wanted:
+                    raise CalibrationError(
+                        f"{source} line {lineno}: unknown column {name!r} "
+                        f"(expected {', '.join(wanted)})"
+                    )
+            missing = [w for w in wanted if w not in seen]
+            if missing:
+                raise CalibrationError(
+                    f"{source} line {lineno}: missing column(s) {', '.join(missing)} "
+                    f"(the configuration's reels are nodes {', '.join(map(str, ids))})"
+                )
+            index = [cells.index(w) for w in wanted]
+            continue
+        if len(cells) != len(header):
+            raise CalibrationError(
+                f"{source} line {lineno}: {len(cells)} values, the header has {len(header)}"
+            )
+        values: list[float] = []
+        for j in index:
+            try:
+                v = float(cells[j])
+            except ValueError:
+                raise CalibrationError(
+                    f"{source} line {lineno}: {header[j]} = {cells[j]!r} is not a number"
+                ) from None
+            if not math.isfinite(v):
+                raise CalibrationError(
+                    f"{source} line {lineno}: {header[j]} = {cells[j]} is not finite"
+                )
+            values.append(v)
+        rev_rows.append(values[: len(ids)])
+        pose_rows.append(values[len(ids) :])
+    if header is None:
+        raise CalibrationError(f"{source}: no header line (expected {', '.join(wanted)})")
+    if not rev_rows:
+        raise CalibrationError(f"{source}: no samples after the header")
+    return Samples(
+        node_ids=ids,
+        motor_rev=np.array(rev_rows, dtype=np.float64),
+        believed_m=np.array(pose_rows, dtype=np.float64),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Geometry helpers
+
+
+def kabsch(src: Any, dst: Any) -> tuple[FloatArray, FloatArray]:
+    """The rigid motion (R, t) minimising sum |R src_i + t - dst_i|^2 (proper rotation).
+
+    Raises CalibrationError if the point sets differ in shape or hold fewer than 3 points.
+    """
+    a = np.asarray(src, dtype=np.float64)
+    b = np.asarray(dst, dtype=np.float64)
+    if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 3 or a.shape[0] < 3:
+        raise CalibrationError(f"kabsch needs two (N >= 3, 3) point sets, got {a.shape}, {b.shape}")
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    h = (a - ca).T @ (b - cb)
+    u, _, vt = np.linalg.svd(h)
+    d = 1.0 if np.linalg.det(vt.T @ u.T) >= 0.0 else -1.0
+    rot = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return rot, cb - rot @ ca
+
+
+def plane_fit(points: Any) -> tuple[FloatArray, float, float]:
+    """Best plane through `points` (M, 3): (unit normal, RMS distance from it, RMS spread).
+
+    The spread is the RMS distance from the centroid along the widest direction. Raises
+    nothing for M >= 1 (one point: normal z, zeros).
+    """
+    p = np.asarray(points, dtype=np.float64)
+    c = p - p.mean(axis=0)
+    _, s, vt = np.linalg.svd(c, full_matrices=True)
+    m = max(1, p.shape[0])
+    s_full = np.zeros(3)
+    s_full[: len(s)] = s
+    return vt[2], float(s_full[2] / math.sqrt(m)), float(s_full[0] / math.sqrt(m))
+
+
+def rigid_basis(anchors_m: Any) -> FloatArray:
+    """Orthonormal basis (3N, 6) of the infinitesimal rigid motions of the anchor set."""
+    a = np.asarray(anchors_m, dtype=np.float64)
+    n = a.shape[0]
+    c = a - a.mean(axis=0)
+    cols = [np.tile(t, n) for t in np.eye(3)]
+    cols += [np.cross(np.broadcast_to(w, c.shape), c).ravel() for w in np.eye(3)]
+    q, _ = np.linalg.qr(np.array(cols).T)
+    return np.asarray(q[:, :6], dtype=np.float64)
+
+
+def _complement(basis: FloatArray) -> FloatArray:
+    """Orthonormal basis of the orthogonal complement of the columns of `basis`."""
+    q, _ = np.linalg.qr(basis, mode="complete")
+    return np.asarray(q[:, basis.shape[1] :], dtype=np.float64)
+
+
+# --------------------------------------------------------------------------------------------
+# Poses for collecting samples
+
+
+def _radical_inverse(i: int, base: int) -> float:
+    f, r = 1.0, 0.0
+    while i > 0:
+        f /= base
+        r += f * (i % base)
+        i //= base
+    return r
+
+
+def spread_poses(
+    n: int,
+    lo_m: Sequence[float],
+    hi_m: Sequence[float],
+    inside: Callable[[Vec3], bool],
+    *,
+    start_m: Sequence[float] | None = None,
+    candidates: int = 4096,
+) -> list[Vec3]:
+    """`n` poses spread over the region {p in the box lo..hi : inside(p)}, in visiting order.
+
+    Candidates are a Halton sequence in the box; farthest-point sampling picks `n` of them
+    (extremes first, which is what calibration needs), then they are ordered as a
+    nearest-neighbour tour from `start_m` (or from the first). Deterministic. Raises
+    CalibrationError for n < 1, an empty or inverted box, or fewer than n candidates inside.
+    """
+    if n < 1:
+        raise CalibrationError(f"need at least one pose, got {n}")
+    lo = np.asarray(lo_m, dtype=np.float64)
+    hi = np.asarray(hi_m, dtype=np.float64)
+    if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite(lo) & np.isfinite(hi)):
+        raise CalibrationError("the pose box needs finite 3-vectors")
+    if not np.all(hi > lo):
+        raise CalibrationError(f"empty pose box {lo.tolist()} .. {hi.tolist()}")
+    pts: list[Vec3] = []
+    for i in range(1, candidates + 1):
+        u = (_radical_inverse(i, 2), _radical_inverse(i, 3), _radical_inverse(i, 5))
+        p = (
+            float(lo[0] + (hi[0] - lo[0]) * u[0]),
+            float(lo[1] + (hi[1] - lo[1]) * u[1]),
+            float(lo[2] + (hi[2] - lo[2]) * u[2]),
+        )
+        if inside(p):
+            pts.append(p)
+    if len(pts) < n:
+        raise CalibrationError(
+            f"only {len(pts)} of {candidates} candidate poses lie inside the region; "
+            f"cannot spread {n} (use a smaller margin or fewer poses)"
+        )
+    cand = np.array(pts)
+    centre = cand.mean(axis=0)
+    chosen = [int(np.argmax(np.linalg.norm(cand - centre, axis=1)))]
+    dmin = np.linalg.norm(cand - cand[chosen[0]], axis=1)
+    while len(chosen) < n:
+        j = int(np.argmax(dmin))
+        chosen.append(j)
+        dmin = np.minimum(dmin, np.linalg.norm(cand - cand[j], axis=1))
+    left = [pts[j] for j in chosen]
+    here: Sequence[float] = left[0] if start_m is None else start_m
+    order: list[Vec3] = []
+    while left:
+        k = min(range(len(left)), key=lambda m: math.dist(here, left[m]))
+        here = left.pop(k)
+        order.append(here)
+    return order
+
+
+# --------------------------------------------------------------------------------------------
+# The calibration
+
+
+@dataclass(frozen=True, slots=True)
+class Settings:
+    """Thresholds of the calibration (metres)."""
+
+    hold_std_m: float = 0.01
+    """How well the configured anchors are trusted: directions the samples determine worse
+    than this (1 sigma) are held near the configured values by a prior of this width."""
+    weak_std_m: float = 0.001
+    """Free directions and anchors worse than this are named as poorly determined."""
+    max_rms_m: float = 0.001
+    """Gate: RMS residual."""
+    max_residual_m: float = 0.003
+    """Gate: worst residual."""
+    noise_floor_m: float = 1e-5
+    """Lower bound of the noise estimate (encoder resolution) in the predicted uncertainties."""
+    assumed_noise_m: float = 1e-4
+    """Cable-length noise assumed for the first round, before the residuals estimate it."""
+
+    def __post_init__(self) -> None:
+        for name in (
+            "hold_std_m",
+            "weak_std_m",
+            "max_rms_m",
+            "max_residual_m",
+            "noise_floor_m",
+            "assumed_noise_m",
+        ):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0.0):
+                raise CalibrationError(f"{name} must be a finite number > 0, got {v!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class Direction:
+    """An anchor deformation: `vector` (unit, one row per anchor) and how well it is seen."""
+
+    kind: str
+    """"held" (kept at the configured values) or "weak" (fitted, poorly determined)."""
+    std_m: float | None
+    """Predicted 1-sigma of the samples along it; None = not seen at all."""
+    vector: tuple[Vec3, ...]
+    words: str
+    change_m: float | None = None
+    """Held directions: how far the anchors moved along it (the samples' pull against the
+    prior); None for fitted ones."""
+
+
+@dataclass(frozen=True, slots=True)
+class Gate:
+    """One quality gate: its name, whether it passed, and the figures."""
+
+    name: str
+    ok: bool
+    detail: str
+
+
+@dataclass(frozen=True, slots=True)
+class Calibration:
+    """The result of `calibrate` (arrays in cable order; poses in sample order)."""
+
+    node_ids: tuple[int, ...]
+    anchors_m: FloatArray
+    config_anchors_m: FloatArray
+    offsets_rev: FloatArray
+    poses_m: FloatArray
+    residuals_m: FloatArray
+    rms_m: float
+    rms_per_dof_m: float
+    """sqrt(sum r^2 / redundancy): the cable-length noise the fit implies (gated)."""
+    worst_m: float
+    worst_at: tuple[int, int]
+    """(sample, cable), both 0-based."""
+    noise_m: float
+    redundancy: int
+    """Equations minus free unknowns."""
+    anchor_std_m: FloatArray
+    """Predicted 1-sigma position uncertainty of each anchor (RMS radius), free directions."""
+    directions: tuple[Direction, ...]
+    warnings: tuple[str, ...]
+    gates: tuple[Gate, ...]
+    converged: bool
+    anchors_coplanar: bool
+
+    @property
+    def ok(self) -> bool:
+        """True when every quality gate passed."""
+        return all(g.ok for g in self.gates)
+
+    @property
+    def held(self) -> tuple[Direction, ...]:
+        """The directions held at the configured values."""
+        return tuple(d for d in self.directions if d.kind == "held")
+
+    def reels(self, reels: Sequence[ReelModel]) -> list[ReelModel]:
+        """The given reel models with the calibrated offsets (cable order)."""
+        return [
+            replace(r, offset_rev=float(o)) for r, o in zip(reels, self.offsets_rev, strict=True)
+        ]
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready description (no NaN or inf: unbounded deviations are None)."""
+        return {
+            "ok": self.ok,
+            "node_ids": list(self.node_ids),
+            "anchors_m": self.anchors_m.tolist(),
+            "config_anchors_m": self.config_anchors_m.tolist(),
+            "anchor_change_m": (self.anchors_m - self.config_anchors_m).tolist(),
+            "anchor_std_m": [_finite_or_none(v) for v in self.anchor_std_m],
+            "offsets_rev": self.offsets_rev.tolist(),
+            "rms_residual_m": self.rms_m,
+            "rms_per_dof_m": self.rms_per_dof_m,
+            "worst_residual_m": self.worst_m,
+            "worst_at": {"sample": self.worst_at[0], "cable": self.worst_at[1] + 1},
+            "noise_m": self.noise_m,
+            "redundancy": self.redundancy,
+            "n_poses": int(self.poses_m.shape[0]),
+            "poses_m": self.poses_m.tolist(),
+            "frame": "best-fit rigid (Kabsch) alignment to the configured anchors",
+            "anchors_coplanar": self.anchors_coplanar,
+            "directions": [
+                {
+                    "kind": d.kind,
+                    "std_m": d.std_m,
+                    "vector": [list(v) for v in d.vector],
+                    "words": d.words,
+                    "change_m": d.change_m,
+                }
+                for d in self.directions
+            ],
+            "warnings": list(self.warnings),
+            "gates": [{"name": g.name, "ok": g.ok, "detail": g.detail} for g in self.gates],
+            "converged": self.converged,
+        }
+
+
+def _finite_or_none(v: float) -> float | None:
+    f = float(v)
+    return f if math.isfinite(f) and f <= _UNBOUNDED_STD_M else None
+
+
+def _length(v: float) -> str:
+    return f"{v:.3g} m" if v >= 1.0 else f"{v * 1e3:.3g} mm"
+
+
+def minimum_poses(n_cables: int) -> int:
+    """The fewest poses `calibrate` accepts for `n_cables` cables (>= 4).
+
+    Each pose adds N equations and 3 unknowns; the anchors and offsets are 4N unknowns less
+    the 6 of the frame; at least N equations are left over as a check. Raises
+    CalibrationError for fewer than four cables.
+    """
+    n = int(n_cables)
+    if n < MIN_CABLES:
+        raise CalibrationError(
+            f"{n} cables: with three cables every pose fits any anchors, so the samples say "
+            f"nothing about them; calibration needs {MIN_CABLES} or more"
+        )
+    return math.ceil((4 * n - 6 + n) / (n - 3))
+
+
+def _check_samples(samples: Samples, n: int) -> list[str]:
+    """Refuse degenerate sample sets; return warnings for weak ones."""
+    k_min = minimum_poses(n)
+    k = samples.n_poses
+    if samples.motor_rev.shape != (k, n) or samples.believed_m.shape != (k, 3):
+        raise CalibrationError(
+            f"samples hold {samples.motor_rev.shape[1]} reels, the configuration has {n}"
+        )
+    if k < k_min:
+        unknowns = 4 * n - 6 + 3 * k
+        raise CalibrationError(
+            f"{k} poses give {k * n} equations for {unknowns} unknowns ({n} anchors, {n} "
+            f"offsets, {k} poses, less the 6 of the frame); {n} cables need at least {k_min} "
+            f"poses (recommended {max(RECOMMENDED_POSES, 2 * k_min)})"
+        )
+    distinct = np.unique(np.round(samples.believed_m / DISTINCT_POSE_M), axis=0).shape[0]
+    if distinct < k_min:
+        raise CalibrationError(
+            f"only {distinct} distinct poses among {k} samples (closer than "
+            f"{DISTINCT_POSE_M * 1e3:g} mm count as one); {n} cables need at least {k_min}"
+        )
+    _, thick, spread = plane_fit(samples.believed_m)
+    if thick < COPLANAR_POSES_RATIO * spread:
+        raise CalibrationError(
+            f"the {k} poses lie within {_length(thick)} (RMS) of one plane while they "
+            f"spread {spread:.3g} m: the anchors' distance from that plane is not determined; "
+            "record poses at different heights as well as different x and y"
+        )
+    warnings: list[str] = []
+    if thick < THIN_POSES_RATIO * spread:
+        warnings.append(
+            f"poses nearly coplanar: RMS {_length(thick)} from one plane against a spread "
+            f"of {spread:.3g} m; spread them more in height"
+        )
+    if k < max(RECOMMENDED_POSES, 2 * k_min):
+        warnings.append(
+            f"few poses ({k}): {max(RECOMMENDED_POSES, 2 * k_min)} or more give a better check"
+        )
+    return warnings
+
+
+class _Problem:
+    """Residuals, Jacobian and information matrix for fixed samples and reel models."""
+
+    def __init__(self, reels0: Sequence[ReelModel], rev: FloatArray) -> None:
+        self.reels0 = list(reels0)
+        self.rev = rev
+        self.k, self.n = rev.shape
+
+    def lengths(self, offsets: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Cable lengths (K, N) and their slopes d length / d motor turn."""
+        length = np.empty((self.k, self.n))
+        slope = np.empty((self.k, self.n))
+        for i, reel in enumerate(self.reels0):
+            o = float(offsets[i])
+            for kk in range(self.k):
+                x = float(self.rev[kk, i]) - o
+                length[kk, i] = reel.length_m(x)
+                slope[kk, i] = reel.length_rate_mps(x, 1.0)
+        return length, slope
+
+    @staticmethod
+    def units(anchors: FloatArray, poses: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Distances (K, N) and unit vectors anchor -> pose (K, N, 3)."""
+        d = poses[:, None, :] - anchors[None, :, :]
+        dist = np.linalg.norm(d, axis=2)
+        return dist, d / dist[:, :, None]
+
+    def residuals(self, anchors: FloatArray, offsets: FloatArray, poses: FloatArray) -> FloatArray:
+        """r_ik = reel length - distance, (K, N)."""
+        length, _ = self.lengths(offsets)
+        dist, _ = self.units(anchors, poses)
+        return np.asarray(length - dist, dtype=np.float64)
+
+    def information(
+        self, anchors: FloatArray, offsets: FloatArray, poses: FloatArray
+    ) -> FloatArray:
+        """The (3N, 3N) information about the anchors for unit noise, offsets and poses free.
+
+        Per pose the pose's three columns are projected out (their 3x3 block is inverted in
+        closed form), then the offsets are eliminated: the Schur complement of J^T J.
+        """
+        n, k = self.n, self.k
+        _, slope = self.lengths(offsets)
+        _, e = self.units(anchors, poses)
+        jc = np.zeros((k, n, 4 * n))
+        for i in range(n):
+            jc[:, i, 3 * i : 3 * i + 3] = e[:, i, :]
+            jc[:, i, 3 * n + i] = -slope[:, i]
+        ete = np.einsum("kic,kid->kcd", e, e)
+        proj = np.einsum("kic,kcd,kjd->kij", e, np.linalg.pinv(ete), e)
+        m = np.eye(n)[None, :, :] - proj
+        mj = np.einsum("kij,kjb->kib", m, jc)
+        sc = jc.reshape(-1, 4 * n).T @ mj.reshape(-1, 4 * n)
+        saa, sao, soo = sc[: 3 * n, : 3 * n], sc[: 3 * n, 3 * n :], sc[3 * n :, 3 * n :]
+        s = saa - sao @ np.linalg.pinv(soo) @ sao.T
+        return np.asarray(0.5 * (s + s.T), dtype=np.float64)
+
+
+@dataclass
+class _Spectrum:
+    std_per_noise: FloatArray
+    """sqrt(1/lambda) per direction, descending (inf: not seen)."""
+    coords: FloatArray
+    """Eigenvectors in the rigid-free coordinates, columns matching std_per_noise."""
+    vectors: FloatArray
+    """The same as (3N,) anchor displacement vectors, columns."""
+
+
+def _spectrum(info: FloatArray, q: FloatArray) -> _Spectrum:
+    c = q.T @ info @ q
+    lam, w = np.linalg.eigh(0.5 * (c + c.T))
+    floor = 1e-13 * max(float(lam.max()), 1e-300)
+    with np.errstate(divide="ignore"):
+        std = np.where(lam > floor, 1.0 / np.sqrt(np.maximum(lam, floor)), math.inf)
+    return _Spectrum(std_per_noise=std, coords=w, vectors=q @ w)
+
+
+def _describe(vec: FloatArray, anchors_m: FloatArray) -> str:
+    """Words for an anchor deformation: a stretch of the layout along an axis when it is one
+    (to 95 %), else which anchors move which way."""
+    n = anchors_m.shape[0]
+    v = vec.reshape(n, 3)
+    c = anchors_m - anchors_m.mean(axis=0)
+    for axis in range(3):
+        stretch = np.zeros_like(c)
+        stretch[:, axis] = c[:, axis]
+        size = float(np.linalg.norm(stretch))
+        if size > 0.0 and abs(float(np.sum(stretch * v))) / size >= 0.95:
+            low = [i + 1 for i in range(n) if c[i, axis] < -1e-9 * size]
+            high = [i + 1 for i in range(n) if c[i, axis] > 1e-9 * size]
+            return (
+                f"the layout's spread along {'xyz'[axis]} (anchors "
+                f"{', '.join(map(str, low))} against {', '.join(map(str, high))})"
+            )
+    norms = np.linalg.norm(v, axis=1)
+    parts = []
+    for i in range(n):
+        if norms[i] < 0.3 * norms.max():
+            continue
+        comps = [
+            f"{'+' if v[i, ax] > 0 else '-'}{'xyz'[ax]}"
+            for ax in np.argsort(-np.abs(v[i]))
+            if abs(v[i, ax]) >= 0.3 * np.abs(v[i]).max()
+        ]
+        parts.append(f"{i + 1} {' '.join(comps)}")
+    return f"anchors {', '.join(parts)}"
+
+
+def _readable(coords: FloatArray, q: FloatArray, n: int) -> FloatArray:
+    """The subspace spanned by `coords` (columns, in the rigid-free coordinates) in a readable
+    basis: the first vector moves the anchors along x as much as the subspace allows, the
+    others are orthogonal to it; signs make the first large component positive."""
+    vectors = q @ coords
+    sel = np.zeros(3 * n)
+    sel[0::3] = 1.0
+    m = vectors.T @ (sel[:, None] * vectors)
+    _, w = np.linalg.eigh(0.5 * (m + m.T))
+    out = coords @ w[:, ::-1]
+    for j in range(out.shape[1]):
+        col = q @ out[:, j]
+        if col[int(np.argmax(np.abs(col) > 0.3 * np.abs(col).max()))] < 0:
+            out[:, j] = -out[:, j]
+    return np.asarray(out, dtype=np.float64)
+
+
+def _marginal_std(spec: _Spectrum, coords: FloatArray) -> float:
+    """Predicted std per unit noise along one direction (rigid-free coordinates)."""
+    weights = (spec.coords.T @ coords) ** 2
+    used = weights > 1e-12
+    return math.sqrt(float(np.sum(weights[used] * spec.std_per_noise[used] ** 2)))
+
+
+def _direction(kind: str, std_m: float, vec: FloatArray, anchors_m: FloatArray) -> Direction:
+    n = anchors_m.shape[0]
+    return Direction(
+        kind=kind,
+        std_m=_finite_or_none(std_m),
+        vector=tuple((float(x), float(y), float(z)) for x, y, z in vec.reshape(n, 3).tolist()),
+        words=_describe(vec, anchors_m),
+    )
+
+
+def _solve(
+    problem: _Problem,
+    a_cfg: FloatArray,
+    basis: FloatArray,
+    a_start: FloatArray,
+    o_start: FloatArray,
+    p_start: FloatArray,
+    z_max: float,
+    prior: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, bool]:
+    """Least squares over the anchors (a_cfg + basis @ z), offsets and poses; `prior` (h, f)
+    adds the residuals prior @ z (the pull toward the configured anchors)."""
+    try:
+        from scipy.optimize import least_squares
+    except ImportError as exc:
+        raise CalibrationUnavailable(
+            "the anchor calibration needs scipy (pip install 'cablebot[bench]')"
+        ) from exc
+    k, n = problem.k, problem.n
+    nf = basis.shape[1]
+    bi = basis.reshape(n, 3, nf)
+    rows = np.arange(k * n)
+    cable = rows % n
+    pose = rows // n
+    # Pose k is (x, y, w) with z = z_max - exp(w): every pose stays below z_max.
+
+    def unpack(x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        a = a_cfg + (basis @ x[:nf]).reshape(n, 3)
+        q = x[nf + n :].reshape(k, 3)
+        p = np.column_stack([q[:, 0], q[:, 1], z_max - np.exp(np.minimum(q[:, 2], 30.0))])
+        return a, x[nf : nf + n], p
+
+    h = prior.shape[0]
+
+    def fun(x: FloatArray) -> FloatArray:
+        r = problem.residuals(*unpack(x)).ravel()
+        return np.concatenate([r, prior @ x[:nf]]) if h else r
+
+    def jac(x: FloatArray) -> FloatArray:
+        a, o, p = unpack(x)
+        _, slope = problem.lengths(o)
+        _, e = problem.units(a, p)
+        j = np.zeros((k * n + h, nf + n + 3 * k))
+        j[: k * n, :nf] = np.einsum("kic,icf->kif", e, bi).reshape(k * n, nf)
+        j[rows, nf + cable] = -slope.ravel()
+        ef = e.reshape(-1, 3)
+        j[rows, nf + n + 3 * pose] = -ef[:, 0]
+        j[rows, nf + n + 3 * pose + 1] = -ef[:, 1]
+        j[rows, nf + n + 3 * pose + 2] = ef[:, 2] * (z_max - p[pose, 2])
+        j[k * n :, :nf] = prior
+        return j
+
+    q0 = np.column_stack(
+        [p_start[:, 0], p_start[:, 1], np.log(np.maximum(z_max - p_start[:, 2], 1e-9))]
+    )
+    x0 = np.concatenate([basis.T @ (a_start - a_cfg).ravel(), o_start, q0.ravel()])
+    res = least_squares(
+        fun,
+        x0,
+        jac=jac,
+        method="lm",
+        x_scale="jac",
+        xtol=1e-14,
+        ftol=1e-14,
+        gtol=1e-14,
+        max_nfev=100 * (x0.size + 1),
+    )
+    a, o, p = unpack(np.asarray(res.x, dtype=np.float64))
+    return a, o.copy(), p.copy(), bool(res.status > 0)
+
+
+def calibrate(
+    anchors_m: Any,
+    reels: Sequence[ReelModel],
+    samples: Samples,
+    settings: Settings | None = None,
+) -> Calibration:
+    """Estimate the anchors and reel offsets that best explain `samples`.
+
+    `anchors_m` (N, 3) and `reels` are the configuration's, in cable order (the reels' own
+    offsets are ignored). See the module docstring for the model, the frame convention, the
+    held directions and the gates; the result carries the gates, it does not raise on them.
+    Raises CalibrationError for degenerate samples (fewer than four cables, too few or
+    repeated poses, coplanar poses) or a reel that cannot reach the believed lengths, and
+    CalibrationUnavailable when scipy is missing.
+    """
+    st = settings if settings is not None else Settings()
+    a_cfg = np.asarray(anchors_m, dtype=np.float64)
+    n = a_cfg.shape[0]
+    if a_cfg.shape != (n, 3) or len(reels) != n:
+        raise CalibrationError(f"{len(reels)} reels for anchors of shape {a_cfg.shape}")
+    warnings = _check_samples(samples, n)
+    k = samples.n_poses
+    reels0 = [replace(r, offset_rev=0.0) for r in reels]
+    problem = _Problem(reels0, samples.motor_rev)
+
+    # Starting point: the configured anchors, the believed poses and the offsets that fit them.
+    # A pose believed near the anchors' height (the controller's FPK of inconsistent lengths
+    # meets the anchor plane there) starts a little lower. During the solve every pose stays
+    # below z_max, halfway between the highest start and the lowest anchor: with the anchors
+    # (nearly) in one plane a pose can otherwise settle in that plane, cables horizontal, the
+    # offsets absorbing the difference: a second solution no suspended robot can be in.
+    p0 = samples.believed_m.copy()
+    a_low = float(a_cfg[:, 2].min())
+    height = a_low - float(p0[:, 2].min())
+    if not height > 0.0:
+        raise CalibrationError(
+            "every believed pose is at or above the lowest anchor: the samples do not belong "
+            "to this configuration"
+        )
+    p0[:, 2] = np.minimum(p0[:, 2], a_low - START_BELOW_ANCHORS_RATIO * height)
+    z_max = a_low - 0.5 * (a_low - float(p0[:, 2].max()))
+    dist0, _ = problem.units(a_cfg, p0)
+    o0 = np.empty(n)
+    for i, reel in enumerate(reels0):
+        try:
+            o0[i] = np.mean(
+                [
+                    reel.with_home(float(samples.motor_rev[kk, i]), float(dist0[kk, i])).offset_rev
+                    for kk in range(k)
+                ]
+            )
+        except ValueError as exc:
+            raise CalibrationError(f"reel of cable {i + 1}: {exc}") from exc
+
+    q = _complement(rigid_basis(a_cfg))
+    dq = q.shape[1]
+    # Rounds: find the directions the samples see worse than hold_std_m (linearised, at the
+    # current estimate, with the current noise estimate), fit with a prior holding them near
+    # the configured values, re-estimate the noise; until the held set stops growing.
+    sigma = max(st.noise_floor_m, st.assumed_noise_m)
+    a, o, p = a_cfg.copy(), o0, p0
+    held_c = np.zeros((dq, 0))
+    converged = False
+    for _ in range(4):
+        spec = _spectrum(problem.information(a, o, p), q)
+        blind = spec.coords[:, spec.std_per_noise * sigma > st.hold_std_m]
+        if blind.shape[1]:
+            # Add what is new, orthogonal to what is held already.
+            new = blind - held_c @ (held_c.T @ blind)
+            u, sv, _ = np.linalg.svd(new, full_matrices=False)
+            new = u[:, sv > 0.5]
+        else:
+            new = np.zeros((dq, 0))
+        if converged and new.shape[1] == 0:
+            break
+        if new.shape[1]:
+            held_c = _readable(np.column_stack([held_c, new]), q, n)
+        prior = (sigma / st.hold_std_m) * held_c.T
+        a, o, p, converged = _solve(problem, a_cfg, q, a_cfg, o0, p0, z_max, prior)
+        r_now = problem.residuals(a, o, p)
+        dof = k * n - (dq - held_c.shape[1] + n + 3 * k)
+        sigma = max(st.noise_floor_m, math.sqrt(float((r_now**2).sum()) / max(dof, 1)))
+    free = q @ _complement(held_c) if held_c.shape[1] else q
+    solved_free = free.shape[1]
+    spec = _spectrum(problem.information(a, o, p), q)
+
+    r = problem.residuals(a, o, p)
+    rms = float(math.sqrt(float((r**2).mean())))
+    redundancy = k * n - (solved_free + n + 3 * k)
+    # The residuals' RMS understates the noise: the fit absorbed part of it in its unknowns.
+    # Per redundant equation it estimates the cable-length noise itself; the gate uses that.
+    rms_dof = float(math.sqrt(float((r**2).sum()) / max(redundancy, 1)))
+    worst_idx = np.unravel_index(int(np.argmax(np.abs(r))), r.shape)
+    worst = float(abs(r[worst_idx]))
+
+    info = problem.information(a, o, p)
+    directions: list[Direction] = []
+    change_c = q.T @ (a - a_cfg).ravel()
+    for j in range(held_c.shape[1]):
+        std = _marginal_std(spec, held_c[:, j]) * sigma
+        d = _direction("held", std, q @ held_c[:, j], a_cfg)
+        directions.append(replace(d, change_m=float(held_c[:, j] @ change_c)))
+    # What the samples see at the solution, in the directions left free.
+    lam, w = np.linalg.eigh(free.T @ info @ free)
+    floor = 1e-13 * max(float(lam.max()), 1e-300)
+    free_std = np.full(lam.shape, math.inf)
+    cov = np.zeros((3 * n, 3 * n))
+    for j in range(lam.size):
+        vec = free @ w[:, j]
+        if lam[j] > floor:
+            free_std[j] = sigma / math.sqrt(float(lam[j]))
+            cov += np.outer(vec, vec) * free_std[j] ** 2
+        if free_std[j] > st.weak_std_m:
+            directions.append(_direction("weak", float(free_std[j]), vec, a_cfg))
+    anchor_std = np.sqrt(
+        np.array([np.trace(cov[3 * i : 3 * i + 3, 3 * i : 3 * i + 3]) for i in range(n)])
+    )
+
+    _, a_thick, a_spread = plane_fit(a_cfg)
+    coplanar = a_thick <= ANCHORS_COPLANAR_RATIO * a_spread
+    free_bad = [float(v) for v in free_std if v > st.hold_std_m]
+    if coplanar:
+        warnings.append(
+            "the anchors lie in one plane: stretches of the layout within that plane change "
+            "the cable lengths little or not at all"
+        )
+    for d in directions:
+        if d.kind == "held":
+            seen = "not at all" if d.std_m is None else f"to ±{d.std_m * 1e3:.2g} mm"
+            warnings.append(
+                f"not seen by the samples ({seen}, worse than the {st.hold_std_m * 1e3:g} mm "
+                f"hold threshold): {d.words}; held near the configured values (moved "
+                f"{(d.change_m or 0.0) * 1e3:+.2g} mm)"
+            )
+    for d in directions:
+        if d.kind == "weak":
+            warnings.append(f"poorly determined (±{(d.std_m or math.inf) * 1e3:.2g} mm): {d.words}")
+    for i in range(n):
+        if anchor_std[i] > st.weak_std_m:
+            warnings.append(f"anchor {i + 1} is poorly determined (±{anchor_std[i] * 1e3:.2g} mm)")
+
+    high = int(np.sum(p[:, 2] >= float(a[:, 2].min())))
+    gates = (
+        Gate(
+            "rms",
+            rms_dof <= st.max_rms_m,
+            f"RMS residual per redundant equation {rms_dof * 1e3:.3g} mm <= "
+            f"{st.max_rms_m * 1e3:g} mm (plain RMS {rms * 1e3:.3g} mm)",
+        ),
+        Gate(
+            "worst",
+            worst <= st.max_residual_m,
+            f"worst residual {worst * 1e3:.3g} mm <= {st.max_residual_m * 1e3:g} mm",
+        ),
+        Gate(
+            "observable",
+            not free_bad,
+            f"{len(free_bad)} direction(s) seen worse than {st.hold_std_m * 1e3:g} mm left free, "
+            f"{held_c.shape[1]} held near the configured values",
+        ),
+        Gate("converged", converged, "the least-squares solve converged"),
+        Gate(
+            "below_anchors",
+            high <= 0,
+            f"{high} pose(s) fitted above the lowest anchor (a mirror solution)"
+            if high
+            else "every pose fitted below the anchors",
+        ),
+    )
+    return Calibration(
+        node_ids=samples.node_ids,
+        anchors_m=a,
+        config_anchors_m=a_cfg.copy(),
+        offsets_rev=o,
+        poses_m=p,
+        residuals_m=r,
+        rms_m=rms,
+        rms_per_dof_m=rms_dof,
+        worst_m=worst,
+        worst_at=(int(worst_idx[0]), int(worst_idx[1])),
+        noise_m=sigma,
+        redundancy=int(redundancy),
+        anchor_std_m=anchor_std,
+        directions=tuple(directions),
+        warnings=tuple(warnings),
+        gates=gates,
+        converged=converged,
+        anchors_coplanar=bool(coplanar),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Writing the anchors into a configuration's text
+
+_HEADER_RE = re.compile(r"^\s*\[")
+_REELS_RE = re.compile(r"^\s*\[\[\s*reels\s*\]\]")
+_ANCHOR_RE = re.compile(r"^(\s*anchor_m\s*=\s*)\[([^\]\n]*)\](.*)$", re.DOTALL)
+_ANCHOR_KEY_RE = re.compile(r"^\s*anchor_m\s*=")
+
+
+def format_metres(v: float) -> str:
+    """A coordinate for the TOML file: micrometre resolution, no trailing zeros (``-0.5``)."""
+    s = f"{round(float(v), 6):.6f}".rstrip("0")
+    s = s + "0" if s.endswith(".") else s
+    return "0.0" if s in ("-0.0", "0.0") else s
+
+
+def replace_anchor_values(text: str, anchors_m: Any, source: str) -> str:
+    """The TOML `text` with each ``[[reels]]`` table's ``anchor_m = [x, y, z]`` values replaced.
+
+    Everything else (comments, order, the rest of each line) is kept byte for byte. Raises
+    CalibrationError when `text` is not valid TOML, a reel's ``anchor_m`` is not one line of
+    a ``[[reels]]`` table, the number of reels differs, or the edited text would parse to
+    anything but the original with the new anchors.
+    """
+    new = np.asarray(anchors_m, dtype=np.float64)
+    try:
+        before = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise CalibrationError(f"{source}: not valid TOML: {exc}") from exc
+    lines = text.splitlines(keepends=True)
+    reel = -1
+    in_reels = False
+    found: list[int] = []
+    for idx, line in enumerate(lines):
+        if _HEADER_RE.match(line):
+            in_reels = bool(_REELS_RE.match(line))
+            if in_reels:
+                reel += 1
+            continue
+        if not (in_reels and _ANCHOR_KEY_RE.match(line)):
+            continue
+        m = _ANCHOR_RE.match(line)
+        if m is None:
+            raise CalibrationError(
+                f"{source} line {idx + 1}: reels[{reel}].anchor_m must be written on one line "
+                "as anchor_m = [x, y, z] to be replaced"
+            )
+        if reel >= new.shape[0]:
+            raise CalibrationError(f"{source}: more [[reels]] tables than {new.shape[0]} anchors")
+        values = ", ".join(format_metres(v) for v in new[reel])
+        lines[idx] = f"{m.group(1)}[{values}]{m.group(3)}"
+        found.append(reel)
+    if found != list(range(new.shape[0])):
+        raise CalibrationError(
+            f"{source}: found anchor_m lines for reels {found}, expected one in each of "
+            f"{new.shape[0]} [[reels]] tables"
+        )
+    out = "".join(lines)
+    try:
+        after = tomllib.loads(out)
+    except tomllib.TOMLDecodeError as exc:  # pragma: no cover - the regex keeps it valid
+        raise CalibrationError(f"{source}: the edited text is not valid TOML: {exc}") from exc
+    expected = _with_anchors(before, [[float(format_metres(v)) for v in row] for row in new])
+    if after != expected:
+        raise CalibrationError(f"{source}: editing the anchor lines changed more than the anchors")
+    return out
+
+
+def _with_anchors(data: Mapping[str, Any], anchors: list[list[float]]) -> dict[str, Any]:
+    out = dict(data)
+    reels = data.get("reels")
+    if not isinstance(reels, list) or len(reels) != len(anchors):
+        raise CalibrationError(f"the configuration has no {len(anchors)} [[reels]] tables")
+    out["reels"] = [{**r, "anchor_m": a} for r, a in zip(reels, anchors, strict=True)]
+    return out

@@ -1,0 +1,357 @@
+"""`cablebot calibrate solve` offline, and `cablebot calibrate collect` against a real daemon.
+
+The solve tests run the CLI in-process on synthetic samples (tests/test_calibration.py's rigs).
+The collect tests start a daemon with simulated ODrives (a desk-sized rig on its own
+udp_multicast port, hop_limit 0, Zenoh on a free loopback port), record samples with
+`--auto` and by Enter on stdin, and solve them.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import random
+import subprocess
+import time
+import tomllib
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from controller.cli import exitcodes, main
+from controller.core import calibration as cal
+from controller.service.config import load_config
+from controller.service.offsets import load_offsets, parse_record
+from tests.core.test_calibration import DESK, aligned_truth, make_rig, sample_set
+from tests.daemon_procs import CABLEBOT, REPO, Proc, free_tcp_port, to_toml, zenoh_session, zquery
+
+
+def hangprinter_desk_config(tmp_path: Path) -> Path:
+    """config/desk.toml with anchors 2 and 4 raised by 0.2 m (a text edit: comments kept)."""
+    text = DESK.read_text()
+    for old in ("[-0.5, 0.5, 0.8]", "[0.5, -0.5, 0.8]"):
+        assert old in text
+        text = text.replace(old, old.replace("0.8]", "1.0]"))
+    path = tmp_path / "desk-hp.toml"
+    path.write_text(text)
+    return path
+
+
+def write_samples(path: Path, samples: cal.Samples) -> None:
+    with path.open("w", newline="") as fh:
+        fh.write(cal.samples_preamble("desk", samples.node_ids, "test"))
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(cal.samples_header(samples.node_ids))
+        for rev, pose in zip(samples.motor_rev, samples.believed_m, strict=True):
+            w.writerow(cal.format_sample_row(rev, pose))
+
+
+def run_cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main(args)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+# --------------------------------------------------------------------------------------------
+# solve (offline)
+
+
+def test_solve_json_and_write_keep_the_rest_of_the_config(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cfg_path = hangprinter_desk_config(tmp_path)
+    rig = make_rig(DESK, seed=0, raise_diagonal_m=0.2)
+    assert np.allclose(rig.config_anchors_m, load_config(cfg_path).anchors_m)
+    samples, _ = sample_set(rig)
+    csv_path = tmp_path / "s.csv"
+    write_samples(csv_path, samples)
+    new_path = tmp_path / "new.toml"
+    state_path = tmp_path / "offsets.json"
+
+    code, out, err = run_cli(
+        [
+            "calibrate",
+            "solve",
+            str(csv_path),
+            "--config",
+            str(cfg_path),
+            "--json",
+            "--write",
+            str(new_path),
+            "--write-offsets",
+            str(state_path),
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    data = json.loads(out)
+    assert data["ok"] is True
+    anchors = np.array(data["anchors_m"])
+    assert anchors.shape == (4, 3)
+    assert np.linalg.norm(anchors - aligned_truth(rig), axis=1).max() < 2e-3
+    assert 0.0 < data["rms_residual_m"] < 2e-4
+    assert data["written"] == {"config": str(new_path), "offsets": str(state_path)}
+
+    # The new file: the old text but the four anchor lines; it loads with the new anchors.
+    old_lines = cfg_path.read_text().splitlines()
+    new_lines = new_path.read_text().splitlines()
+    changed = [b for a, b in zip(old_lines, new_lines, strict=True) if a != b]
+    assert len(changed) == 4 and all(c.startswith("anchor_m = [") for c in changed)
+    assert "# ODrive + 30 mm diameter drum" in new_path.read_text()
+    assert np.allclose(load_config(new_path).anchors_m, anchors, atol=1e-6)
+    # The offsets: a homing record the daemon accepts for this robot.
+    rec = parse_record(load_offsets(state_path) or {}, "offsets", "desk", (0, 1, 2, 3))
+    assert np.allclose([rec.offsets_rev[i] for i in range(4)], data["offsets_rev"])
+
+
+def test_solve_report_names_held_directions_and_passes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rig = make_rig(DESK, seed=0)
+    samples, _ = sample_set(rig)
+    csv_path = tmp_path / "s.csv"
+    write_samples(csv_path, samples)
+    code, out, err = run_cli(["calibrate", "solve", str(csv_path), "--config", str(DESK)], capsys)
+    assert code == 0, err
+    assert "frame: the new anchors are the best-fit rigid (Kabsch) alignment" in out
+    assert "the layout's spread along x (anchors 1, 2 against 3, 4)" in out
+    assert "held near the configured values" in out
+    assert "verdict: PASS" in out
+    for i in range(1, 5):
+        assert f"\n{i:>6} {i - 1:>4}  " in out  # one row per anchor: number, node
+
+
+def test_failed_gates_refuse_to_write(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cfg_path = hangprinter_desk_config(tmp_path)
+    rig = make_rig(DESK, seed=3, raise_diagonal_m=0.2)
+    samples, _ = sample_set(rig)
+    rev = samples.motor_rev.copy()
+    rev[12:, 2] += 0.2  # cable 3 slipped 19 mm half-way through
+    csv_path = tmp_path / "s.csv"
+    write_samples(csv_path, cal.Samples(samples.node_ids, rev, samples.believed_m))
+    new_path = tmp_path / "new.toml"
+    args = ["calibrate", "solve", str(csv_path), "--config", str(cfg_path)]
+    code, out, err = run_cli([*args, "--write", str(new_path)], capsys)
+    assert code == 1
+    assert "verdict: FAIL (rms" in out
+    assert "not writing: the calibration failed its gates (rms" in err
+    assert not new_path.exists()
+    code, out, _ = run_cli(args, capsys)  # no --write: still a failure exit
+    assert code == 1
+
+
+@pytest.mark.parametrize(
+    ("rows", "reason"),
+    [
+        (5, "5 poses give 20 equations for 25 unknowns"),
+        ("flat", "lie within"),
+    ],
+)
+def test_degenerate_samples_are_refused_with_reasons(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], rows: Any, reason: str
+) -> None:
+    rig = make_rig(DESK, seed=2, raise_diagonal_m=0.2)
+    if rows == "flat":
+        poses = rig.poses(25)
+        poses[:, 2] = 0.3
+        samples = cal.Samples(rig.node_ids, rig.turns(poses), poses)
+    else:
+        samples, _ = sample_set(rig, n=rows)
+    csv_path = tmp_path / "s.csv"
+    write_samples(csv_path, samples)
+    cfg_path = hangprinter_desk_config(tmp_path)
+    code, out, err = run_cli(
+        ["calibrate", "solve", str(csv_path), "--config", str(cfg_path), "--json"], capsys
+    )
+    assert code == 1
+    assert reason in err
+    assert json.loads(out) == {"ok": False, "error": err.strip().removeprefix("cablebot: ")}
+
+
+def test_bad_inputs_exit_1_with_the_reason(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    csv_path = tmp_path / "s.csv"
+    csv_path.write_text("node_0_rev,node_1_rev,x_m,y_m,z_m\n")
+    code, _, err = run_cli(["calibrate", "solve", str(csv_path), "--config", str(DESK)], capsys)
+    assert code == 1 and "missing column(s) node_2_rev, node_3_rev" in err
+    code, _, err = run_cli(
+        ["calibrate", "solve", str(tmp_path / "none.csv"), "--config", str(DESK)], capsys
+    )
+    assert code == 1 and "cannot read" in err
+    code, _, err = run_cli(
+        ["calibrate", "solve", str(csv_path), "--config", str(DESK), "--hold-std-m", "0"], capsys
+    )
+    assert code == 1 and "hold_std_m must be a finite number > 0" in err
+    code, _, err = run_cli(["calibrate", "collect", str(csv_path), "--auto", "0"], capsys)
+    assert code == 1 and "--auto needs a number of poses >= 1" in err
+    code, _, err = run_cli(["calibrate", "collect", str(csv_path), "--auto", "3"], capsys)
+    assert code == 1 and "exists (use --force to overwrite)" in err
+
+
+# --------------------------------------------------------------------------------------------
+# collect against a running daemon
+
+
+def desk_daemon_config(tmp_path: Path) -> tuple[Path, str, str]:
+    """config/desk.toml on simulated nodes: its own udp_multicast port (host-only), loopback
+    Zenoh on a free port, faster motion limits so a test visits a pose in about a second."""
+    data = tomllib.loads(DESK.read_text())
+    name = f"cal{uuid.uuid4().hex[:8]}"
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    prefix = f"cablebot/{name}"
+    data["name"] = name
+    data["bus"] = {
+        "interface": "udp_multicast",
+        "channel": f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}",
+        "options": {"port": random.randint(40000, 49000), "hop_limit": 0},
+    }
+    data["loop"] = {"rate_hz": 250.0, "realtime": False, "publish_every": 5}
+    data["sim"] = {"enabled": True}
+    data["limits"].update(
+        {
+            "max_speed_mps": 1.0,
+            "max_accel_mps2": 2.0,
+            "default_speed_mps": 0.6,
+            "max_cable_speed_mps": 1.5,
+        }
+    )
+    # This tests sample collection, not fault detection: a loaded host may delay the nodes.
+    data["faults"].update(
+        {"stale_timeout_s": 0.5, "heartbeat_timeout_s": 2.0, "tracking_max_m": 0.1}
+    )
+    data["homing"] = {"power_up_position_m": [0.0, 0.0, 0.3]}
+    data["zenoh"] = {
+        "prefix": prefix,
+        "mode": "peer",
+        "listen": [endpoint],
+        "multicast_scouting": False,
+    }
+    path = tmp_path / f"{name}.toml"
+    path.write_text(to_toml(data))
+    return path, endpoint, prefix
+
+
+@pytest.fixture(scope="module")
+def desk_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, str, str]]:
+    cfg, endpoint, prefix = desk_daemon_config(tmp_path_factory.mktemp("cal"))
+    proc = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "0"], "daemon")
+    session = None
+    try:
+        session = zenoh_session(endpoint, 30.0)
+        deadline = time.monotonic() + 30.0
+        while zquery(session, f"{prefix}/status").get("state") != "HOLDING":
+            assert time.monotonic() < deadline, proc.log()
+            time.sleep(0.1)
+        yield cfg, endpoint, prefix
+    finally:
+        if session is not None:
+            session.close()
+        assert proc.terminate(10.0) == 0, proc.log()
+
+
+def collect(
+    desk_daemon: tuple[Path, str, str], *args: str, stdin: str | None = None, timeout_s: float = 180
+) -> subprocess.CompletedProcess[str]:
+    _, endpoint, prefix = desk_daemon
+    return subprocess.run(
+        [*CABLEBOT, "calibrate", "collect", *args, "--connect", endpoint, "--prefix", prefix],
+        cwd=REPO,
+        input=stdin,
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        check=False,
+    )
+
+
+def read_rows(path: Path) -> tuple[list[str], list[list[float]]]:
+    lines = [ln for ln in path.read_text().splitlines() if ln and not ln.startswith("#")]
+    rows = list(csv.reader(io.StringIO("\n".join(lines))))
+    return rows[0], [[float(v) for v in r] for r in rows[1:]]
+
+
+@pytest.mark.slow
+def test_collect_auto_visits_spread_poses_and_solve_recovers_the_config(
+    desk_daemon: tuple[Path, str, str], tmp_path: Path
+) -> None:
+    cfg, _, _ = desk_daemon
+    out = tmp_path / "auto.csv"
+    res = collect(desk_daemon, str(out), "--auto", "14")
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "14 sample(s)" in res.stdout
+    header, rows = read_rows(out)
+    assert header == ["node_0_rev", "node_1_rev", "node_2_rev", "node_3_rev", "x_m", "y_m", "z_m"]
+    assert len(rows) == 14
+    poses = np.array(rows)[:, 4:]
+    # Spread over the workspace (|x|, |y| <= 0.45, 0.01 <= z <= 0.7), kept inside it.
+    assert np.ptp(poses[:, 0]) > 0.6 and np.ptp(poses[:, 1]) > 0.6 and np.ptp(poses[:, 2]) > 0.4
+    assert np.all(np.abs(poses[:, :2]) < 0.45) and np.all(
+        (poses[:, 2] > 0.01) & (poses[:, 2] < 0.7)
+    )
+    # The samples are the daemon's own belief: the solve finds the configured anchors again.
+    solved = subprocess.run(
+        [*CABLEBOT, "calibrate", "solve", str(out), "--config", str(cfg), "--json"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert solved.returncode == 0, solved.stdout + solved.stderr
+    data = json.loads(solved.stdout)
+    assert data["ok"] is True
+    assert np.abs(np.array(data["anchors_m"]) - np.array(data["config_anchors_m"])).max() < 1e-4
+    assert data["rms_residual_m"] < 1e-5
+
+
+@pytest.mark.slow
+def test_collect_manual_records_the_pose_at_each_enter(
+    desk_daemon: tuple[Path, str, str], tmp_path: Path
+) -> None:
+    _, endpoint, prefix = desk_daemon
+    out = tmp_path / "manual.csv"
+    res = collect(desk_daemon, str(out), stdin="\n\nq\n", timeout_s=60)
+    assert res.returncode == 0, res.stdout + res.stderr
+    _, rows = read_rows(out)
+    assert len(rows) == 2
+    session = zenoh_session(endpoint)
+    try:
+        st = zquery(session, f"{prefix}/status")
+    finally:
+        session.close()
+    by_node = {ax["node_id"]: ax["position_rev"] for ax in st["axes"]}
+    for row in rows:  # the robot holds still: every row is the status' turns and pose
+        assert row[:4] == pytest.approx([by_node[i] for i in range(4)], abs=1e-4)
+        assert row[4:] == pytest.approx(st["pose"]["position_m"], abs=1e-4)
+    # --auto moves the robot: refused unless it is armed and holding; no file is made.
+    session = zenoh_session(endpoint)
+    try:
+        assert "error" not in zquery(session, f"{prefix}/cmd/disarm")
+        refused = collect(desk_daemon, str(tmp_path / "d.csv"), "--auto", "3", timeout_s=60)
+        assert refused.returncode == 1, refused.stdout + refused.stderr
+        assert "it must be armed and holding a valid pose (state DISARMED" in refused.stderr
+        assert not (tmp_path / "d.csv").exists()
+    finally:
+        zquery(session, f"{prefix}/cmd/arm")
+        session.close()
+    # No daemon answering: the no-daemon exit code, no file.
+    gone = subprocess.run(
+        [
+            *CABLEBOT,
+            *("calibrate", "collect", str(tmp_path / "x.csv"), "--auto", "3"),
+            *("--connect", f"tcp/127.0.0.1:{free_tcp_port()}", "--prefix", prefix),
+        ],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert gone.returncode == exitcodes.NO_DAEMON, gone.stderr
+    assert not (tmp_path / "x.csv").exists()
