@@ -313,10 +313,11 @@ class CiA402Reels:
     def configure(self, node_ids: Iterable[int] | None = None) -> None:
         """Configure the drives `node_ids` (default: all) by SDO and start them (NMT).
 
-        Blocks: about 35 SDO exchanges per drive, each waiting at most `sdo_timeout_s` (with
-        one retry). Call it before cyclic operation (`arm` calls it for drives not yet
-        configured or restarted since). Raises ConfigureError naming the first drive and step
-        that failed (the drives before it stay configured), KeyError for a node not ours.
+        Blocks: about 36 SDO exchanges per drive, each waiting at most `sdo_timeout_s` for its
+        answer (a drive that does not answer fails at its first). Call it before cyclic
+        operation (`arm` calls it for drives not yet configured or restarted since). Raises
+        ConfigureError naming the first drive and step that failed (the drives before it stay
+        configured), KeyError for a node not ours.
         """
         todo = [self._by_node[n] for n in (self.node_ids if node_ids is None else node_ids)]
         if not todo:
