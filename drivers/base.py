@@ -53,6 +53,12 @@ class AxisReading:
     """ODrive axis error bit field from the last heartbeat; 0 = no error."""
     heartbeat_stamp_s: float = NEVER_S
     """Clock time when the last heartbeat arrived on the bus; -inf = never."""
+    ready: bool = False
+    """The axis follows set-points (ODrive: CLOSED_LOOP_CONTROL; CiA 402: Operation enabled)."""
+    fault: str | None = None
+    """A readable name of the drive's fault; None = no fault."""
+    state_name: str = "unknown"
+    """The drive's own name for its state, for people (e.g. "Operation enabled")."""
 
     def snapshot(self) -> AxisReading:
         """Return an independent copy of this reading."""
@@ -65,6 +71,9 @@ class AxisReading:
             self.axis_state,
             self.axis_error,
             self.heartbeat_stamp_s,
+            self.ready,
+            self.fault,
+            self.state_name,
         )
 
     def encoder_age_s(self, now_s: float) -> float:

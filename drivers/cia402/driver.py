@@ -1,0 +1,799 @@
+"""`CiA402Reels`: the `ReelDriver` for CANopen servo drives (CiA 402) in cyclic synchronous
+position mode, with the `canopen` package doing the protocol work.
+
+Start-up (`configure`, blocking, bounded by SDO timeouts): every drive is put into NMT
+PRE-OPERATIONAL and configured by SDO, relying on none of its defaults: SYNC consumer COB-ID
+0x80 (0x1005), heartbeat producer time (0x1017), modes of operation = cyclic synchronous
+position (0x6060 = 8, checked in 0x6061), interpolation period = the loop period (0x60C2),
+RPDO1 = controlword 0x6040 + target position 0x607A, RPDO2 = velocity offset 0x60B1 (the
+velocity feed-forward; off with `velocity_offset=False`), TPDO1 = statusword 0x6041 + position
+actual 0x6064 (+ torque actual 0x6077 with `torque=True`), all synchronous (transmission type
+1: RPDOs act and TPDOs answer on every SYNC); every other PDO is disabled. Then NMT
+OPERATIONAL. canopen's `PdoMap.save()` writes the PDO parameters in the order CiA 301 asks
+(disable, mapping count 0, entries, count, enable).
+
+The bus belongs to the control loop's thread: no canopen Notifier reads it. `poll()` drains it
+without blocking (at most `max_frames_per_poll` frames) and hands each frame on: TPDOs of our
+drives are decoded here with one precompiled struct per PDO (derived from canopen's mapping of
+it, so the per-tick path does no per-variable work); everything else goes to canopen through
+`network.notify` (heartbeats to its NMT master, EMCY to its EMCY consumer, SDO answers to its
+SDO client). canopen's SDO client waits for its answers on a queue that the receive path
+fills, so while `configure` runs a temporary receive thread is the bus's only reader (the loop
+thread is blocked in `configure` meanwhile); it is joined before `configure` returns. Every
+frame leaves through canopen's `network.send_message`, bounded by `send_timeout_s`.
+
+Cyclic operation: each `command()` writes every drive's RPDOs and then produces one SYNC (the
+driver is the SYNC producer, at the loop rate); the drives apply the set-points and answer
+with their TPDOs at that SYNC, read by the next `poll()`. While the loop sends no set-points
+(disarmed, arming, e-stopped), `poll()` runs the same cycle with the held set-points, at most
+once per poll and half a period, so statuswords and positions stay fresh. The CiA 402 state
+machine is stepped one transition per cycle toward what the host wants (`arm`: Operation
+enabled, with one fault-reset edge for a faulted drive; `disarm`: Switch on disabled; `estop`:
+Quick stop, in every drive's RPDO of one cycle, so one SYNC stops them all at once). While a
+drive is not in Operation enabled its target position is its actual position, so enabling
+holds the reel where it is.
+
+Readings: `position_rev` = position actual / `counts_per_rev`; `velocity_rps` estimated from
+successive positions over the times of the SYNCs they answer; stamps at frame arrival;
+`heartbeat_stamp_s` from the NMT heartbeat (a silent drive's stamp ages); `ready` = Operation
+enabled; `fault` = a name built from the statusword's Fault bit and the last EMCY (code and
+text), or the drive's NMT restart; `state_name` = the CiA 402 state. For today's loop the
+ODrive fields stay meaningful: `axis_state` 8 while Operation enabled, else 1 (0 before the
+drive was heard); `axis_error` = the EMCY code while faulted (0x1000 without one), else 0.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import struct
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import can
+import canopen
+from canopen.emcy import EmcyError
+from canopen.nmt import NMT_STATES
+from canopen.objectdictionary import datatypes
+from canopen.pdo import PdoMap
+from canopen.pdo.base import PDO_NOT_VALID
+from canopen.sdo.base import SdoVariable
+from canopen.sdo.exceptions import SdoAbortedError, SdoError
+
+from drivers.base import AxisReading, BusError, BusStats, DriverError
+from drivers.cia402 import profile
+from drivers.cia402.profile import DriveState, Goal
+
+EDS_PATH = Path(__file__).with_name("cia402.eds")
+"""The object dictionary shipped with cablebot (the simulated drive's, standard objects only)."""
+
+DEFAULT_SEND_TIMEOUT_S = 0.005
+DEFAULT_SDO_TIMEOUT_S = 0.3
+DEFAULT_HEARTBEAT_PERIOD_S = 0.1
+MAX_NODE_ID = 127
+NMT_OPERATIONAL = 5
+NMT_BOOT_UP = 0
+SYNC_COB_ID = 0x80
+INT32_MIN = -(2**31)
+INT32_MAX = 2**31 - 1
+_MODE_DISPLAY_WAIT_S = 0.2
+
+_FORMATS = {
+    datatypes.INTEGER8: "b",
+    datatypes.UNSIGNED8: "B",
+    datatypes.INTEGER16: "h",
+    datatypes.UNSIGNED16: "H",
+    datatypes.INTEGER32: "i",
+    datatypes.UNSIGNED32: "I",
+}
+
+
+class ConfigureError(DriverError):
+    """A drive could not be configured; the message names the node, the step and why
+    (SDO timeout, SDO abort with its code, an object missing from the EDS, a refused mode)."""
+
+
+@dataclass(frozen=True, slots=True)
+class DriveStatus:
+    """What the driver knows of one drive beyond its `AxisReading` (a snapshot)."""
+
+    node_id: int
+    configured: bool
+    statusword: int | None
+    state: DriveState | None
+    nmt_state: str | None
+    torque_permille: int | None
+    """Torque actual (0x6077) in thousandths of the motor's rated torque, if mapped."""
+    emcy_code: int | None
+    emcy_register: int | None
+    emcy_text: str | None
+
+
+class _LoopNetwork(canopen.Network):
+    """canopen's network on a bus owned by the loop thread: sends bounded and counted."""
+
+    def __init__(self, bus: can.BusABC, stats: BusStats, send_timeout_s: float) -> None:
+        super().__init__(bus)
+        self._stats = stats
+        self._send_timeout_s = send_timeout_s
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        """Send one frame within the send timeout. Raises BusError (counted) on failure."""
+        msg = can.Message(
+            arbitration_id=can_id, data=data, is_extended_id=False, is_remote_frame=remote
+        )
+        try:
+            with self.send_lock:
+                self.bus.send(msg, timeout=self._send_timeout_s)  # type: ignore[union-attr]
+        except Exception as exc:  # CanError, OSError, or anything an interface raises
+            text = f"send 0x{can_id:03X}: {type(exc).__name__}: {exc}"
+            self._stats.bus_errors += 1
+            self._stats.last_error = text
+            raise BusError(text) from exc
+        self._stats.frames_tx += 1
+
+
+class _Drive:
+    """The driver's record of one drive (mutated by the loop thread only)."""
+
+    __slots__ = (
+        "actual_counts",
+        "bad_frames",
+        "configured",
+        "emcy",
+        "fault_reset",
+        "ff_units",
+        "nmt_state",
+        "node",
+        "node_id",
+        "prev_counts",
+        "prev_sample_s",
+        "reading",
+        "restarted",
+        "rpdo1",
+        "rpdo1_cob",
+        "rpdo2",
+        "rpdo2_cob",
+        "state",
+        "statusword",
+        "target_counts",
+        "torque",
+        "tpdo1",
+    )
+
+    def __init__(self, node_id: int, node: canopen.RemoteNode) -> None:
+        self.node_id = node_id
+        self.node = node
+        self.reading = AxisReading(node_id)
+        self.configured = False
+        self.restarted = False
+        self.statusword: int | None = None
+        self.state: DriveState | None = None
+        self.nmt_state: int | None = None
+        self.torque: int | None = None
+        self.emcy: EmcyError | None = None
+        self.fault_reset = False
+        self.actual_counts: int | None = None
+        self.target_counts = 0
+        self.ff_units = 0
+        self.prev_counts: int | None = None
+        self.prev_sample_s = -math.inf
+        self.bad_frames = 0
+        self.rpdo1 = struct.Struct("<")
+        self.rpdo1_cob = 0
+        self.rpdo2: struct.Struct | None = None
+        self.rpdo2_cob = 0
+        self.tpdo1 = struct.Struct("<")
+
+
+def _pdo_struct(pdo: PdoMap) -> struct.Struct:
+    """The little-endian struct of a configured PDO (byte-aligned integer objects only)."""
+    fmt = "<"
+    offset = 0
+    for var in pdo.map:
+        code = _FORMATS.get(var.od.data_type or 0)
+        if code is None or var.length != 8 * struct.calcsize(code) or var.offset != offset:
+            raise ConfigureError(
+                f"0x{var.index:04X} ({var.name}) is not a byte-aligned 8/16/32-bit integer "
+                f"in {pdo.name}"
+            )
+        fmt += code
+        offset += var.length
+    return struct.Struct(fmt)
+
+
+class CiA402Reels:
+    """Reel motors on CiA 402 servo drives (CANopen node ids `node_ids`) over one bus.
+
+    The bus is owned by the caller (open it with `drivers.bus.open_bus`, shut it down after).
+    Not thread-safe: one thread (the control loop) calls every method.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        node_ids: Iterable[int],
+        *,
+        counts_per_rev: float,
+        period_s: float,
+        eds: str | Path | None = None,
+        velocity_units_per_rps: float | None = None,
+        velocity_offset: bool = True,
+        torque: bool = True,
+        heartbeat_period_s: float = DEFAULT_HEARTBEAT_PERIOD_S,
+        sdo_timeout_s: float = DEFAULT_SDO_TIMEOUT_S,
+        max_frames_per_poll: int = 256,
+        send_timeout_s: float = DEFAULT_SEND_TIMEOUT_S,
+        clock: Callable[[], float] = time.monotonic,
+        wall_clock_ns: Callable[[], int] = time.time_ns,
+    ) -> None:
+        """Set up the drives `node_ids` (1..127, unique, at least one); nothing is sent yet.
+
+        `counts_per_rev`: position units (0x6064/0x607A, encoder increments unless the drive
+        scales them) per motor turn. `period_s`: the loop period, written as the drives'
+        interpolation period. `eds`: the drives' EDS file (default: the one shipped with
+        cablebot). `velocity_units_per_rps`: velocity offset (0x60B1) units per rev/s
+        (default: `counts_per_rev`, i.e. increments per second). `velocity_offset`: map the
+        feed-forward (RPDO2); `torque`: map torque actual into TPDO1. `heartbeat_period_s`:
+        each drive's heartbeat producer time. `sdo_timeout_s`: wait for each SDO answer.
+        Raises ValueError on bad node ids or a non-finite or non-positive number, and on a
+        period or heartbeat the drives cannot represent; OSError if the EDS cannot be read.
+        """
+        ids = tuple(int(n) for n in node_ids)
+        if not ids:
+            raise ValueError("CiA402Reels needs at least one node id")
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"duplicate node ids in {ids}")
+        for n in ids:
+            if not 1 <= n <= MAX_NODE_ID:
+                raise ValueError(f"CANopen node id {n} is outside 1..127")
+        for name, value in (
+            ("counts_per_rev", counts_per_rev),
+            ("heartbeat_period_s", heartbeat_period_s),
+            ("sdo_timeout_s", sdo_timeout_s),
+            ("send_timeout_s", send_timeout_s),
+        ):
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        vel_units = counts_per_rev if velocity_units_per_rps is None else velocity_units_per_rps
+        if not (math.isfinite(vel_units) and vel_units > 0.0):
+            raise ValueError(f"velocity_units_per_rps must be finite and > 0, got {vel_units!r}")
+        if max_frames_per_poll <= 0:
+            raise ValueError("max_frames_per_poll must be > 0")
+        self._interp = profile.interpolation_period(period_s)
+        heartbeat_ms = round(heartbeat_period_s * 1000.0)
+        if not 1 <= heartbeat_ms <= 0xFFFF:
+            raise ValueError(f"heartbeat_period_s {heartbeat_period_s!r} is not 1..65535 ms")
+        self.node_ids: tuple[int, ...] = ids
+        self.counts_per_rev = float(counts_per_rev)
+        self.period_s = float(period_s)
+        self._velocity_units_per_rps = float(vel_units)
+        self._velocity_offset = velocity_offset
+        self._torque = torque
+        self._heartbeat_ms = heartbeat_ms
+        self._sdo_timeout_s = sdo_timeout_s
+        self._max_frames = max_frames_per_poll
+        self._clock = clock
+        self._wall_ns = wall_clock_ns
+        self._bus = bus
+        self._stats = BusStats()
+        self._network = _LoopNetwork(bus, self._stats, send_timeout_s)
+        # One dictionary for every drive: the driver reads data types and mappability from
+        # it, never the node-relative defaults (parsing an EDS takes tens of milliseconds).
+        od = canopen.import_od(str(EDS_PATH if eds is None else eds), ids[0])
+        self._drives: tuple[_Drive, ...] = ()
+        drives = []
+        for n in ids:
+            node = canopen.RemoteNode(n, od)
+            node.sdo.RESPONSE_TIMEOUT = sdo_timeout_s
+            self._network.add_node(node)
+            d = _Drive(n, node)
+            node.nmt.add_heartbeat_callback(self._heartbeat_handler(d))
+            node.emcy.add_callback(self._emcy_handler(d))
+            drives.append(d)
+        self._drives = tuple(drives)
+        self._by_node = {d.node_id: d for d in self._drives}
+        self._readings: tuple[AxisReading, ...] = tuple(d.reading for d in self._drives)
+        self._tpdo_by_cob: dict[int, _Drive] = {}
+        # Frames a host sends (ours echoed back, or another master's): never for us.
+        self._host_cob_ids: set[int] = {0x000, SYNC_COB_ID} | {0x600 + n for n in ids}
+        # What canopen gets: our drives' heartbeats and EMCY (SDO answers while configuring).
+        self._canopen_cob_ids = frozenset({0x700 + n for n in ids} | {0x080 + n for n in ids})
+        self._sdo_answer_ids = frozenset(0x580 + n for n in ids)
+        self._goal = Goal.DISABLED
+        self._last_sync_s = -math.inf
+        self._cycled_since_poll = False
+        self._configuring = False
+
+    # --- start-up ---------------------------------------------------------------------------
+
+    def configure(self, node_ids: Iterable[int] | None = None) -> None:
+        """Configure the drives `node_ids` (default: all) by SDO and start them (NMT).
+
+        Blocks: about 36 SDO exchanges per drive, each waiting at most `sdo_timeout_s` for its
+        answer (a drive that does not answer fails at its first). Call it before cyclic
+        operation (`arm` calls it for drives not yet configured or restarted since). Raises
+        ConfigureError naming the first drive and step that failed (the drives before it stay
+        configured), KeyError for a node not ours.
+        """
+        todo = [self._by_node[n] for n in (self.node_ids if node_ids is None else node_ids)]
+        if not todo:
+            return
+        stop = threading.Event()
+        pump = threading.Thread(target=self._pump, args=(stop,), name="cia402-sdo", daemon=True)
+        self._configuring = True
+        pump.start()
+        try:
+            for d in todo:
+                self._configure_drive(d)
+        finally:
+            stop.set()
+            pump.join(5.0)
+            self._configuring = False
+
+    def _pump(self, stop: threading.Event) -> None:
+        """While `configure` runs: the bus's only reader, feeding every frame to `_handle`."""
+        recv = self._bus.recv
+        while not stop.is_set():
+            try:
+                msg = recv(0.002)
+            except Exception as exc:
+                self._count_bus_error(f"receive: {type(exc).__name__}: {exc}")
+                stop.wait(0.01)
+                continue
+            if msg is not None:
+                self._stats.frames_rx += 1
+                self._handle(msg)
+
+    def _configure_drive(self, d: _Drive) -> None:
+        node = d.node
+        n = d.node_id
+        step = "NMT PRE-OPERATIONAL"
+        try:
+            d.configured = False
+            self._tpdo_by_cob = {c: x for c, x in self._tpdo_by_cob.items() if x is not d}
+            node.nmt.state = "PRE-OPERATIONAL"
+            step = "0x1005 COB-ID SYNC"
+            self._write(node.sdo[0x1005], SYNC_COB_ID)
+            step = "0x1017 heartbeat producer time"
+            self._write(node.sdo[0x1017], self._heartbeat_ms)
+            step = "0x6060 modes of operation"
+            self._write(node.sdo[0x6060], profile.CYCLIC_SYNCHRONOUS_POSITION)
+            step = "0x60C2 interpolation time period"
+            value, index = self._interp
+            self._write(node.sdo[0x60C2][1], value)
+            self._write(node.sdo[0x60C2][2], index)
+            step = "RPDO1"
+            rpdo1 = self._set_pdo(node.rpdo[1], 0x200 + n, [0x6040, 0x607A], rtr=True)
+            step = "RPDO2"
+            rpdo2 = None
+            if self._velocity_offset:
+                rpdo2 = self._set_pdo(node.rpdo[2], 0x300 + n, [0x60B1], rtr=True)
+            else:
+                self._disable_pdo(node.rpdo[2])
+            for i in (3, 4):
+                step = f"RPDO{i}"
+                self._disable_pdo(node.rpdo[i])
+            step = "TPDO1"
+            tpdo_objects = [0x6041, 0x6064] + ([0x6077] if self._torque else [])
+            tpdo1 = self._set_pdo(node.tpdo[1], 0x180 + n, tpdo_objects, rtr=False)
+            for i in (2, 3, 4):
+                step = f"TPDO{i}"
+                self._disable_pdo(node.tpdo[i])
+            step = "0x6061 modes of operation display"
+            self._check_mode(node)
+            step = "NMT OPERATIONAL"
+            node.nmt.state = "OPERATIONAL"
+        except (SdoError, DriverError, KeyError) as exc:
+            raise ConfigureError(f"node {n}: {step}: {type(exc).__name__}: {exc}") from exc
+        d.rpdo1, d.rpdo1_cob = _pdo_struct(rpdo1), rpdo1.cob_id or 0
+        if rpdo2 is not None:
+            d.rpdo2, d.rpdo2_cob = _pdo_struct(rpdo2), rpdo2.cob_id or 0
+        else:
+            d.rpdo2 = None
+        d.tpdo1 = _pdo_struct(tpdo1)
+        self._host_cob_ids.update(c for c in (d.rpdo1_cob, d.rpdo2_cob) if c)
+        d.restarted = False
+        d.configured = True
+        d.nmt_state = None  # until its next heartbeat says OPERATIONAL
+        self._tpdo_by_cob = {**self._tpdo_by_cob, tpdo1.cob_id or 0: d}
+        self._refresh(d)
+
+    @staticmethod
+    def _write(var: object, value: int) -> None:
+        """SDO-write `value`; an object that refuses but already holds it is accepted."""
+        if not isinstance(var, SdoVariable):
+            raise ConfigureError(f"{var!r} is not a single object in the drive's dictionary")
+        try:
+            var.raw = value
+        except SdoAbortedError:
+            try:
+                held = var.raw
+            except SdoError:
+                held = None
+            if held != value:
+                raise
+
+    def _disable_pdo(self, pdo: PdoMap) -> int:
+        """Mark a PDO invalid (COB-ID bit 31), keeping its COB-ID; return that COB-ID."""
+        cob_var = pdo.com_record[1]
+        cob = int(cob_var.raw)
+        if not cob & PDO_NOT_VALID:
+            self._write(cob_var, cob | PDO_NOT_VALID)
+        return cob & 0x7FF
+
+    def _set_pdo(self, pdo: PdoMap, cob_id: int, objects: Sequence[int], *, rtr: bool) -> PdoMap:
+        """Map `objects` into `pdo`, synchronous (type 1), at `cob_id`, and enable it."""
+        cob_var = pdo.com_record[1]
+        cob = int(cob_var.raw)
+        if not cob & PDO_NOT_VALID and cob & 0x7FF != cob_id:
+            # A valid PDO keeps its COB-ID: disable it under its own before moving it.
+            self._write(cob_var, cob | PDO_NOT_VALID)
+        pdo.clear()
+        for index in objects:
+            if pdo.add_variable(index) is None:
+                raise ConfigureError(f"0x{index:04X} is not in the drive's object dictionary")
+        pdo.cob_id = cob_id
+        pdo.trans_type = 1
+        pdo.rtr_allowed = rtr
+        pdo.enabled = True
+        pdo.save()
+        return pdo
+
+    def _check_mode(self, node: canopen.RemoteNode) -> None:
+        """Wait (bounded) until 0x6061 shows cyclic synchronous position."""
+        deadline = time.monotonic() + _MODE_DISPLAY_WAIT_S
+        while True:
+            shown = int(node.sdo[0x6061].raw)
+            if shown == profile.CYCLIC_SYNCHRONOUS_POSITION:
+                return
+            if time.monotonic() >= deadline:
+                raise ConfigureError(
+                    f"the drive shows mode {shown} after 0x6060 was set to cyclic synchronous "
+                    "position (8): it does not support it"
+                )
+            time.sleep(0.01)
+
+    # --- receive ----------------------------------------------------------------------------
+
+    def poll(self) -> int:
+        """Drain up to `max_frames_per_poll` received frames without blocking; update readings.
+
+        When no cycle was sent since the previous poll (the loop sent no set-points), also
+        sends one (held set-points and SYNC), at most every half period. Returns the number of
+        frames taken off the bus. Never raises: bad frames, unknown senders and bus errors are
+        counted in `stats`.
+        """
+        recv = self._bus.recv
+        handle = self._handle
+        handled = 0
+        while handled < self._max_frames:
+            try:
+                msg = recv(0.0)
+            except Exception as exc:  # a receive error must never escape into the loop
+                self._count_bus_error(f"receive: {type(exc).__name__}: {exc}")
+                break
+            if msg is None:
+                break
+            handled += 1
+            handle(msg)
+        self._stats.frames_rx += handled
+        if (
+            not self._cycled_since_poll
+            and self._tpdo_by_cob
+            and self._clock() - self._last_sync_s >= 0.5 * self.period_s
+        ):
+            with contextlib.suppress(BusError):  # counted in stats; poll never raises
+                self._cycle()
+        self._cycled_since_poll = False
+        return handled
+
+    def _handle(self, msg: can.Message) -> None:
+        if msg.is_error_frame:
+            # SocketCAN error frame: bus-off, controller or protocol trouble.
+            self._count_bus_error(f"CAN error frame 0x{msg.arbitration_id:x}")
+            self._count("error_frame", decode_error=False)
+            return
+        if msg.is_extended_id:
+            self._count("extended_id", decode_error=True)
+            return
+        arb = msg.arbitration_id
+        d = self._tpdo_by_cob.get(arb)
+        if d is not None and not msg.is_remote_frame:
+            self._on_tpdo(d, msg.data)
+            return
+        if arb in self._host_cob_ids or msg.is_remote_frame:
+            self._count("not_for_host", decode_error=False)
+            return
+        if arb in self._sdo_answer_ids:
+            if not self._configuring:  # nobody waits for it: not queued for later
+                self._count("sdo_unsolicited", decode_error=False)
+                return
+        elif arb not in self._canopen_cob_ids:
+            self._count("unknown_cob_id", decode_error=False)
+            return
+        try:
+            self._network.notify(arb, msg.data, msg.timestamp)
+        except Exception as exc:  # canopen raises on malformed heartbeat/EMCY payloads
+            kind = "length" if isinstance(exc, struct.error) else "bad_frame"
+            self._count(kind, decode_error=True)
+            owner = self._by_node.get(arb & 0x7F)
+            if owner is not None:
+                owner.bad_frames += 1
+
+    def _on_tpdo(self, d: _Drive, data: bytearray) -> None:
+        layout = d.tpdo1
+        if len(data) != layout.size:
+            d.bad_frames += 1
+            self._count("length", decode_error=True)
+            return
+        values = layout.unpack(data)
+        counts = values[1]
+        r = d.reading
+        cpr = self.counts_per_rev
+        t_sample = self._last_sync_s
+        prev = d.prev_counts
+        if prev is not None and t_sample > d.prev_sample_s:
+            r.velocity_rps = (counts - prev) / cpr / (t_sample - d.prev_sample_s)
+        d.prev_counts = counts
+        d.prev_sample_s = t_sample
+        d.actual_counts = counts
+        r.position_rev = counts / cpr
+        r.stamp_s = self._clock()
+        r.stamp_ns = self._wall_ns()
+        if len(values) > 2:
+            d.torque = values[2]
+        if values[0] != d.statusword:
+            d.statusword = values[0]
+            self._refresh(d)
+
+    def _heartbeat_handler(self, d: _Drive) -> Callable[[int], None]:
+        def on_heartbeat(state: int) -> None:
+            d.reading.heartbeat_stamp_s = self._clock()
+            if state == NMT_BOOT_UP and d.configured:
+                # The drive restarted: its PDO set-up and mode are back to their defaults.
+                d.configured = False
+                d.restarted = True
+                self._tpdo_by_cob = {c: x for c, x in self._tpdo_by_cob.items() if x is not d}
+            if state != d.nmt_state:
+                d.nmt_state = state
+                self._refresh(d)
+
+        return on_heartbeat
+
+    def _emcy_handler(self, d: _Drive) -> Callable[[EmcyError], None]:
+        consumer = d.node.emcy
+
+        def on_emcy(entry: EmcyError) -> None:
+            d.emcy = None if entry.code & 0xFF00 == 0 else entry  # 0x00xx: error reset
+            # canopen keeps every EMCY in lists; keep them bounded.
+            del consumer.log[:-1]
+            del consumer.active[:-8]
+            self._refresh(d)
+
+        return on_emcy
+
+    def _refresh(self, d: _Drive) -> None:
+        """Derive the reading's state fields from statusword, NMT state, EMCY and restarts."""
+        state = d.state = None if d.statusword is None else profile.drive_state(d.statusword)
+        r = d.reading
+        nmt = d.nmt_state
+        fault: str | None = None
+        if d.restarted:
+            name = "Restarted (NMT boot-up)"
+            fault = "restarted: the drive sent an NMT boot-up and lost its set-up; arm again"
+        elif d.configured and nmt is not None and nmt != NMT_OPERATIONAL:
+            # Not a fault by itself (a heartbeat sent before NMT start can still be in
+            # flight): not ready, and its PDOs stop, so a lasting one makes readings stale.
+            name = f"NMT {NMT_STATES.get(nmt, str(nmt))}"
+        else:
+            name = "unknown" if state is None else state.value
+            if state is DriveState.FAULT or state is DriveState.FAULT_REACTION_ACTIVE:
+                emcy = d.emcy
+                fault = (
+                    f"EMCY 0x{emcy.code:04X} {profile.emcy_text(emcy.code)}"
+                    if emcy is not None
+                    else f"{state.value} (no EMCY received)"
+                )
+        ready = (
+            fault is None
+            and d.configured
+            and (nmt is None or nmt == NMT_OPERATIONAL)
+            and state is DriveState.OPERATION_ENABLED
+        )
+        r.ready = ready
+        r.fault = fault
+        r.state_name = name
+        r.axis_state = 8 if ready else (1 if state is not None or nmt is not None else 0)
+        if fault is None:
+            r.axis_error = 0
+        else:
+            r.axis_error = d.emcy.code if d.emcy is not None else profile.NO_EMCY_CODE
+
+    def _count(self, kind: str, *, decode_error: bool) -> None:
+        stats = self._stats
+        if decode_error:
+            stats.decode_errors += 1
+        else:
+            stats.dropped += 1
+        stats.errors_by_kind[kind] = stats.errors_by_kind.get(kind, 0) + 1
+
+    def _count_bus_error(self, text: str) -> None:
+        self._stats.bus_errors += 1
+        self._stats.last_error = text
+
+    def read(self) -> Sequence[AxisReading]:
+        """Latest reading per axis, in `node_ids` order (live objects updated by `poll`)."""
+        return self._readings
+
+    def reading(self, node_id: int) -> AxisReading:
+        """The live reading of drive `node_id`. Raises KeyError if it is not one of ours."""
+        return self._by_node[node_id].reading
+
+    def drive_status(self, node_id: int) -> DriveStatus:
+        """A snapshot of drive `node_id`'s CiA 402 details. Raises KeyError if not ours."""
+        d = self._by_node[node_id]
+        emcy = d.emcy
+        return DriveStatus(
+            node_id,
+            d.configured,
+            d.statusword,
+            d.state,
+            None if d.nmt_state is None else NMT_STATES.get(d.nmt_state, str(d.nmt_state)),
+            d.torque,
+            None if emcy is None else emcy.code,
+            None if emcy is None else emcy.register,
+            None if emcy is None else profile.emcy_text(emcy.code),
+        )
+
+    def bad_frames(self, node_id: int) -> int:
+        """Undecodable frames that came from drive `node_id` so far. Raises KeyError."""
+        return self._by_node[node_id].bad_frames
+
+    @property
+    def stats(self) -> BusStats:
+        """Traffic counters (live; copy with `snapshot()`)."""
+        return self._stats
+
+    # --- transmit ---------------------------------------------------------------------------
+
+    def _cycle(self) -> None:
+        """Write every configured drive's RPDOs, then produce one SYNC.
+
+        Raises BusError naming every failed frame, after trying all of them.
+        """
+        failures: list[str] = []
+        send = self._network.send_message
+        goal = self._goal
+        enabled = DriveState.OPERATION_ENABLED
+        for d in self._drives:
+            if not d.configured:
+                continue
+            state = d.state
+            cw = profile.controlword_for(goal, state, d.fault_reset)
+            if cw == profile.CW_FAULT_RESET:
+                d.fault_reset = False  # one edge per arm
+            if state is not enabled:
+                # Not following set-points: hold where the reel is when it starts to.
+                if d.actual_counts is not None:
+                    d.target_counts = d.actual_counts
+                d.ff_units = 0
+            try:
+                send(d.rpdo1_cob, d.rpdo1.pack(cw, d.target_counts))
+            except BusError as exc:
+                failures.append(f"node {d.node_id} RPDO1: {exc}")
+            rpdo2 = d.rpdo2
+            if rpdo2 is not None:
+                try:
+                    send(d.rpdo2_cob, rpdo2.pack(d.ff_units))
+                except BusError as exc:
+                    failures.append(f"node {d.node_id} RPDO2: {exc}")
+        try:
+            self._network.sync.transmit()
+        except BusError as exc:
+            failures.append(f"SYNC: {exc}")
+        self._last_sync_s = self._clock()
+        self._cycled_since_poll = True
+        if failures:
+            raise BusError("; ".join(failures))
+
+    def command(
+        self, positions_rev: Sequence[float], velocity_ff_rps: Sequence[float] | None = None
+    ) -> None:
+        """Set every drive's target position (motor turns, `node_ids` order) and velocity
+        offset, write the RPDOs and produce a SYNC.
+
+        Raises ValueError, sending nothing, if a sequence has the wrong length, a value is not
+        finite or a position does not fit the drive's 32-bit position. A feed-forward beyond
+        the 32-bit velocity offset is clamped (counted in `stats.ff_clamped`). Raises BusError
+        if a send fails (after trying every frame).
+        """
+        ids = self.node_ids
+        n = len(ids)
+        if len(positions_rev) != n:
+            raise ValueError(f"command needs {n} positions, got {len(positions_rev)}")
+        if velocity_ff_rps is not None and len(velocity_ff_rps) != n:
+            raise ValueError(
+                f"command needs {n} velocity feed-forwards, got {len(velocity_ff_rps)}"
+            )
+        cpr = self.counts_per_rev
+        vu = self._velocity_units_per_rps
+        targets = [0] * n
+        ffs = [0] * n
+        for i in range(n):
+            p = positions_rev[i]
+            counts = p * cpr
+            if not (math.isfinite(counts) and INT32_MIN <= counts <= INT32_MAX):
+                raise ValueError(
+                    f"position for node {ids[i]} does not fit the drive's 32-bit position: {p!r}"
+                )
+            targets[i] = round(counts)
+            if velocity_ff_rps is not None:
+                v = velocity_ff_rps[i]
+                if not math.isfinite(v):
+                    raise ValueError(
+                        f"velocity feed-forward for node {ids[i]} is not finite: {v!r}"
+                    )
+                units = v * vu
+                if not INT32_MIN <= units <= INT32_MAX:
+                    units = INT32_MAX if units > 0.0 else INT32_MIN
+                    self._stats.ff_clamped += 1
+                ffs[i] = round(units)
+        for d, t, f in zip(self._drives, targets, ffs, strict=True):
+            d.target_counts = t
+            d.ff_units = f
+        self._cycle()
+
+    def arm(self) -> None:
+        """Bring every drive to Operation enabled, holding where its reel is.
+
+        Configures (blocking, see `configure`) drives not configured yet or restarted since;
+        sends a fault reset edge to a faulted drive; the state machine then advances one
+        transition per cycle (confirmation: `ready`, axis_state 8). Raises ConfigureError if a
+        drive cannot be configured, BusError if a send fails.
+        """
+        pending = [d.node_id for d in self._drives if not d.configured]
+        if pending:
+            self.configure(pending)
+        fault_states = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
+        for d in self._drives:
+            d.fault_reset = d.state in fault_states
+        self._goal = Goal.ENABLED
+        self._cycle()
+
+    def disarm(self) -> None:
+        """Disable voltage on every drive (Switch on disabled). Raises BusError on failure."""
+        self._goal = Goal.DISABLED
+        for d in self._drives:
+            d.fault_reset = False
+        self._cycle()
+
+    def estop(self) -> None:
+        """Quick stop on every drive at once: the controlword of every RPDO in one cycle.
+
+        A drive not configured (never, or restarted) gets NMT Stop instead. Raises BusError
+        if a send fails (after trying every frame).
+        """
+        self._goal = Goal.QUICK_STOP
+        failures: list[str] = []
+        for d in self._drives:
+            d.fault_reset = False
+            if not d.configured:
+                try:
+                    d.node.nmt.state = "STOPPED"
+                except BusError as exc:
+                    failures.append(f"node {d.node_id} NMT Stop: {exc}")
+        try:
+            self._cycle()
+        except BusError as exc:
+            failures.append(str(exc))
+        if failures:
+            raise BusError("; ".join(failures))
+
+    def request_encoders(self) -> None:
+        """Run one cycle (held set-points, SYNC): every drive answers with its TPDO, read by
+        the next `poll()`. Raises BusError if a send fails."""
+        self._cycle()
