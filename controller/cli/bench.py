@@ -1318,7 +1318,7 @@ def format_table(rows: Sequence[Row]) -> str:
 def measure(
     plan: Plan, log: Callable[[str], None]
 ) -> tuple[dict[str, Any], list[Row], dict[str, Any]]:
-    """Run every benchmark of `plan`; returns the issue's JSON mapping, the table rows and the
+    """Run every benchmark of `plan`; returns the JSON mapping of figures, the table rows and the
     loop runs' full results (`{"loops": {rate: {...}}}`).
 
     Raises BenchError when a figure cannot be measured.

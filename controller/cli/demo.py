@@ -52,7 +52,7 @@ PLOT_FILES: tuple[str, ...] = (
     "circle-fpk-xyz.png",
     "circle-errors.png",
 )
-"""The figures `plot_circle` writes, in the issue's order."""
+"""The figures `plot_circle` writes, in the README's order."""
 
 SUMMARY_LINE_PREFIX = "max settled FPK error:"
 """The last line of the demo's output starts with this (tests parse it)."""

@@ -27,7 +27,7 @@ values run only when those values are valid themselves):
   0.1 mm resolution over the cable range in float32 motor turns (the ODrive CANSimple
   position type), and the power-up position (if any) is inside the limits.
 
-Deviations from the agreed API: none. Additions (all with defaults, so nothing breaks):
+Keys and helpers with defaults, so a file that omits them still loads:
 `LoopConfig.rt_priority` (int, 50), `LoopConfig.auto_arm` (bool | None; None = arm at start
 only with `sim.enabled`), `SimConfig.tick_s` (0.001 s), `SimConfig.watchdog_timeout_s` (0.3 s,
 the simulated drives' axis watchdog; unset in a file: 0.3 s or 5 loop periods if longer),

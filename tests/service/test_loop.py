@@ -606,8 +606,8 @@ def test_run_keeps_absolute_deadlines_and_skips_missed_ticks() -> None:
 
 def test_pose_stamp_is_the_encoder_arrival_time_not_the_publish_time() -> None:
     # The wall clock the controller sees runs 7 s ahead of the readings' stamps: the published
-    # stamp must be the newest reading's arrival (issue 6: "wall-clock time of the encoder
-    # readings it came from"), not the moment of publication.
+    # stamp must be the newest reading's arrival (the pose schema: "wall-clock time
+    # of the encoder readings it came from"), not the moment of publication.
     cfg = make_config(loop={"rate_hz": RATE_HZ})
     clock = FakeClock()
     driver = FakeDriver([r.node_id for r in cfg.reels], clock, power_up_turns(cfg))
