@@ -1166,9 +1166,12 @@ def paper_robot_data(name: str = "default") -> dict[str, Any]:
             "max_accel_mps2": 1.0,
             "default_speed_mps": 1.0,
         },
+        # Its simulated drives share the CPU with everything else on the machine (a desktop, a
+        # laptop running a build): a reading may wait a few hundred ms for a busy scheduler. A
+        # real rig keeps the 50 ms / 0.5 s defaults; the simulated robot must not fault on load.
         "faults": {
-            "stale_timeout_s": 0.05,
-            "heartbeat_timeout_s": 0.5,
+            "stale_timeout_s": 0.5,
+            "heartbeat_timeout_s": 1.0,
             "residual_max_m": 0.02,
             "tracking_max_m": 0.25,
             "arm_timeout_s": 2.0,
