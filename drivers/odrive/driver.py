@@ -4,7 +4,10 @@ Receive path (`poll`): drains the bus without blocking (at most `max_frames_per_
 call, so a flooded bus cannot stretch a tick; a backlog of old frames left by a loop stall is read
 through up to `CATCH_UP_FACTOR` times that, see `catch_up_age_s`), decodes each frame with
 `drivers.odrive.cansimple`, and updates one mutable `AxisReading` per axis: encoder estimates from
-the cyclic broadcast (or the RTR replies), axis state and axis error from the heartbeat. Each update
+the cyclic broadcast (or the RTR replies), axis state and axis error from the heartbeat, and with
+them the generic status the loop reads: `ready` (CLOSED_LOOP_CONTROL without an error), `fault`
+(the error bits by name with the raw value, e.g. "ESTOP_REQUESTED (0x2000000)") and `state_name`
+(the AxisState name, e.g. "IDLE"; worked out only when state or error change). Each update
 is stamped with the frame's arrival time, not the time it was taken off the queue, so frames
 that waited in the receive queue (a stalled loop) are as old as they are: python-can's
 `Message.timestamp` is a wall-clock (time.time()) reading on the interfaces cablebot uses, so
@@ -35,7 +38,7 @@ from dataclasses import dataclass
 
 import can
 
-from drivers.base import AxisReading, BusError, BusStats
+from drivers.base import NEVER_S, AxisReading, BusError, BusStats
 from drivers.odrive import cansimple as cs
 
 DEFAULT_SEND_TIMEOUT_S = 0.005
@@ -45,6 +48,15 @@ TIMESTAMP_MAX_AGE_S = 3600.0
 """A frame timestamp further behind the wall clock than this is not a wall-clock reading."""
 CATCH_UP_FACTOR = 8
 """A poll that catches up with a backlog takes at most this many times `max_frames_per_poll`."""
+
+
+def _derive_status(r: AxisReading) -> None:
+    """The generic status of a reading from its heartbeat's axis state and error bits."""
+    state = r.axis_state
+    error = r.axis_error
+    r.ready = state == cs.AxisState.CLOSED_LOOP_CONTROL and error == 0
+    r.fault = cs.fault_text(error)
+    r.state_name = cs.axis_state_name(state)
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,8 +202,16 @@ class ODriveReels:
                     rec.stamp_s = now_s - age
                     rec.stamp_ns = now_ns - int(age * 1e9)
                 else:
-                    rec.axis_state = m.axis_state  # type: ignore[union-attr]
-                    rec.axis_error = m.axis_error  # type: ignore[union-attr]
+                    state = m.axis_state  # type: ignore[union-attr]
+                    error = m.axis_error  # type: ignore[union-attr]
+                    if (
+                        state != rec.axis_state
+                        or error != rec.axis_error
+                        or rec.heartbeat_stamp_s == NEVER_S
+                    ):
+                        rec.axis_state = state
+                        rec.axis_error = error
+                        _derive_status(rec)
                     rec.heartbeat_stamp_s = now_s - age
             else:
                 self._handle_other(m)
