@@ -182,3 +182,14 @@ class ReelDriver(Protocol):
     def stats(self) -> BusStats:
         """Traffic counters (a live object; copy with `snapshot()`)."""
         ...
+
+
+@runtime_checkable
+class ConfigurableDriver(Protocol):
+    """A driver whose drives need setting up before cyclic operation (CiA 402: SDO set-up of
+    every drive, then NMT start); the daemon calls `configure()` before its loop runs."""
+
+    def configure(self) -> None:
+        """Set up every drive (blocking, bounded). Raises a DriverError naming the node and
+        the step that failed."""
+        ...

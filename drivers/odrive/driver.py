@@ -31,15 +31,18 @@ because the feed-forward only shapes tracking; the position set-point itself is 
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import can
 
 from drivers.base import NEVER_S, AxisReading, BusError, BusStats
 from drivers.odrive import cansimple as cs
+from drivers.registry import LoopSettings
 
 DEFAULT_SEND_TIMEOUT_S = 0.005
 TIMESTAMP_FUTURE_TOLERANCE_S = 1.0
@@ -425,3 +428,42 @@ class ODriveReels:
     def request_errors(self) -> None:
         """RTR-request Get_Error from every axis (see `last_get_error`). Raises BusError."""
         self._send_all([cs.encode_rtr(n, cs.GET_ERROR) for n in self.node_ids], "Get_Error RTR")
+
+
+def open_driver(
+    bus: can.BusABC, node_ids: Sequence[int], options: Mapping[str, Any], loop: LoopSettings
+) -> ODriveReels:
+    """The registry's factory (`drivers.registry`, family "odrive"; it takes no options).
+
+    After a loop stall the driver reads through the queued frames to the newest in one poll
+    (frames older than half the stale timeout are a backlog), rather than show frames from
+    before the stall. Raises ValueError on bad node ids or unknown options.
+    """
+    if options:
+        raise ValueError(f"ODrive drives take no [drive] options, got {sorted(options)}")
+    return ODriveReels(
+        bus,
+        node_ids,
+        encoder_rtr=loop.encoder_rtr,
+        catch_up_age_s=loop.stale_timeout_s / 2.0,
+    )
+
+
+def startup_note(reading: AxisReading, armed: bool) -> tuple[int, str] | None:
+    """What the daemon says about an axis's first heartbeat (registry "startup_note"): an
+    axis in closed loop before cablebot armed it (WARNING), or one that its watchdog stopped
+    (INFO); None otherwise."""
+    if not armed and reading.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL:
+        return (
+            logging.WARNING,
+            f"ODrive node {reading.node_id} is in closed loop before cablebot armed it: another "
+            "controller drives it, or its watchdog (axis.config.enable_watchdog) is off and a "
+            "previous controller left it running",
+        )
+    if reading.axis_error & cs.ODriveError.WATCHDOG_TIMER_EXPIRED:
+        return (
+            logging.INFO,
+            f"ODrive node {reading.node_id} reports WATCHDOG_TIMER_EXPIRED: its watchdog stopped "
+            "it after the previous controller went quiet (arming clears it)",
+        )
+    return None
