@@ -422,11 +422,17 @@ def test_process_option_parsing() -> None:
 
 
 def test_the_configured_simulated_robot_has_its_watchdog_on() -> None:
-    from controller.cli.sim import sim_axes
+    from controller.cli.sim import sim_bank
     from controller.service.config import default_config
 
-    axes = sim_axes(default_config())
-    assert [a.watchdog_timeout_s for a in axes] == [0.3] * 4
+    bus = open_bus("virtual", f"test-sim-watchdog-{uuid.uuid4().hex}")
+    try:
+        bank = sim_bank(default_config(), bus)
+        assert isinstance(bank, SimODriveBank)
+        assert [a.watchdog_timeout_s for a in bank.axes] == [0.3] * 4
+        assert bank.thread is None  # built, not started
+    finally:
+        bus.shutdown()
 
 
 def test_a_stalled_simulator_does_not_mistake_queued_commands_for_silence() -> None:
