@@ -535,8 +535,8 @@ def test_cia402_drive_options_get_the_registry_defaults() -> None:
         ),
         (
             lambda: cia402_edit("drive.counts_per_rev", "4096 counts"),
-            "drive.counts_per_rev: must be a number in units per motor turn (the unit is in the key "
-            "name), got '4096 counts'",
+            "drive.counts_per_rev: must be a number in units per motor turn (the unit is in "
+            "the key name), got '4096 counts'",
         ),
         (lambda: cia402_edit("drive.counts_per_rev", 0), "drive.counts_per_rev: must be > 0"),
         (
