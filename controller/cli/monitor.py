@@ -2,9 +2,10 @@
 
 Shows the state and its reason (a fault in red, across the screen), the pose and the
 set-point, every axis (its state and fault as the drive names them, in green when it is ready,
-age of the last reading, cable tension when the status carries `tensions_n`), loop and bus figures, samples missed from the
-pose stream, and the recent state changes (`<prefix>/state`). Keys: `s` stop (brake to a hold),
-`e` or space e-stop, `q` quit. Needs the `rich` library (`pip install 'cablebot[monitor]'`).
+age of the last reading, cable tension when the status carries `tensions_n`), loop and bus
+figures, samples missed from the pose stream, and the recent state changes (`<prefix>/state`).
+Keys: `s` stop (brake to a hold), `e` or space e-stop, `q` quit. Needs the `rich` library
+(`pip install 'cablebot[monitor]'`).
 
 Threads: Zenoh's callbacks store the latest pose and state changes; a poller queries
 `<prefix>/status` twice a second; keys send commands from short-lived threads so the screen
