@@ -291,7 +291,7 @@ if estop:
             print("TIMEOUT estop confirmation " + json.dumps(st), flush=True)
             sys.exit(3)
         time.sleep(0.05)
-    print("ESTOPPED " + json.dumps(st), flush=True)
+    print("CONFIRMED " + json.dumps(st), flush=True)
 sub.undeclare()
 s.close()
 """

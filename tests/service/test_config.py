@@ -565,9 +565,9 @@ def test_cia402_drive_options_get_the_registry_defaults() -> None:
             "loop.encoder_rtr: applies to ODrive drives only",
         ),
         (
-            lambda: cia402_edit("drive.heartbeat_period_s", 0.3),
-            "faults.heartbeat_timeout_s: 0.5 s is shorter than two drive heartbeat periods "
-            "(drive.heartbeat_period_s = 0.3 s)",
+            lambda: cia402_edit("drive.heartbeat_period_s", 0.6),
+            "faults.heartbeat_timeout_s: 1 s is shorter than two drive heartbeat periods "
+            "(drive.heartbeat_period_s = 0.6 s)",
         ),
         (
             lambda: cia402_edit("drive.counts_per_rev", 2**21),

@@ -98,7 +98,7 @@ def run_three_processes(
             (True, None, READY_STATE[kind])
         ] * 4, axes
         if estop:
-            stopped = json.loads(obs.wait_line("ESTOPPED", 10 * slow)[len("ESTOPPED ") :])
+            stopped = json.loads(obs.wait_line("CONFIRMED", 10 * slow)[len("CONFIRMED ") :])
             assert stopped["state"] == "ESTOPPED" and stopped["estop"]["confirmed"], stopped
             assert not any(a["ready"] for a in stopped["axes"]), stopped["axes"]
             assert all(a["state"] != READY_STATE[kind] for a in stopped["axes"]), stopped["axes"]
