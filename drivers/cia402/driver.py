@@ -37,9 +37,13 @@ Readings: `position_rev` = position actual / `counts_per_rev`; `velocity_rps` es
 successive positions over the times of the SYNCs they answer; stamps at frame arrival;
 `heartbeat_stamp_s` from the NMT heartbeat (a silent drive's stamp ages); `ready` = Operation
 enabled; `fault` = a name built from the statusword's Fault bit and the last EMCY (code and
-text), or the drive's NMT restart; `state_name` = the CiA 402 state. For today's loop the
-ODrive fields stay meaningful: `axis_state` 8 while Operation enabled, else 1 (0 before the
-drive was heard); `axis_error` = the EMCY code while faulted (0x1000 without one), else 0.
+text), or the drive's NMT restart; `state_name` = the CiA 402 state. The loop reads only those;
+the raw numbers are kept for diagnostics: `axis_state` 8 while Operation enabled, else 1 (0
+before the drive was heard); `axis_error` = the EMCY code while faulted (0x1000 without one),
+else 0.
+
+`open_driver` and `check_options` are the registry's entries for the "cia402" family
+(`drivers.registry`): the driver from the `[drive]` options, and the options' checks.
 """
 
 from __future__ import annotations
