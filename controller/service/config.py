@@ -117,7 +117,7 @@ def _error_line(e: ConfigError) -> str:
 # ------------------------------------------------------------------------------- dataclasses
 @dataclass(frozen=True, slots=True)
 class ReelConfig:
-    """One reel: its ODrive CAN node id, the anchor (pulley exit point) and the reel model."""
+    """One reel: its drive's CAN node id, the anchor (pulley exit point) and the reel model."""
 
     node_id: int
     anchor_m: Vec3
@@ -209,7 +209,8 @@ class ZenohConfig:
 
 @dataclass(frozen=True, slots=True)
 class SimConfig:
-    """Simulated ODrive nodes (started in-process by the daemon when `enabled`)."""
+    """Simulated drives of the `[drive]` family (started in-process by the daemon when
+    `enabled`, or by `cablebot sim`); the broadcast periods and the watchdog are ODrive's."""
 
     enabled: bool = False
     encoder_period_s: float = 0.002
