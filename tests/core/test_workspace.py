@@ -67,7 +67,7 @@ coord = st.floats(-60.0, 60.0)
 
 @settings(max_examples=500, deadline=None)
 @given(coord, coord, st.floats(-1.0, 9.0))
-def test_polygon_agrees_with_kinematics_footprint(x: float, y: float, z: float) -> None:
+def test_check_point_agrees_with_the_footprint_rule(x: float, y: float, z: float) -> None:
     inside = footprint_contains(CFG.geometry.footprint_m, x, y, CFG.limits.xy_margin_m)
     assert LIM.contains_xy(x, y) == inside
     reason = LIM.check_point((x, y, z))
