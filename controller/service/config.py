@@ -1167,7 +1167,9 @@ def paper_robot_data(name: str = "default") -> dict[str, Any]:
             "bus_error_timeout_s": 0.05,
         },
         "homing": {"power_up_position_m": [0.0, 0.0, 2.0]},
-        "sim": {"enabled": True},
+        # The simulated drives' axis watchdog (idle when no command came for this long) gets the
+        # same allowance for a busy machine as the staleness windows above.
+        "sim": {"enabled": True, "watchdog_timeout_s": 1.0},
         "reels": [
             {
                 "node_id": i,

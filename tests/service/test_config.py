@@ -443,13 +443,17 @@ def test_every_problem_is_reported_at_once() -> None:
 
 
 def test_simulated_watchdog_timeout_is_validated() -> None:
-    assert parse(base()).sim.watchdog_timeout_s == 0.3
+    assert parse(base()).sim.watchdog_timeout_s == 1.0  # the built-in robot sets it
+    unset = base()
+    del unset["sim"]["watchdog_timeout_s"]
+    assert parse(unset).sim.watchdog_timeout_s == 0.3
     assert parse(edit("sim.watchdog_timeout_s", 0.0)).sim.watchdog_timeout_s == 0.0
     msg = err(edit("sim.watchdog_timeout_s", 0.005))
     assert "sim.watchdog_timeout_s: 0.005 s is shorter than 3 loop periods" in msg, msg
     # unset: 0.3 s, or 5 loop periods on a slow loop
     slow = edit("loop.rate_hz", 10.0)
     slow["faults"]["stale_timeout_s"] = 0.5
+    del slow["sim"]["watchdog_timeout_s"]
     assert parse(slow).sim.watchdog_timeout_s == 0.5
     msg = err(edit("sim.watchdog_timeout_s", -1.0))
     assert "sim.watchdog_timeout_s: must be >= 0" in msg, msg
