@@ -4,12 +4,21 @@ workspace) and the velocity sample parser (caps: bytes, depth, finite numbers)."
 from __future__ import annotations
 
 import itertools
+import json
 import math
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from controller.core.commands import (
+    MAX_JSON_DEPTH,
+    MAX_PAYLOAD_BYTES,
+    CommandError,
+    Velocity,
+    check_payload_size,
+    parse_command,
+)
 from controller.core.motion import (
     MIN_SPEED_MPS,
     MotionPlanner,
@@ -328,3 +337,61 @@ def test_braking_look_ahead_starts_before_the_boundary() -> None:
     vz = -pl.velocity_mps[2]
     assert vz > 1.5  # at speed when it saw the floor coming
     assert first_brake_z == pytest.approx(vz * vz / 2.0, abs=0.01)  # floor at z = 0
+
+
+# ------------------------------------------------------------------------ the sample parser
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.tuples(
+        st.floats(allow_nan=False, allow_infinity=False),
+        st.floats(allow_nan=False, allow_infinity=False),
+        st.floats(allow_nan=False, allow_infinity=False),
+    )
+)
+def test_any_finite_velocity_parses_exactly(v: Vec3) -> None:
+    payload = json.dumps({"velocity_mps": list(v)}).encode()
+    cmd = parse_command("velocity", payload)
+    assert cmd == Velocity(v)
+    assert all(type(x) is float for x in cmd.velocity_mps)
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        (b"", "missing field(s): velocity_mps"),
+        (b"{}", "missing field(s): velocity_mps"),
+        (b'{"position_m": [0, 0, 1]}', "unknown field(s): position_m"),
+        (b'{"velocity_mps": [0, 0, 1], "speed_mps": 1}', "unknown field(s): speed_mps"),
+        (b'{"velocity_mps": [0, 0]}', "velocity_mps: expected [x, y, z]"),
+        (b'{"velocity_mps": null}', "velocity_mps: expected [x, y, z]"),
+        (b'{"velocity_mps": [0, 0, NaN]}', "non-finite number NaN"),
+        (b'{"velocity_mps": [-Infinity, 0, 0]}', "non-finite number -Infinity"),
+        (b'{"velocity_mps": [0, 1e999, 0]}', "velocity_mps[1]: must be a finite number"),
+        (b'{"velocity_mps": [0, 0, true]}', "velocity_mps[2]: expected a number, got bool"),
+        (b'{"velocity_mps": ["1", 0, 0]}', "velocity_mps[0]: expected a number, got str"),
+        (b"[0, 0, 1]", "expected a JSON object"),
+        (b'{"velocity_mps": [0, 0, 1]', "malformed JSON"),
+    ],
+)
+def test_malformed_velocity_samples_are_refused_with_a_reason(payload: bytes, reason: str) -> None:
+    with pytest.raises(CommandError) as info:
+        parse_command("velocity", payload)
+    assert reason in str(info.value)
+
+
+def test_velocity_samples_have_a_byte_cap_and_a_depth_cap() -> None:
+    cap = MAX_PAYLOAD_BYTES["velocity"]
+    assert cap == 1024
+    valid = b'{"velocity_mps": [0.25, -0.5, 0]}'
+    at_cap = valid + b" " * (cap - len(valid))
+    assert parse_command("velocity", at_cap) == Velocity((0.25, -0.5, 0.0))
+    with pytest.raises(CommandError, match=f"payload too large: {cap + 1} bytes, velocity takes"):
+        parse_command("velocity", at_cap + b" ")
+    with pytest.raises(CommandError, match="payload too large"):
+        check_payload_size("velocity", 10_000_000)  # refused before any copy
+    deep = b'{"velocity_mps": ' + b"[" * 400 + b"1" + b"]" * 400 + b"}"
+    assert len(deep) <= cap
+    with pytest.raises(CommandError, match=f"nested too deeply: at most {MAX_JSON_DEPTH}"):
+        parse_command("velocity", deep)
