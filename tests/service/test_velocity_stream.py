@@ -177,7 +177,7 @@ def test_non_finite_samples_are_refused_before_the_tick() -> None:
     for bad in ((math.nan, 0.0, 0.0), (0.0, math.inf, 0.0)):
         with pytest.raises(ValueError, match="finite"):
             rig.ctl.submit_velocity(bad)
-        fut = rig.ctl.submit(Velocity(bad))  # type: ignore[arg-type]
+        fut = rig.ctl.submit(Velocity(bad))
         assert "finite" in str(fut.exception(timeout=0))
     rig.tick(10)
     assert rig.state() is State.HOLDING and _dist(rig.ctl.setpoint_m, rig.start) < 1e-9
