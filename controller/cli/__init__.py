@@ -19,6 +19,7 @@ _MODULES: tuple[str, ...] = (
     "controller.cli.offline",  # ipk, fpk
     "controller.cli.configs",  # check-config, init-config
     "controller.cli.monitor",  # monitor
+    "controller.cli.jog",  # jog
     "controller.cli.demo",  # demo
     "controller.cli.bench",  # bench
     "controller.cli.view",  # view

@@ -41,8 +41,9 @@ the simulated drives' axis watchdog; unset in a file: 0.3 s or 5 loop periods if
 `BusConfig.as_mapping()` (for `drivers.bus.open_bus`), `RobotConfig.node_ids` /
 `RobotConfig.anchors_m` properties, `bus_option_names(interface)`.
 `HomingConfig.state_file` is stored already expanded (``~`` and ``{name}`` replaced).
-In a file, `[limits]` is required with every key but `default_speed_mps` (a safe limit
-depends on the robot); all other sections are optional with the defaults of the dataclasses.
+In a file, `[limits]` is required with every key but `default_speed_mps` and
+`velocity_timeout_s` (a safe limit depends on the robot); all other sections are optional with
+the defaults of the dataclasses.
 `sim.enabled` defaults to true on the `virtual` bus (nothing else could answer there).
 """
 
@@ -171,6 +172,8 @@ class LimitsConfig:
     max_speed_mps: float = 2.0
     max_accel_mps2: float = 1.0
     default_speed_mps: float = 1.0
+    velocity_timeout_s: float = 0.25
+    """Dead-man of velocity input: no `<prefix>/velocity` sample for this long brakes to a hold."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -879,6 +882,7 @@ def _parse_limits(mt: _Table) -> LimitsConfig:
         max_speed_mps=max_speed,
         max_accel_mps2=mt.number("max_accel_mps2", required=True, gt=0.0),
         default_speed_mps=mt.number("default_speed_mps", max_speed, gt=0.0),
+        velocity_timeout_s=mt.number("velocity_timeout_s", 0.25, gt=0.0),
     )
 
 
