@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from controller.cli import demo
+from controller.cli.shape import RobotShape
 from controller.core.kinematics import Geometry, ipk
 from controller.service.config import load_config, paper_robot_data
 from controller.service.loop import PoseSample
@@ -153,6 +154,7 @@ def _synthetic_run(error_m: float) -> demo.CircleRun:
         overruns=0,
         ticks=n,
         dropped_rows=0,
+        shape=RobotShape.from_summary(cfg.summary()),
     )
 
 
