@@ -43,7 +43,8 @@ MAX_POINTS = 20000
 MAX_MARKERS = 400
 """Set-point samples beyond this many are drawn as a line (markers would hide the path)."""
 _CABLE_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b")
-_STATE_SHADES = {"MOVING": "#1f77b4", "FAULT": "#d62728", "ESTOPPED": "#d62728"}
+_FAULT_SHADES = {"FAULT": "#d62728", "ESTOPPED": "#d62728"}
+_STATE_SHADES = {"MOVING": "#1f77b4", **_FAULT_SHADES}
 
 
 class PlotError(RuntimeError):
@@ -247,17 +248,26 @@ def _step_axis(tr: Trace) -> tuple[FloatArray, str]:
 
 
 def _shade_states(ax: Any, tr: Trace, x: FloatArray) -> None:
-    """Shade the spans of `x` spent MOVING (blue) or in FAULT / ESTOPPED (red)."""
+    """Shade the spans of `x` spent in FAULT / ESTOPPED (red) and, unless the run went by
+    waypoints (its steps show the motion), MOVING (blue)."""
     if not tr.state:
         return
+    shades = _STATE_SHADES if tr.waypoints is None else _FAULT_SHADES
     start = 0
     for i in range(1, len(tr.state) + 1):
         if i == len(tr.state) or tr.state[i] != tr.state[start]:
-            colour = _STATE_SHADES.get(tr.state[start])
+            colour = shades.get(tr.state[start])
             if colour is not None:
                 end = x[i] if i < len(tr.state) else x[-1]
                 ax.axvspan(x[start], end, color=colour, alpha=0.08, lw=0)
             start = i
+
+
+def _shade_note(tr: Trace) -> str:
+    """What the shading means, for the figure's note."""
+    if tr.waypoints is None:
+        return "Shaded: moving (blue), fault or e-stop (red)."
+    return "Shaded: fault or e-stop (red)."
 
 
 def _still_axis_limits(values_m: FloatArray, scale_m: float) -> tuple[float, float] | None:
@@ -301,7 +311,6 @@ def _colours(n: int) -> list[str]:
 
 
 _NOTE: dict[str, Any] = {"ha": "center", "fontsize": 9, "color": "0.3"}
-_SHADE_NOTE = "Shaded: moving (blue), fault or e-stop (red)."
 _FLOOR_MM = 1e-4
 """Errors below this are drawn at it (a log scale has no zero)."""
 
@@ -454,13 +463,13 @@ def _figure_lengths(plt: Any, tr: Trace) -> Any:
         ax.plot(x[th], tr.lengths_m[th, i], color=colour, lw=1.6, label=f"cable {i + 1}")
         if wp is not None:
             ax.plot(np.arange(len(wp.row)), tr.lengths_m[wp.row, i], "o", color=colour, ms=3)
-    note = f"Every published tick. {_SHADE_NOTE}"
+    note = f"Every published tick. {_shade_note(tr)}"
     if wp is not None:
         ax.plot([], [], "o", color="0.3", ms=3, label="settled at a point")
         ax.set_xlim(0, len(wp.row) - 1)
         note = (
             "Lines: every published tick, placed between the steps by time. "
-            f"Dots: the lengths once settled at each point.\n{_SHADE_NOTE}"
+            f"Dots: the lengths once settled at each point.\n{_shade_note(tr)}"
         )
     _shade_states(ax, tr, x)
     ax.set_xlabel(x_label)
@@ -510,7 +519,7 @@ def _figure_xyz(plt: Any, tr: Trace) -> Any:
     fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.935), ncols=2)
     axes[-1].set_xlabel(x_label)
     fig.suptitle(f"FPK position vs set-point: {tr.title}")
-    note = _SHADE_NOTE
+    note = _shade_note(tr)
     if wp is not None:
         note = f"The FPK between the points: the loop's lag while moving (see the errors). {note}"
     fig.text(0.5, 0.012, note, **_NOTE)
@@ -571,7 +580,7 @@ def _figure_errors(plt: Any, tr: Trace) -> Any:
     fig.text(
         0.45,
         0.012,
-        f"{_SHADE_NOTE} Values below {floor:g} mm are drawn at {floor:g} mm.",
+        f"{_shade_note(tr)} Values below {floor:g} mm are drawn at {floor:g} mm.",
         **_NOTE,
     )
     fig.tight_layout(rect=(0.0, 0.04, 1.0, 1.0))
