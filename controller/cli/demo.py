@@ -259,6 +259,10 @@ hundred milliseconds then looks like stale encoders, and after it the set-point 
 (tracking error) while the four encoder frames straddle the stall (FPK residual). None of this
 touches the settled figures the demo measures; the run's worst tracking error and residual are
 printed."""
+DEMO_SIM_WATCHDOG_FLOOR_S = 2.0
+"""The simulated drives' axis watchdog, at least (unless `strict_faults` or the configuration
+turns it off): a stall of this process longer than the watchdog would disarm an axis
+(WATCHDOG_TIMER_EXPIRED) and fault the run, as a stall beyond the stale timeout would."""
 
 
 def demo_config(
@@ -267,16 +271,21 @@ def demo_config(
     """The demo's copy of `cfg`: in-process virtual bus with simulated nodes, no state file,
     no power-up pose (the demo homes explicitly), publish every tick, Zenoh listening only on
     `zenoh_listen` (no connect, no scouting, no config file); unless `strict_faults`, the fault
-    thresholds are raised to at least `DEMO_FAULT_FLOORS`. Raises nothing.
+    thresholds are raised to at least `DEMO_FAULT_FLOORS` and a simulated drive watchdog that
+    is on to at least `DEMO_SIM_WATCHDOG_FLOOR_S`. Raises nothing.
     """
     from controller.service.config import BusConfig, HomingConfig
 
     faults = cfg.faults
+    sim = replace(cfg.sim, enabled=True)
     if not strict_faults:
         faults = replace(
             faults,
             **{k: max(float(getattr(faults, k)), v) for k, v in DEMO_FAULT_FLOORS.items()},
         )
+        if sim.watchdog_timeout_s > 0.0:
+            watchdog_s = max(float(sim.watchdog_timeout_s), DEMO_SIM_WATCHDOG_FLOOR_S)
+            sim = replace(sim, watchdog_timeout_s=watchdog_s)
 
     zen = replace(
         cfg.zenoh,
@@ -290,7 +299,7 @@ def demo_config(
         bus=BusConfig("virtual", channel),
         homing=HomingConfig(None, None),
         loop=replace(cfg.loop, publish_every=1, realtime=False),
-        sim=replace(cfg.sim, enabled=True),
+        sim=sim,
         faults=faults,
         zenoh=zen,
     )
@@ -404,6 +413,9 @@ def _announce(
         for k in DEMO_FAULT_FLOORS
         if getattr(dcfg.faults, k) != getattr(cfg.faults, k)
     ]
+    wd_s, cfg_wd_s = dcfg.sim.watchdog_timeout_s, cfg.sim.watchdog_timeout_s
+    if wd_s != cfg_wd_s:
+        changed.append(f"simulated drive watchdog {wd_s:g} s (config {cfg_wd_s:g} s)")
     if changed:
         say(
             "fault thresholds raised for a simulation sharing this process and CPU: "
@@ -945,7 +957,7 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         help=(
             "keep the config's fault thresholds (by default the demo raises them to at least "
             + ", ".join(f"{k} {v:g}" for k, v in DEMO_FAULT_FLOORS.items())
-            + ")"
+            + f", and the simulated drives' watchdog to {DEMO_SIM_WATCHDOG_FLOOR_S:g} s)"
         ),
     )
     z = c.add_mutually_exclusive_group()
