@@ -364,7 +364,7 @@ def plan_circle(cfg: Any, spec: CircleSpec) -> CirclePlan:
     circle that leaves the limits.
     """
     from controller.core.motion import circle_path
-    from controller.core.workspace import Limits
+    from controller.core.workspace import Workspace
 
     points = tuple(circle_path(spec.radius_m, spec.centre_m, spec.z_m, spec.steps))
     lim = cfg.limits
@@ -376,7 +376,7 @@ def plan_circle(cfg: Any, spec: CircleSpec) -> CirclePlan:
         )
     if not (math.isfinite(spec.settle_s) and spec.settle_s >= 0.0):
         raise ValueError(f"settle time must be >= 0, got {spec.settle_s!r}")
-    reason = Limits(lim, cfg.geometry).check_path(points)
+    reason = Workspace.from_limits(lim, cfg.geometry).check_path(points)
     if reason is not None:
         raise ValueError(f"the circle leaves the robot's limits: {reason}")
     accel = float(lim.max_accel_mps2)
@@ -456,7 +456,8 @@ class DemoStack:
 
     def __enter__(self) -> DemoStack:
         """Build and start everything; raises what `build_stack` raises (after closing)."""
-        from controller.service.daemon import build_stack, start_loop
+        from controller.service.daemon import build_stack
+        from controller.service.runner import start_loop
 
         try:
             # The simulated reels power up with the effector at the circle's start.
@@ -471,7 +472,7 @@ class DemoStack:
             self.controller.publisher = self.recorder
             # As the daemon runs it (its loop thread, switch interval and gc freeze).
             self._thread, _sched = start_loop(
-                self._stack, self._stop, on_crash=self._crashed.append
+                self.controller.runner(), self.dcfg.loop, self._stop, on_crash=self._crashed.append
             )
         except BaseException:
             self.close()
@@ -495,7 +496,7 @@ class DemoStack:
 
     def _open_zenoh(self) -> Any:
         """The Zenoh publisher on `endpoint`, or a `NullPublisher` (with a note why)."""
-        from controller.service.loop import NullPublisher
+        from controller.service.pose import NullPublisher
 
         inner: Any = NullPublisher()
         if self.endpoint is not None:
@@ -700,7 +701,7 @@ def _circle_run(
         reel_slope_m_per_rev=slopes,
         zenoh=ds.zenoh_text,
         wall_s=wall_s,
-        overruns=int(ds.controller.overruns),
+        overruns=int(ds.controller.loop_stats.overruns),
         ticks=int(ds.controller.ticks),
         dropped_rows=ds.recorder.dropped,
         shape=shape,

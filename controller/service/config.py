@@ -13,8 +13,15 @@ values run only when those values are valid themselves):
 * unknown keys are errors (with a "did you mean" hint), so typos never silently pass;
 * units are part of the key names (`_m`, `_mps`, `_mps2`, `_s`, `_hz`, `_rps`, `_rev`); a value
   written with a unit ("2 m/s") or of the wrong type is an error naming the unit expected;
-* numbers are finite, within ±1e9 and range-checked, node ids are unique and in 0..63, at
-  least three reels;
+* numbers are finite, within ±1e9 and range-checked, node ids are unique and in the drive
+  family's range (ODrive 0..63, CiA 402 1..127), at least three reels;
+* `[drive] kind` names a drive family of `drivers.registry` ("odrive" by default, "cia402"),
+  and the other `[drive]` keys are that family's options, checked from the registry's table
+  (type, default, range; a file must exist) and by the family's own checks (a CiA 402 EDS must
+  load and hold the objects used, the loop period must be an exact CiA 402 interpolation
+  period); cross-checks: `faults.heartbeat_timeout_s` is at least two drive heartbeat periods,
+  `loop.encoder_rtr` only with ODrive drives, and with `counts_per_rev` every reel's cable
+  range fits the drives' 32-bit position;
 * `bus.interface` is a python-can interface name and every `[bus.options]` key is a keyword
   the interface's python-can bus class takes (`bus_option_names`; `hop_limit` for
   udp_multicast); Zenoh endpoints are `proto/host:port` with a valid port, and a Zenoh
@@ -27,7 +34,7 @@ values run only when those values are valid themselves):
   0.1 mm resolution over the cable range in float32 motor turns (the ODrive CANSimple
   position type), and the power-up position (if any) is inside the limits.
 
-Deviations from the agreed API: none. Additions (all with defaults, so nothing breaks):
+Keys and helpers with defaults, so a file that omits them still loads:
 `LoopConfig.rt_priority` (int, 50), `LoopConfig.auto_arm` (bool | None; None = arm at start
 only with `sim.enabled`), `SimConfig.tick_s` (0.001 s), `SimConfig.watchdog_timeout_s` (0.3 s,
 the simulated drives' axis watchdog; unset in a file: 0.3 s or 5 loop periods if longer),
@@ -56,6 +63,8 @@ from typing import Any, overload
 
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
 from controller.core.reel import ReelModel, spool_buildup
+from controller.core.workspace import Workspace, WorkspaceError
+from drivers import registry
 
 Vec3 = tuple[float, float, float]
 
@@ -109,7 +118,7 @@ def _error_line(e: ConfigError) -> str:
 # ------------------------------------------------------------------------------- dataclasses
 @dataclass(frozen=True, slots=True)
 class ReelConfig:
-    """One reel: its ODrive CAN node id, the anchor (pulley exit point) and the reel model."""
+    """One reel: its drive's CAN node id, the anchor (pulley exit point) and the reel model."""
 
     node_id: int
     anchor_m: Vec3
@@ -201,7 +210,8 @@ class ZenohConfig:
 
 @dataclass(frozen=True, slots=True)
 class SimConfig:
-    """Simulated ODrive nodes (started in-process by the daemon when `enabled`)."""
+    """Simulated drives of the `[drive]` family (started in-process by the daemon when
+    `enabled`, or by `cablebot sim`); the broadcast periods and the watchdog are ODrive's."""
 
     enabled: bool = False
     encoder_period_s: float = 0.002
@@ -214,6 +224,15 @@ class SimConfig:
     """Simulated ODrive axis watchdog (axis.config.watchdog_timeout): an axis in closed loop
     that receives no command for this long disarms to IDLE with WATCHDOG_TIMER_EXPIRED;
     0 = off."""
+
+
+@dataclass(frozen=True, slots=True)
+class DriveConfig:
+    """The reels' drive family (a `drivers.registry` name) and its `[drive]` options: every
+    option of the family that has a value (given, or its default)."""
+
+    kind: str = registry.DEFAULT_KIND
+    options: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
 
 @dataclass(frozen=True, slots=True)
@@ -231,6 +250,7 @@ class RobotConfig:
     zenoh: ZenohConfig
     sim: SimConfig
     source: str
+    drive: DriveConfig = field(default_factory=DriveConfig)
 
     @property
     def node_ids(self) -> tuple[int, ...]:
@@ -289,6 +309,10 @@ class RobotConfig:
                 "config_file": self.zenoh.config_file,
             },
             "sim": _fields(self.sim),
+            "drive": {
+                "kind": self.drive.kind,
+                "options": {k: _jsonable(v) for k, v in self.drive.options.items()},
+            },
         }
 
 
@@ -310,6 +334,8 @@ def _jsonable(v: Any) -> Any:
 
 # ------------------------------------------------------------------------------- validation
 _UNIT_WORDS = {
+    "_per_rev": "units per motor turn",
+    "_per_rps": "units per motor turn per second",
     "_mps2": "metres per second squared",
     "_rps2": "motor turns per second squared",
     "_m_per_rev2": "metres per turn per turn",
@@ -571,11 +597,13 @@ _REEL_KEYS = (
 )
 
 
-def _parse_reel(t: _Table) -> ReelConfig | None:
-    """One [[reels]] table; None (problems recorded) if it is not usable."""
+def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
+    """One [[reels]] table; None (problems recorded) if it is not usable. `family`: the drive
+    family whose node id range applies (None: the family is unknown, any 0..127)."""
     mark = t.errs.mark()
     t.finish(_REEL_KEYS)
-    node_id = t.integer("node_id", ge=0, le=63)
+    lo, hi = (0, 127) if family is None else (family.node_id_min, family.node_id_max)
+    node_id = t.integer("node_id", ge=lo, le=hi)
     anchor = t.vec3("anchor_m")
     has_mpr, has_radius = t.has("metres_per_rev"), t.has("drum_radius_m")
     mpr = math.nan
@@ -655,7 +683,18 @@ def _check_reel_range(rc: ReelConfig, i: int, lim: LimitsConfig, source: str) ->
             )
 
 
-_TOP_KEYS = ("name", "reels", "bus", "loop", "limits", "faults", "homing", "zenoh", "sim")
+_TOP_KEYS = (
+    "name",
+    "reels",
+    "bus",
+    "loop",
+    "limits",
+    "faults",
+    "homing",
+    "zenoh",
+    "sim",
+    "drive",
+)
 _BUS_KEYS = ("interface", "channel", "bitrate", "options")
 
 
@@ -677,7 +716,10 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         top.fail("name", f"must match {_NAME_RE.pattern} (used in paths and keys), got {name!r}")
         name = "default"
 
-    reels = _parse_reels(top, data, errs)
+    mark = errs.mark()
+    drive, family = _parse_drive(top)
+    drive_ok = errs.clean_since(mark)
+    reels = _parse_reels(top, data, errs, family)
     geometry: Geometry | None = None
     if reels is not None:
         try:
@@ -802,6 +844,10 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
 
     zenoh = _parse_zenoh(top, name)
 
+    if family is not None:
+        limits_used = limits if limits_ok else None
+        _check_drive(top, drive, family, drive_ok, loop, faults, limits_used, reels)
+
     errs.raise_if_any()
     assert reels is not None and geometry is not None  # no problems: both were built
     return RobotConfig(
@@ -816,6 +862,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         zenoh=zenoh,
         sim=sim,
         source=source,
+        drive=drive,
     )
 
 
@@ -836,7 +883,7 @@ def _parse_limits(mt: _Table) -> LimitsConfig:
 
 
 def _parse_reels(
-    top: _Table, data: Mapping[str, Any], errs: _Errors
+    top: _Table, data: Mapping[str, Any], errs: _Errors, family: registry.Family | None
 ) -> tuple[ReelConfig, ...] | None:
     """The [[reels]] array; None (problems recorded) unless every reel is usable."""
     if "reels" not in data:
@@ -848,7 +895,7 @@ def _parse_reels(
         return None
     if len(reels_raw) < 3:
         errs.add("reels", f"need at least 3 reels, got {len(reels_raw)}")
-    parsed = [_parse_reel(_Table(r, f"reels[{i}]", errs)) for i, r in enumerate(reels_raw)]
+    parsed = [_parse_reel(_Table(r, f"reels[{i}]", errs), family) for i, r in enumerate(reels_raw)]
     seen: dict[int, int] = {}
     for i, r in enumerate(parsed):
         if r is None:
@@ -864,6 +911,96 @@ def _parse_reels(
     if len(good) != len(parsed) or len(good) < 3 or len(seen) != len(good):
         return None
     return tuple(good)
+
+
+def _parse_drive(top: _Table) -> tuple[DriveConfig, registry.Family | None]:
+    """The [drive] table: the family named by `kind` and its options from the registry's
+    table; the family is None (problem recorded) when `kind` names none."""
+    t = top.sub("drive")
+    kind = t.string("kind", registry.DEFAULT_KIND) or registry.DEFAULT_KIND
+    family = registry.FAMILIES.get(kind)
+    if family is None:
+        t.fail("kind", registry.unknown_family_problem(kind))
+        return DriveConfig(kind), None
+    known = {"kind", *(o.name for o in family.options)}
+    for k in t.data:
+        if k in known:
+            continue
+        owners = sorted(
+            f.name for f in registry.FAMILIES.values() if k in {o.name for o in f.options}
+        )
+        problem = _unknown(k, known)
+        if owners:
+            problem += f" ({k} is an option of [drive] kind = {owners[0]!r}, not {kind!r})"
+        t.fail(k, problem)
+    options: dict[str, Any] = {}
+    for o in family.options:
+        if not t.has(o.name) and not o.required and o.default is None:
+            continue  # no value: the driver's own default applies
+        if o.kind == "number":
+            default = None if o.default is None else float(o.default)
+            value: Any = t.number(o.name, default, gt=o.gt, ge=o.ge, le=o.le, required=o.required)
+        elif o.kind == "bool":
+            value = t.boolean(o.name, bool(o.default))
+        else:
+            text = t.string(o.name, None if o.default is None else str(o.default))
+            if text is None:
+                continue
+            value = os.path.expanduser(text)
+            if not Path(value).is_file():
+                t.fail(o.name, f"no such file: {value}")
+        options[o.name] = value
+    return DriveConfig(kind, MappingProxyType(options)), family
+
+
+def _check_drive(
+    top: _Table,
+    drive: DriveConfig,
+    family: registry.Family,
+    drive_ok: bool,
+    loop: LoopConfig,
+    faults: FaultConfig,
+    limits: LimitsConfig | None,
+    reels: Sequence[ReelConfig] | None,
+) -> None:
+    """Cross-checks of the drive family with the loop, faults and reels (see the module
+    docstring); run only on values that are valid themselves (`drive_ok`: the [drive] table
+    was)."""
+    errs = top.errs
+    opts = drive.options
+    if loop.encoder_rtr and family.name != "odrive":
+        errs.add(
+            "loop.encoder_rtr",
+            f"applies to ODrive drives only ([drive] kind = {family.name!r} drives send their "
+            "positions every cycle)",
+        )
+    hb = opts.get("heartbeat_period_s")
+    if drive_ok and isinstance(hb, float) and faults.heartbeat_timeout_s < 2.0 * hb:
+        errs.add(
+            "faults.heartbeat_timeout_s",
+            f"{faults.heartbeat_timeout_s:g} s is shorter than two drive heartbeat periods "
+            f"(drive.heartbeat_period_s = {hb:g} s)",
+        )
+    cpr = opts.get("counts_per_rev")
+    if drive_ok and isinstance(cpr, float) and limits is not None and reels:
+        for i, r in enumerate(reels):
+            try:
+                span_rev = abs(
+                    r.reel.position_rev(limits.max_cable_m)
+                    - r.reel.position_rev(limits.min_cable_m)
+                )
+            except (ValueError, ArithmeticError):
+                continue  # reported by the reel range check
+            if span_rev * cpr > 2**31 - 1:
+                errs.add(
+                    f"reels[{i}]",
+                    f"{span_rev:.6g} motor turns over limits.min_cable_m..max_cable_m are "
+                    f"{span_rev * cpr:.4g} position counts at drive.counts_per_rev = {cpr:g}: "
+                    "beyond the drives' 32-bit position",
+                )
+    if drive_ok:
+        for key, problem in family.check_options(opts, 1.0 / loop.rate_hz):
+            errs.add(key, problem)
 
 
 def _parse_bus(top: _Table) -> BusConfig:
@@ -1037,70 +1174,58 @@ def _zenoh_file_problem(path: str) -> str | None:
 
 
 def _check_limits(lim: LimitsConfig, geometry: Geometry, source: str) -> None:
-    top_z = geometry.anchor_height_min_m - lim.top_margin_m
-    if not lim.floor_z_m < top_z:
-        raise ConfigError(
-            source,
-            "limits.floor_z_m",
-            f"{lim.floor_z_m:g} m must be below the lowest anchor minus top_margin_m ({top_z:g} m)",
-        )
-    if not lim.min_cable_m < lim.max_cable_m:
-        raise ConfigError(
-            source,
-            "limits.min_cable_m",
-            f"{lim.min_cable_m:g} m must be < max_cable_m ({lim.max_cable_m:g} m)",
-        )
+    """Raise ConfigError (naming the `limits.` keys) if the limits leave no workspace or no
+    cable range (`Workspace` decides), or the default speed exceeds the maximum."""
+    problems: list[ConfigError] = []
+    try:
+        Workspace.from_limits(lim, geometry)
+    except WorkspaceError as exc:
+        problems.append(ConfigError(source, f"limits.{exc.limit}", exc.detail))
     if lim.default_speed_mps > lim.max_speed_mps:
-        raise ConfigError(
-            source,
-            "limits.default_speed_mps",
-            f"{lim.default_speed_mps:g} m/s exceeds max_speed_mps ({lim.max_speed_mps:g} m/s)",
+        problems.append(
+            ConfigError(
+                source,
+                "limits.default_speed_mps",
+                f"{lim.default_speed_mps:g} m/s exceeds max_speed_mps ({lim.max_speed_mps:g} m/s)",
+            )
         )
-    cx = sum(r[0] for r in geometry.anchors_m.tolist()) / geometry.n_cables
-    cy = sum(r[1] for r in geometry.anchors_m.tolist()) / geometry.n_cables
-    if not _footprint(geometry, cx, cy, lim.xy_margin_m):
-        raise ConfigError(
-            source,
-            "limits.xy_margin_m",
-            f"{lim.xy_margin_m:g} m leaves no workspace (even the anchors' centroid "
-            "is outside the shrunk plan-view polygon)",
-        )
+    if problems:
+        raise ConfigError.collected(source, problems)
 
 
 def _raise_point_problem(
     t: _Table, name: str, p: Vec3, lim: LimitsConfig, geometry: Geometry
 ) -> None:
-    problem = _point_problem(p, lim, geometry)
+    problem = _point_problem(p, Workspace.from_limits(lim, geometry))
     if problem is not None:
         raise t.error(name, problem)
 
 
-def _footprint(geometry: Geometry, x: float, y: float, margin: float) -> bool:
-    from controller.core.kinematics import footprint_contains
-
-    return footprint_contains(geometry, x, y, margin)
-
-
-def _point_problem(p: Vec3, lim: LimitsConfig, geometry: Geometry) -> str | None:
+def _point_problem(p: Vec3, workspace: Workspace) -> str | None:
+    """Why `p` is not an allowed pose (the workspace decides), in the words of the
+    configuration keys, or None."""
+    v = workspace.target_violation(p)
+    if v is None:
+        return None
     x, y, z = p
-    if not _footprint(geometry, x, y, lim.xy_margin_m):
+    if v.limit == "xy_margin_m":
         return (
             f"({x:g}, {y:g}) m is outside the anchors' plan-view polygon shrunk by "
-            f"limits.xy_margin_m ({lim.xy_margin_m:g} m)"
+            f"limits.xy_margin_m ({v.bound:g} m)"
         )
-    top_z = geometry.anchor_height_min_m - lim.top_margin_m
-    if z < lim.floor_z_m:
-        return f"z={z:g} m is below limits.floor_z_m ({lim.floor_z_m:g} m)"
-    if z > top_z:
-        return f"z={z:g} m is above the anchor plane minus margin ({top_z:g} m)"
-    for i, a in enumerate(geometry.anchors_m.tolist(), start=1):
-        length = math.dist(p, a)
-        if not lim.min_cable_m <= length <= lim.max_cable_m:
-            return (
-                f"cable {i} would be {length:.4g} m, outside limits.min_cable_m..max_cable_m "
-                f"({lim.min_cable_m:g}..{lim.max_cable_m:g} m)"
-            )
-    return None
+    if v.limit == "floor_z_m":
+        return f"z={z:g} m is below limits.floor_z_m ({v.bound:g} m)"
+    if v.limit == "top_margin_m":
+        return (
+            f"z={z:g} m is above the anchor plane minus margin ({v.bound:g} m), "
+            "the lowest anchor minus limits.top_margin_m"
+        )
+    if v.limit in ("min_cable_m", "max_cable_m"):
+        return (
+            f"cable {v.cable} would be {v.value:.4g} m, outside limits.min_cable_m..max_cable_m "
+            f"({workspace.min_cable_m:g}..{workspace.max_cable_m:g} m)"
+        )
+    return v.reason
 
 
 def load_config(path: str | os.PathLike[str] | None) -> RobotConfig:
@@ -1166,16 +1291,21 @@ def paper_robot_data(name: str = "default") -> dict[str, Any]:
             "max_accel_mps2": 1.0,
             "default_speed_mps": 1.0,
         },
+        # Its simulated drives share the CPU with everything else on the machine (a desktop, a
+        # laptop running a build): a reading may wait a few hundred ms for a busy scheduler. A
+        # real rig keeps the 50 ms / 0.5 s defaults; the simulated robot must not fault on load.
         "faults": {
-            "stale_timeout_s": 0.05,
-            "heartbeat_timeout_s": 0.5,
+            "stale_timeout_s": 0.5,
+            "heartbeat_timeout_s": 1.0,
             "residual_max_m": 0.02,
             "tracking_max_m": 0.25,
             "arm_timeout_s": 2.0,
             "bus_error_timeout_s": 0.05,
         },
         "homing": {"power_up_position_m": [0.0, 0.0, 2.0]},
-        "sim": {"enabled": True},
+        # The simulated drives' axis watchdog (idle when no command came for this long) gets the
+        # same allowance for a busy machine as the staleness windows above.
+        "sim": {"enabled": True, "watchdog_timeout_s": 1.0},
         "reels": [
             {
                 "node_id": i,

@@ -1,10 +1,12 @@
-"""The control loop: one `Controller` owns the states, faults, commands and the fixed-rate tick.
+"""The control step: one `Controller` owns the states, faults, commands and the tick.
 
 Every tick (`Controller.tick`): poll the bus without blocking, read the axes, check staleness,
 heartbeats and axis errors, turn motor turns into cable lengths, solve the pose by FPK, take
 queued commands, advance the motion planner, check the limits, solve the set-point's cable
-lengths by IPK, check the cable speeds, command the motors and publish the pose. `run` calls
-`tick` against absolute deadlines on the monotonic clock.
+lengths by IPK, check the cable speeds, command the motors and publish the pose
+(`controller.service.pose`). A `controller.service.runner.Runner` (`Controller.runner`) calls
+`tick` against absolute deadlines on the monotonic clock; its figures are in
+`status()["loop"]`.
 
 Velocity feed-forward: every set-point goes out with the motor velocity that follows it, so an
 ODrive in position control + passthrough (vel_cmd = vel_ff + pos_gain * position error) tracks a
@@ -18,7 +20,8 @@ periods per tick. After a CPU stall the motion therefore resumes where it was (i
 slower in wall time) instead of jumping ahead by the whole gap, which the reels could not follow
 and which would trip the cable-speed check; `status()["loop"]["dt_clamped"]` counts such ticks.
 
-Threading: the loop thread calls `tick`/`run` and is the only one that touches the driver.
+Threading: the loop thread calls `tick` (through the runner) and is the only one that touches
+the driver.
 Other threads (Zenoh, the daemon) use `submit`, `submit_setpoint`, `request_estop` and
 `status`, which are thread-safe.
 
@@ -32,10 +35,18 @@ within the armed session it arrived in: one that arrives while disarmed, arming,
 ESTOPPED is discarded (counted in `status()["stream"]["discarded"]`), so arming always starts
 by holding the measured pose.
 
-Paths: a move or path is checked against the limits and prepared (speed, repeated points) in the
-thread that submits it, vectorised (`Limits.path_failure`); the tick only checks the first leg
-from where the set-point comes to rest and hands the prepared points to the planner, which
-builds each leg when it reaches it. A path of any length costs the tick the same.
+Limits: `controller.core.workspace.Workspace` (`self.workspace`) decides every target, point,
+leg, cable length and cable speed. Paths: a move or path is checked against it and prepared
+(speed, repeated points) in the thread that submits it, vectorised (`path_failure`); the tick
+only checks the first leg from where the set-point comes to rest and hands the prepared points
+to the planner, which builds each leg when it reaches it. A path of any length costs the tick
+the same.
+
+Axes: the step sees every drive family alike, through the generic status of its readings
+(`drivers.base.AxisReading`: `ready`, `fault`, `state_name`, stamps); "closed loop" here means
+`ready` (ODrive: CLOSED_LOOP_CONTROL without an error; CiA 402: Operation enabled), and fault
+reasons name the drive's state and fault as the driver does (e.g. `axis_error: node 2
+ESTOP_REQUESTED (0x2000000)`, `axis_state: node 1 left closed loop (IDLE)`).
 
 E-stop confirmation: after an e-stop every axis must report, by a heartbeat newer than the
 e-stop, that it left closed loop within `ESTOP_CONFIRM_S`. An axis that does not is named in the
@@ -52,10 +63,9 @@ import math
 import queue
 import threading
 import time
-from array import array
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -77,126 +87,20 @@ from controller.core.commands import (
 from controller.core.motion import MotionPlanner, check_speed, dedupe_path
 from controller.core.reel import ReelModel
 from controller.core.states import ARMED_STATES, State, check_transition, refusal
-from controller.core.workspace import Limits, points_array
+from controller.core.workspace import Workspace, points_array
 from controller.service.config import RobotConfig
+from controller.service.pose import NullPublisher, PoseSample, Publisher
+from controller.service.runner import SPIN_S, LoopStats, Runner
 from drivers.base import AxisReading, BusError, ReelDriver
 
 log = logging.getLogger("cablebot.loop")
-
-AXIS_CLOSED_LOOP = 8
-"""ODrive AxisState CLOSED_LOOP_CONTROL."""
 
 COMMAND_QUEUE_SIZE = 32
 ESTOP_CONFIRM_S = 0.2
 """Every axis must confirm leaving closed loop this soon after an e-stop (module docstring)."""
 MAX_PLANNER_DT_PERIODS = 4.0
 """The planner advances at most this many loop periods per tick (see the module docstring)."""
-STATS_WINDOW = 4096
-"""Ticks kept in the jitter / compute-time ring buffers."""
 _MAX_COMMANDS_PER_TICK = 8
-
-
-# --------------------------------------------------------------------------------------------
-# Publishing contract
-
-
-@dataclass(frozen=True, slots=True)
-class PoseSample:
-    """One published pose (the `<prefix>/pose` schema)."""
-
-    seq: int
-    stamp_ns: int
-    position_m: tuple[float, float, float] | None
-    cable_lengths_m: tuple[float, ...]
-    residual_m: float | None
-    valid: bool
-    state: str
-
-    def to_json_bytes(self) -> bytes:
-        """Encode as compact JSON; non-finite numbers become null, so the output is valid JSON.
-
-        Hand-formatted (about 4x faster than json.dumps for this fixed schema); float repr is
-        the shortest round-tripping decimal, as json.dumps writes it.
-        """
-        pos = self.position_m
-        if pos is not None and self.valid and all(map(math.isfinite, pos)):
-            pos_s = f"[{_num(pos[0])},{_num(pos[1])},{_num(pos[2])}]"
-            valid = "true"
-        else:
-            pos_s = "null"
-            valid = "false"
-        lengths = ",".join(map(_num, self.cable_lengths_m))
-        res = "null" if self.residual_m is None else _num(self.residual_m)
-        return (
-            f'{{"seq":{int(self.seq)},"stamp_ns":{int(self.stamp_ns)},"position_m":{pos_s},'
-            f'"cable_lengths_m":[{lengths}],"residual_m":{res},"valid":{valid},'
-            f'"state":"{_state_name(self.state)}"}}'
-        ).encode()
-
-
-def _num(x: float) -> str:
-    """JSON number for a float; `null` if not finite."""
-    return repr(float(x)) if math.isfinite(x) else "null"
-
-
-def _state_name(s: str) -> str:
-    """A state name safe to put between JSON quotes (state names are plain identifiers)."""
-    return s if s.isidentifier() else "UNKNOWN"
-
-
-class Publisher(Protocol):
-    """Where the loop hands its poses and state changes (the Zenoh interface, or nothing)."""
-
-    def publish_pose(self, sample: PoseSample) -> None:
-        """Publish one pose sample; must not block the tick."""
-        ...
-
-    def publish_state(self, state: str, reason: str | None, stamp_ns: int) -> None:
-        """Publish a state change."""
-        ...
-
-
-class NullPublisher:
-    """A Publisher that drops everything."""
-
-    def publish_pose(self, sample: PoseSample) -> None:
-        """Drop the sample."""
-
-    def publish_state(self, state: str, reason: str | None, stamp_ns: int) -> None:
-        """Drop the state change."""
-
-
-# --------------------------------------------------------------------------------------------
-# Statistics
-
-
-class _Ring:
-    """Preallocated ring buffer of floats; written by index in the tick, read by `status()`."""
-
-    __slots__ = ("buf", "count", "size")
-
-    def __init__(self, size: int) -> None:
-        self.buf = array("d", bytes(8 * size))
-        self.size = size
-        self.count = 0
-
-    def add(self, value: float) -> None:
-        self.buf[self.count % self.size] = value
-        self.count += 1
-
-    def summary(self) -> dict[str, float | None]:
-        """p50, p99 and max over the window (None when empty)."""
-        n = min(self.count, self.size)
-        if n == 0:
-            return {"p50": None, "p99": None, "max": None}
-        # numpy: ~50x faster than sorted() on the array, so a status request holds the GIL
-        # (and so delays the loop thread) for tens of microseconds, not milliseconds.
-        vals = np.sort(np.frombuffer(self.buf, dtype=np.float64, count=n))
-        return {
-            "p50": float(vals[(n - 1) // 2]),
-            "p99": float(vals[min(n - 1, math.ceil(0.99 * n) - 1)]),
-            "max": float(vals[-1]),
-        }
 
 
 # --------------------------------------------------------------------------------------------
@@ -209,14 +113,6 @@ class _Fault(Exception):
     def __init__(self, reason: str) -> None:
         super().__init__(reason)
         self.reason = reason
-
-
-class _Deferred(Exception):
-    """Internal: the command's reply comes later, from `future` (homing save)."""
-
-    def __init__(self, future: concurrent.futures.Future[dict[str, Any]]) -> None:
-        super().__init__("deferred")
-        self.future = future
 
 
 @dataclass(frozen=True, slots=True)
@@ -250,11 +146,12 @@ _Pending = tuple[Command, "concurrent.futures.Future[dict[str, Any]]", _Motion |
 
 
 class Controller:
-    """The cable robot's controller: states, faults, commands, motion and the fixed-rate loop.
+    """The cable robot's controller: states, faults, commands, motion and the control step.
 
     `cfg` is a `controller.service.config.RobotConfig`; `driver` a `drivers.base.ReelDriver` whose
     `node_ids` are those of `cfg.reels`, in the same order. `offsets_rev` (node id -> motor
-    offset) overrides the state file. Raises ValueError if the driver's axes do not match.
+    offset) overrides the state file. `clock` and `sleep` are those of `runner`. Raises
+    ValueError if the driver's axes do not match.
     """
 
     def __init__(
@@ -286,7 +183,8 @@ class Controller:
         self.period_s = 1.0 / float(cfg.loop.rate_hz)
         self._max_plan_dt_s = MAX_PLANNER_DT_PERIODS * self.period_s
         self.publish_every = max(1, int(cfg.loop.publish_every))
-        self.limits = Limits(cfg.limits, self.geometry)
+        # Immutable: read from any thread (the Zenoh interface pre-checks commands with it).
+        self.workspace = Workspace.from_limits(cfg.limits, self.geometry)
         self._default_speed_mps = min(
             float(cfg.limits.default_speed_mps),
             float(cfg.limits.max_speed_mps),
@@ -368,11 +266,8 @@ class Controller:
         self.command_errors = 0
         self.hold_failures = 0
 
-        self.overruns = 0
-        self.skipped = 0
-        self.jitter = _Ring(STATS_WINDOW)
-        self.compute = _Ring(STATS_WINDOW)
-        self.sleep_spin_s = 0.0002
+        self.loop_stats = LoopStats()
+        """The figures of the runner that calls `tick` (`runner`), reported in `status()`."""
         self._save_threads: list[threading.Thread] = []
         self._closing = False
         """Set by `begin_shutdown`: no new motion is taken."""
@@ -504,7 +399,7 @@ class Controller:
             points = cmd.points_m
         try:
             arr = points_array(points) if len(points) > 1 else None
-            failure = self.limits.path_failure(points, array=arr)
+            failure = self.workspace.path_failure(points, array=arr)
             if failure is not None:
                 i, why = failure
                 where = "target" if isinstance(cmd, Move) else f"points_m[{i}]"
@@ -636,21 +531,20 @@ class Controller:
             )
 
     def _check_axes(self, readings: Sequence[AxisReading], now_s: float) -> None:
+        """Armed: every axis without a fault, fresh, and ready (the drives' generic status)."""
         stale = self._stale_s
         hb = self._hb_timeout_s
         for r in readings:
-            if r.axis_error != 0:
-                raise _Fault(f"axis_error: node {r.node_id} error 0x{r.axis_error:x}")
+            if r.fault is not None:
+                raise _Fault(f"axis_error: node {r.node_id} {r.fault}")
             if now_s - r.stamp_s > stale:
                 raise _Fault(f"stale_encoder: node {r.node_id} age {now_s - r.stamp_s:.3f} s")
             if now_s - r.heartbeat_stamp_s > hb:
                 raise _Fault(
                     f"stale_heartbeat: node {r.node_id} age {now_s - r.heartbeat_stamp_s:.3f} s"
                 )
-            if r.axis_state != AXIS_CLOSED_LOOP:
-                raise _Fault(
-                    f"axis_state: node {r.node_id} left closed loop (state {r.axis_state})"
-                )
+            if not r.ready:
+                raise _Fault(f"axis_state: node {r.node_id} left closed loop ({r.state_name})")
 
     def _solve_pose(self, readings: Sequence[AxisReading], now_s: float) -> None:
         """Lengths from the encoders, then the pose by FPK (invalid when unhomed or unheard)."""
@@ -733,9 +627,7 @@ class Controller:
             # Hold the motors where they were while they enter closed loop.
             self._send(self._arm_rev)
         closed = all(
-            r.axis_state == AXIS_CLOSED_LOOP
-            and r.axis_error == 0
-            and r.heartbeat_stamp_s >= self._arm_start_s
+            r.ready and r.fault is None and r.heartbeat_stamp_s >= self._arm_start_s
             for r in readings
         )
         if closed and fresh and self.pose_valid and self.pose_m is not None:
@@ -745,12 +637,11 @@ class Controller:
             return
         if now_s - self._arm_start_s > self._arm_timeout_s:
             bad = [
-                f"node {r.node_id} (state {r.axis_state}, error 0x{r.axis_error:x}"
+                f"node {r.node_id} ({r.state_name}"
+                f"{'' if r.fault is None else ', ' + r.fault}"
                 f"{', no encoder' if r.stamp_s < self._arm_start_s else ''})"
                 for r in readings
-                if r.axis_state != AXIS_CLOSED_LOOP
-                or r.axis_error != 0
-                or r.stamp_s < self._arm_start_s
+                if not r.ready or r.fault is not None or r.stamp_s < self._arm_start_s
             ]
             why = ", ".join(bad) if bad else "no valid pose"
             self._fault(f"arm_timeout: {why}")
@@ -771,7 +662,7 @@ class Controller:
             if epoch != self._arm_epoch:
                 reason: str | None = "set-point from before the last `arm` discarded"
             else:
-                reason = self._check_target(target)
+                reason = self.workspace.check_target(target)
             if reason is None:
                 self.planner.stream(target)
                 if self.state is State.HOLDING:
@@ -783,19 +674,19 @@ class Controller:
         sp = (float(sp[0]), float(sp[1]), float(sp[2]))
         if not (math.isfinite(sp[0]) and math.isfinite(sp[1]) and math.isfinite(sp[2])):
             raise _Fault(f"nan_setpoint: planner gave {sp}")
-        reason = self.limits.check_point(sp)
+        reason = self.workspace.check_point(sp)
         if reason is not None:
             raise _Fault(f"limit: set-point {_fmt(sp)}: {reason}")
         try:
             lengths = tuple(kinematics.ipk_point(self.geometry, sp))
         except kinematics.KinematicsError as exc:
             raise _Fault(f"ipk: {exc}") from None
-        reason = self.limits.check_lengths(lengths)
+        reason = self.workspace.check_lengths(lengths)
         if reason is not None:
             raise _Fault(f"limit: {reason}")
         prev = self.setpoint_lengths_m
         if prev is not None:
-            reason = self.limits.check_cable_speeds(prev, lengths, dt)
+            reason = self.workspace.check_cable_speeds(prev, lengths, dt)
             if reason is not None:
                 raise _Fault(f"cable_speed: {reason}")
         reels = self.reels
@@ -909,7 +800,7 @@ class Controller:
         e-stop? Past the deadline: name the axes that have not, send Estop and IDLE again."""
         since = self._estop_at_s
         for r in readings:
-            if r.heartbeat_stamp_s <= since or r.axis_state == AXIS_CLOSED_LOOP:
+            if r.heartbeat_stamp_s <= since or r.ready:
                 break
         else:
             self._estop_confirmed = True
@@ -924,9 +815,7 @@ class Controller:
         if now_s < self._estop_check_s:
             return
         self._estop_check_s = now_s + ESTOP_CONFIRM_S
-        bad = [
-            r for r in readings if r.heartbeat_stamp_s <= since or r.axis_state == AXIS_CLOSED_LOOP
-        ]
+        bad = [r for r in readings if r.heartbeat_stamp_s <= since or r.ready]
         self.estop_repeats += 1
         errors = []
         for send in (self.driver.estop, self.driver.disarm):
@@ -938,7 +827,7 @@ class Controller:
         if nodes != self._estop_unconfirmed:
             self._estop_unconfirmed = nodes
             what = ", ".join(
-                f"node {r.node_id} still in closed loop (state {r.axis_state})"
+                f"node {r.node_id} still in closed loop ({r.state_name})"
                 if r.heartbeat_stamp_s > since
                 else f"node {r.node_id} silent (no heartbeat since the Estop)"
                 for r in bad
@@ -959,8 +848,6 @@ class Controller:
                 continue
             try:
                 reply = self._execute(cmd, readings, now_s, motion)
-            except _Deferred as d:
-                d.future.add_done_callback(_chain(fut))
             except CommandRefused as exc:
                 log.info("refused %s: %s", type(cmd).__name__.lower(), exc)
                 fut.set_exception(exc)
@@ -968,7 +855,10 @@ class Controller:
                 log.exception("command %r failed", cmd)
                 fut.set_exception(CommandRefused(f"internal error: {exc}"))
             else:
-                fut.set_result(reply)
+                if isinstance(reply, concurrent.futures.Future):  # answered later (homing save)
+                    reply.add_done_callback(_chain(fut))
+                else:
+                    fut.set_result(reply)
 
     def _refusal_text(self, state: State, why: str) -> str:
         """The refusal message for a verb `state` refuses with reason `why` (COMMAND_RULES)."""
@@ -976,33 +866,15 @@ class Controller:
             return f"not allowed in {state.value} ({self.reason}): {why}"
         return f"not allowed in {state.value}: {why}"
 
-    def check_target(self, p: Sequence[float]) -> str | None:
-        """Why `p` is not an allowed target (workspace, cable lengths), or None if it is.
-
-        Reads only the immutable limits and geometry: safe from any thread (the Zenoh interface
-        refuses out-of-workspace commands with it before they reach the queue).
-        """
-        return self._check_target(p)
-
-    def _check_target(self, p: Sequence[float]) -> str | None:
-        if len(p) != 3 or not all(math.isfinite(float(v)) for v in p):
-            return f"non-finite position {list(p)}"
-        reason = self.limits.check_point((float(p[0]), float(p[1]), float(p[2])))
-        if reason is not None:
-            return reason
-        try:
-            lengths = kinematics.ipk_point(self.geometry, (float(p[0]), float(p[1]), float(p[2])))
-        except kinematics.KinematicsError as exc:
-            return str(exc)
-        return self.limits.check_lengths(tuple(lengths))
-
     def _execute(
         self,
         cmd: Command,
         readings: Sequence[AxisReading],
         now_s: float,
         motion: _Motion | None = None,
-    ) -> dict[str, Any]:
+    ) -> dict[str, Any] | concurrent.futures.Future[dict[str, Any]]:
+        """Carry out one command in the tick: its reply, or a future of it when it comes later
+        (a homing save). Raises CommandRefused when the state or the limits refuse it."""
         S = State  # noqa: N806
         verb = _VERBS.get(type(cmd))
         if verb is None:
@@ -1069,7 +941,7 @@ class Controller:
         first = motion.points_m[0]
         if self.setpoint_m is not None:
             start = self.planner.rest_point_m
-            reason = self.limits.check_segment(start, first)
+            reason = self.workspace.check_segment(start, first)
             if reason is not None:
                 where = "target" if isinstance(cmd, Move) else "points_m[0]"
                 raise CommandRefused(
@@ -1093,11 +965,11 @@ class Controller:
 
     def _execute_home(
         self, cmd: Home, readings: Sequence[AxisReading], now_s: float
-    ) -> dict[str, Any]:
+    ) -> dict[str, Any] | concurrent.futures.Future[dict[str, Any]]:
         old = [r.node_id for r in readings if now_s - r.stamp_s > self._stale_s]
         if old:
             raise CommandRefused(f"stale_encoder: no fresh encoder reading from nodes {old}")
-        reason = self._check_target(cmd.position_m)
+        reason = self.workspace.check_target(cmd.position_m)
         if reason is not None:
             raise CommandRefused(f"home position {_fmt(cmd.position_m)}: {reason}")
         offsets = self._home_at(readings, cmd.position_m)
@@ -1137,7 +1009,7 @@ class Controller:
         t = threading.Thread(target=save, name="cablebot-home-save", daemon=True)
         self._save_threads = [th for th in self._save_threads if th.is_alive()] + [t]
         t.start()
-        raise _Deferred(outer)
+        return outer
 
     # ---------------------------------------------------------------- status
 
@@ -1150,6 +1022,9 @@ class Controller:
             axes.append(
                 {
                     "node_id": r.node_id,
+                    "ready": r.ready,
+                    "fault": r.fault,
+                    "state": r.state_name,
                     "axis_state": r.axis_state,
                     "axis_error": r.axis_error,
                     "position_rev": r.position_rev,
@@ -1157,8 +1032,6 @@ class Controller:
                     "heartbeat_age_s": _finite_or_none(now - r.heartbeat_stamp_s),
                 }
             )
-        j = self.jitter.summary()
-        c = self.compute.summary()
         bs = self.driver.stats.snapshot()
         valid = self.pose_valid
         pose = self.pose_m
@@ -1180,14 +1053,7 @@ class Controller:
             "loop": {
                 "rate_hz": 1.0 / self.period_s,
                 "ticks": self.ticks,
-                "overruns": self.overruns,
-                "skipped": self.skipped,
-                "jitter_p50_s": j["p50"],
-                "jitter_p99_s": j["p99"],
-                "jitter_max_s": j["max"],
-                "compute_p50_s": c["p50"],
-                "compute_p99_s": c["p99"],
-                "compute_max_s": c["max"],
+                **self.loop_stats.figures(),
                 "dt_clamped": self.dt_clamped,
             },
             "stream": {
@@ -1219,6 +1085,20 @@ class Controller:
 
     # ---------------------------------------------------------------- the fixed-rate loop
 
+    def runner(self, *, spin_s: float = SPIN_S) -> Runner:
+        """A `Runner` that calls `tick` at the configured rate on this controller's clock and
+        sleep (spinning the last `spin_s` before each deadline), writing its figures to
+        `loop_stats` so that `status()` reports them. Raises nothing.
+        """
+        return Runner(
+            self.tick,
+            self.period_s,
+            clock=self._clock,
+            sleep=self._sleep,
+            spin_s=spin_s,
+            stats=self.loop_stats,
+        )
+
     def run(
         self,
         stop: threading.Event,
@@ -1226,43 +1106,8 @@ class Controller:
         on_watchdog: Callable[[], None] | None = None,
         watchdog_period_s: float = 0.0,
     ) -> None:
-        """Call `tick` at the configured rate until `stop` is set.
-
-        Absolute deadlines (`next += period`) on the monotonic clock; a tick that ends past the
-        next deadline counts an overrun, and the deadlines already passed are skipped (counted
-        in `skipped`): the loop resumes on the grid, never bunching ticks to catch up.
-        `on_watchdog` is called from this thread every `watchdog_period_s` (systemd
-        WATCHDOG=1), after the tick.
-        """
-        clock = self._clock
-        period = self.period_s
-        sleep = self._sleep
-        spin = self.sleep_spin_s
-        jitter = self.jitter
-        compute = self.compute
-        next_s = clock() + period
-        next_wd = clock() + watchdog_period_s
-        while not stop.is_set():
-            remaining = next_s - clock()
-            if remaining > spin:
-                sleep(remaining - spin)
-            while clock() < next_s:
-                pass
-            start = clock()
-            self.tick(start)
-            end = clock()
-            jitter.add(start - next_s)
-            compute.add(end - start)
-            next_s += period
-            if end > next_s:
-                # Missed deadline(s): resume on the first deadline still ahead, on the grid.
-                self.overruns += 1
-                behind = int((end - next_s) / period) + 1
-                self.skipped += behind
-                next_s += behind * period
-            if on_watchdog is not None and end >= next_wd:
-                next_wd = end + watchdog_period_s
-                on_watchdog()
+        """Call `tick` at the configured rate until `stop` is set (`runner().run`, which see)."""
+        self.runner().run(stop, on_watchdog=on_watchdog, watchdog_period_s=watchdog_period_s)
 
     # ---------------------------------------------------------------- shutdown
 
@@ -1285,7 +1130,8 @@ class Controller:
         `vel_ff / pos_gain` past it. Only while the motors are commanded (ARMING, HOLDING,
         MOVING, FAULT with a set-point). Returns True if it was sent; never raises.
 
-        Call it only when `run` has returned: the loop thread is otherwise the driver's only user.
+        Call it only when the runner has returned: the loop thread is otherwise the driver's only
+        user.
         """
         rev = self.commanded_rev
         commanded = (State.ARMING, State.HOLDING, State.MOVING, State.FAULT)

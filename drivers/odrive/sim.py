@@ -53,7 +53,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from types import FrameType, TracebackType
 from typing import Any
 
@@ -61,6 +61,7 @@ import can
 
 from drivers.bus import open_bus
 from drivers.odrive import cansimple as cs
+from drivers.registry import SimSettings
 
 _NAN_ENCODER = struct.pack("<ff", math.nan, 0.0)
 
@@ -450,6 +451,11 @@ class SimODriveBank:
         self._thread.join(timeout_s)
         return not self._thread.is_alive()
 
+    @property
+    def thread(self) -> threading.Thread | None:
+        """The serving thread once started, else None."""
+        return self._thread
+
     def __enter__(self) -> SimODriveBank:
         return self.start()
 
@@ -460,6 +466,33 @@ class SimODriveBank:
         tb: TracebackType | None,
     ) -> None:
         self.stop()
+
+
+def open_sim_bank(
+    bus: can.BusABC, node_ids: Sequence[int], options: Mapping[str, Any], sim: SimSettings
+) -> SimODriveBank:
+    """The registry's simulator factory (`drivers.registry`, family "odrive"): one
+    `SimODriveAxis` per node with the `[sim]` settings, served by a bank (not started).
+
+    Raises ValueError on bad node ids or settings, or a position per node missing.
+    """
+    if len(sim.initial_positions_rev) != len(node_ids):
+        raise ValueError(
+            f"{len(node_ids)} initial positions needed, got {len(sim.initial_positions_rev)}"
+        )
+    axes = [
+        SimODriveAxis(
+            int(n),
+            initial_position_rev=x,
+            max_velocity_rps=sim.max_velocity_rps,
+            max_accel_rps2=sim.max_accel_rps2,
+            encoder_period_s=sim.encoder_period_s,
+            heartbeat_period_s=sim.heartbeat_period_s,
+            watchdog_timeout_s=sim.watchdog_timeout_s,
+        )
+        for n, x in zip(node_ids, sim.initial_positions_rev, strict=True)
+    ]
+    return SimODriveBank(bus, axes, tick_s=sim.tick_s)
 
 
 def _floats(text: str, n: int) -> list[float]:
