@@ -97,7 +97,9 @@ class BusStats:
 
     `decode_errors` counts frames that failed to decode (wrong length, NaN/inf value, unknown
     command, extended id); `dropped` counts well-formed frames that were ignored (unknown node,
-    messages the driver does not use); `errors_by_kind` breaks both down by name (e.g.
+    messages the driver does not use); `commands_heard` counts host-to-drive commands heard on
+    the bus (cablebot's own, echoed back by udp_multicast, or another master's): traffic, not
+    loss; `errors_by_kind` breaks all three down by name (e.g.
     "length", "non_finite", "unknown_command", "unknown_node"). `bus_errors`/`last_error` count
     and describe failed sends (and receive-side OS errors).
     """
@@ -115,6 +117,8 @@ class BusStats:
     """Frames whose interface timestamp was not a wall-clock reading (stamped at poll time)."""
     catch_up_polls: int = 0
     """Polls that read past their frame cap to catch up with a backlog (after a loop stall)."""
+    commands_heard: int = 0
+    """Host-to-drive commands heard on the bus (own frames echoed back, or another master's)."""
 
     def snapshot(self) -> BusStats:
         """Return an independent copy of these counters."""
@@ -129,6 +133,7 @@ class BusStats:
             dict(self.errors_by_kind),
             self.untimed_frames,
             self.catch_up_polls,
+            self.commands_heard,
         )
 
 

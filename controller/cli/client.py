@@ -279,6 +279,7 @@ def format_status(st: dict[str, Any]) -> str:
             f"bus        rx {bus.get('frames_rx')} tx {bus.get('frames_tx')} errors"
             f" {bus.get('bus_errors')} decode errors {bus.get('decode_errors')}"
             f" dropped {bus.get('dropped')}"
+            f"  commands heard {bus.get('commands_heard', 0)} (own echoes or another master)"
         )
     z = st.get("zenoh")
     if z:

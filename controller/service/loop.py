@@ -1144,6 +1144,7 @@ class Controller:
                 "frames_tx": bs.frames_tx,
                 "decode_errors": bs.decode_errors,
                 "dropped": bs.dropped,
+                "commands_heard": bs.commands_heard,
                 "bus_errors": bs.bus_errors,
                 "ff_clamped": bs.ff_clamped,
                 "last_error": bs.last_error,

@@ -623,6 +623,8 @@ class CiA402Reels:
         stats = self._stats
         if decode_error:
             stats.decode_errors += 1
+        elif kind == "not_for_host":  # host traffic heard on the bus: not a lost frame
+            stats.commands_heard += 1
         else:
             stats.dropped += 1
         stats.errors_by_kind[kind] = stats.errors_by_kind.get(kind, 0) + 1

@@ -240,8 +240,11 @@ class ODriveReels:
                 self._last_get_error[m.node_id] = m
         else:
             # Host-to-ODrive commands and RTR requests: our own frames echoed back (e.g. by
-            # udp_multicast) or another master on the bus. Not for us.
-            self._count("not_for_host", decode_error=False)
+            # udp_multicast) or another master on the bus. Not for us, and not lost either.
+            self._stats.commands_heard += 1
+            self._stats.errors_by_kind["not_for_host"] = (
+                self._stats.errors_by_kind.get("not_for_host", 0) + 1
+            )
 
     def _count(self, kind: str, *, decode_error: bool) -> None:
         stats = self._stats
