@@ -25,7 +25,12 @@ values run only when those values are valid themselves):
   default speed <= max speed, fault timeouts longer than two loop periods (and than the
   simulator's encoder period), every reel can pay out `max_cable_m` and keeps better than
   0.1 mm resolution over the cable range in float32 motor turns (the ODrive CANSimple
-  position type), and the power-up position (if any) is inside the limits.
+  position type), and the power-up position (if any) is inside the limits;
+* statics: with `[payload] mass_kg`, `limits.min_tension_n` is required and so is
+  `limits.max_tension_n` unless every reel gives `max_torque_nm` (the smaller maximum wins:
+  `TensionLimits`); the range must stay open inside `tension_margin_n`, and the payload must
+  be holdable at the power-up position with every tension at least the margin inside the
+  range. Without `[payload]` no tension key may be set (it would do nothing).
 
 Deviations from the agreed API: none. Additions (all with defaults, so nothing breaks):
 `LoopConfig.rt_priority` (int, 50), `LoopConfig.auto_arm` (bool | None; None = arm at start
@@ -114,6 +119,9 @@ class ReelConfig:
     node_id: int
     anchor_m: Vec3
     reel: ReelModel
+    max_torque_nm: float | None = None
+    """The motor's torque limit (N m); with it the reel bounds the cable tension (see
+    `TensionLimits`). None = no bound from this reel."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,6 +170,34 @@ class LimitsConfig:
     max_speed_mps: float = 2.0
     max_accel_mps2: float = 1.0
     default_speed_mps: float = 1.0
+    min_tension_n: float | None = None
+    """Least tension a cable may carry (N); required with `[payload]`."""
+    max_tension_n: float | None = None
+    """Most tension a cable may carry (N); the reels' `max_torque_nm` may lower it."""
+    tension_margin_n: float = 0.0
+    """Every tension of a command or set-point must stay this far inside the limits (N)."""
+
+
+@dataclass(frozen=True, slots=True)
+class PayloadConfig:
+    """What the cables carry: the effector and its tool, as one point mass."""
+
+    mass_kg: float
+
+
+@dataclass(frozen=True, slots=True)
+class TensionLimits:
+    """The cable tension range statics checks against, and where its maximum comes from.
+
+    `max_n` is the smaller of `limits.max_tension_n` and the least tension any reel's
+    `max_torque_nm` holds over the cable range (`ReelModel.max_tension_n`); `max_source` names
+    the key that won. A command's tensions must lie in [min_n + margin_n, max_n - margin_n].
+    """
+
+    min_n: float
+    max_n: float
+    margin_n: float
+    max_source: str
 
 
 @dataclass(frozen=True, slots=True)
@@ -231,6 +267,10 @@ class RobotConfig:
     zenoh: ZenohConfig
     sim: SimConfig
     source: str
+    payload: PayloadConfig | None = None
+    """None: no `[payload]`, so no statics (geometry only)."""
+    tension: TensionLimits | None = None
+    """Set exactly when `payload` is."""
 
     @property
     def node_ids(self) -> tuple[int, ...]:
@@ -257,6 +297,7 @@ class RobotConfig:
                     "mechanical_advantage": m.mechanical_advantage,
                     "spool_buildup_m_per_rev2": m.spool_buildup_m_per_rev2,
                     "reference_length_m": m.reference_length_m,
+                    "max_torque_nm": r.max_torque_nm,
                 }
             )
         return {
@@ -289,6 +330,8 @@ class RobotConfig:
                 "config_file": self.zenoh.config_file,
             },
             "sim": _fields(self.sim),
+            "payload": None if self.payload is None else _fields(self.payload),
+            "tension": None if self.tension is None else _fields(self.tension),
         }
 
 
@@ -310,6 +353,9 @@ def _jsonable(v: Any) -> Any:
 
 # ------------------------------------------------------------------------------- validation
 _UNIT_WORDS = {
+    "_kg": "kilograms",
+    "_nm": "newton-metres",
+    "_n": "newtons",
     "_mps2": "metres per second squared",
     "_rps2": "motor turns per second squared",
     "_m_per_rev2": "metres per turn per turn",
@@ -568,6 +614,7 @@ _REEL_KEYS = (
     "cable_diameter_m",
     "turns_per_layer",
     "reference_length_m",
+    "max_torque_nm",
 )
 
 
@@ -604,6 +651,7 @@ def _parse_reel(t: _Table) -> ReelConfig | None:
     else:
         buildup = t.number("spool_buildup_m_per_rev2", 0.0, ge=0.0)
     ref = t.number("reference_length_m", 0.0, ge=0.0)
+    max_torque = t.number("max_torque_nm", gt=0.0) if t.has("max_torque_nm") else None
     if not t.errs.clean_since(mark) or node_id is None or anchor is None:
         return None
     try:
@@ -618,7 +666,7 @@ def _parse_reel(t: _Table) -> ReelConfig | None:
     except (ValueError, ArithmeticError) as exc:
         t.fail_here(f"unusable reel model: {exc}")
         return None
-    return ReelConfig(node_id=node_id, anchor_m=anchor, reel=model)
+    return ReelConfig(node_id=node_id, anchor_m=anchor, reel=model, max_torque_nm=max_torque)
 
 
 def _check_reel_range(rc: ReelConfig, i: int, lim: LimitsConfig, source: str) -> None:
@@ -655,7 +703,18 @@ def _check_reel_range(rc: ReelConfig, i: int, lim: LimitsConfig, source: str) ->
             )
 
 
-_TOP_KEYS = ("name", "reels", "bus", "loop", "limits", "faults", "homing", "zenoh", "sim")
+_TOP_KEYS = (
+    "name",
+    "reels",
+    "bus",
+    "loop",
+    "limits",
+    "faults",
+    "homing",
+    "zenoh",
+    "sim",
+    "payload",
+)
 _BUS_KEYS = ("interface", "channel", "bitrate", "options")
 
 
@@ -802,6 +861,8 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
 
     zenoh = _parse_zenoh(top, name)
 
+    payload, tension = _parse_statics(top, errs, limits, limits_ok, reels, geometry, pup)
+
     errs.raise_if_any()
     assert reels is not None and geometry is not None  # no problems: both were built
     return RobotConfig(
@@ -816,6 +877,8 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         zenoh=zenoh,
         sim=sim,
         source=source,
+        payload=payload,
+        tension=tension,
     )
 
 
@@ -832,6 +895,117 @@ def _parse_limits(mt: _Table) -> LimitsConfig:
         max_speed_mps=max_speed,
         max_accel_mps2=mt.number("max_accel_mps2", required=True, gt=0.0),
         default_speed_mps=mt.number("default_speed_mps", max_speed, gt=0.0),
+        min_tension_n=mt.number("min_tension_n", ge=0.0) if mt.has("min_tension_n") else None,
+        max_tension_n=mt.number("max_tension_n", gt=0.0) if mt.has("max_tension_n") else None,
+        tension_margin_n=mt.number("tension_margin_n", 0.0, ge=0.0),
+    )
+
+
+_TENSION_KEYS = ("min_tension_n", "max_tension_n", "tension_margin_n")
+
+
+def _parse_statics(
+    top: _Table,
+    errs: _Errors,
+    limits: LimitsConfig,
+    limits_ok: bool,
+    reels: tuple[ReelConfig, ...] | None,
+    geometry: Geometry | None,
+    power_up_m: Vec3 | None,
+) -> tuple[PayloadConfig | None, TensionLimits | None]:
+    """`[payload]` and the tension limits; (None, None) without `[payload]` (then no tension key
+    may be set: it would do nothing). Cross-checks, when their inputs are clean: a usable
+    tension range and a tension-feasible power-up pose."""
+    if not top.has("payload"):
+        lim_raw = top.raw("limits") if top.has("limits") else {}
+        for k in _TENSION_KEYS:
+            if isinstance(lim_raw, Mapping) and k in lim_raw:
+                errs.add(f"limits.{k}", "needs [payload] mass_kg (tension limits need a load)")
+        for i, r in enumerate(reels or ()):
+            if r.max_torque_nm is not None:
+                errs.add(
+                    f"reels[{i}].max_torque_nm",
+                    "needs [payload] mass_kg (tension limits need a load)",
+                )
+        return None, None
+    pt = top.sub("payload")
+    pt.finish(tuple(PayloadConfig.__dataclass_fields__))
+    mark = errs.mark()
+    mass = pt.number("mass_kg", required=True, gt=0.0)
+    if limits_ok and limits.min_tension_n is None:
+        errs.add("limits.min_tension_n", "missing (required with [payload])")
+    if not (errs.clean_since(mark) and limits_ok and reels is not None and geometry is not None):
+        return None, None
+    payload = PayloadConfig(mass_kg=mass)
+    max_n, max_source = math.inf, ""
+    if limits.max_tension_n is not None:
+        max_n, max_source = limits.max_tension_n, "limits.max_tension_n"
+    for i, r in enumerate(reels):
+        if r.max_torque_nm is None:
+            continue
+        try:
+            t = r.reel.max_tension_n(r.max_torque_nm, limits.min_cable_m, limits.max_cable_m)
+        except ValueError as exc:  # already reported by the reel range check
+            errs.add(f"reels[{i}].max_torque_nm", f"no tension bound: {exc}")
+            return None, None
+        if t < max_n:
+            max_n, max_source = t, f"reels[{i}].max_torque_nm"
+    if not math.isfinite(max_n):
+        errs.add(
+            "limits.max_tension_n",
+            "missing (required with [payload] unless every reel has max_torque_nm)",
+        )
+        return None, None
+    if any(r.max_torque_nm is None for r in reels) and limits.max_tension_n is None:
+        missing = ", ".join(f"reels[{i}]" for i, r in enumerate(reels) if r.max_torque_nm is None)
+        errs.add(
+            "limits.max_tension_n",
+            f"missing (required with [payload] unless every reel has max_torque_nm; "
+            f"{missing} has none)",
+        )
+        return None, None
+    lo = limits.min_tension_n
+    assert lo is not None
+    margin = limits.tension_margin_n
+    if not lo + margin < max_n - margin:
+        errs.add(
+            "limits.min_tension_n",
+            f"{lo:g} N + tension_margin_n ({margin:g} N) leaves no tension range below the "
+            f"maximum {max_n:.4g} N (from {max_source}) minus the margin",
+        )
+        return None, None
+    tension = TensionLimits(min_n=lo, max_n=max_n, margin_n=margin, max_source=max_source)
+    if power_up_m is not None:
+        problem = tension_problem(geometry, payload, tension, power_up_m)
+        if problem is not None:
+            errs.add("homing.power_up_position_m", problem)
+    return payload, tension
+
+
+def tension_problem(
+    geometry: Geometry, payload: PayloadConfig, tension: TensionLimits, point_m: Vec3
+) -> str | None:
+    """Why the cables cannot hold `payload` at `point_m` within the tension limits and their
+    margin, or None when they can. Raises nothing."""
+    from controller.core.statics import CableStatics, StaticsError
+
+    try:
+        res = CableStatics(geometry.anchors_m, tension.min_n, tension.max_n).solve(
+            point_m, payload.mass_kg
+        )
+    except StaticsError as exc:
+        return f"the cables cannot hold {payload.mass_kg:g} kg there: {exc}"
+    if res.margin_n >= tension.margin_n:
+        return None
+    i = res.limiting_cable
+    bound = "min" if res.limiting_bound == "min" else "max"
+    limit = tension.min_n + tension.margin_n if bound == "min" else tension.max_n - tension.margin_n
+    side = "below" if bound == "min" else "above"
+    return (
+        f"cable {i + 1} at {res.tensions_n[i]:.4g} N is {side} the {bound} tension "
+        f"{limit:.4g} N (limits {tension.min_n:g}..{tension.max_n:.4g} N, margin "
+        f"{tension.margin_n:g} N) holding {payload.mass_kg:g} kg at "
+        f"({point_m[0]:g}, {point_m[1]:g}, {point_m[2]:g}) m"
     )
 
 
@@ -1165,7 +1339,11 @@ def paper_robot_data(name: str = "default") -> dict[str, Any]:
             "max_speed_mps": 2.0,
             "max_accel_mps2": 1.0,
             "default_speed_mps": 1.0,
+            "min_tension_n": 5.0,
+            "max_tension_n": 500.0,
+            "tension_margin_n": 5.0,
         },
+        "payload": {"mass_kg": 5.0},
         "faults": {
             "stale_timeout_s": 0.05,
             "heartbeat_timeout_s": 0.5,
