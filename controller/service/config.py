@@ -61,6 +61,7 @@ from typing import Any, overload
 
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
 from controller.core.reel import ReelModel, spool_buildup
+from controller.core.statics import TensionCheck
 
 Vec3 = tuple[float, float, float]
 
@@ -982,31 +983,28 @@ def _parse_statics(
     return payload, tension
 
 
+def tension_check(
+    payload: PayloadConfig, tension: TensionLimits, geometry: Geometry
+) -> TensionCheck:
+    """The `controller.core.statics.TensionCheck` of this payload and these limits.
+
+    Raises StaticsInputError only for values validation refuses."""
+    return TensionCheck(
+        geometry.anchors_m,
+        payload.mass_kg,
+        tension.min_n,
+        tension.max_n,
+        tension.margin_n,
+        tension.max_source,
+    )
+
+
 def tension_problem(
     geometry: Geometry, payload: PayloadConfig, tension: TensionLimits, point_m: Vec3
 ) -> str | None:
     """Why the cables cannot hold `payload` at `point_m` within the tension limits and their
     margin, or None when they can. Raises nothing."""
-    from controller.core.statics import CableStatics, StaticsError
-
-    try:
-        res = CableStatics(geometry.anchors_m, tension.min_n, tension.max_n).solve(
-            point_m, payload.mass_kg
-        )
-    except StaticsError as exc:
-        return f"the cables cannot hold {payload.mass_kg:g} kg there: {exc}"
-    if res.margin_n >= tension.margin_n:
-        return None
-    i = res.limiting_cable
-    bound = "min" if res.limiting_bound == "min" else "max"
-    limit = tension.min_n + tension.margin_n if bound == "min" else tension.max_n - tension.margin_n
-    side = "below" if bound == "min" else "above"
-    return (
-        f"cable {i + 1} at {res.tensions_n[i]:.4g} N is {side} the {bound} tension "
-        f"{limit:.4g} N (limits {tension.min_n:g}..{tension.max_n:.4g} N, margin "
-        f"{tension.margin_n:g} N) holding {payload.mass_kg:g} kg at "
-        f"({point_m[0]:g}, {point_m[1]:g}, {point_m[2]:g}) m"
-    )
+    return tension_check(payload, tension, geometry).check(point_m)
 
 
 def _parse_reels(

@@ -114,11 +114,13 @@ def test_without_payload_there_is_no_statics_and_no_tension_key() -> None:
         ),
         (
             ("limits", "max_tension_n", 100.0),
-            "homing.power_up_position_m: cable 1 at 104.4 N is above the max tension 95 N",
+            "homing.power_up_position_m: cable 1 tension 104.4 N above 95 N"
+            " (limits.max_tension_n 100 N",
         ),
         (
             ("payload", "mass_kg", 50.0),
-            "homing.power_up_position_m: cable 1 at 1044 N is above the max tension 495 N",
+            "homing.power_up_position_m: cable 1 tension 1044 N above 495 N"
+            " (limits.max_tension_n 500 N",
         ),
     ],
 )
