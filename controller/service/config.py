@@ -77,6 +77,7 @@ WATCHDOG_DEFAULT_PERIODS = 5.0
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,62}$")
 _PREFIX_RE = re.compile(r"^[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*$")
 _ZENOH_MODES = ("peer", "client", "router")
+SIM_PLANTS = ("kinematic", "physical")
 
 
 class ConfigError(ValueError):
@@ -251,6 +252,14 @@ class SimConfig:
     """Simulated ODrive axis watchdog (axis.config.watchdog_timeout): an axis in closed loop
     that receives no command for this long disarms to IDLE with WATCHDOG_TIMER_EXPIRED;
     0 = off."""
+    plant: str = "kinematic"
+    """"kinematic": the reels move, nothing hangs on them (exact, no parameters); "physical":
+    one elastic-cable plant carries the payload and the axes report the torque their cables
+    need (`controller.core.plant.ReelPlant`; needs `[payload]` and a power-up pose)."""
+    cable_ea_n: float = 1.0e6
+    """Axial stiffness EA (N) of every simulated cable (physical plant)."""
+    torque_period_s: float = 0.01
+    """Period of each simulated axis's Get_Torques broadcast (physical plant); 0 = RTR only."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -798,7 +807,12 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
             ge=0.0,
             le=10.0,
         ),
+        plant=st.string("plant", d_sim.plant) or d_sim.plant,
+        cable_ea_n=st.number("cable_ea_n", d_sim.cable_ea_n, gt=0.0),
+        torque_period_s=st.number("torque_period_s", d_sim.torque_period_s, ge=0.0, le=10.0),
     )
+    if sim.plant not in SIM_PLANTS:
+        st.fail("plant", f"must be one of {', '.join(SIM_PLANTS)}, got {sim.plant!r}")
     wd = sim.watchdog_timeout_s
     if 0.0 < wd < WATCHDOG_MIN_PERIODS * period_s:
         st.fail(
@@ -863,6 +877,14 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     zenoh = _parse_zenoh(top, name)
 
     payload, tension = _parse_statics(top, errs, limits, limits_ok, reels, geometry, pup)
+    if sim.plant == "physical":
+        if payload is None and not top.has("payload"):
+            st.fail("plant", '"physical" needs [payload] mass_kg (what the cables carry)')
+        if pup is None and not ht.has("power_up_position_m"):
+            st.fail(
+                "plant",
+                '"physical" needs homing.power_up_position_m (where the simulated effector starts)',
+            )
 
     errs.raise_if_any()
     assert reels is not None and geometry is not None  # no problems: both were built
