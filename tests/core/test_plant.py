@@ -441,7 +441,9 @@ def reel_plant(cfg_name: str, pose: tuple[float, float, float], mass_kg: float, 
         pose, mass_kg
     )
     reels = [r.reel for r in cfg.reels]
-    turns = [r.position_rev(length) for r, length in zip(reels, distances_to(cfg, pose), strict=True)]
+    turns = [
+        r.position_rev(length) for r, length in zip(reels, distances_to(cfg, pose), strict=True)
+    ]
     params = PlantParams(cfg.anchors_m, ea_n, mass_kg)
     return cfg, reels, turns, ReelPlant(params, reels, pose, turns, tensions.tensions_n), tensions
 
