@@ -169,11 +169,14 @@ def make_config(**sections: dict[str, Any]) -> Any:
     """The built-in default robot with fields of its sections replaced.
 
     `make_config(loop={"rate_hz": 1000}, faults={"tracking_max_m": 0.01})`; a top-level
-    field is replaced with `make_config(top={"name": "x"})`.
+    field is replaced with `make_config(top={"name": "x"})`. The staleness windows are a real
+    rig's (50 ms encoder, 0.5 s heartbeat), not the built-in simulated robot's generous ones, so
+    the fault tests measure what a rig does; `faults=` overrides them.
     """
     from controller.service.config import default_config
 
     cfg = default_config()
+    cfg = replace(cfg, faults=replace(cfg.faults, stale_timeout_s=0.05, heartbeat_timeout_s=0.5))
     top = dict(sections.pop("top", {}))
     for name, changes in sections.items():
         top[name] = replace(getattr(cfg, name), **changes)

@@ -65,7 +65,7 @@ class FakePose:
     state: str
 
     def to_json_bytes(self) -> bytes:
-        """The issue-6 pose schema."""
+        """The `<prefix>/pose` schema."""
         return json.dumps(
             {
                 "seq": self.seq,

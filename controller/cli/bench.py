@@ -34,7 +34,8 @@ Method
   not slow down) on a udp_multicast bus of its own (random group and port), builds the bus,
   `ODriveReels`, `Controller` and `ZenohInterface` the way `controller.service.daemon.run_daemon`
   does (that function offers no builder to reuse), sets the same switch interval, GC freeze, timer
-  slack and scheduling, and runs `Controller.run` (the daemon's loop itself) in a thread.
+  slack and scheduling, and runs the controller's `Runner` (the daemon's loop itself) in a
+  thread (`controller.service.runner.start_loop`).
   The robot is armed and moved back and forth (1 m/s, all four cables changing), so every tick
   does the full work: poll, FPK, planner, limits, IPK, four Set_Input_Pos frames, one pose put
   (`publish_every` 1). A fault (e.g. a simulator starved on a loaded machine) is counted and
@@ -553,7 +554,7 @@ class _RecordingBus:
 def role_sim(config: str, log: str, tick_s: float) -> int:
     """Helper process: the config's simulated nodes (as `cablebot sim`), logging encoder sends."""
     from controller.cli.sim import sim_axes
-    from controller.service.daemon import RT_PRIORITY, set_realtime
+    from controller.service.runner import RT_PRIORITY, set_realtime
     from drivers.bus import open_bus
     from drivers.odrive.sim import run_sim
 
@@ -647,7 +648,7 @@ def loop_config_data(rate_hz: float, zenoh_port: int) -> dict[str, Any]:
 
 
 class _RingReader:
-    """Copies new values out of a loop statistics ring (`controller.service.loop._Ring`-like)."""
+    """Copies new values out of a loop statistics ring (`controller.service.runner.LoopStats`)."""
 
     def __init__(self, ring: Any) -> None:
         self.ring = ring
@@ -674,7 +675,8 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
     """
     from controller.core.commands import Arm, Move, Reset
     from controller.core.states import State
-    from controller.service.daemon import Stack, build_stack, start_loop
+    from controller.service.daemon import Stack, build_stack
+    from controller.service.runner import start_loop
 
     zport = free_tcp_port()
     data = loop_config_data(rate_hz, zport)
@@ -704,7 +706,7 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
         stack = build_stack(cfg)
         controller, driver, iface = stack.controller, stack.driver, stack.zenoh
         assert iface is not None  # build_stack(zenoh=True) raises rather than give None
-        thread, rt_report = start_loop(stack, stop_loop)
+        thread, rt_report = start_loop(controller.runner(), cfg.loop, stop_loop)
 
         endpoint = f"tcp/127.0.0.1:{zport}"
         sub = _Child(
@@ -723,14 +725,15 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
                 raise BenchError(f"arming failed: {controller.state.value} {controller.reason}")
             time.sleep(0.01)
 
-        jitter = _RingReader(controller.jitter)
-        compute = _RingReader(controller.compute)
+        loop_stats = controller.loop_stats
+        jitter = _RingReader(loop_stats.jitter)
+        compute = _RingReader(loop_stats.compute)
         moves = 0
         faults: list[str] = []
         controller.submit(Move(MOVE_POINTS_M[0], MOVE_SPEED_MPS))
         moves += 1
         t0_ns = time.time_ns()
-        ticks0, overruns0, skipped0 = controller.ticks, controller.overruns, controller.skipped
+        ticks0, overruns0, skipped0 = controller.ticks, loop_stats.overruns, loop_stats.skipped
         jitter.drain(keep=False)
         compute.drain(keep=False)
         end = time.monotonic() + seconds
@@ -749,8 +752,8 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
                 controller.submit(Move(MOVE_POINTS_M[moves % 2], MOVE_SPEED_MPS))
                 moves += 1
         ticks = controller.ticks - ticks0
-        overruns = controller.overruns - overruns0
-        skipped = controller.skipped - skipped0
+        overruns = loop_stats.overruns - overruns0
+        skipped = loop_stats.skipped - skipped0
         jitter.drain()
         compute.drain()
         t1_ns = time.time_ns()
@@ -1021,7 +1024,8 @@ def role_daemon(config: str) -> int:
     simulated nodes, Controller, Zenoh) on `config`, armed as the daemon arms, until SIGTERM."""
     from controller.core.commands import Arm
     from controller.core.states import State
-    from controller.service.daemon import build_stack, start_loop
+    from controller.service.daemon import build_stack
+    from controller.service.runner import start_loop
 
     cfg = _load_cfg(config)
     stop = threading.Event()
@@ -1030,7 +1034,7 @@ def role_daemon(config: str) -> int:
     stop_loop = threading.Event()
     thread: threading.Thread | None = None
     try:
-        thread, report = start_loop(stack, stop_loop)
+        thread, report = start_loop(stack.controller.runner(), cfg.loop, stop_loop)
         controller = stack.controller
         controller.submit(Arm())
         deadline = time.monotonic() + float(cfg.faults.arm_timeout_s) + 3.0
@@ -1318,7 +1322,7 @@ def format_table(rows: Sequence[Row]) -> str:
 def measure(
     plan: Plan, log: Callable[[str], None]
 ) -> tuple[dict[str, Any], list[Row], dict[str, Any]]:
-    """Run every benchmark of `plan`; returns the issue's JSON mapping, the table rows and the
+    """Run every benchmark of `plan`; returns the JSON mapping of figures, the table rows and the
     loop runs' full results (`{"loops": {rate: {...}}}`).
 
     Raises BenchError when a figure cannot be measured.

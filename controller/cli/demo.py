@@ -52,7 +52,7 @@ PLOT_FILES: tuple[str, ...] = (
     "circle-fpk-xyz.png",
     "circle-errors.png",
 )
-"""The figures `plot_circle` writes, in the issue's order."""
+"""The figures `plot_circle` writes, in the README's order."""
 
 SUMMARY_LINE_PREFIX = "max settled FPK error:"
 """The last line of the demo's output starts with this (tests parse it)."""
@@ -346,8 +346,9 @@ def run_circle(
     from controller.core.motion import circle_path
     from controller.core.states import State
     from controller.core.workspace import Limits
-    from controller.service.daemon import Stack, build_stack, start_loop
-    from controller.service.loop import NullPublisher
+    from controller.service.daemon import Stack, build_stack
+    from controller.service.pose import NullPublisher
+    from controller.service.runner import start_loop
 
     say = progress if progress is not None else (lambda s: None)
     points = circle_path(spec.radius_m, spec.centre_m, spec.z_m, spec.steps)
@@ -429,7 +430,9 @@ def run_circle(
         controller.publisher = recorder
 
         # As the daemon runs it (its loop thread, switch interval and gc freeze).
-        thread, _sched = start_loop(stack, stop_loop, on_crash=crashed.append)
+        thread, _sched = start_loop(
+            controller.runner(), dcfg.loop, stop_loop, on_crash=crashed.append
+        )
 
         def fault() -> str | None:
             if crashed:
@@ -509,7 +512,7 @@ def run_circle(
 
         data = recorder.rows()
         reels = list(controller.reels)
-        overruns = int(controller.overruns)
+        overruns = int(controller.loop_stats.overruns)
         ticks = int(controller.ticks)
         dropped = recorder.dropped
     finally:

@@ -22,8 +22,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import ctypes
-import gc
 import logging
 import math
 import os
@@ -40,14 +38,10 @@ from typing import Any
 
 from controller.core.commands import Arm
 from controller.core.states import State
+from controller.service.runner import set_realtime, start_loop
 
 log = logging.getLogger("cablebot.daemon")
 
-PR_SET_TIMERSLACK = 29
-RT_PRIORITY = 50
-"""Default SCHED_FIFO priority of the loop thread (`loop.rt_priority` overrides it)."""
-TIMER_SLACK_NS = 1_000
-SWITCH_INTERVAL_S = 0.0005
 STOP_MARGIN_S = 0.5
 STOP_MARGIN_FACTOR = 1.25
 """Shutdown waits for braking: the set-point's speed / max acceleration, times this factor (a
@@ -102,31 +96,6 @@ class Notifier:
         if self._sock is not None:
             self._sock.close()
             self._sock = None
-
-
-# -------------------------------------------------------------------------------- real-time
-
-
-def set_realtime(priority: int, tid: int = 0) -> str:
-    """Try SCHED_FIFO at `priority` for thread `tid` (0: the calling thread); return what
-    happened, for the log. Raises nothing."""
-    try:
-        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
-    except (OSError, AttributeError) as exc:
-        return f"SCHED_FIFO {priority} not available ({exc}); running SCHED_OTHER"
-    return f"SCHED_FIFO priority {priority}"
-
-
-def set_timer_slack(slack_ns: int) -> str:
-    """Try prctl(PR_SET_TIMERSLACK) for the calling thread; return what happened, for the log."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        rc = libc.prctl(PR_SET_TIMERSLACK, ctypes.c_ulong(slack_ns), 0, 0, 0)
-    except (OSError, AttributeError) as exc:
-        return f"timer slack unchanged ({exc})"
-    if rc != 0:
-        return f"timer slack unchanged (errno {ctypes.get_errno()})"
-    return f"timer slack {slack_ns} ns"
 
 
 # -------------------------------------------------------------------------------- logging
@@ -407,50 +376,6 @@ class StartupWatch:
                 )
 
 
-def start_loop(
-    stack: Stack,
-    stop: threading.Event,
-    *,
-    on_watchdog: Callable[[], None] | None = None,
-    watchdog_period_s: float = 0.0,
-    on_crash: Callable[[BaseException], None] | None = None,
-) -> tuple[threading.Thread, list[str]]:
-    """Run `stack.controller.run(stop)` in a loop thread, as the daemon does: SCHED_FIFO and a
-    1 us timer slack for that thread (with `loop.realtime`), a short GIL switch interval, and
-    the garbage collector frozen after start-up (`loop.gc_freeze`).
-
-    Returns the thread and a list that the thread fills with the scheduling it obtained.
-    If the loop raises, it is logged and `on_crash` is called from the loop thread; nothing
-    is raised.
-    """
-    cfg = stack.cfg
-    controller = stack.controller
-    report: list[str] = []
-
-    def loop_main() -> None:
-        if cfg.loop.realtime:
-            report.append(set_realtime(_rt_priority(cfg)))
-        else:
-            report.append("SCHED_OTHER (loop.realtime = false)")
-        report.append(set_timer_slack(TIMER_SLACK_NS))
-        try:
-            controller.run(stop, on_watchdog=on_watchdog, watchdog_period_s=watchdog_period_s)
-        except BaseException as exc:
-            log.exception("control loop crashed")
-            if on_crash is not None:
-                on_crash(exc)
-
-    # A woken loop thread waits for the GIL up to the switch interval (5 ms by default):
-    # shorten it so other Python threads (Zenoh callbacks, an in-process sim) yield sooner.
-    sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL_S))
-    if cfg.loop.gc_freeze:
-        gc.collect()
-        gc.freeze()
-    thread = threading.Thread(target=loop_main, name="cablebot-loop", daemon=True)
-    thread.start()
-    return thread, report
-
-
 def run_daemon(
     config: Path | None,
     *,
@@ -499,7 +424,8 @@ def run_daemon(
         shutdown.set()
 
     thread, rt_report = start_loop(
-        stack,
+        controller.runner(),
+        cfg.loop,
         stop_loop,
         on_watchdog=lambda: notifier.notify("WATCHDOG=1"),
         watchdog_period_s=notifier.watchdog_period_s,

@@ -1,10 +1,12 @@
-"""The control loop: one `Controller` owns the states, faults, commands and the fixed-rate tick.
+"""The control step: one `Controller` owns the states, faults, commands and the tick.
 
 Every tick (`Controller.tick`): poll the bus without blocking, read the axes, check staleness,
 heartbeats and axis errors, turn motor turns into cable lengths, solve the pose by FPK, take
 queued commands, advance the motion planner, check the limits, solve the set-point's cable
-lengths by IPK, check the cable speeds, command the motors and publish the pose. `run` calls
-`tick` against absolute deadlines on the monotonic clock.
+lengths by IPK, check the cable speeds, command the motors and publish the pose
+(`controller.service.pose`). A `controller.service.runner.Runner` (`Controller.runner`) calls
+`tick` against absolute deadlines on the monotonic clock; its figures are in
+`status()["loop"]`.
 
 Velocity feed-forward: every set-point goes out with the motor velocity that follows it, so an
 ODrive in position control + passthrough (vel_cmd = vel_ff + pos_gain * position error) tracks a
@@ -18,7 +20,8 @@ periods per tick. After a CPU stall the motion therefore resumes where it was (i
 slower in wall time) instead of jumping ahead by the whole gap, which the reels could not follow
 and which would trip the cable-speed check; `status()["loop"]["dt_clamped"]` counts such ticks.
 
-Threading: the loop thread calls `tick`/`run` and is the only one that touches the driver.
+Threading: the loop thread calls `tick` (through the runner) and is the only one that touches
+the driver.
 Other threads (Zenoh, the daemon) use `submit`, `submit_setpoint`, `request_estop` and
 `status`, which are thread-safe.
 
@@ -52,10 +55,9 @@ import math
 import queue
 import threading
 import time
-from array import array
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -79,6 +81,8 @@ from controller.core.reel import ReelModel
 from controller.core.states import ARMED_STATES, State, check_transition, refusal
 from controller.core.workspace import Limits, points_array
 from controller.service.config import RobotConfig
+from controller.service.pose import NullPublisher, PoseSample, Publisher
+from controller.service.runner import SPIN_S, LoopStats, Runner
 from drivers.base import AxisReading, BusError, ReelDriver
 
 log = logging.getLogger("cablebot.loop")
@@ -91,112 +95,7 @@ ESTOP_CONFIRM_S = 0.2
 """Every axis must confirm leaving closed loop this soon after an e-stop (module docstring)."""
 MAX_PLANNER_DT_PERIODS = 4.0
 """The planner advances at most this many loop periods per tick (see the module docstring)."""
-STATS_WINDOW = 4096
-"""Ticks kept in the jitter / compute-time ring buffers."""
 _MAX_COMMANDS_PER_TICK = 8
-
-
-# --------------------------------------------------------------------------------------------
-# Publishing contract
-
-
-@dataclass(frozen=True, slots=True)
-class PoseSample:
-    """One published pose (the `<prefix>/pose` schema)."""
-
-    seq: int
-    stamp_ns: int
-    position_m: tuple[float, float, float] | None
-    cable_lengths_m: tuple[float, ...]
-    residual_m: float | None
-    valid: bool
-    state: str
-
-    def to_json_bytes(self) -> bytes:
-        """Encode as compact JSON; non-finite numbers become null, so the output is valid JSON.
-
-        Hand-formatted (about 4x faster than json.dumps for this fixed schema); float repr is
-        the shortest round-tripping decimal, as json.dumps writes it.
-        """
-        pos = self.position_m
-        if pos is not None and self.valid and all(map(math.isfinite, pos)):
-            pos_s = f"[{_num(pos[0])},{_num(pos[1])},{_num(pos[2])}]"
-            valid = "true"
-        else:
-            pos_s = "null"
-            valid = "false"
-        lengths = ",".join(map(_num, self.cable_lengths_m))
-        res = "null" if self.residual_m is None else _num(self.residual_m)
-        return (
-            f'{{"seq":{int(self.seq)},"stamp_ns":{int(self.stamp_ns)},"position_m":{pos_s},'
-            f'"cable_lengths_m":[{lengths}],"residual_m":{res},"valid":{valid},'
-            f'"state":"{_state_name(self.state)}"}}'
-        ).encode()
-
-
-def _num(x: float) -> str:
-    """JSON number for a float; `null` if not finite."""
-    return repr(float(x)) if math.isfinite(x) else "null"
-
-
-def _state_name(s: str) -> str:
-    """A state name safe to put between JSON quotes (state names are plain identifiers)."""
-    return s if s.isidentifier() else "UNKNOWN"
-
-
-class Publisher(Protocol):
-    """Where the loop hands its poses and state changes (the Zenoh interface, or nothing)."""
-
-    def publish_pose(self, sample: PoseSample) -> None:
-        """Publish one pose sample; must not block the tick."""
-        ...
-
-    def publish_state(self, state: str, reason: str | None, stamp_ns: int) -> None:
-        """Publish a state change."""
-        ...
-
-
-class NullPublisher:
-    """A Publisher that drops everything."""
-
-    def publish_pose(self, sample: PoseSample) -> None:
-        """Drop the sample."""
-
-    def publish_state(self, state: str, reason: str | None, stamp_ns: int) -> None:
-        """Drop the state change."""
-
-
-# --------------------------------------------------------------------------------------------
-# Statistics
-
-
-class _Ring:
-    """Preallocated ring buffer of floats; written by index in the tick, read by `status()`."""
-
-    __slots__ = ("buf", "count", "size")
-
-    def __init__(self, size: int) -> None:
-        self.buf = array("d", bytes(8 * size))
-        self.size = size
-        self.count = 0
-
-    def add(self, value: float) -> None:
-        self.buf[self.count % self.size] = value
-        self.count += 1
-
-    def summary(self) -> dict[str, float | None]:
-        """p50, p99 and max over the window (None when empty)."""
-        n = min(self.count, self.size)
-        if n == 0:
-            return {"p50": None, "p99": None, "max": None}
-        # numpy: ~50x faster than sorted() on the array, so a status request holds the GIL
-        # (and so delays the loop thread) for tens of microseconds, not milliseconds.
-        vals = np.sort(np.frombuffer(self.buf, dtype=np.float64, count=n))
-        return {
-            "p50": float(vals[(n - 1) // 2]),
-            "p99": float(vals[min(n - 1, math.ceil(0.99 * n) - 1)]),
-            "max": float(vals[-1]),
-        }
 
 
 # --------------------------------------------------------------------------------------------
@@ -209,14 +108,6 @@ class _Fault(Exception):
     def __init__(self, reason: str) -> None:
         super().__init__(reason)
         self.reason = reason
-
-
-class _Deferred(Exception):
-    """Internal: the command's reply comes later, from `future` (homing save)."""
-
-    def __init__(self, future: concurrent.futures.Future[dict[str, Any]]) -> None:
-        super().__init__("deferred")
-        self.future = future
 
 
 @dataclass(frozen=True, slots=True)
@@ -250,11 +141,12 @@ _Pending = tuple[Command, "concurrent.futures.Future[dict[str, Any]]", _Motion |
 
 
 class Controller:
-    """The cable robot's controller: states, faults, commands, motion and the fixed-rate loop.
+    """The cable robot's controller: states, faults, commands, motion and the control step.
 
     `cfg` is a `controller.service.config.RobotConfig`; `driver` a `drivers.base.ReelDriver` whose
     `node_ids` are those of `cfg.reels`, in the same order. `offsets_rev` (node id -> motor
-    offset) overrides the state file. Raises ValueError if the driver's axes do not match.
+    offset) overrides the state file. `clock` and `sleep` are those of `runner`. Raises
+    ValueError if the driver's axes do not match.
     """
 
     def __init__(
@@ -368,11 +260,8 @@ class Controller:
         self.command_errors = 0
         self.hold_failures = 0
 
-        self.overruns = 0
-        self.skipped = 0
-        self.jitter = _Ring(STATS_WINDOW)
-        self.compute = _Ring(STATS_WINDOW)
-        self.sleep_spin_s = 0.0002
+        self.loop_stats = LoopStats()
+        """The figures of the runner that calls `tick` (`runner`), reported in `status()`."""
         self._save_threads: list[threading.Thread] = []
         self._closing = False
         """Set by `begin_shutdown`: no new motion is taken."""
@@ -959,8 +848,6 @@ class Controller:
                 continue
             try:
                 reply = self._execute(cmd, readings, now_s, motion)
-            except _Deferred as d:
-                d.future.add_done_callback(_chain(fut))
             except CommandRefused as exc:
                 log.info("refused %s: %s", type(cmd).__name__.lower(), exc)
                 fut.set_exception(exc)
@@ -968,7 +855,10 @@ class Controller:
                 log.exception("command %r failed", cmd)
                 fut.set_exception(CommandRefused(f"internal error: {exc}"))
             else:
-                fut.set_result(reply)
+                if isinstance(reply, concurrent.futures.Future):  # answered later (homing save)
+                    reply.add_done_callback(_chain(fut))
+                else:
+                    fut.set_result(reply)
 
     def _refusal_text(self, state: State, why: str) -> str:
         """The refusal message for a verb `state` refuses with reason `why` (COMMAND_RULES)."""
@@ -1002,7 +892,9 @@ class Controller:
         readings: Sequence[AxisReading],
         now_s: float,
         motion: _Motion | None = None,
-    ) -> dict[str, Any]:
+    ) -> dict[str, Any] | concurrent.futures.Future[dict[str, Any]]:
+        """Carry out one command in the tick: its reply, or a future of it when it comes later
+        (a homing save). Raises CommandRefused when the state or the limits refuse it."""
         S = State  # noqa: N806
         verb = _VERBS.get(type(cmd))
         if verb is None:
@@ -1093,7 +985,7 @@ class Controller:
 
     def _execute_home(
         self, cmd: Home, readings: Sequence[AxisReading], now_s: float
-    ) -> dict[str, Any]:
+    ) -> dict[str, Any] | concurrent.futures.Future[dict[str, Any]]:
         old = [r.node_id for r in readings if now_s - r.stamp_s > self._stale_s]
         if old:
             raise CommandRefused(f"stale_encoder: no fresh encoder reading from nodes {old}")
@@ -1137,7 +1029,7 @@ class Controller:
         t = threading.Thread(target=save, name="cablebot-home-save", daemon=True)
         self._save_threads = [th for th in self._save_threads if th.is_alive()] + [t]
         t.start()
-        raise _Deferred(outer)
+        return outer
 
     # ---------------------------------------------------------------- status
 
@@ -1157,8 +1049,6 @@ class Controller:
                     "heartbeat_age_s": _finite_or_none(now - r.heartbeat_stamp_s),
                 }
             )
-        j = self.jitter.summary()
-        c = self.compute.summary()
         bs = self.driver.stats.snapshot()
         valid = self.pose_valid
         pose = self.pose_m
@@ -1180,14 +1070,7 @@ class Controller:
             "loop": {
                 "rate_hz": 1.0 / self.period_s,
                 "ticks": self.ticks,
-                "overruns": self.overruns,
-                "skipped": self.skipped,
-                "jitter_p50_s": j["p50"],
-                "jitter_p99_s": j["p99"],
-                "jitter_max_s": j["max"],
-                "compute_p50_s": c["p50"],
-                "compute_p99_s": c["p99"],
-                "compute_max_s": c["max"],
+                **self.loop_stats.figures(),
                 "dt_clamped": self.dt_clamped,
             },
             "stream": {
@@ -1219,6 +1102,20 @@ class Controller:
 
     # ---------------------------------------------------------------- the fixed-rate loop
 
+    def runner(self, *, spin_s: float = SPIN_S) -> Runner:
+        """A `Runner` that calls `tick` at the configured rate on this controller's clock and
+        sleep (spinning the last `spin_s` before each deadline), writing its figures to
+        `loop_stats` so that `status()` reports them. Raises nothing.
+        """
+        return Runner(
+            self.tick,
+            self.period_s,
+            clock=self._clock,
+            sleep=self._sleep,
+            spin_s=spin_s,
+            stats=self.loop_stats,
+        )
+
     def run(
         self,
         stop: threading.Event,
@@ -1226,43 +1123,8 @@ class Controller:
         on_watchdog: Callable[[], None] | None = None,
         watchdog_period_s: float = 0.0,
     ) -> None:
-        """Call `tick` at the configured rate until `stop` is set.
-
-        Absolute deadlines (`next += period`) on the monotonic clock; a tick that ends past the
-        next deadline counts an overrun, and the deadlines already passed are skipped (counted
-        in `skipped`): the loop resumes on the grid, never bunching ticks to catch up.
-        `on_watchdog` is called from this thread every `watchdog_period_s` (systemd
-        WATCHDOG=1), after the tick.
-        """
-        clock = self._clock
-        period = self.period_s
-        sleep = self._sleep
-        spin = self.sleep_spin_s
-        jitter = self.jitter
-        compute = self.compute
-        next_s = clock() + period
-        next_wd = clock() + watchdog_period_s
-        while not stop.is_set():
-            remaining = next_s - clock()
-            if remaining > spin:
-                sleep(remaining - spin)
-            while clock() < next_s:
-                pass
-            start = clock()
-            self.tick(start)
-            end = clock()
-            jitter.add(start - next_s)
-            compute.add(end - start)
-            next_s += period
-            if end > next_s:
-                # Missed deadline(s): resume on the first deadline still ahead, on the grid.
-                self.overruns += 1
-                behind = int((end - next_s) / period) + 1
-                self.skipped += behind
-                next_s += behind * period
-            if on_watchdog is not None and end >= next_wd:
-                next_wd = end + watchdog_period_s
-                on_watchdog()
+        """Call `tick` at the configured rate until `stop` is set (`runner().run`, which see)."""
+        self.runner().run(stop, on_watchdog=on_watchdog, watchdog_period_s=watchdog_period_s)
 
     # ---------------------------------------------------------------- shutdown
 
@@ -1285,7 +1147,8 @@ class Controller:
         `vel_ff / pos_gain` past it. Only while the motors are commanded (ARMING, HOLDING,
         MOVING, FAULT with a set-point). Returns True if it was sent; never raises.
 
-        Call it only when `run` has returned: the loop thread is otherwise the driver's only user.
+        Call it only when the runner has returned: the loop thread is otherwise the driver's only
+        user.
         """
         rev = self.commanded_rev
         commanded = (State.ARMING, State.HOLDING, State.MOVING, State.FAULT)

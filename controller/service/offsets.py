@@ -22,7 +22,7 @@ Record layout (`make_record` builds it, `parse_record` checks it)::
     {"format": 1, "robot": "desk", "offsets_rev": {"0": 12.5, "1": -3.25, ...},
      "home_position_m": [0.0, 0.0, 0.4], "wall_time_s": 1790000000.123}
 
-Deviations from the agreed API: none. Additions: `make_record`, `parse_record`, `HomeRecord`.
+`make_record` builds such a record, `parse_record` checks one and returns a `HomeRecord`.
 """
 
 from __future__ import annotations

@@ -80,7 +80,7 @@ _FIELD_KEYS = ("mode", "listen/endpoints", "connect/endpoints", "scouting/multic
 
 
 class PoseLike(Protocol):
-    """What the loop hands to `publish_pose` (controller.service.loop.PoseSample)."""
+    """What the loop hands to `publish_pose` (controller.service.pose.PoseSample)."""
 
     def to_json_bytes(self) -> bytes:
         """The `<prefix>/pose` JSON encoding of this sample."""

@@ -23,7 +23,7 @@ import pytest
 from controller.cli import demo
 from controller.core.kinematics import Geometry, ipk
 from controller.service.config import load_config, paper_robot_data
-from controller.service.loop import PoseSample
+from controller.service.pose import PoseSample
 from tests.daemon_procs import to_toml
 
 REPO = Path(__file__).resolve().parents[2]

@@ -48,7 +48,7 @@ def test_example_a_three_radii_48() -> None:
     exact_z = H - math.sqrt(48.0**2 - 40.46**2 - 25.0**2)  # = 7.62 - sqrt(41.9884)
     assert exact_z == pytest.approx(1.140154322825, abs=1e-12)
     assert (x, y, z) == pytest.approx((0.0, 0.0, exact_z), abs=1e-12)
-    # Printed value (0, 0, 1.16): within the 0.05 m, but not a rounding of 1.140.
+    # Printed value (0, 0, 1.16): within 0.05 m, but not a rounding of 1.140.
     assert (x, y, z) == pytest.approx((0.0, 0.0, 1.16), abs=0.05)
     assert abs(z - 1.16) > 0.019
     # Both printed heights are what h = 7.64 m gives (see the module docstring).

@@ -199,8 +199,8 @@ def test_base_data_is_valid() -> None:
         ),
         (
             "sim.encoder_period_s",
-            0.04,
-            "faults.stale_timeout_s: 0.05 s is shorter than two simulated",
+            0.3,
+            "faults.stale_timeout_s: 0.5 s is shorter than two simulated",
         ),
         ("faults.heartbeat_timeout_s", 0.15, "faults.heartbeat_timeout_s: 0.15 s is shorter"),
         (

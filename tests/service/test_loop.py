@@ -27,7 +27,8 @@ from controller.core.commands import (
 )
 from controller.core.reel import ReelModel
 from controller.core.states import State
-from controller.service.loop import MAX_PLANNER_DT_PERIODS, Controller, PoseSample
+from controller.service.loop import MAX_PLANNER_DT_PERIODS, Controller
+from controller.service.pose import PoseSample
 from tests.fakes import FakeClock, FakeDriver, RecordingPublisher, make_config, power_up_turns
 
 RATE_HZ = 500.0
@@ -554,7 +555,7 @@ def test_status_snapshot() -> None:
 
 
 class SteppedClock:
-    """A clock for `run`: sleeping moves it; each tick costs `cost_s` (one tick can be slow)."""
+    """A clock for the runner: sleeping moves it (by the sleep and a microsecond more)."""
 
     def __init__(self) -> None:
         self.now_s = 0.0
@@ -588,8 +589,9 @@ def test_run_keeps_absolute_deadlines_and_skips_missed_ticks() -> None:
             stop.set()
 
     ctl.tick = tick  # type: ignore[method-assign]
-    ctl.sleep_spin_s = 0.0
-    ctl.run(stop)
+    runner = ctl.runner(spin_s=0.0)
+    assert runner.period_s == pytest.approx(period) and runner.stats is ctl.loop_stats
+    runner.run(stop)
     t0 = clk.starts[0]
     k = [(t - t0) / period for t in clk.starts]
     # Every tick starts on the grid (within the sleep granularity), never bunched.
@@ -597,17 +599,60 @@ def test_run_keeps_absolute_deadlines_and_skips_missed_ticks() -> None:
         assert abs(a - round(a)) < 0.01
     gaps = [round(b - a) for a, b in itertools.pairwise(k)]
     assert gaps.count(3) == 1 and set(gaps) == {1, 3}
-    assert ctl.overruns == 1 and ctl.skipped == 2
+    assert ctl.loop_stats.overruns == 1 and ctl.loop_stats.skipped == 2
     st = ctl.status()["loop"]
     assert st["ticks"] == 30
+    assert st["overruns"] == 1 and st["skipped"] == 2
     assert st["compute_max_s"] == pytest.approx(0.0001 + 2.5 * period, rel=1e-6)
     assert st["jitter_p50_s"] < 1e-5
 
 
+def test_status_loop_figures_keep_their_keys_before_and_after_running() -> None:
+    import threading
+
+    keys = [
+        "rate_hz",
+        "ticks",
+        "overruns",
+        "skipped",
+        "jitter_p50_s",
+        "jitter_p99_s",
+        "jitter_max_s",
+        "compute_p50_s",
+        "compute_p99_s",
+        "compute_max_s",
+        "dt_clamped",
+    ]
+    cfg = make_config(loop={"rate_hz": 500.0})
+    clk = SteppedClock()
+    driver = FakeDriver([r.node_id for r in cfg.reels], FakeClock(), power_up_turns(cfg))
+    ctl = Controller(cfg, driver, clock=clk, sleep=clk.sleep)
+    before = ctl.status()["loop"]
+    assert list(before) == keys
+    assert before["jitter_p99_s"] is None and before["compute_max_s"] is None
+    stop = threading.Event()
+    beats: list[float] = []
+
+    def watchdog() -> None:  # every tick (period 0): stops the runner after 20
+        beats.append(clk())
+        if len(beats) >= 20:
+            stop.set()
+
+    ctl.runner(spin_s=0.0).run(stop, on_watchdog=watchdog, watchdog_period_s=0.0)
+    after = ctl.status()["loop"]
+    assert list(after) == keys
+    assert after["ticks"] == ctl.ticks == 20
+    assert after["rate_hz"] == pytest.approx(500.0)
+    assert after["overruns"] == 0 and after["skipped"] == 0
+    assert after["jitter_max_s"] is not None and 0.0 <= after["jitter_max_s"] < 1e-5
+    assert after["compute_p50_s"] is not None and after["compute_p50_s"] >= 0.0
+    json.dumps(after, allow_nan=False)
+
+
 def test_pose_stamp_is_the_encoder_arrival_time_not_the_publish_time() -> None:
     # The wall clock the controller sees runs 7 s ahead of the readings' stamps: the published
-    # stamp must be the newest reading's arrival (issue 6: "wall-clock time of the encoder
-    # readings it came from"), not the moment of publication.
+    # stamp must be the newest reading's arrival (the pose schema: "wall-clock time
+    # of the encoder readings it came from"), not the moment of publication.
     cfg = make_config(loop={"rate_hz": RATE_HZ})
     clock = FakeClock()
     driver = FakeDriver([r.node_id for r in cfg.reels], clock, power_up_turns(cfg))
