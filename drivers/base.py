@@ -59,6 +59,11 @@ class AxisReading:
     """A readable name of the drive's fault; None = no fault."""
     state_name: str = "unknown"
     """The drive's own name for its state, for people (e.g. "Operation enabled")."""
+    torque_nm: float = 0.0
+    """The motor's torque estimate (N m, motor's positive direction; ODrive Get_Torques),
+    always finite; meaningful once `torque_stamp_s` is set."""
+    torque_stamp_s: float = NEVER_S
+    """Clock time when the last torque reading arrived on the bus; -inf = never."""
 
     def snapshot(self) -> AxisReading:
         """Return an independent copy of this reading."""
@@ -74,6 +79,8 @@ class AxisReading:
             self.ready,
             self.fault,
             self.state_name,
+            self.torque_nm,
+            self.torque_stamp_s,
         )
 
     def encoder_age_s(self, now_s: float) -> float:

@@ -814,6 +814,12 @@ class ReelPlant:
         self._torques = self._torques_now()
         return self._torques
 
+    def slip(self, cable: int, metres: float) -> None:
+        """Let cable `cable` (0-based) slip `metres` off its drum (positive: paid out) without
+        its motor turning, from the next step on: a fault the encoders cannot see. Raises
+        IndexError for a cable that does not exist, PlantError for a non-finite length."""
+        self._stretch[cable] -= _finite("metres", metres)
+
     @property
     def torques_nm(self) -> tuple[float, ...]:
         """The motors' holding torques (N m) after the last step."""

@@ -78,6 +78,7 @@ _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,62}$")
 _PREFIX_RE = re.compile(r"^[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*$")
 _ZENOH_MODES = ("peer", "client", "router")
 SIM_PLANTS = ("kinematic", "physical")
+TORQUE_TELEMETRY = ("off", "cyclic", "rtr")
 
 
 class ConfigError(ValueError):
@@ -157,6 +158,11 @@ class LoopConfig:
     """SCHED_FIFO priority of the loop thread when `realtime` (1..99)."""
     auto_arm: bool | None = None
     """Arm at start-up; None = only when the reels are simulated in-process (`sim.enabled`)."""
+    torque_telemetry: str = "off"
+    """How the loop learns each motor's torque (measured cable tensions): "off", "cyclic" (the
+    drives broadcast Get_Torques) or "rtr" (asked every `torque_rtr_period_s`)."""
+    torque_rtr_period_s: float = 0.01
+    """With `torque_telemetry = "rtr"`: how often every axis is asked for its torques."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -212,6 +218,12 @@ class FaultConfig:
     tracking_max_m: float = 0.25
     arm_timeout_s: float = 2.0
     bus_error_timeout_s: float = 0.05
+    slack_tension_n: float | None = None
+    """Fault when a measured cable tension stays below this for `slack_time_s` (needs torque
+    telemetry and `[payload]`); None = no slack fault."""
+    slack_time_s: float = 0.1
+    """How long a measured tension may stay below `slack_tension_n` or above the tension
+    maximum before the loop faults."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -770,7 +782,16 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         encoder_rtr=lt.boolean("encoder_rtr", d_loop.encoder_rtr),
         rt_priority=lt.integer("rt_priority", d_loop.rt_priority, ge=1, le=99),
         auto_arm=lt.boolean("auto_arm", False) if lt.has("auto_arm") else None,
+        torque_telemetry=lt.string("torque_telemetry", d_loop.torque_telemetry) or "off",
+        torque_rtr_period_s=lt.number(
+            "torque_rtr_period_s", d_loop.torque_rtr_period_s, gt=0.0, le=10.0
+        ),
     )
+    if loop.torque_telemetry not in TORQUE_TELEMETRY:
+        lt.fail(
+            "torque_telemetry",
+            f"must be one of {', '.join(TORQUE_TELEMETRY)}, got {loop.torque_telemetry!r}",
+        )
 
     # ---- limits: no defaults in a file (a safe limit depends on the robot)
     mark = errs.mark()
@@ -836,6 +857,10 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         bus_error_timeout_s=ft.number(
             "bus_error_timeout_s", d_f.bus_error_timeout_s, ge=0.0, le=10.0
         ),
+        slack_tension_n=(
+            ft.number("slack_tension_n", ge=0.0) if ft.has("slack_tension_n") else None
+        ),
+        slack_time_s=ft.number("slack_time_s", d_f.slack_time_s, ge=0.0, le=10.0),
     )
     if faults.stale_timeout_s < 2.0 * period_s:
         ft.fail(
@@ -877,6 +902,23 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     zenoh = _parse_zenoh(top, name)
 
     payload, tension = _parse_statics(top, errs, limits, limits_ok, reels, geometry, pup)
+    if loop.torque_telemetry != "off" and sim.enabled and sim.plant == "kinematic":
+        lt.fail(
+            "torque_telemetry",
+            f'"{loop.torque_telemetry}" with the kinematic simulator (sim.enabled): it carries '
+            'no load and reports no torque; use sim.plant = "physical"',
+        )
+    if faults.slack_tension_n is not None:
+        if loop.torque_telemetry == "off":
+            ft.fail("slack_tension_n", 'needs measured tensions: loop.torque_telemetry is "off"')
+        if not top.has("payload"):
+            ft.fail("slack_tension_n", "needs [payload] mass_kg (tension limits need a load)")
+        elif tension is not None and not faults.slack_tension_n < tension.min_n:
+            ft.fail(
+                "slack_tension_n",
+                f"{faults.slack_tension_n:g} N must be below limits.min_tension_n "
+                f"({tension.min_n:g} N): every holding pose would be slack",
+            )
     if sim.plant == "physical":
         if payload is None and not top.has("payload"):
             st.fail("plant", '"physical" needs [payload] mass_kg (what the cables carry)')

@@ -200,6 +200,8 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
             bus,
             [r.node_id for r in cfg.reels],
             encoder_rtr=bool(cfg.loop.encoder_rtr),
+            torque_rtr=cfg.loop.torque_telemetry == "rtr",
+            torque_rtr_period_s=float(cfg.loop.torque_rtr_period_s),
             catch_up_age_s=float(cfg.faults.stale_timeout_s) / 2.0,
         )
         controller = Controller(cfg, driver)

@@ -212,3 +212,41 @@ def test_hold_then_pay_one_cable_out_5cm_a_cable_goes_slack_and_three_match_stat
     assert bank.stats.coupling_errors == 0
     # the encoders report the motor positions, not the cables' stretch
     assert pos == pytest.approx(target, abs=1e-6)
+
+
+def test_driver_reads_get_torques_cyclic_and_asks_by_rtr() -> None:
+    channel = f"test-plant-{uuid.uuid4().hex}"
+    node_bus = open_bus("virtual", channel)
+    drv_bus = open_bus("virtual", channel)
+    clock = [100.0]
+    try:
+        driver = ODriveReels(
+            drv_bus, [3, 4], torque_rtr=True, torque_rtr_period_s=0.5, clock=lambda: clock[0]
+        )
+        reading = driver.reading(3)
+        assert reading.torque_stamp_s == -math.inf
+        for frame in (cs.encode_torques(3, -0.5, -0.25), cs.encode_torques(9, 1.0, 1.0)):
+            arb, data, _ = frame
+            node_bus.send(can.Message(arbitration_id=arb, data=data, is_extended_id=False))
+        deadline = time.monotonic() + 2.0
+        while reading.torque_stamp_s == -math.inf and time.monotonic() < deadline:
+            driver.poll()
+        assert reading.torque_nm == -0.25  # the estimate, not the target
+        assert reading.torque_stamp_s <= 100.0
+        assert driver.stats.errors_by_kind.get("unknown_node") == 1
+        snap = reading.snapshot()
+        assert (snap.torque_nm, snap.torque_stamp_s) == (reading.torque_nm, reading.torque_stamp_s)
+        # RTR: one request per axis per period
+        rtrs = []
+        while (m := node_bus.recv(0.2)) is not None:
+            if m.is_remote_frame:
+                rtrs.append(cs.split_id(m.arbitration_id))
+        assert sorted(rtrs) == [(3, cs.GET_TORQUES), (4, cs.GET_TORQUES)]
+        driver.poll()  # within the period: no new request
+        assert node_bus.recv(0.1) is None
+        clock[0] += 0.5
+        driver.poll()
+        assert node_bus.recv(0.5) is not None
+    finally:
+        node_bus.shutdown()
+        drv_bus.shutdown()
