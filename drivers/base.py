@@ -31,10 +31,12 @@ class BusError(DriverError):
 
 @dataclass(slots=True)
 class AxisReading:
-    """Latest known state of one reel motor (an ODrive axis).
+    """Latest known state of one reel motor (one drive axis).
 
     The driver keeps one mutable instance per axis and updates it in place while polling;
     `ReelDriver.read()` returns those instances (copy them with `snapshot()` to keep a value).
+    The control loop reads only the generic status (`ready`, `fault`, `state_name`) and the
+    stamps; `axis_state` / `axis_error` are the drive's raw numbers, kept for diagnostics.
     """
 
     node_id: int
@@ -48,17 +50,21 @@ class AxisReading:
     stamp_ns: int = 0
     """time.time_ns() wall clock of the same arrival; 0 = never."""
     axis_state: int = 0
-    """ODrive AxisState from the last heartbeat (0 UNDEFINED until one arrives, 8 CLOSED_LOOP)."""
+    """The drive's raw state number (ODrive: AxisState from the last heartbeat, 0 UNDEFINED
+    until one arrives, 8 CLOSED_LOOP_CONTROL); for diagnostics, the loop does not read it."""
     axis_error: int = 0
-    """ODrive axis error bit field from the last heartbeat; 0 = no error."""
+    """The drive's raw error number (ODrive: axis error bits of the last heartbeat); 0 = no
+    error; for diagnostics, the loop does not read it."""
     heartbeat_stamp_s: float = NEVER_S
     """Clock time when the last heartbeat arrived on the bus; -inf = never."""
     ready: bool = False
     """The axis follows set-points (ODrive: CLOSED_LOOP_CONTROL; CiA 402: Operation enabled)."""
     fault: str | None = None
-    """A readable name of the drive's fault; None = no fault."""
+    """A readable name of the drive's fault with its code (ODrive: "ESTOP_REQUESTED
+    (0x2000000)"; CiA 402: "EMCY 0x2310 Continuous over-current (Current)"); None = no fault."""
     state_name: str = "unknown"
-    """The drive's own name for its state, for people (e.g. "Operation enabled")."""
+    """The drive's own name for its state, for people (ODrive: "IDLE"; CiA 402: "Operation
+    enabled"); "unknown" until the drive has been heard."""
     torque_nm: float = 0.0
     """The motor's torque estimate (N m, motor's positive direction; ODrive Get_Torques),
     always finite; meaningful once `torque_stamp_s` is set."""
@@ -182,4 +188,15 @@ class ReelDriver(Protocol):
     @property
     def stats(self) -> BusStats:
         """Traffic counters (a live object; copy with `snapshot()`)."""
+        ...
+
+
+@runtime_checkable
+class ConfigurableDriver(Protocol):
+    """A driver whose drives need setting up before cyclic operation (CiA 402: SDO set-up of
+    every drive, then NMT start); the daemon calls `configure()` before its loop runs."""
+
+    def configure(self) -> None:
+        """Set up every drive (blocking, bounded). Raises a DriverError naming the node and
+        the step that failed."""
         ...

@@ -75,17 +75,33 @@ def write_config(
     faults: Mapping[str, Any] | None = None,
     sim: Mapping[str, Any] | None = None,
     loop: Mapping[str, Any] | None = None,
+    base: Path | None = None,
+    drive: Mapping[str, Any] | None = None,
 ) -> tuple[Path, dict[str, Any]]:
-    """Write a paper-robot config for a test (own bus, own Zenoh port, state file in tmp)."""
+    """Write a config for a test (own bus, own Zenoh port, state file in tmp): the paper robot,
+    or the robot file `base` (its drive, reels, limits, power-up pose and [sim] kept);
+    `drive` keys go over its [drive] table."""
+    import tomllib
+
     from controller.service.config import paper_robot_data
 
     name = f"t{uuid.uuid4().hex[:8]}"
-    data = paper_robot_data(name)
+    if base is None:
+        data = paper_robot_data(name)
+        power_up: Any = [0.0, 0.0, 2.0]
+        base_sim: dict[str, Any] = {}
+    else:
+        data = tomllib.loads(base.read_text())
+        data["name"] = name
+        power_up = data.get("homing", {}).get("power_up_position_m")
+        base_sim = {k: v for k, v in data.get("sim", {}).items() if k != "enabled"}
+    if drive:
+        data["drive"] = {**data.get("drive", {}), **drive}
     data["bus"] = dict(bus)
     data["loop"] = {"rate_hz": rate_hz, "realtime": False, "publish_every": 5, **(loop or {})}
-    data["sim"] = {"enabled": sim_enabled, **(sim or {})}
+    data["sim"] = {**base_sim, "enabled": sim_enabled, **(sim or {})}
     data["homing"] = {
-        "power_up_position_m": [0.0, 0.0, 2.0],
+        "power_up_position_m": power_up,
         "state_file": str(tmp_path / "{name}-offsets.json"),
     }
     port = free_tcp_port()
@@ -223,6 +239,9 @@ sys.path.insert(0, ".")
 from tests.daemon_procs import zenoh_session, zquery
 
 endpoint, prefix, slow = sys.argv[1], sys.argv[2], float(sys.argv[3])
+dx = float(sys.argv[4]) if len(sys.argv) > 4 else 1.0
+speed = float(sys.argv[5]) if len(sys.argv) > 5 else 1.0
+estop = len(sys.argv) > 6 and sys.argv[6] == "estop"
 s = zenoh_session(endpoint, 20.0 * slow)
 latest = {}
 ev = threading.Event()
@@ -247,8 +266,8 @@ r = zquery(s, prefix + "/cmd/arm", {}, 5 * slow)
 print("ARM " + json.dumps(r), flush=True)
 wait(lambda p: p["state"] == "HOLDING", 10, "HOLDING")
 start = p["position_m"]
-target = [start[0] + 1.0, start[1], start[2]]
-r = zquery(s, prefix + "/cmd/move", {"position_m": target, "speed_mps": 1.0}, 5 * slow)
+target = [start[0] + dx, start[1], start[2]]
+r = zquery(s, prefix + "/cmd/move", {"position_m": target, "speed_mps": speed}, 5 * slow)
 print("MOVE " + json.dumps(r), flush=True)
 wait(lambda p: p["state"] == "MOVING", 5, "MOVING")
 p = wait(
@@ -259,6 +278,20 @@ p = wait(
 print("ARRIVED %.6f %s" % (math.dist(p["position_m"], target), json.dumps(p)), flush=True)
 st = zquery(s, prefix + "/status", None, 5 * slow)
 print("STATUS " + json.dumps(st), flush=True)
+if estop:
+    r = zquery(s, prefix + "/cmd/estop", {}, 5 * slow)
+    print("ESTOP " + json.dumps(r), flush=True)
+    wait(lambda p: p["state"] == "ESTOPPED", 5, "ESTOPPED")
+    deadline = time.monotonic() + 5 * slow
+    while True:
+        st = zquery(s, prefix + "/status", None, 5 * slow)
+        if (st.get("estop") or {}).get("confirmed"):
+            break
+        if time.monotonic() > deadline:
+            print("TIMEOUT estop confirmation " + json.dumps(st), flush=True)
+            sys.exit(3)
+        time.sleep(0.05)
+    print("CONFIRMED " + json.dumps(st), flush=True)
 sub.undeclare()
 s.close()
 """

@@ -2,7 +2,10 @@
 
 `FakeDriver` behaves like an ideal set of ODrive reels by default (`follow=True`): after
 `arm()` the axes report CLOSED_LOOP_CONTROL at the next poll and every commanded position is
-reached at once, with fresh encoder and heartbeat stamps from the fake clock. Tests switch
+reached at once, with fresh encoder and heartbeat stamps from the fake clock. Like the ODrive
+driver it derives the generic status the loop reads (`ready`, `fault`, `state_name`) from the
+axis state and error numbers, which the tests set; `read()` does it, so a test that edits the
+numbers directly is seen as the driver would report them. Tests switch
 parts of that off (`silent`, `axis_error`, `follow=False`, `position_rev` edits) to provoke
 faults. It raises ValueError on a non-finite command, as the real driver must, and records
 every commanded set-point.
@@ -16,6 +19,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from drivers.base import AxisReading, BusError, BusStats
+from drivers.odrive.cansimple import axis_state_name, fault_text
 
 CLOSED_LOOP = 8
 IDLE = 1
@@ -99,6 +103,10 @@ class FakeDriver:
         return handled
 
     def read(self) -> Sequence[AxisReading]:
+        for r in self.readings:
+            r.ready = r.axis_state == CLOSED_LOOP and r.axis_error == 0
+            r.fault = fault_text(r.axis_error)
+            r.state_name = axis_state_name(r.axis_state)
         return self.readings
 
     def command(

@@ -34,13 +34,12 @@ Method
   stamping, 90 % encoder estimates and 10 % heartbeats for 4 axes.
 * `loop`: for each rate a fresh process (`python -m controller.cli.bench loop`, daemon-like: it
   imports only what the daemon imports) starts four simulated ODrive nodes in another process
-  (`drivers.odrive.sim.run_sim` with `controller.cli.sim.sim_axes`, as `cablebot sim` does, at
-  SCHED_FIFO one below the loop when permitted: they stand in for hardware, which a busy host does
-  not slow down) on a udp_multicast bus of its own (random group and port), builds the bus,
-  `ODriveReels`, `Controller` and `ZenohInterface` the way `controller.service.daemon.run_daemon`
-  does (that function offers no builder to reuse), sets the same switch interval, GC freeze, timer
-  slack and scheduling, and runs the controller's `Runner` (the daemon's loop itself) in a
-  thread (`controller.service.runner.start_loop`).
+  (the registry's simulated drives built by `controller.cli.sim.sim_bank`, as `cablebot sim`
+  does, at SCHED_FIFO one below the loop when permitted: they stand in for hardware, which a busy
+  host does not slow down) on a udp_multicast bus of its own (random group and port), builds the
+  bus, driver, `Controller` and `ZenohInterface` with the daemon's own `build_stack`, sets the
+  same switch interval, GC freeze, timer slack and scheduling, and runs the controller's
+  `Runner` (the daemon's loop itself) in a thread (`controller.service.runner.start_loop`).
   The robot is armed and moved back and forth (1 m/s, all four cables changing), so every tick
   does the full work: poll, FPK, planner, limits, IPK, four Set_Input_Pos frames, one pose put
   (`publish_every` 1). A fault (e.g. a simulator starved on a loaded machine) is counted and
@@ -55,6 +54,12 @@ Method
   over 3 runs per rate (1 with `--quick`), the rates interleaved (500, 1000, 500, ...). Note
   that udp_multicast delivers the daemon's own frames back to it (python-can cannot filter
   them), so each tick also receives its four Set_Input_Pos frames, which SocketCAN would not.
+  `frames_rx_per_tick` / `frames_tx_per_tick` are the driver's frame counters over the measured
+  window divided by its ticks: received counts every frame on the bus, the loop's own included.
+* `loop.cia402.500`: the same run at 500 Hz on four simulated CiA 402 drives (`[drive] kind =
+  "cia402"`, nodes 1..4; the daemon configures them by SDO before its loop runs): each tick
+  writes two RPDOs per drive and one SYNC, and every drive answers with its TPDO. No end-to-end
+  latency here (the encoder-frame matching is the ODrive codec's); one run (`loop_runs` of them).
 * `zenoh_put_us`: the median of `ZenohInterface`'s own timing of `publish_pose` (encode +
   put) over the last 4096 ticks of a 1 kHz run, i.e. in the loop, with a subscriber attached.
 * `e2e_p50_us` / `e2e_p99_us` (1 kHz runs): the simulated node's process records
@@ -146,6 +151,9 @@ QUICK = Plan(101, 400, 5, 16, 3, 1_000_000, 11, 100, 100_000, 3, 20_000, 2.0, 1,
 LENGTH_NOISE_M = 1e-3
 """Standard deviation of the noise put on the cable lengths for `fpk4` and the batch."""
 LOOP_RATES_HZ = (500, 1000)
+CIA402_RATE_HZ = 500
+"""The rate of the loop run on simulated CiA 402 drives (13 frames a tick fill 66 % of a
+1 Mbit/s bus at 500 Hz; 1 kHz would not fit)."""
 E2E_RATE_HZ = 1000
 MOVE_SPEED_MPS = 1.0
 MOVE_POINTS_M = ((-2.0, -1.0, 2.0), (2.0, 1.0, 3.0))
@@ -579,13 +587,14 @@ def _load_cfg(path: str) -> Any:
 
 
 class _RecordingBus:
-    """Wraps a python-can bus; stamps `time.time_ns()` just before sending each encoder frame."""
+    """Wraps a python-can bus; stamps `time.time_ns()` just before sending each ODrive encoder
+    frame (with `record`)."""
 
-    def __init__(self, bus: Any) -> None:
+    def __init__(self, bus: Any, *, record: bool = True) -> None:
         from drivers.odrive import cansimple as cs
 
         self.bus = bus
-        self._encoder_cmd = cs.GET_ENCODER_ESTIMATES
+        self._encoder_cmd = cs.GET_ENCODER_ESTIMATES if record else -1
         self.sent: list[tuple[int, int, bytes]] = []
 
     def recv(self, timeout: float | None = None) -> Any:
@@ -601,24 +610,38 @@ class _RecordingBus:
 
 
 def role_sim(config: str, log: str, tick_s: float) -> int:
-    """Helper process: the config's simulated nodes (as `cablebot sim`), logging encoder sends."""
-    from controller.cli.sim import sim_axes
+    """Helper process: the config's simulated drives (as `cablebot sim`), logging encoder sends
+    (ODrive frames; none for other families)."""
+    import dataclasses
+
+    from controller.cli.sim import sim_settings
     from controller.service.runner import RT_PRIORITY, set_realtime
+    from drivers import registry
     from drivers.bus import open_bus
-    from drivers.odrive.sim import run_sim
 
     cfg = _load_cfg(config)
     stop = threading.Event()
     _on_term(stop)
-    # The nodes stand in for hardware, which a busy host does not slow down: like the daemon's
-    # in-process simulator, run one priority below the loop when permitted.
-    sched = set_realtime(max(1, int(getattr(cfg.loop, "rt_priority", RT_PRIORITY)) - 1))
     b = cfg.bus
     bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
-    rec = _RecordingBus(bus)
+    rec = _RecordingBus(bus, record=cfg.drive.kind == "odrive")
     try:
-        print(f"READY {sched}", flush=True)
-        run_sim(rec, sim_axes(cfg), stop, tick_s=tick_s)  # type: ignore[arg-type]
+        settings = dataclasses.replace(sim_settings(cfg), tick_s=tick_s)
+        fam = registry.family(cfg.drive.kind)
+        bank = fam.sim_bank(rec, cfg.node_ids, cfg.drive.options, settings)  # type: ignore[arg-type]
+        bank.start()
+        # The drives stand in for hardware, which a busy host does not slow down: like the
+        # daemon's in-process simulator, run one priority below the loop when permitted.
+        sched = "SCHED_OTHER"
+        thread = bank.thread
+        if thread is not None and thread.native_id is not None:
+            prio = max(1, int(getattr(cfg.loop, "rt_priority", RT_PRIORITY)) - 1)
+            sched = set_realtime(prio, thread.native_id)
+        try:
+            print(f"READY {sched}", flush=True)
+            stop.wait()
+        finally:
+            bank.stop()
     finally:
         bus.shutdown()
         with open(log, "w", encoding="utf-8") as f:
@@ -668,12 +691,21 @@ def role_sub(endpoint: str, key: str, out: str) -> int:
 # Loop benchmark: the daemon-like process
 
 
-def loop_config_data(rate_hz: float, zenoh_port: int) -> dict[str, Any]:
-    """The paper robot on its own udp_multicast bus and Zenoh port, loop at `rate_hz`."""
+CIA402_COUNTS_PER_REV = 131072.0
+"""The simulated CiA 402 drives' scaling in the loop bench (a 17-bit encoder)."""
+
+
+def loop_config_data(rate_hz: float, zenoh_port: int, kind: str = "odrive") -> dict[str, Any]:
+    """The paper robot on its own udp_multicast bus and Zenoh port, loop at `rate_hz`, on
+    drives of family `kind` ("odrive", node ids 0..3, or "cia402", node ids 1..4)."""
     from controller.service.config import paper_robot_data
 
     name = f"bench-{os.getpid()}-{random.randrange(1 << 16):04x}"
     data = paper_robot_data(name)
+    if kind == "cia402":
+        data["drive"] = {"kind": "cia402", "counts_per_rev": CIA402_COUNTS_PER_REV}
+        for i, reel in enumerate(data["reels"]):
+            reel["node_id"] = i + 1
     data["bus"] = {
         "interface": "udp_multicast",
         "channel": f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}",
@@ -716,11 +748,14 @@ class _RingReader:
         self.last = count
 
 
-def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
-    """Run the daemon's loop at `rate_hz` for `seconds` against simulated nodes; its figures.
+def loop_once(
+    rate_hz: float, seconds: float, workdir: Path, kind: str = "odrive"
+) -> dict[str, Any]:
+    """Run the daemon's loop at `rate_hz` for `seconds` against simulated drives of family
+    `kind`; its figures (the end-to-end ones None for other families than "odrive").
 
-    Raises BenchError when a helper fails, the robot cannot be armed or faults, or no
-    end-to-end sample was matched.
+    Raises BenchError when a helper fails, the robot cannot be armed or faults, or (ODrive)
+    no end-to-end sample was matched.
     """
     from controller.core.commands import Arm, Move, Reset
     from controller.core.states import State
@@ -728,7 +763,7 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
     from controller.service.runner import start_loop
 
     zport = free_tcp_port()
-    data = loop_config_data(rate_hz, zport)
+    data = loop_config_data(rate_hz, zport, kind)
     cfg_path = workdir / f"loop-{int(rate_hz)}.json"
     cfg_path.write_text(json.dumps(data))
     cfg = _load_cfg(str(cfg_path))
@@ -783,6 +818,7 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
         moves += 1
         t0_ns = time.time_ns()
         ticks0, overruns0, skipped0 = controller.ticks, loop_stats.overruns, loop_stats.skipped
+        bus0 = driver.stats.snapshot()
         jitter.drain(keep=False)
         compute.drain(keep=False)
         end = time.monotonic() + seconds
@@ -803,6 +839,7 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
         ticks = controller.ticks - ticks0
         overruns = loop_stats.overruns - overruns0
         skipped = loop_stats.skipped - skipped0
+        bus1 = driver.stats.snapshot()
         jitter.drain()
         compute.drain()
         t1_ns = time.time_ns()
@@ -826,8 +863,12 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
     sent = json.loads(sim_log.read_text())
     poses = json.loads(sub_log.read_text())
     e2e = match_e2e(sent, poses, reels, node_ids, t0_ns, t1_ns)
-    if not e2e["total_us"]:
+    if kind == "odrive" and not e2e["total_us"]:
         raise BenchError(f"no end-to-end sample matched ({e2e['unmatched']} unmatched changes)")
+
+    def pct(values: Sequence[float], q: float) -> float | None:
+        return percentile(values, q) if values else None
+
     put = zstats["pose_publish_tick"]
     return {
         "rate_hz": float(rate_hz),
@@ -845,18 +886,21 @@ def loop_once(rate_hz: float, seconds: float, workdir: Path) -> dict[str, Any]:
         "zenoh_put_us": put["p50_us"],
         "zenoh_put_p99_us": put["p99_us"],
         "zenoh_put_n": min(int(zstats["poses_published"]), 4096),
-        "e2e_p50_us": percentile(e2e["total_us"], 0.50),
-        "e2e_p99_us": percentile(e2e["total_us"], 0.99),
+        "e2e_p50_us": pct(e2e["total_us"], 0.50),
+        "e2e_p99_us": pct(e2e["total_us"], 0.99),
         "e2e_n": len(e2e["total_us"]),
         "e2e_unmatched": e2e["unmatched"],
-        "send_to_publish_p50_us": percentile(e2e["to_publish_us"], 0.50),
-        "send_to_publish_p99_us": percentile(e2e["to_publish_us"], 0.99),
-        "publish_to_arrival_p50_us": percentile(e2e["after_publish_us"], 0.50),
-        "publish_to_arrival_p99_us": percentile(e2e["after_publish_us"], 0.99),
+        "send_to_publish_p50_us": pct(e2e["to_publish_us"], 0.50),
+        "send_to_publish_p99_us": pct(e2e["to_publish_us"], 0.99),
+        "publish_to_arrival_p50_us": pct(e2e["after_publish_us"], 0.50),
+        "publish_to_arrival_p99_us": pct(e2e["after_publish_us"], 0.99),
         "moves": moves,
         "faults": len(faults),
         "fault_reasons": sorted(set(faults))[:5],
         "frames_rx": bus_stats.frames_rx,
+        "frames_rx_per_tick": (bus1.frames_rx - bus0.frames_rx) / max(ticks, 1),
+        "frames_tx_per_tick": (bus1.frames_tx - bus0.frames_tx) / max(ticks, 1),
+        "kind": kind,
         "scheduling": "; ".join(rt_report),
         "sim_scheduling": sim_sched,
     }
@@ -953,26 +997,35 @@ def merge_runs(runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def role_loop(rate_hz: float, seconds: float, out: str) -> int:
+def role_loop(rate_hz: float, seconds: float, out: str, kind: str = "odrive") -> int:
     """Helper process: `loop_once` in a fresh, daemon-like process; writes its figures as JSON."""
     with tempfile.TemporaryDirectory(prefix="cablebot-bench-") as tmp:
         try:
-            result: dict[str, Any] = loop_once(rate_hz, seconds, Path(tmp))
+            result: dict[str, Any] = loop_once(rate_hz, seconds, Path(tmp), kind)
         except BenchError as exc:
             result = {"error": str(exc)}
     Path(out).write_text(json.dumps(result))
     return 0
 
 
-def bench_loop(rate_hz: int, seconds: float) -> dict[str, Any]:
-    """Run `loop_once` in its own process (`python -m controller.cli.bench loop`); its figures.
+def bench_loop(rate_hz: int, seconds: float, kind: str = "odrive") -> dict[str, Any]:
+    """Run `loop_once` in its own process (`python -m controller.cli.bench loop`) on drives of
+    family `kind`; its figures.
 
     Raises BenchError when that process fails or reports an error.
     """
     with tempfile.TemporaryDirectory(prefix="cablebot-bench-") as tmp:
         out = Path(tmp) / "loop.json"
         args = _helper(
-            "loop", "--rate-hz", str(rate_hz), "--seconds", str(seconds), "--out", str(out)
+            "loop",
+            "--rate-hz",
+            str(rate_hz),
+            "--seconds",
+            str(seconds),
+            "--out",
+            str(out),
+            "--drive",
+            kind,
         )
         try:
             proc = subprocess.run(
@@ -1558,7 +1611,38 @@ def measure(
                 lp["compute_p99_frac"] <= TARGET_COMPUTE_P99_FRAC if at_1k else None,
                 n,
             ),
+            _frames_row(f"loop.{rate}.frames_rx_per_tick", lp),
         ]
+
+    cia_runs = []
+    for k in range(p.loop_runs):
+        log(
+            f"loop at {CIA402_RATE_HZ} Hz on simulated CiA 402 drives for {p.loop_seconds:g} s "
+            f"(run {k + 1}/{p.loop_runs}) ..."
+        )
+        lp = bench_loop(CIA402_RATE_HZ, p.loop_seconds, "cia402")
+        cia_runs.append(lp)
+        for reason in lp["fault_reasons"]:
+            log(f"  fault on CiA 402 drives: {reason}")
+    ci = merge_runs(cia_runs)
+    name = f"loop.cia402.{CIA402_RATE_HZ}"
+    n = f"median of {ci['runs']} runs of {ci['seconds']:.1f} s"
+    rows += [
+        Row(
+            f"{name}.faults",
+            ci["faults"],
+            "",
+            "0",
+            ci["faults"] == 0,
+            "; ".join(ci["fault_reasons"])[:60],
+        ),
+        Row(f"{name}.ticks", ci["ticks"], "", "", None, n),
+        Row(f"{name}.overruns", ci["overruns"], "", "", None, f"{ci['overrun_frac']:.3%} of ticks"),
+        Row(f"{name}.jitter_p99_frac", ci["jitter_p99_frac"], "frac", "", None, n),
+        Row(f"{name}.compute_p50_frac", ci["compute_p50_frac"], "frac", "", None, n),
+        Row(f"{name}.compute_p99_frac", ci["compute_p99_frac"], "frac", "", None, n),
+        _frames_row(f"{name}.frames_rx_per_tick", ci),
+    ]
 
     k5 = loops["500"]
     rows.append(
@@ -1661,7 +1745,20 @@ def measure(
         "e2e_p99_us": k1["e2e_p99_us"],
         "estop_latency_flood_ms": {key: es[key] for key in ESTOP_KEYS},
     }
-    return result, rows, {"loops": loops, "estop": es}
+    return result, rows, {"loops": loops, "cia402": ci, "estop": es}
+
+
+def _frames_row(name: str, lp: dict[str, Any]) -> Row:
+    """The frames a loop run's driver received per tick (every frame on the bus: udp_multicast
+    echoes the loop's own) and, in the detail, those it sent."""
+    return Row(
+        name,
+        lp["frames_rx_per_tick"],
+        "",
+        "",
+        None,
+        f"sent {lp['frames_tx_per_tick']:.2f}/tick; received counts the loop's own",
+    )
 
 
 def machine_line() -> str:
@@ -1714,6 +1811,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     for rate, lp in extra["loops"].items():
         sim = lp["sim_scheduling"]
         print(f"loop {rate} Hz: loop thread {lp['scheduling']}; simulated nodes {sim}")
+    ci = extra["cia402"]
+    print(
+        f"loop {CIA402_RATE_HZ} Hz on CiA 402 drives: loop thread {ci['scheduling']}; "
+        f"simulated drives {ci['sim_scheduling']}"
+    )
     print(f"e-stop under flood: loop thread {extra['estop']['scheduling']}")
     missed = [r.name for r in rows if r.ok is False]
     print("MISSED: " + ", ".join(missed) if missed else "all targets met")
@@ -1754,6 +1856,7 @@ def _helper_main(argv: Sequence[str]) -> int:
     lp.add_argument("--rate-hz", type=float, required=True)
     lp.add_argument("--seconds", type=float, required=True)
     lp.add_argument("--out", required=True)
+    lp.add_argument("--drive", default="odrive", help="drive family (drivers.registry)")
     d = roles.add_parser("daemon")
     d.add_argument("--config", required=True)
     f = roles.add_parser("flood")
@@ -1769,7 +1872,7 @@ def _helper_main(argv: Sequence[str]) -> int:
         return role_daemon(a.config)
     if a.role == "flood":
         return role_flood(a.connect, a.prefix, a.threads)
-    return role_loop(a.rate_hz, a.seconds, a.out)
+    return role_loop(a.rate_hz, a.seconds, a.out, a.drive)
 
 
 if __name__ == "__main__":

@@ -209,25 +209,27 @@ def format_pose(sample: dict[str, Any]) -> str:
     return f"seq {sample.get('seq')}  state {sample.get('state')}  {where}{resid}"
 
 
-def axis_state_name(value: Any) -> str:
-    """The ODrive axis state's name (e.g. "CLOSED_LOOP_CONTROL"), or "state N" if unknown."""
-    from drivers.odrive.cansimple import AxisState
+def axis_state_text(ax: dict[str, Any]) -> str:
+    """An axis's state as its drive names it (the status entry's "state", e.g.
+    "CLOSED_LOOP_CONTROL" or "Operation enabled"); "state N" from the raw number when the
+    entry has no name."""
+    name = ax.get("state")
+    if isinstance(name, str) and name:
+        return name
+    return f"state {ax.get('axis_state')}"
 
-    try:
-        return AxisState(int(value)).name
-    except (TypeError, ValueError):
-        return f"state {value}"
 
-
-def axis_error_text(value: Any) -> str:
-    """The ODrive error bits by name with the raw value, e.g. "ESTOP_REQUESTED (0x2000000)"."""
-    from drivers.odrive.cansimple import error_names
-
-    try:
-        bits = int(value)
-    except (TypeError, ValueError):
-        return f"{value}"
-    return "none" if bits == 0 else f"{error_names(bits)} (0x{bits:x})"
+def axis_fault_text(ax: dict[str, Any]) -> str:
+    """An axis's fault as its drive names it (the status entry's "fault", e.g.
+    "ESTOP_REQUESTED (0x2000000)"), "none" without one; the raw error number when the entry
+    has no name."""
+    if "fault" in ax:
+        fault = ax["fault"]
+        return "none" if fault is None else str(fault)
+    err = ax.get("axis_error")
+    if isinstance(err, int) and not isinstance(err, bool):
+        return "none" if err == 0 else f"0x{err:x}"
+    return str(err)
 
 
 def status_tensions_n(st: dict[str, Any]) -> list[float | None] | None:
@@ -239,7 +241,8 @@ def status_tensions_n(st: dict[str, Any]) -> list[float | None] | None:
 
 
 def format_status(st: dict[str, Any]) -> str:
-    """A short multi-line summary of a status reply (axis states and errors by name)."""
+    """A short multi-line summary of a status reply (axis states and faults by the drives'
+    names)."""
     lines = [f"state      {st.get('state')}" + (f" ({st['reason']})" if st.get("reason") else "")]
     pose = st.get("pose") or {}
     if pose.get("position_m") is not None:
@@ -260,8 +263,8 @@ def format_status(st: dict[str, Any]) -> str:
         if tensions is not None and i < len(tensions) and tensions[i] is not None:
             tension = f"  tension {tensions[i]:.1f} N"
         lines.append(
-            f"axis {ax.get('node_id')!s:<5} {axis_state_name(ax.get('axis_state'))}, error"
-            f" {axis_error_text(ax.get('axis_error'))}, reading {age_s}{tension}"
+            f"axis {ax.get('node_id')!s:<5} {axis_state_text(ax)}, error"
+            f" {axis_fault_text(ax)}, reading {age_s}{tension}"
         )
     lp = st.get("loop")
     if lp:

@@ -266,7 +266,14 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
     b = cfg.bus
     opts = "".join(f", {k}={v}" for k, v in b.options.items())
     rate = "" if b.bitrate is None else f", {b.bitrate} bit/s"
-    sim = ", simulated ODrives in the daemon" if cfg.sim.enabled else ""
+    from drivers import registry
+
+    fam = registry.family(cfg.drive.kind)
+    drive_opts = ", ".join(f"{k} = {_toml_text(v)}" for k, v in cfg.drive.options.items())
+    lines.append(
+        f"drive      {fam.title}s ({cfg.drive.kind})" + (f": {drive_opts}" if drive_opts else "")
+    )
+    sim = f", simulated {fam.title}s in the daemon" if cfg.sim.enabled else ""
     lines.append(f"bus        {b.interface} {b.channel}{rate}{opts}{sim}")
     zc = cfg.zenoh
     lines.append(
@@ -277,6 +284,15 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
     )
     data["config"] = cfg.summary()
     return lines, notes, data
+
+
+def _toml_text(v: Any) -> str:
+    """A scalar as a robot file writes it (true, 0.1, 131072, a path)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return format(v, "g")
+    return str(v)
 
 
 def cmd_check_config(args: argparse.Namespace) -> int:

@@ -1,10 +1,11 @@
 """`cablebot monitor`: a terminal dashboard of a running daemon, with stop and e-stop keys.
 
 Shows the state and its reason (a fault in red, across the screen), the pose and the
-set-point, every axis (ODrive state and error bits by name, age of the last reading, cable
-tension when the status carries `tensions_n`), loop and bus figures, samples missed from the
-pose stream, and the recent state changes (`<prefix>/state`). Keys: `s` stop (brake to a hold),
-`e` or space e-stop, `q` quit. Needs the `rich` library (`pip install 'cablebot[monitor]'`).
+set-point, every axis (its state and fault as the drive names them, in green when it is ready,
+age of the last reading, cable tension when the status carries `tensions_n`), loop and bus
+figures, samples missed from the pose stream, and the recent state changes (`<prefix>/state`).
+Keys: `s` stop (brake to a hold), `e` or space e-stop, `q` quit. Needs the `rich` library
+(`pip install 'cablebot[monitor]'`).
 
 Threads: Zenoh's callbacks store the latest pose and state changes; a poller queries
 `<prefix>/status` twice a second; keys send commands from short-lived threads so the screen
@@ -155,7 +156,7 @@ def render(
     from rich.table import Table
     from rich.text import Text
 
-    from controller.cli.client import axis_error_text, axis_state_name, status_tensions_n
+    from controller.cli.client import axis_fault_text, axis_state_text, status_tensions_n
 
     st = snap.status or {}
     pose = snap.pose or {}
@@ -247,17 +248,16 @@ def render(
     axes = st.get("axes") or []
     tensions = status_tensions_n(st) if st else None
     at = Table(box=box.SIMPLE_HEAD, padding=(0, 1), show_edge=False)
-    for name in ("node", "axis state", "errors", "reading", "heartbeat"):
+    for name in ("node", "axis state", "fault", "reading", "heartbeat"):
         at.add_column(name, no_wrap=name != "errors")
     if tensions is not None:
         at.add_column("tension", justify="right")
     for i, ax in enumerate(axes):
-        state_name = axis_state_name(ax.get("axis_state"))
-        err = ax.get("axis_error")
+        fault = axis_fault_text(ax)
         row: list[Any] = [
             str(ax.get("node_id")),
-            Text(state_name, style="green" if state_name == "CLOSED_LOOP_CONTROL" else "yellow"),
-            Text(axis_error_text(err), style="bold red" if err else "dim"),
+            Text(axis_state_text(ax), style="green" if ax.get("ready") else "yellow"),
+            Text(fault, style="dim" if fault == "none" else "bold red"),
             f"{_num(ax.get('age_s'), '.1f', 1e3, 'never')} ms",
             f"{_num(ax.get('heartbeat_age_s'), '.0f', 1e3, 'never')} ms",
         ]

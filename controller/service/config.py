@@ -13,8 +13,15 @@ values run only when those values are valid themselves):
 * unknown keys are errors (with a "did you mean" hint), so typos never silently pass;
 * units are part of the key names (`_m`, `_mps`, `_mps2`, `_s`, `_hz`, `_rps`, `_rev`); a value
   written with a unit ("2 m/s") or of the wrong type is an error naming the unit expected;
-* numbers are finite, within ±1e9 and range-checked, node ids are unique and in 0..63, at
-  least three reels;
+* numbers are finite, within ±1e9 and range-checked, node ids are unique and in the drive
+  family's range (ODrive 0..63, CiA 402 1..127), at least three reels;
+* `[drive] kind` names a drive family of `drivers.registry` ("odrive" by default, "cia402"),
+  and the other `[drive]` keys are that family's options, checked from the registry's table
+  (type, default, range; a file must exist) and by the family's own checks (a CiA 402 EDS must
+  load and hold the objects used, the loop period must be an exact CiA 402 interpolation
+  period); cross-checks: `faults.heartbeat_timeout_s` is at least two drive heartbeat periods,
+  `loop.encoder_rtr` only with ODrive drives, and with `counts_per_rev` every reel's cable
+  range fits the drives' 32-bit position;
 * `bus.interface` is a python-can interface name and every `[bus.options]` key is a keyword
   the interface's python-can bus class takes (`bus_option_names`; `hop_limit` for
   udp_multicast); Zenoh endpoints are `proto/host:port` with a valid port, and a Zenoh
@@ -62,6 +69,7 @@ from typing import Any, overload
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
 from controller.core.reel import ReelModel, spool_buildup
 from controller.core.statics import TensionCheck
+from drivers import registry
 
 Vec3 = tuple[float, float, float]
 
@@ -117,7 +125,7 @@ def _error_line(e: ConfigError) -> str:
 # ------------------------------------------------------------------------------- dataclasses
 @dataclass(frozen=True, slots=True)
 class ReelConfig:
-    """One reel: its ODrive CAN node id, the anchor (pulley exit point) and the reel model."""
+    """One reel: its drive's CAN node id, the anchor (pulley exit point) and the reel model."""
 
     node_id: int
     anchor_m: Vec3
@@ -251,7 +259,8 @@ class ZenohConfig:
 
 @dataclass(frozen=True, slots=True)
 class SimConfig:
-    """Simulated ODrive nodes (started in-process by the daemon when `enabled`)."""
+    """Simulated drives of the `[drive]` family (started in-process by the daemon when
+    `enabled`, or by `cablebot sim`); the broadcast periods and the watchdog are ODrive's."""
 
     enabled: bool = False
     encoder_period_s: float = 0.002
@@ -275,6 +284,15 @@ class SimConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class DriveConfig:
+    """The reels' drive family (a `drivers.registry` name) and its `[drive]` options: every
+    option of the family that has a value (given, or its default)."""
+
+    kind: str = registry.DEFAULT_KIND
+    options: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+
+
+@dataclass(frozen=True, slots=True)
 class RobotConfig:
     """A validated robot configuration (build it with `load_config` / `parse_config`)."""
 
@@ -293,6 +311,7 @@ class RobotConfig:
     """None: no `[payload]`, so no statics (geometry only)."""
     tension: TensionLimits | None = None
     """Set exactly when `payload` is."""
+    drive: DriveConfig = field(default_factory=DriveConfig)
 
     @property
     def node_ids(self) -> tuple[int, ...]:
@@ -354,6 +373,10 @@ class RobotConfig:
             "sim": _fields(self.sim),
             "payload": None if self.payload is None else _fields(self.payload),
             "tension": None if self.tension is None else _fields(self.tension),
+            "drive": {
+                "kind": self.drive.kind,
+                "options": {k: _jsonable(v) for k, v in self.drive.options.items()},
+            },
         }
 
 
@@ -378,6 +401,8 @@ _UNIT_WORDS = {
     "_kg": "kilograms",
     "_nm": "newton-metres",
     "_n": "newtons",
+    "_per_rev": "units per motor turn",
+    "_per_rps": "units per motor turn per second",
     "_mps2": "metres per second squared",
     "_rps2": "motor turns per second squared",
     "_m_per_rev2": "metres per turn per turn",
@@ -640,11 +665,13 @@ _REEL_KEYS = (
 )
 
 
-def _parse_reel(t: _Table) -> ReelConfig | None:
-    """One [[reels]] table; None (problems recorded) if it is not usable."""
+def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
+    """One [[reels]] table; None (problems recorded) if it is not usable. `family`: the drive
+    family whose node id range applies (None: the family is unknown, any 0..127)."""
     mark = t.errs.mark()
     t.finish(_REEL_KEYS)
-    node_id = t.integer("node_id", ge=0, le=63)
+    lo, hi = (0, 127) if family is None else (family.node_id_min, family.node_id_max)
+    node_id = t.integer("node_id", ge=lo, le=hi)
     anchor = t.vec3("anchor_m")
     has_mpr, has_radius = t.has("metres_per_rev"), t.has("drum_radius_m")
     mpr = math.nan
@@ -736,6 +763,7 @@ _TOP_KEYS = (
     "zenoh",
     "sim",
     "payload",
+    "drive",
 )
 _BUS_KEYS = ("interface", "channel", "bitrate", "options")
 
@@ -758,7 +786,10 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         top.fail("name", f"must match {_NAME_RE.pattern} (used in paths and keys), got {name!r}")
         name = "default"
 
-    reels = _parse_reels(top, data, errs)
+    mark = errs.mark()
+    drive, family = _parse_drive(top)
+    drive_ok = errs.clean_since(mark)
+    reels = _parse_reels(top, data, errs, family)
     geometry: Geometry | None = None
     if reels is not None:
         try:
@@ -901,6 +932,9 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
 
     zenoh = _parse_zenoh(top, name)
 
+    if family is not None:
+        limits_used = limits if limits_ok else None
+        _check_drive(top, drive, family, drive_ok, loop, faults, limits_used, reels)
     payload, tension = _parse_statics(top, errs, limits, limits_ok, reels, geometry, pup)
     if loop.torque_telemetry != "off" and sim.enabled and sim.plant == "kinematic":
         lt.fail(
@@ -920,6 +954,12 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
                 f"({tension.min_n:g} N): every holding pose would be slack",
             )
     if sim.plant == "physical":
+        if drive.kind != "odrive":
+            st.fail(
+                "plant",
+                f'"physical" needs simulated ODrives (they report torques); drive.kind is '
+                f"{drive.kind!r}",
+            )
         if payload is None and not top.has("payload"):
             st.fail("plant", '"physical" needs [payload] mass_kg (what the cables carry)')
         if pup is None and not ht.has("power_up_position_m"):
@@ -942,6 +982,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         zenoh=zenoh,
         sim=sim,
         source=source,
+        drive=drive,
         payload=payload,
         tension=tension,
     )
@@ -1072,7 +1113,7 @@ def tension_problem(
 
 
 def _parse_reels(
-    top: _Table, data: Mapping[str, Any], errs: _Errors
+    top: _Table, data: Mapping[str, Any], errs: _Errors, family: registry.Family | None
 ) -> tuple[ReelConfig, ...] | None:
     """The [[reels]] array; None (problems recorded) unless every reel is usable."""
     if "reels" not in data:
@@ -1084,7 +1125,7 @@ def _parse_reels(
         return None
     if len(reels_raw) < 3:
         errs.add("reels", f"need at least 3 reels, got {len(reels_raw)}")
-    parsed = [_parse_reel(_Table(r, f"reels[{i}]", errs)) for i, r in enumerate(reels_raw)]
+    parsed = [_parse_reel(_Table(r, f"reels[{i}]", errs), family) for i, r in enumerate(reels_raw)]
     seen: dict[int, int] = {}
     for i, r in enumerate(parsed):
         if r is None:
@@ -1100,6 +1141,96 @@ def _parse_reels(
     if len(good) != len(parsed) or len(good) < 3 or len(seen) != len(good):
         return None
     return tuple(good)
+
+
+def _parse_drive(top: _Table) -> tuple[DriveConfig, registry.Family | None]:
+    """The [drive] table: the family named by `kind` and its options from the registry's
+    table; the family is None (problem recorded) when `kind` names none."""
+    t = top.sub("drive")
+    kind = t.string("kind", registry.DEFAULT_KIND) or registry.DEFAULT_KIND
+    family = registry.FAMILIES.get(kind)
+    if family is None:
+        t.fail("kind", registry.unknown_family_problem(kind))
+        return DriveConfig(kind), None
+    known = {"kind", *(o.name for o in family.options)}
+    for k in t.data:
+        if k in known:
+            continue
+        owners = sorted(
+            f.name for f in registry.FAMILIES.values() if k in {o.name for o in f.options}
+        )
+        problem = _unknown(k, known)
+        if owners:
+            problem += f" ({k} is an option of [drive] kind = {owners[0]!r}, not {kind!r})"
+        t.fail(k, problem)
+    options: dict[str, Any] = {}
+    for o in family.options:
+        if not t.has(o.name) and not o.required and o.default is None:
+            continue  # no value: the driver's own default applies
+        if o.kind == "number":
+            default = None if o.default is None else float(o.default)
+            value: Any = t.number(o.name, default, gt=o.gt, ge=o.ge, le=o.le, required=o.required)
+        elif o.kind == "bool":
+            value = t.boolean(o.name, bool(o.default))
+        else:
+            text = t.string(o.name, None if o.default is None else str(o.default))
+            if text is None:
+                continue
+            value = os.path.expanduser(text)
+            if not Path(value).is_file():
+                t.fail(o.name, f"no such file: {value}")
+        options[o.name] = value
+    return DriveConfig(kind, MappingProxyType(options)), family
+
+
+def _check_drive(
+    top: _Table,
+    drive: DriveConfig,
+    family: registry.Family,
+    drive_ok: bool,
+    loop: LoopConfig,
+    faults: FaultConfig,
+    limits: LimitsConfig | None,
+    reels: Sequence[ReelConfig] | None,
+) -> None:
+    """Cross-checks of the drive family with the loop, faults and reels (see the module
+    docstring); run only on values that are valid themselves (`drive_ok`: the [drive] table
+    was)."""
+    errs = top.errs
+    opts = drive.options
+    if loop.encoder_rtr and family.name != "odrive":
+        errs.add(
+            "loop.encoder_rtr",
+            f"applies to ODrive drives only ([drive] kind = {family.name!r} drives send their "
+            "positions every cycle)",
+        )
+    hb = opts.get("heartbeat_period_s")
+    if drive_ok and isinstance(hb, float) and faults.heartbeat_timeout_s < 2.0 * hb:
+        errs.add(
+            "faults.heartbeat_timeout_s",
+            f"{faults.heartbeat_timeout_s:g} s is shorter than two drive heartbeat periods "
+            f"(drive.heartbeat_period_s = {hb:g} s)",
+        )
+    cpr = opts.get("counts_per_rev")
+    if drive_ok and isinstance(cpr, float) and limits is not None and reels:
+        for i, r in enumerate(reels):
+            try:
+                span_rev = abs(
+                    r.reel.position_rev(limits.max_cable_m)
+                    - r.reel.position_rev(limits.min_cable_m)
+                )
+            except (ValueError, ArithmeticError):
+                continue  # reported by the reel range check
+            if span_rev * cpr > 2**31 - 1:
+                errs.add(
+                    f"reels[{i}]",
+                    f"{span_rev:.6g} motor turns over limits.min_cable_m..max_cable_m are "
+                    f"{span_rev * cpr:.4g} position counts at drive.counts_per_rev = {cpr:g}: "
+                    "beyond the drives' 32-bit position",
+                )
+    if drive_ok:
+        for key, problem in family.check_options(opts, 1.0 / loop.rate_hz):
+            errs.add(key, problem)
 
 
 def _parse_bus(top: _Table) -> BusConfig:
@@ -1418,7 +1549,9 @@ def paper_robot_data(name: str = "default") -> dict[str, Any]:
             "bus_error_timeout_s": 0.05,
         },
         "homing": {"power_up_position_m": [0.0, 0.0, 2.0]},
-        "sim": {"enabled": True},
+        # The simulated drives' axis watchdog (idle when no command came for this long) gets the
+        # same allowance for a busy machine as the staleness windows above.
+        "sim": {"enabled": True, "watchdog_timeout_s": 1.0},
         "reels": [
             {
                 "node_id": i,

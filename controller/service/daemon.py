@@ -1,8 +1,10 @@
 """`cablebot run`: the controller daemon.
 
-Loads the configuration, opens the bus, starts the simulated ODrive nodes in-process when
-`[sim] enabled`, creates the reel driver, the `Controller` and the Zenoh interface, runs the
-fixed-rate loop in its own thread and waits for SIGTERM/SIGINT.
+Loads the configuration, opens the bus, starts the simulated drives in-process when
+`[sim] enabled`, creates the reel driver of the configured drive family (`[drive] kind`, through
+`drivers.registry`; a driver with a `configure()` step, CiA 402, is configured before the loop
+runs), the `Controller` and the Zenoh interface, runs the fixed-rate loop in its own thread and
+waits for SIGTERM/SIGINT.
 
 Start-up: READY=1 (systemd `Type=notify`) only once every reel has answered (a heartbeat and
 an encoder estimate from each node) and, with auto-arm, the arm has been tried (the robot
@@ -159,20 +161,24 @@ class Stack:
 
 
 def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> Stack:
-    """Open the bus, start in-process simulated nodes when `cfg.sim.enabled` (initialised from
-    `sim_cfg`, default `cfg`), create the ODrive driver, the Controller and, with `zenoh`, the
-    Zenoh interface as the controller's publisher.
+    """Open the bus, start in-process simulated drives when `cfg.sim.enabled` (initialised from
+    `sim_cfg`, default `cfg`), create the driver of the configured drive family (and configure
+    its drives when it has a `configure()` step), the Controller and, with `zenoh`, the Zenoh
+    interface as the controller's publisher.
 
-    Raises whatever fails (bus, simulated nodes, Zenoh: e.g. its port is taken) after closing
-    what was opened.
+    Raises whatever fails (bus, simulated drives, Zenoh: e.g. its port is taken) after closing
+    what was opened; drives that cannot be configured raise RuntimeError naming the node and
+    the step.
     """
     from controller.cli.sim import start_sim_bank
     from controller.service.loop import Controller
+    from drivers import registry
+    from drivers.base import ConfigurableDriver, DriverError
     from drivers.bus import open_bus
-    from drivers.odrive.driver import ODriveReels
 
     closers: list[tuple[str, Callable[[], object]]] = []
     b = cfg.bus
+    fam = registry.family(cfg.drive.kind)
     try:
         bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
         closers.append(("bus", bus.shutdown))
@@ -183,27 +189,37 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
             bank = start_sim_bank(sim_cfg if sim_cfg is not None else cfg, sim_bus)
             closers.append(("sim", bank.stop))
             sim_rt = "SCHED_OTHER"
-            if cfg.loop.realtime:
-                # The simulated nodes stand in for hardware: a starved sim thread on a busy
+            sim_thread = bank.thread
+            if cfg.loop.realtime and sim_thread is not None and sim_thread.native_id is not None:
+                # The simulated drives stand in for hardware: a starved sim thread on a busy
                 # machine would look like a stale node. One step below the loop.
-                for t in threading.enumerate():
-                    if t.name == "sim-odrive" and t.native_id is not None:
-                        sim_rt = set_realtime(max(1, _rt_priority(cfg) - 1), t.native_id)
+                sim_rt = set_realtime(max(1, _rt_priority(cfg) - 1), sim_thread.native_id)
             log.info(
-                "simulated ODrive nodes %s started in-process (%s)",
-                [r.node_id for r in cfg.reels],
+                "simulated %s nodes %s started in-process (%s)",
+                fam.title,
+                list(cfg.node_ids),
                 sim_rt,
             )
-        # After a loop stall, read through the queued frames to the newest in one poll rather
-        # than show frames from before the stall (they carry their arrival time).
-        driver = ODriveReels(
-            bus,
-            [r.node_id for r in cfg.reels],
+        loop_settings = registry.LoopSettings(
+            period_s=1.0 / float(cfg.loop.rate_hz),
+            stale_timeout_s=float(cfg.faults.stale_timeout_s),
             encoder_rtr=bool(cfg.loop.encoder_rtr),
             torque_rtr=cfg.loop.torque_telemetry == "rtr",
             torque_rtr_period_s=float(cfg.loop.torque_rtr_period_s),
-            catch_up_age_s=float(cfg.faults.stale_timeout_s) / 2.0,
         )
+        driver = fam.open_driver(bus, cfg.node_ids, cfg.drive.options, loop_settings)
+        if isinstance(driver, ConfigurableDriver):
+            t0 = time.monotonic()
+            try:
+                driver.configure()
+            except DriverError as exc:
+                raise RuntimeError(f"configuring the {fam.title}s failed: {exc}") from exc
+            log.info(
+                "%s nodes %s configured in %.2f s",
+                fam.title,
+                list(cfg.node_ids),
+                time.monotonic() - t0,
+            )
         controller = Controller(cfg, driver)
         iface = None
         if zenoh:
@@ -273,9 +289,10 @@ class StartupWatch:
     * Names every node that has not answered yet (no heartbeat or no encoder estimate) in a
       WARNING, first after `faults.arm_timeout_s`, then every `status_every_s` (1 s at least;
       `SILENT_WARN_EVERY_S` when status lines are off) until it answers, then logs that it did.
-    * Looks at each node's first heartbeat: an axis already in closed loop before cablebot armed
-      it is driven by someone else, or its watchdog is off and a previous controller left it
-      running (WARNING); WATCHDOG_TIMER_EXPIRED shows that its watchdog works (INFO).
+    * Looks at each node's first heartbeat and logs what the drive family notes about it
+      (`drivers.registry`; ODrive: an axis already in closed loop before cablebot armed it is
+      driven by someone else, or its watchdog is off and a previous controller left it running
+      (WARNING); WATCHDOG_TIMER_EXPIRED shows that its watchdog works (INFO)).
     * With `want_arm`, submits Arm once every reel has answered.
     * Sends READY=1 once every reel has answered and, with `want_arm`, the arm has been tried
       (holding, faulted or refused: the daemon is up and its status says how it is).
@@ -309,6 +326,10 @@ class StartupWatch:
         self._seen: set[int] = set()
         self._last_status: str | None = None
         self._bus_name = f"{cfg.bus.interface} {cfg.bus.channel}"
+        from drivers import registry
+
+        self._family = registry.family(cfg.drive.kind)
+        self._title = self._family.title
 
     def step(self) -> bool:
         """Do what is due now; True exactly once, when the daemon has become ready."""
@@ -319,18 +340,19 @@ class StartupWatch:
         if silent and now >= self._next_warn:
             self._next_warn = now + self._warn_every_s
             log.warning(
-                "no answer from ODrive %s on %s after %.1f s: check power, wiring, CAN node ids "
+                "no answer from %s %s on %s after %.1f s: check power, wiring, CAN node ids "
                 "and bit rate; READY withheld until every reel answers",
+                self._title,
                 ", ".join(f"node {n} (cable {c}: {what})" for n, c, what in silent),
                 self._bus_name,
                 now - self._started,
             )
             self._warned.update(n for n, _, _ in silent)
-            self._status(f"waiting for ODrive node(s) {[n for n, _, _ in silent]}")
+            self._status(f"waiting for {self._title} node(s) {[n for n, _, _ in silent]}")
         if self._warned:
             answered = self._warned - {n for n, _, _ in silent}
             for n in sorted(answered):
-                log.info("ODrive node %d answered after %.1f s", n, now - self._started)
+                log.info("%s node %d answered after %.1f s", self._title, n, now - self._started)
             self._warned -= answered
         if self.want_arm and self.arm_future is None and not silent:
             self.arm_future = self.controller.submit(Arm())
@@ -357,25 +379,15 @@ class StartupWatch:
             self.notifier.notify(f"STATUS={text}")
 
     def _first_heartbeats(self, readings: Any) -> None:
-        from drivers.odrive import cansimple as cs
-
+        """What the drive family notes about each node's first heartbeat (`drivers.registry`:
+        ODrive: an axis in closed loop before cablebot armed it, a watchdog that stopped it)."""
         for r in readings:
             if r.node_id in self._seen or not math.isfinite(r.heartbeat_stamp_s):
                 continue
             self._seen.add(r.node_id)
-            if self.arm_future is None and r.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL:
-                log.warning(
-                    "ODrive node %d is in closed loop before cablebot armed it: another "
-                    "controller drives it, or its watchdog (axis.config.enable_watchdog) is off "
-                    "and a previous controller left it running",
-                    r.node_id,
-                )
-            elif r.axis_error & cs.ODriveError.WATCHDOG_TIMER_EXPIRED:
-                log.info(
-                    "ODrive node %d reports WATCHDOG_TIMER_EXPIRED: its watchdog stopped it "
-                    "after the previous controller went quiet (arming clears it)",
-                    r.node_id,
-                )
+            note = self._family.note_first_heartbeat(r, self.arm_future is not None)
+            if note is not None:
+                log.log(note[0], "%s", note[1])
 
 
 def run_daemon(
@@ -521,8 +533,11 @@ def _summary_text(cfg: Any) -> str:
         if h.power_up_position_m is not None
         else "no power-up pose"
     ) + (f", state file {h.state_file}" if h.state_file else ", no state file")
+    from drivers import registry
+
+    title = registry.family(cfg.drive.kind).title
     return (
-        f"robot {cfg.name!r} from {cfg.source}: {len(cfg.reels)} reels (nodes "
+        f"robot {cfg.name!r} from {cfg.source}: {len(cfg.reels)} reels ({title} nodes "
         f"{[r.node_id for r in cfg.reels]}) on {cfg.bus.interface} {cfg.bus.channel}; "
         f"{cfg.loop.rate_hz:g} Hz; {homing}; Zenoh prefix {cfg.zenoh.prefix}; "
         f"sim {'in-process' if cfg.sim.enabled else 'off'}"

@@ -40,6 +40,12 @@ thread that submits it, vectorised (`Limits.path_failure`); the tick only checks
 from where the set-point comes to rest and hands the prepared points to the planner, which
 builds each leg when it reaches it. A path of any length costs the tick the same.
 
+Axes: the step sees every drive family alike, through the generic status of its readings
+(`drivers.base.AxisReading`: `ready`, `fault`, `state_name`, stamps); "closed loop" here means
+`ready` (ODrive: CLOSED_LOOP_CONTROL without an error; CiA 402: Operation enabled), and fault
+reasons name the drive's state and fault as the driver does (e.g. `axis_error: node 2
+ESTOP_REQUESTED (0x2000000)`, `axis_state: node 1 left closed loop (IDLE)`).
+
 E-stop confirmation: after an e-stop every axis must report, by a heartbeat newer than the
 e-stop, that it left closed loop within `ESTOP_CONFIRM_S`. An axis that does not is named in the
 state reason (`estop_unconfirmed: ...`, published on `<prefix>/state`) and in
@@ -87,9 +93,6 @@ from controller.service.runner import SPIN_S, LoopStats, Runner
 from drivers.base import AxisReading, BusError, ReelDriver
 
 log = logging.getLogger("cablebot.loop")
-
-AXIS_CLOSED_LOOP = 8
-"""ODrive AxisState CLOSED_LOOP_CONTROL."""
 
 COMMAND_QUEUE_SIZE = 32
 ESTOP_CONFIRM_S = 0.2
@@ -556,21 +559,20 @@ class Controller:
             )
 
     def _check_axes(self, readings: Sequence[AxisReading], now_s: float) -> None:
+        """Armed: every axis without a fault, fresh, and ready (the drives' generic status)."""
         stale = self._stale_s
         hb = self._hb_timeout_s
         for r in readings:
-            if r.axis_error != 0:
-                raise _Fault(f"axis_error: node {r.node_id} error 0x{r.axis_error:x}")
+            if r.fault is not None:
+                raise _Fault(f"axis_error: node {r.node_id} {r.fault}")
             if now_s - r.stamp_s > stale:
                 raise _Fault(f"stale_encoder: node {r.node_id} age {now_s - r.stamp_s:.3f} s")
             if now_s - r.heartbeat_stamp_s > hb:
                 raise _Fault(
                     f"stale_heartbeat: node {r.node_id} age {now_s - r.heartbeat_stamp_s:.3f} s"
                 )
-            if r.axis_state != AXIS_CLOSED_LOOP:
-                raise _Fault(
-                    f"axis_state: node {r.node_id} left closed loop (state {r.axis_state})"
-                )
+            if not r.ready:
+                raise _Fault(f"axis_state: node {r.node_id} left closed loop ({r.state_name})")
 
     def _solve_pose(self, readings: Sequence[AxisReading], now_s: float) -> None:
         """Lengths from the encoders, then the pose by FPK (invalid when unhomed or unheard)."""
@@ -653,9 +655,7 @@ class Controller:
             # Hold the motors where they were while they enter closed loop.
             self._send(self._arm_rev)
         closed = all(
-            r.axis_state == AXIS_CLOSED_LOOP
-            and r.axis_error == 0
-            and r.heartbeat_stamp_s >= self._arm_start_s
+            r.ready and r.fault is None and r.heartbeat_stamp_s >= self._arm_start_s
             for r in readings
         )
         if closed and fresh and self.pose_valid and self.pose_m is not None:
@@ -665,12 +665,11 @@ class Controller:
             return
         if now_s - self._arm_start_s > self._arm_timeout_s:
             bad = [
-                f"node {r.node_id} (state {r.axis_state}, error 0x{r.axis_error:x}"
+                f"node {r.node_id} ({r.state_name}"
+                f"{'' if r.fault is None else ', ' + r.fault}"
                 f"{', no encoder' if r.stamp_s < self._arm_start_s else ''})"
                 for r in readings
-                if r.axis_state != AXIS_CLOSED_LOOP
-                or r.axis_error != 0
-                or r.stamp_s < self._arm_start_s
+                if not r.ready or r.fault is not None or r.stamp_s < self._arm_start_s
             ]
             why = ", ".join(bad) if bad else "no valid pose"
             self._fault(f"arm_timeout: {why}")
@@ -762,7 +761,7 @@ class Controller:
         for i, r in enumerate(readings):
             age = now_s - r.torque_stamp_s
             t: float | None = None
-            if age <= stale and r.axis_state == AXIS_CLOSED_LOOP:
+            if age <= stale and r.ready:
                 try:
                     t = reels[i].tension_n(r.position_rev, r.torque_nm)
                 except ValueError:  # reel slope zero: no tension can be read
@@ -896,7 +895,7 @@ class Controller:
         e-stop? Past the deadline: name the axes that have not, send Estop and IDLE again."""
         since = self._estop_at_s
         for r in readings:
-            if r.heartbeat_stamp_s <= since or r.axis_state == AXIS_CLOSED_LOOP:
+            if r.heartbeat_stamp_s <= since or r.ready:
                 break
         else:
             self._estop_confirmed = True
@@ -911,9 +910,7 @@ class Controller:
         if now_s < self._estop_check_s:
             return
         self._estop_check_s = now_s + ESTOP_CONFIRM_S
-        bad = [
-            r for r in readings if r.heartbeat_stamp_s <= since or r.axis_state == AXIS_CLOSED_LOOP
-        ]
+        bad = [r for r in readings if r.heartbeat_stamp_s <= since or r.ready]
         self.estop_repeats += 1
         errors = []
         for send in (self.driver.estop, self.driver.disarm):
@@ -925,7 +922,7 @@ class Controller:
         if nodes != self._estop_unconfirmed:
             self._estop_unconfirmed = nodes
             what = ", ".join(
-                f"node {r.node_id} still in closed loop (state {r.axis_state})"
+                f"node {r.node_id} still in closed loop ({r.state_name})"
                 if r.heartbeat_stamp_s > since
                 else f"node {r.node_id} silent (no heartbeat since the Estop)"
                 for r in bad
@@ -1189,6 +1186,9 @@ class Controller:
             axes.append(
                 {
                     "node_id": r.node_id,
+                    "ready": r.ready,
+                    "fault": r.fault,
+                    "state": r.state_name,
                     "axis_state": r.axis_state,
                     "axis_error": r.axis_error,
                     "position_rev": r.position_rev,

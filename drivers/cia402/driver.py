@@ -37,9 +37,13 @@ Readings: `position_rev` = position actual / `counts_per_rev`; `velocity_rps` es
 successive positions over the times of the SYNCs they answer; stamps at frame arrival;
 `heartbeat_stamp_s` from the NMT heartbeat (a silent drive's stamp ages); `ready` = Operation
 enabled; `fault` = a name built from the statusword's Fault bit and the last EMCY (code and
-text), or the drive's NMT restart; `state_name` = the CiA 402 state. For today's loop the
-ODrive fields stay meaningful: `axis_state` 8 while Operation enabled, else 1 (0 before the
-drive was heard); `axis_error` = the EMCY code while faulted (0x1000 without one), else 0.
+text), or the drive's NMT restart; `state_name` = the CiA 402 state. The loop reads only those;
+the raw numbers are kept for diagnostics: `axis_state` 8 while Operation enabled, else 1 (0
+before the drive was heard); `axis_error` = the EMCY code while faulted (0x1000 without one),
+else 0.
+
+`open_driver` and `check_options` are the registry's entries for the "cia402" family
+(`drivers.registry`): the driver from the `[drive]` options, and the options' checks.
 """
 
 from __future__ import annotations
@@ -49,9 +53,10 @@ import math
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import can
 import canopen
@@ -66,6 +71,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoError
 from drivers.base import AxisReading, BusError, BusStats, DriverError
 from drivers.cia402 import profile
 from drivers.cia402.profile import DriveState, Goal
+from drivers.registry import LoopSettings
 
 EDS_PATH = Path(__file__).with_name("cia402.eds")
 """The object dictionary shipped with cablebot (the simulated drive's, standard objects only)."""
@@ -797,3 +803,70 @@ class CiA402Reels:
         """Run one cycle (held set-points, SYNC): every drive answers with its TPDO, read by
         the next `poll()`. Raises BusError if a send fails."""
         self._cycle()
+
+
+_DRIVER_OPTIONS = frozenset(
+    {
+        "counts_per_rev",
+        "velocity_units_per_rps",
+        "eds",
+        "velocity_offset",
+        "torque",
+        "heartbeat_period_s",
+        "sdo_timeout_s",
+    }
+)
+_USED_OBJECTS = (
+    *(0x1005, 0x1017, 0x6040, 0x6041, 0x6060, 0x6061, 0x6064, 0x607A, 0x60C2),
+    *range(0x1400, 0x1404),
+    *range(0x1600, 0x1604),
+    *range(0x1800, 0x1804),
+    *range(0x1A00, 0x1A04),
+)
+"""Objects `configure` writes or reads on every drive (0x60B1 and 0x6077 besides, if used)."""
+
+
+def open_driver(
+    bus: can.BusABC, node_ids: Sequence[int], options: Mapping[str, Any], loop: LoopSettings
+) -> CiA402Reels:
+    """The registry's factory (`drivers.registry`, family "cia402"): `CiA402Reels` with the
+    `[drive]` options, the loop's period as the drives' interpolation period.
+
+    Raises ValueError on bad node ids, an unknown or bad option, or a period the drives cannot
+    represent; OSError if the EDS cannot be read.
+    """
+    unknown = sorted(set(options) - _DRIVER_OPTIONS)
+    if unknown:
+        raise ValueError(f"unknown CiA 402 [drive] options {unknown}")
+    if "counts_per_rev" not in options:
+        raise ValueError("CiA 402 drives need counts_per_rev")
+    return CiA402Reels(bus, node_ids, period_s=loop.period_s, **options)
+
+
+def check_options(options: Mapping[str, Any], period_s: float) -> list[tuple[str, str]]:
+    """The registry's checks of CiA 402 options (family "cia402"): the loop period has an exact
+    interpolation period (0x60C2), and a configured EDS loads and has every object the driver
+    uses. Returns (key path, problem) pairs; empty if none. Raises nothing."""
+    problems: list[tuple[str, str]] = []
+    try:
+        profile.interpolation_period(period_s)
+    except ValueError as exc:
+        problems.append(("loop.rate_hz", f"{exc}: CiA 402 drives need a period like 1, 2 or 4 ms"))
+    eds = options.get("eds")
+    if eds is not None:
+        try:
+            od = canopen.import_od(str(eds))
+        except Exception as exc:  # canopen raises many kinds on a malformed file
+            problems.append(("drive.eds", f"not a usable EDS: {type(exc).__name__}: {exc}"))
+        else:
+            needed = list(_USED_OBJECTS)
+            if options.get("velocity_offset", True):
+                needed.append(0x60B1)
+            if options.get("torque", True):
+                needed.append(0x6077)
+            missing = [f"0x{i:04X}" for i in needed if i not in od]
+            if missing:
+                problems.append(
+                    ("drive.eds", f"lacks objects the driver uses: {', '.join(missing)}")
+                )
+    return problems

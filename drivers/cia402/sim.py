@@ -46,7 +46,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType, TracebackType
@@ -60,6 +60,7 @@ from canopen.sdo.exceptions import SdoAbortedError
 from drivers.bus import open_bus
 from drivers.cia402.profile import DriveState
 from drivers.odrive.sim import DEFAULT_POS_GAIN, MAX_SUBSTEP_S, _floats, _option
+from drivers.registry import SimSettings
 
 EDS_PATH = Path(__file__).with_name("cia402.eds")
 DEFAULT_COUNTS_PER_REV = 131072
@@ -742,6 +743,11 @@ class SimCiA402Bank:
         self._thread.join(timeout_s)
         return not self._thread.is_alive()
 
+    @property
+    def thread(self) -> threading.Thread | None:
+        """The serving thread once started, else None."""
+        return self._thread
+
     def __enter__(self) -> SimCiA402Bank:
         return self.start()
 
@@ -752,6 +758,29 @@ class SimCiA402Bank:
         tb: TracebackType | None,
     ) -> None:
         self.stop()
+
+
+def open_sim_bank(
+    bus: can.BusABC, node_ids: Sequence[int], options: Mapping[str, Any], sim: SimSettings
+) -> SimCiA402Bank:
+    """The registry's simulator factory (`drivers.registry`, family "cia402"): simulated drives
+    with the `[drive]` options' scaling and EDS and the `[sim]` limits (not started). The
+    drives' heartbeat is what the driver sets at start-up; they answer every SYNC, so the
+    `[sim]` encoder and heartbeat periods and the watchdog do not apply.
+
+    Raises ValueError on bad node ids or settings, or a position per node missing.
+    """
+    return SimCiA402Bank(
+        bus,
+        node_ids,
+        initial_position_rev=sim.initial_positions_rev,
+        tick_s=sim.tick_s,
+        counts_per_rev=float(options.get("counts_per_rev", DEFAULT_COUNTS_PER_REV)),
+        velocity_units_per_rps=options.get("velocity_units_per_rps"),
+        max_velocity_rps=sim.max_velocity_rps,
+        max_accel_rps2=sim.max_accel_rps2,
+        eds=options.get("eds"),
+    )
 
 
 def run_sim(

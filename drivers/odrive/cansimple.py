@@ -137,6 +137,23 @@ def error_names(axis_error: int) -> str:
     return "|".join(names)
 
 
+_STATE_NAMES: Final = {s.value: s.name for s in AxisState}
+
+
+def axis_state_name(axis_state: int) -> str:
+    """The name of an AxisState value, e.g. "CLOSED_LOOP_CONTROL"; "state N" if unknown."""
+    name = _STATE_NAMES.get(axis_state)
+    return name if name is not None else f"state {axis_state}"
+
+
+def fault_text(axis_error: int) -> str | None:
+    """The axis error bits by name with the raw value, e.g. "ESTOP_REQUESTED (0x2000000)";
+    None for no error."""
+    if axis_error == 0:
+        return None
+    return f"{error_names(axis_error)} (0x{axis_error:x})"
+
+
 # --- messages --------------------------------------------------------------------------------
 
 Frame = tuple[int, bytes, bool]

@@ -4,8 +4,11 @@ Receive path (`poll`): drains the bus without blocking (at most `max_frames_per_
 call, so a flooded bus cannot stretch a tick; a backlog of old frames left by a loop stall is read
 through up to `CATCH_UP_FACTOR` times that, see `catch_up_age_s`), decodes each frame with
 `drivers.odrive.cansimple`, and updates one mutable `AxisReading` per axis: encoder estimates from
-the cyclic broadcast (or the RTR replies), axis state and axis error from the heartbeat, the
-motor's torque estimate from Get_Torques (cyclic, or by RTR with `torque_rtr`). Each update
+the cyclic broadcast (or the RTR replies), axis state and axis error from the heartbeat, and with
+them the generic status the loop reads: `ready` (CLOSED_LOOP_CONTROL without an error), `fault`
+(the error bits by name with the raw value, e.g. "ESTOP_REQUESTED (0x2000000)") and `state_name`
+(the AxisState name, e.g. "IDLE"; worked out only when state or error change); the motor's
+torque estimate from Get_Torques (cyclic, or by RTR with `torque_rtr`). Each update
 is stamped with the frame's arrival time, not the time it was taken off the queue, so frames
 that waited in the receive queue (a stalled loop) are as old as they are: python-can's
 `Message.timestamp` is a wall-clock (time.time()) reading on the interfaces cablebot uses, so
@@ -29,15 +32,18 @@ because the feed-forward only shapes tracking; the position set-point itself is 
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import can
 
-from drivers.base import AxisReading, BusError, BusStats
+from drivers.base import NEVER_S, AxisReading, BusError, BusStats
 from drivers.odrive import cansimple as cs
+from drivers.registry import LoopSettings
 
 DEFAULT_SEND_TIMEOUT_S = 0.005
 TIMESTAMP_FUTURE_TOLERANCE_S = 1.0
@@ -46,6 +52,15 @@ TIMESTAMP_MAX_AGE_S = 3600.0
 """A frame timestamp further behind the wall clock than this is not a wall-clock reading."""
 CATCH_UP_FACTOR = 8
 """A poll that catches up with a backlog takes at most this many times `max_frames_per_poll`."""
+
+
+def _derive_status(r: AxisReading) -> None:
+    """The generic status of a reading from its heartbeat's axis state and error bits."""
+    state = r.axis_state
+    error = r.axis_error
+    r.ready = state == cs.AxisState.CLOSED_LOOP_CONTROL and error == 0
+    r.fault = cs.fault_text(error)
+    r.state_name = cs.axis_state_name(state)
 
 
 @dataclass(frozen=True, slots=True)
@@ -200,8 +215,16 @@ class ODriveReels:
                     rec.stamp_s = now_s - age
                     rec.stamp_ns = now_ns - int(age * 1e9)
                 else:
-                    rec.axis_state = m.axis_state  # type: ignore[union-attr]
-                    rec.axis_error = m.axis_error  # type: ignore[union-attr]
+                    state = m.axis_state  # type: ignore[union-attr]
+                    error = m.axis_error  # type: ignore[union-attr]
+                    if (
+                        state != rec.axis_state
+                        or error != rec.axis_error
+                        or rec.heartbeat_stamp_s == NEVER_S
+                    ):
+                        rec.axis_state = state
+                        rec.axis_error = error
+                        _derive_status(rec)
                     rec.heartbeat_stamp_s = now_s - age
             elif mtype is cs.Torques:
                 rec = by_node[m.node_id]
@@ -431,3 +454,44 @@ class ODriveReels:
     def request_errors(self) -> None:
         """RTR-request Get_Error from every axis (see `last_get_error`). Raises BusError."""
         self._send_all([cs.encode_rtr(n, cs.GET_ERROR) for n in self.node_ids], "Get_Error RTR")
+
+
+def open_driver(
+    bus: can.BusABC, node_ids: Sequence[int], options: Mapping[str, Any], loop: LoopSettings
+) -> ODriveReels:
+    """The registry's factory (`drivers.registry`, family "odrive"; it takes no options).
+
+    After a loop stall the driver reads through the queued frames to the newest in one poll
+    (frames older than half the stale timeout are a backlog), rather than show frames from
+    before the stall. Raises ValueError on bad node ids or unknown options.
+    """
+    if options:
+        raise ValueError(f"ODrive drives take no [drive] options, got {sorted(options)}")
+    return ODriveReels(
+        bus,
+        node_ids,
+        encoder_rtr=loop.encoder_rtr,
+        torque_rtr=loop.torque_rtr,
+        torque_rtr_period_s=loop.torque_rtr_period_s,
+        catch_up_age_s=loop.stale_timeout_s / 2.0,
+    )
+
+
+def startup_note(reading: AxisReading, armed: bool) -> tuple[int, str] | None:
+    """What the daemon says about an axis's first heartbeat (registry "startup_note"): an
+    axis in closed loop before cablebot armed it (WARNING), or one that its watchdog stopped
+    (INFO); None otherwise."""
+    if not armed and reading.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL:
+        return (
+            logging.WARNING,
+            f"ODrive node {reading.node_id} is in closed loop before cablebot armed it: another "
+            "controller drives it, or its watchdog (axis.config.enable_watchdog) is off and a "
+            "previous controller left it running",
+        )
+    if reading.axis_error & cs.ODriveError.WATCHDOG_TIMER_EXPIRED:
+        return (
+            logging.INFO,
+            f"ODrive node {reading.node_id} reports WATCHDOG_TIMER_EXPIRED: its watchdog stopped "
+            "it after the previous controller went quiet (arming clears it)",
+        )
+    return None

@@ -62,7 +62,7 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from types import FrameType, TracebackType
 from typing import Any, Protocol
@@ -71,6 +71,7 @@ import can
 
 from drivers.bus import open_bus
 from drivers.odrive import cansimple as cs
+from drivers.registry import SimSettings
 
 _NAN_ENCODER = struct.pack("<ff", math.nan, 0.0)
 
@@ -536,6 +537,18 @@ class SimODriveBank:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
+    def carry(self, coupling: AxisCoupling, torque_period_s: float = 0.0) -> None:
+        """Give the axes a load before `start`: `coupling` is stepped every tick, and every
+        axis broadcasts Get_Torques every `torque_period_s` (0: by RTR only). Raises
+        RuntimeError once started, ValueError on a negative or non-finite period."""
+        if self._thread is not None:
+            raise RuntimeError("SimODriveBank already started: give it its load before")
+        if not (math.isfinite(torque_period_s) and torque_period_s >= 0.0):
+            raise ValueError(f"torque_period_s must be finite and >= 0, got {torque_period_s!r}")
+        self.coupling = coupling
+        for a in self.axes:
+            a.torque_period_s = torque_period_s
+
     def axis(self, node_id: int) -> SimODriveAxis:
         """The simulated axis with this node id. Raises KeyError if there is none."""
         for a in self.axes:
@@ -565,6 +578,11 @@ class SimODriveBank:
         self._thread.join(timeout_s)
         return not self._thread.is_alive()
 
+    @property
+    def thread(self) -> threading.Thread | None:
+        """The serving thread once started, else None."""
+        return self._thread
+
     def __enter__(self) -> SimODriveBank:
         return self.start()
 
@@ -575,6 +593,33 @@ class SimODriveBank:
         tb: TracebackType | None,
     ) -> None:
         self.stop()
+
+
+def open_sim_bank(
+    bus: can.BusABC, node_ids: Sequence[int], options: Mapping[str, Any], sim: SimSettings
+) -> SimODriveBank:
+    """The registry's simulator factory (`drivers.registry`, family "odrive"): one
+    `SimODriveAxis` per node with the `[sim]` settings, served by a bank (not started).
+
+    Raises ValueError on bad node ids or settings, or a position per node missing.
+    """
+    if len(sim.initial_positions_rev) != len(node_ids):
+        raise ValueError(
+            f"{len(node_ids)} initial positions needed, got {len(sim.initial_positions_rev)}"
+        )
+    axes = [
+        SimODriveAxis(
+            int(n),
+            initial_position_rev=x,
+            max_velocity_rps=sim.max_velocity_rps,
+            max_accel_rps2=sim.max_accel_rps2,
+            encoder_period_s=sim.encoder_period_s,
+            heartbeat_period_s=sim.heartbeat_period_s,
+            watchdog_timeout_s=sim.watchdog_timeout_s,
+        )
+        for n, x in zip(node_ids, sim.initial_positions_rev, strict=True)
+    ]
+    return SimODriveBank(bus, axes, tick_s=sim.tick_s)
 
 
 def _floats(text: str, n: int) -> list[float]:

@@ -319,16 +319,51 @@ def test_refusal_prints_the_daemons_reason_verbatim(
     assert err == "cablebot: refused: not allowed in ESTOPPED (needs DISARMED)\n"
 
 
-def test_status_names_axis_states_error_bits_and_tensions() -> None:
+def test_status_names_axis_states_faults_and_tensions() -> None:
     st: dict[str, Any] = {
         "state": "FAULT",
         "reason": "axis_error: node 1",
         "pose": {"position_m": None},
         "setpoint_m": [0.0, 0.0, 2.0],
         "axes": [
-            {"node_id": 0, "axis_state": 8, "axis_error": 0, "age_s": 0.002},
-            {"node_id": 1, "axis_state": 1, "axis_error": 0x2000000 | 0x20, "age_s": 0.003},
-            {"node_id": 2, "axis_state": 99, "axis_error": 0x80000000, "age_s": None},
+            {
+                "node_id": 0,
+                "ready": True,
+                "state": "CLOSED_LOOP_CONTROL",
+                "fault": None,
+                "axis_state": 8,
+                "axis_error": 0,
+                "age_s": 0.002,
+            },
+            {
+                "node_id": 1,
+                "ready": False,
+                "state": "IDLE",
+                "fault": "DRV_FAULT|ESTOP_REQUESTED (0x2000020)",
+                "axis_state": 1,
+                "axis_error": 0x2000000 | 0x20,
+                "age_s": 0.003,
+            },
+            {
+                "node_id": 2,
+                "ready": False,
+                "state": "state 99",
+                "fault": "0x80000000 (0x80000000)",
+                "axis_state": 99,
+                "axis_error": 0x80000000,
+                "age_s": None,
+            },
+            {
+                "node_id": 4,
+                "ready": False,
+                "state": "Fault",
+                "fault": "EMCY 0x2310 Continuous over-current (Current)",
+                "axis_state": 1,
+                "axis_error": 0x2310,
+                "age_s": 0.004,
+            },
+            # A status without the names (an older daemon): the raw numbers.
+            {"node_id": 5, "axis_state": 1, "axis_error": 0x20, "age_s": 0.005},
         ],
         "tensions_n": [120.25, 80.0, None],
     }
@@ -344,6 +379,10 @@ def test_status_names_axis_states_error_bits_and_tensions() -> None:
         "  tension 80.0 N"
     )
     assert axes[2] == "axis 2     state 99, error 0x80000000 (0x80000000), reading never"
+    assert axes[3] == (
+        "axis 4     Fault, error EMCY 0x2310 Continuous over-current (Current), reading 4.0 ms ago"
+    )
+    assert axes[4] == "axis 5     state 1, error 0x20, reading 5.0 ms ago"
 
 
 # ------------------------------------------------------------------------------ pipes

@@ -253,7 +253,15 @@ def test_render_puts_a_fault_in_red_with_what_to_do() -> None:
             "state": "FAULT",
             "reason": "stale_encoder: node 2 age 0.081 s",
             "axes": [
-                {"node_id": 2, "axis_state": 1, "axis_error": 0x2000000, "age_s": 0.081},
+                {
+                    "node_id": 2,
+                    "ready": False,
+                    "state": "IDLE",
+                    "fault": "ESTOP_REQUESTED (0x2000000)",
+                    "axis_state": 1,
+                    "axis_error": 0x2000000,
+                    "age_s": 0.081,
+                },
             ],
             "tensions_n": [412.5],
         },

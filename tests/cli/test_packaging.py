@@ -47,6 +47,7 @@ def test_wheel_holds_the_examples_and_the_unit(tmp_path: Path) -> None:
     names = set(zipfile.ZipFile(wheel).namelist())
     pkg = config_cmd.EXAMPLES_PACKAGE
     assert {"desk.toml", "paper-acre.toml", "square-path.csv", "cablebot@.service"} <= set(SHIPPED)
+    assert {"cia402-desk.toml", "cia402-sim.toml"} <= set(SHIPPED)
     for name in SHIPPED:
         assert f"{pkg}/{name}" in names, sorted(names)
         with zipfile.ZipFile(wheel) as z:
@@ -58,7 +59,8 @@ def test_the_examples_are_found_through_the_package() -> None:
     assert config_cmd.list_examples() == SHIPPED
     assert config_cmd.find_example("desk") == config_cmd.examples_dir() / "desk.toml"
     with pytest.raises(
-        FileNotFoundError, match=re.escape("there are: cablebot@.service, desk.toml")
+        FileNotFoundError,
+        match=re.escape("there are: cablebot@.service, cia402-desk.toml, cia402-sim.toml, desk"),
     ):
         config_cmd.find_example("nope")
 

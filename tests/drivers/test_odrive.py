@@ -82,6 +82,37 @@ def test_readings_from_encoder_and_heartbeat(buses: tuple[can.BusABC, can.BusABC
     assert d.poll() == 0  # nothing more: no blocking, no frames
 
 
+def test_heartbeats_give_the_generic_status(buses: tuple[can.BusABC, can.BusABC]) -> None:
+    bus, peer = buses
+    d = ODriveReels(bus, NODES)
+    r = d.read()
+    assert [(x.ready, x.fault, x.state_name) for x in r] == [(False, None, "unknown")] * 4
+    # The first heartbeat names the state even when it equals the reading's initial 0.
+    send(peer, cs.encode_heartbeat(0, 0, 0))
+    send(peer, cs.encode_heartbeat(1, 0, 8))
+    send(peer, cs.encode_heartbeat(2, 0x2000000 | 0x20, 1))
+    time.sleep(0.01)
+    d.poll()
+    assert (r[0].ready, r[0].fault, r[0].state_name) == (False, None, "UNDEFINED")
+    assert (r[1].ready, r[1].fault, r[1].state_name) == (True, None, "CLOSED_LOOP_CONTROL")
+    assert (r[2].ready, r[2].fault, r[2].state_name) == (
+        False,
+        "DRV_FAULT|ESTOP_REQUESTED (0x2000020)",
+        "IDLE",
+    )
+    # Closed loop with an error bit set is not ready; an unknown state is named by number.
+    send(peer, cs.encode_heartbeat(1, 0x8, 8))
+    send(peer, cs.encode_heartbeat(2, 0, 99))
+    time.sleep(0.01)
+    d.poll()
+    assert (r[1].ready, r[1].fault) == (False, "MISSING_ESTIMATE (0x8)")
+    assert (r[2].ready, r[2].fault, r[2].state_name) == (False, None, "state 99")
+    send(peer, cs.encode_heartbeat(1, 0, 8))
+    time.sleep(0.01)
+    d.poll()
+    assert (r[1].ready, r[1].fault, r[1].state_name) == (True, None, "CLOSED_LOOP_CONTROL")
+
+
 def test_bad_frames_are_counted_named_and_never_corrupt_readings(
     buses: tuple[can.BusABC, can.BusABC],
 ) -> None:

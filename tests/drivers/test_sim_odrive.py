@@ -422,11 +422,19 @@ def test_process_option_parsing() -> None:
 
 
 def test_the_configured_simulated_robot_has_its_watchdog_on() -> None:
-    from controller.cli.sim import sim_axes
+    from controller.cli.sim import sim_bank
     from controller.service.config import default_config
 
-    axes = sim_axes(default_config())
-    assert [a.watchdog_timeout_s for a in axes] == [0.3] * 4
+    cfg = default_config()
+    assert cfg.sim.watchdog_timeout_s == 1.0  # the built-in robot's allowance for a busy CPU
+    bus = open_bus("virtual", f"test-sim-watchdog-{uuid.uuid4().hex}")
+    try:
+        bank = sim_bank(cfg, bus)
+        assert isinstance(bank, SimODriveBank)
+        assert [a.watchdog_timeout_s for a in bank.axes] == [1.0] * 4
+        assert bank.thread is None  # built, not started
+    finally:
+        bus.shutdown()
 
 
 def test_a_stalled_simulator_does_not_mistake_queued_commands_for_silence() -> None:

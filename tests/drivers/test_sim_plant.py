@@ -11,7 +11,7 @@ from typing import Any
 import can
 import pytest
 
-from controller.cli.sim import sim_axes, sim_plant, start_sim_bank
+from controller.cli.sim import sim_bank, start_sim_bank
 from controller.core.statics import CableStatics
 from controller.service.config import RobotConfig, paper_robot_data, parse_config
 from drivers.bus import open_bus
@@ -60,11 +60,21 @@ def test_kinematic_config_builds_no_plant_and_no_torque_broadcast() -> None:
     data = paper_robot_data("t")
     cfg = parse_config(data, "test")
     assert cfg.sim.plant == "kinematic"
-    axes = sim_axes(cfg)
-    assert sim_plant(cfg, axes) is None
-    assert {a.torque_period_s for a in axes} == {0.0}
-    physical = physical_config(torque_period_s=0.02)
-    assert {a.torque_period_s for a in sim_axes(physical)} == {0.02}
+    bus = can.Bus(interface="virtual", channel=f"test-plant-{uuid.uuid4().hex}")
+    try:
+        bank = sim_bank(cfg, bus)
+        assert bank.coupling is None
+        assert {a.torque_period_s for a in bank.axes} == {0.0}
+        physical = sim_bank(physical_config(torque_period_s=0.02), bus)
+        assert physical.coupling is not None
+        assert {a.torque_period_s for a in physical.axes} == {0.02}
+        # a load is given before the bank serves, not after
+        physical.start()
+        with pytest.raises(RuntimeError, match="already started"):
+            physical.carry(physical.coupling)
+        assert physical.stop()
+    finally:
+        bus.shutdown()
 
 
 def test_physical_plant_needs_a_payload_and_a_power_up_pose() -> None:
@@ -79,6 +89,13 @@ def test_physical_plant_needs_a_payload_and_a_power_up_pose() -> None:
     msg = str(info.value)
     assert 'sim.plant: "physical" needs [payload] mass_kg' in msg, msg
     assert 'sim.plant: "physical" needs homing.power_up_position_m' in msg, msg
+    data = paper_robot_data("t")
+    data["sim"] = {"plant": "physical"}
+    data["drive"] = {"kind": "cia402"}
+    for r in data["reels"]:
+        r["node_id"] += 1  # CANopen node ids start at 1
+    with pytest.raises(ValueError, match='"physical" needs simulated ODrives'):
+        parse_config(data, "robot.toml")
     data = paper_robot_data("t")
     data["sim"] = {"plant": "elastic", "cable_ea_n": 0.0}
     with pytest.raises(ValueError) as info:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -443,13 +444,154 @@ def test_every_problem_is_reported_at_once() -> None:
 
 
 def test_simulated_watchdog_timeout_is_validated() -> None:
-    assert parse(base()).sim.watchdog_timeout_s == 0.3
+    assert parse(base()).sim.watchdog_timeout_s == 1.0  # the built-in robot sets it
+    unset = base()
+    del unset["sim"]["watchdog_timeout_s"]
+    assert parse(unset).sim.watchdog_timeout_s == 0.3
     assert parse(edit("sim.watchdog_timeout_s", 0.0)).sim.watchdog_timeout_s == 0.0
     msg = err(edit("sim.watchdog_timeout_s", 0.005))
     assert "sim.watchdog_timeout_s: 0.005 s is shorter than 3 loop periods" in msg, msg
     # unset: 0.3 s, or 5 loop periods on a slow loop
     slow = edit("loop.rate_hz", 10.0)
     slow["faults"]["stale_timeout_s"] = 0.5
+    del slow["sim"]["watchdog_timeout_s"]
     assert parse(slow).sim.watchdog_timeout_s == 0.5
     msg = err(edit("sim.watchdog_timeout_s", -1.0))
     assert "sim.watchdog_timeout_s: must be >= 0" in msg, msg
+
+
+# ------------------------------------------------------------------------------ [drive]
+
+
+def cia402(**drive: Any) -> dict[str, Any]:
+    """The base robot on CiA 402 drives with node ids 1..4 (and `drive` keys on top)."""
+    data = base()
+    data["drive"] = {"kind": "cia402", "counts_per_rev": 131072, **drive}
+    for i, reel in enumerate(data["reels"]):
+        reel["node_id"] = i + 1
+    return data
+
+
+def cia402_edit(path: str, value: Any) -> dict[str, Any]:
+    data = cia402()
+    node: Any = data
+    parts = path.replace("[", ".").replace("]", "").split(".")
+    for p in parts[:-1]:
+        node = node[int(p)] if p.isdigit() else node.setdefault(p, {})
+    last = parts[-1]
+    if value is DELETE:
+        del node[int(last) if last.isdigit() else last]
+    else:
+        node[int(last) if last.isdigit() else last] = value
+    return data
+
+
+def test_drive_defaults_to_odrive_without_options() -> None:
+    cfg = default_config()
+    assert (cfg.drive.kind, dict(cfg.drive.options)) == ("odrive", {})
+    assert cfg.summary()["drive"] == {"kind": "odrive", "options": {}}
+    assert parse(edit("drive.kind", "odrive")).drive == cfg.drive
+
+
+def test_cia402_drive_options_get_the_registry_defaults() -> None:
+    cfg = parse(cia402())
+    assert cfg.drive.kind == "cia402"
+    assert cfg.node_ids == (1, 2, 3, 4)
+    assert dict(cfg.drive.options) == {
+        "counts_per_rev": 131072.0,
+        "velocity_offset": True,
+        "torque": True,
+        "heartbeat_period_s": 0.1,
+        "sdo_timeout_s": 0.3,
+    }
+    from drivers.cia402.driver import EDS_PATH
+
+    cfg = parse(cia402(velocity_units_per_rps=10.0, eds=str(EDS_PATH), torque=False))
+    assert cfg.drive.options["velocity_units_per_rps"] == 10.0
+    assert cfg.drive.options["eds"] == str(EDS_PATH)
+    assert cfg.drive.options["torque"] is False
+    json.dumps(cfg.summary(), allow_nan=False)
+    # CANopen node ids reach 127; ODrive's stop at 63.
+    assert parse(cia402_edit("reels[3].node_id", 127)).node_ids[3] == 127
+
+
+@pytest.mark.parametrize(
+    ("data", "expected"),
+    [
+        (
+            lambda: edit("drive.kind", "odrve"),
+            "drive.kind: unknown drive family 'odrve'; did you mean 'odrive'? "
+            "(known: cia402, odrive)",
+        ),
+        (lambda: edit("drive", "cia402"), "drive: must be a table, got str"),
+        (
+            lambda: edit("drive.counts_per_rev", 4096),
+            "drive.counts_per_rev: unknown key (counts_per_rev is an option of [drive] kind = "
+            "'cia402', not 'odrive')",
+        ),
+        (
+            lambda: cia402_edit("drive.count_per_rev", 4096),
+            "drive.count_per_rev: unknown key; did you mean 'counts_per_rev'?",
+        ),
+        (
+            lambda: cia402_edit("drive.counts_per_rev", DELETE),
+            "drive.counts_per_rev: missing (required)",
+        ),
+        (
+            lambda: cia402_edit("drive.counts_per_rev", "4096 counts"),
+            "drive.counts_per_rev: must be a number in units per motor turn (the unit is in "
+            "the key name), got '4096 counts'",
+        ),
+        (lambda: cia402_edit("drive.counts_per_rev", 0), "drive.counts_per_rev: must be > 0"),
+        (
+            lambda: cia402_edit("drive.heartbeat_period_s", 100.0),
+            "drive.heartbeat_period_s: must be <= 65.535, got 100.0",
+        ),
+        (
+            lambda: cia402_edit("drive.sdo_timeout_s", math.nan),
+            "drive.sdo_timeout_s: must be finite",
+        ),
+        (lambda: cia402_edit("drive.torque", "yes"), "drive.torque: must be true or false"),
+        (
+            lambda: cia402_edit("drive.eds", "/nonexistent/drive.eds"),
+            "drive.eds: no such file: /nonexistent/drive.eds",
+        ),
+        (lambda: cia402_edit("reels[0].node_id", 0), "reels[0].node_id: must be >= 1, got 0"),
+        (lambda: cia402_edit("reels[0].node_id", 128), "reels[0].node_id: must be <= 127"),
+        (lambda: edit("reels[0].node_id", 100), "reels[0].node_id: must be <= 63, got 100"),
+        # cross-checks
+        (
+            lambda: cia402_edit("loop.rate_hz", 300.0),
+            "loop.rate_hz: loop period 0.00333333",
+        ),
+        (
+            lambda: cia402_edit("loop.encoder_rtr", True),
+            "loop.encoder_rtr: applies to ODrive drives only",
+        ),
+        (
+            lambda: cia402_edit("drive.heartbeat_period_s", 0.6),
+            "faults.heartbeat_timeout_s: 1 s is shorter than two drive heartbeat periods "
+            "(drive.heartbeat_period_s = 0.6 s)",
+        ),
+        (
+            lambda: cia402_edit("drive.counts_per_rev", 2**21),
+            "reels[0]: 1980 motor turns over limits.min_cable_m..max_cable_m are 4.152e+09 "
+            "position counts at drive.counts_per_rev = 2.09715e+06: beyond the drives' 32-bit "
+            "position",
+        ),
+    ],
+)
+def test_drive_errors_name_the_key_and_the_problem(
+    data: Callable[[], dict[str, Any]], expected: str
+) -> None:
+    msg = err(data())
+    assert expected in msg, msg
+
+
+def test_a_cia402_eds_must_load(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.eds"
+    bad.write_text("not an EDS\n")
+    msg = err(cia402(eds=str(bad)))
+    assert "robot.toml: drive.eds: not a usable EDS" in msg, msg
+    # The family's own checks run only on a [drive] table that is valid itself.
+    assert "drive.eds" not in err(cia402(eds=str(bad), counts_per_rev=-1))

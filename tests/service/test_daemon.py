@@ -1,9 +1,11 @@
 """The daemon as a process: `cablebot sim`, `cablebot run` and an observer over udp_multicast.
 
-Three processes on one host: the simulated ODrive nodes, the controller daemon and a Zenoh
-observer that arms, moves 1 m and watches the pose arrive within 1 mm. Then SIGTERM must end
-the daemon with exit code 0 within 2 s. A kill test SIGKILLs the daemon while it saves homing
-offsets: the state file must be the old or a new complete record, never a torn one.
+Three processes on one host: the simulated drives (ODrive nodes, or CiA 402 drives with
+config/cia402-sim.toml), the controller daemon and a Zenoh observer that arms, moves and
+watches the pose arrive within 1 mm (the CiA 402 run then e-stops and waits for every drive to
+confirm). Then SIGTERM must end the daemon with exit code 0 within 2 s. A kill test SIGKILLs
+the daemon while it saves homing offsets: the state file must be the old or a new complete
+record, never a torn one. A CiA 402 daemon whose drives do not answer refuses to start.
 """
 
 from __future__ import annotations
@@ -26,11 +28,15 @@ from controller.service.offsets import load_offsets, parse_record
 from tests.daemon_procs import (
     CABLEBOT,
     OBSERVER,
+    REPO,
     Proc,
     write_config,
     zenoh_session,
     zquery,
 )
+
+CIA402_SIM = REPO / "config" / "cia402-sim.toml"
+READY_STATE = {"odrive": "CLOSED_LOOP_CONTROL", "cia402": "Operation enabled"}
 
 
 def _udp_bus() -> dict[str, Any]:
@@ -42,8 +48,19 @@ def _udp_bus() -> dict[str, Any]:
     }
 
 
-def run_three_processes(cfg: Path, info: dict[str, Any], slow: float = 1.0) -> None:
-    """Start sim and daemon, run the observer to completion, SIGTERM the daemon (asserted)."""
+def run_three_processes(
+    cfg: Path,
+    info: dict[str, Any],
+    slow: float = 1.0,
+    *,
+    kind: str = "odrive",
+    move_m: float = 1.0,
+    speed_mps: float = 1.0,
+    estop: bool = False,
+) -> None:
+    """Start sim and daemon, run the observer to completion (a move of `move_m` in x at
+    `speed_mps`, then with `estop` an e-stop confirmed by every drive), SIGTERM the daemon
+    (asserted). `kind`: the config's drive family, for the axis states expected."""
     sim = Proc([*CABLEBOT, "sim", "--config", str(cfg)], "sim")
     daemon: Proc | None = None
     obs: Proc | None = None
@@ -52,7 +69,17 @@ def run_three_processes(cfg: Path, info: dict[str, Any], slow: float = 1.0) -> N
         daemon = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "1"], "daemon")
         daemon.wait_line("ready:", 20 * slow, stderr=True)
         obs = Proc(
-            [sys.executable, "-c", OBSERVER, info["endpoint"], info["prefix"], str(slow)],
+            [
+                sys.executable,
+                "-c",
+                OBSERVER,
+                info["endpoint"],
+                info["prefix"],
+                str(slow),
+                str(move_m),
+                str(speed_mps),
+                "estop" if estop else "-",
+            ],
             "observer",
         )
         try:
@@ -65,6 +92,16 @@ def run_three_processes(cfg: Path, info: dict[str, Any], slow: float = 1.0) -> N
         assert status["state"] == "HOLDING"
         assert status["loop"]["ticks"] > 100
         assert status["bus"]["frames_rx"] > 100
+        assert status["config"]["drive"]["kind"] == kind
+        axes = status["axes"]
+        assert [(a["ready"], a["fault"], a["state"]) for a in axes] == [
+            (True, None, READY_STATE[kind])
+        ] * 4, axes
+        if estop:
+            stopped = json.loads(obs.wait_line("CONFIRMED", 10 * slow)[len("CONFIRMED ") :])
+            assert stopped["state"] == "ESTOPPED" and stopped["estop"]["confirmed"], stopped
+            assert not any(a["ready"] for a in stopped["axes"]), stopped["axes"]
+            assert all(a["state"] != READY_STATE[kind] for a in stopped["axes"]), stopped["axes"]
         assert obs.p.wait(10 * slow) == 0, obs.log()
         poses = json.loads(obs.wait_line("POSE", 1)[len("POSE ") :])
         assert poses["valid"] and len(poses["cable_lengths_m"]) == 4
@@ -88,6 +125,28 @@ def run_three_processes(cfg: Path, info: dict[str, Any], slow: float = 1.0) -> N
 def test_daemon_sim_observer_over_udp_multicast(tmp_path: Path) -> None:
     cfg, info = write_config(tmp_path, _udp_bus())
     run_three_processes(cfg, info)
+
+
+@pytest.mark.slow
+def test_cia402_daemon_sim_observer_over_udp_multicast(tmp_path: Path) -> None:
+    cfg, info = write_config(tmp_path, _udp_bus(), base=CIA402_SIM)
+    run_three_processes(cfg, info, kind="cia402", move_m=0.2, speed_mps=0.3, estop=True)
+
+
+def test_cia402_daemon_refuses_to_start_when_a_drive_does_not_answer(tmp_path: Path) -> None:
+    # No simulated drives on the bus: the SDO set-up of the first drive times out, and the
+    # daemon exits 1 at start-up naming the node and the step (nothing armed, nothing sent
+    # but the set-up's first request).
+    cfg, _info = write_config(tmp_path, _udp_bus(), base=CIA402_SIM, drive={"sdo_timeout_s": 0.1})
+    d = Proc([*CABLEBOT, "run", "--config", str(cfg)], "daemon")
+    try:
+        line = d.wait_line("start-up failed", 30, stderr=True)
+        rc = d.p.wait(timeout=30)
+    finally:
+        d.kill()
+    assert rc == 1, d.log()
+    assert "configuring the CiA 402 drives failed: node 1: 0x1005 COB-ID SYNC:" in line, line
+    assert "No SDO response" in line, line
 
 
 @pytest.mark.slow
