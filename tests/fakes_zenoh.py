@@ -79,6 +79,36 @@ class FakePose:
         ).encode()
 
 
+class FakeWorkspace:
+    """A box workspace with the `path_failure` the Zenoh interface's pre-check calls."""
+
+    def __init__(self, box_m: Sequence[tuple[float, float]]) -> None:
+        self.box_m = tuple(box_m)
+        self.calls = 0
+
+    def check_target(self, p: Sequence[float]) -> str | None:
+        """The box check."""
+        for i, (lo, hi) in enumerate(self.box_m):
+            if not lo <= p[i] <= hi:
+                return f"outside the workspace: {'xyz'[i]}={p[i]} not in [{lo}, {hi}]"
+        return None
+
+    def path_failure(
+        self,
+        points: Sequence[Sequence[float]],
+        start_m: Sequence[float] | None = None,
+        *,
+        legs: bool = True,
+    ) -> tuple[int, str] | None:
+        """The first point outside the box (legs of a box path stay in the box)."""
+        self.calls += 1
+        for i, p in enumerate(points):
+            reason = self.check_target(p)
+            if reason is not None:
+                return i, reason
+        return None
+
+
 class FakeController:
     """A tiny controller: box workspace, constant-speed straight moves, a tick thread."""
 
@@ -96,6 +126,7 @@ class FakeController:
         self.hang = False  # never resolve futures (reply timeout test)
         self.paused = False  # queue commands but do not take them (cancellation test)
         self.submitted: list[Command] = []
+        self.workspace = FakeWorkspace(self.BOX_M)
         self.setpoints: list[tuple[float, ...]] = []
         self._queue: queue.Queue[tuple[Command, concurrent.futures.Future[dict[str, Any]]]] = (
             queue.Queue(maxsize=16)
@@ -118,11 +149,8 @@ class FakeController:
         self.setpoints.append(tuple(position_m))
 
     def check_target(self, p: Sequence[float]) -> str | None:
-        """The box workspace check (immutable data only)."""
-        for i, (lo, hi) in enumerate(self.BOX_M):
-            if not lo <= p[i] <= hi:
-                return f"outside the workspace: {'xyz'[i]}={p[i]} not in [{lo}, {hi}]"
-        return None
+        """The box workspace check."""
+        return self.workspace.check_target(p)
 
     def status(self) -> dict[str, Any]:
         """A status snapshot."""

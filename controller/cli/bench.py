@@ -331,41 +331,34 @@ def bench_three_spheres(repeats: int, calls: int) -> dict[str, float]:
 
 
 def _workspace_poses(cfg: Any, n: int, seed: int) -> Any:
-    """`n` random points in the workspace: the anchors' plan-view box shrunk by the xy margin
-    (the footprint of the rectangular paper robot), from the floor to the top limit.
+    """`n` random points in the workspace's box (`Workspace.box`), which for the rectangular
+    paper robot is the workspace itself.
 
-    Raises BenchError if the box is not inside the footprint (a non-rectangular layout).
+    Raises BenchError if the box is not inside the workspace (a non-rectangular layout).
     """
     import numpy as np
 
-    from controller.core import kinematics as kin
+    from controller.core.workspace import Workspace
 
     rng = np.random.default_rng(seed)
-    geom = cfg.geometry
-    a = geom.anchors_m
-    lim = cfg.limits
-    m = float(lim.xy_margin_m)
-    x_lo, x_hi = float(a[:, 0].min()) + m, float(a[:, 0].max()) - m
-    y_lo, y_hi = float(a[:, 1].min()) + m, float(a[:, 1].max()) - m
-    for x, y in ((x_lo, y_lo), (x_lo, y_hi), (x_hi, y_lo), (x_hi, y_hi)):
-        if not kin.footprint_contains(geom, x, y, m * (1.0 - 1e-9)):
-            raise BenchError("the workspace is not the anchors' box shrunk by the margin")
-    z_lo = float(lim.floor_z_m)
-    z_hi = float(geom.anchor_height_min_m) - float(lim.top_margin_m)
+    ws = Workspace.from_limits(cfg.limits, cfg.geometry)
+    (x_lo, x_hi), (y_lo, y_hi), (z_lo, z_hi) = ws.box()
+    for x in (x_lo, x_hi):
+        for y in (y_lo, y_hi):
+            if not ws.contains_xy(x, y):
+                raise BenchError("the workspace is not its bounding box (not a rectangle)")
     return np.column_stack(
         [rng.uniform(x_lo, x_hi, n), rng.uniform(y_lo, y_hi, n), rng.uniform(z_lo, z_hi, n)]
     )
 
 
 def _workspace_centre(cfg: Any) -> tuple[float, float, float]:
-    geom = cfg.geometry
-    a = geom.anchors_m
-    z_hi = float(geom.anchor_height_min_m) - float(cfg.limits.top_margin_m)
-    return (
-        float(a[:, 0].mean()),
-        float(a[:, 1].mean()),
-        0.5 * (float(cfg.limits.floor_z_m) + z_hi),
-    )
+    """The anchors' plan-view centroid, half-way up the workspace."""
+    from controller.core.workspace import Workspace
+
+    a = cfg.geometry.anchors_m
+    _, _, (z_lo, z_hi) = Workspace.from_limits(cfg.limits, cfg.geometry).box()
+    return (float(a[:, 0].mean()), float(a[:, 1].mean()), 0.5 * (z_lo + z_hi))
 
 
 def bench_fpk4(repeats: int, n_poses: int) -> dict[str, float]:

@@ -80,13 +80,13 @@ def auto_poses(
     from controller.core.calibration import CalibrationError, spread_poses
     from controller.core.kinematics import Geometry, KinematicsError
     from controller.core.statics import TensionCheck
-    from controller.core.workspace import Limits
+    from controller.core.workspace import Workspace
     from controller.service.config import LimitsConfig
 
     try:
         anchors = [tuple(float(c) for c in r["anchor_m"]) for r in summary["reels"]]
         geom = Geometry(anchors)
-        lim = Limits(LimitsConfig(**summary["limits"]), geom)
+        ws = Workspace.from_limits(LimitsConfig(**summary["limits"]), geom)
         ten, load = summary.get("tension"), summary.get("payload")
         tension = (
             None
@@ -102,10 +102,9 @@ def auto_poses(
         )
     except (KeyError, TypeError, ValueError, KinematicsError) as exc:
         raise InputError(f"the daemon's status has no usable anchors and limits: {exc}") from None
-    xs = [x for x, _ in lim.polygon_m]
-    ys = [y for _, y in lim.polygon_m]
-    lo = (min(xs) + lim.xy_margin_m, min(ys) + lim.xy_margin_m, lim.floor_z_m)
-    hi = (max(xs) - lim.xy_margin_m, max(ys) - lim.xy_margin_m, lim.top_z_m)
+    (x_lo, x_hi), (y_lo, y_hi), (z_lo, z_hi) = ws.box()
+    lo = (x_lo, y_lo, z_lo)
+    hi = (x_hi, y_hi, z_hi)
     if margin_m is None:
         margin_m = DEFAULT_MARGIN_RATIO * min(h - low for h, low in zip(hi, lo, strict=True))
     m = float(margin_m)
@@ -115,7 +114,7 @@ def auto_poses(
 
     def inside(p: Vec3) -> bool:
         return all(
-            lim.check_target(q) is None and (tension is None or tension.check(q) is None)
+            ws.check_target(q) is None and (tension is None or tension.check(q) is None)
             for q in ((p[0] + dx, p[1] + dy, p[2] + dz) for dx, dy, dz in corners)
         )
 

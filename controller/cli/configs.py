@@ -68,42 +68,7 @@ def find_example(name: str) -> Path:
 
 
 # --------------------------------------------------------------------------------------------
-# Geometry of the workspace (pure)
-
-
-def shrink_polygon(polygon: Sequence[Point2], margin_m: float) -> list[Point2]:
-    """The convex counter-clockwise `polygon` with every edge moved `margin_m` inwards.
-
-    Returns the vertices of the shrunk polygon (empty when nothing is left).
-    """
-    out = [(float(x), float(y)) for x, y in polygon]
-    n = len(polygon)
-    for k in range(n):
-        (ax, ay), (bx, by) = polygon[k], polygon[(k + 1) % n]
-        length = math.hypot(bx - ax, by - ay)
-        if length == 0.0:
-            continue
-        nx, ny = (by - ay) / length, -(bx - ax) / length  # outward normal
-        c = nx * ax + ny * ay - margin_m
-        out = _clip(out, nx, ny, c)
-        if not out:
-            return []
-    return out
-
-
-def _clip(poly: list[Point2], nx: float, ny: float, c: float) -> list[Point2]:
-    """Keep the part of `poly` where nx*x + ny*y <= c (Sutherland-Hodgman, one half-plane)."""
-    out: list[Point2] = []
-    for i, p in enumerate(poly):
-        q = poly[(i + 1) % len(poly)]
-        dp = nx * p[0] + ny * p[1] - c
-        dq = nx * q[0] + ny * q[1] - c
-        if dp <= 0.0:
-            out.append(p)
-        if (dp < 0.0 < dq) or (dq < 0.0 < dp):
-            t = dp / (dp - dq)
-            out.append((p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])))
-    return out
+# What the workspace (controller.core.workspace) needs of the cables (pure)
 
 
 def polygon_area_m2(poly: Sequence[Point2]) -> float:
@@ -166,13 +131,14 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
     Notes are not errors: e.g. parts of the workspace that need cables outside the allowed
     range (moves there will be refused).
     """
-    from controller.core.workspace import Limits
+    from controller.core.workspace import Workspace
 
     lim = cfg.limits
-    top_z = Limits(lim, cfg.geometry).top_z_m  # raises ValueError for an empty workspace
+    ws = Workspace.from_limits(lim, cfg.geometry)  # raises WorkspaceError for no workspace
+    top_z = ws.top_z_m
     anchors = [tuple(float(v) for v in a) for a in cfg.anchors_m]
-    footprint = [(float(x), float(y)) for x, y in cfg.geometry.footprint_m]
-    work = shrink_polygon(footprint, lim.xy_margin_m)
+    footprint = list(ws.footprint_m)
+    work = list(ws.polygon_m)  # never empty: Workspace refuses a margin that leaves nothing
     lines = [f"robot      {cfg.name!r} from {cfg.source}"]
     lines.append(f"anchors    {len(anchors)} cables (in cable order)")
     for i, r in enumerate(cfg.reels):
@@ -197,39 +163,36 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
         "node_ids": list(cfg.node_ids),
         "footprint_m": [list(p) for p in footprint],
     }
-    if work:
-        wx = [p[0] for p in work]
-        wy = [p[1] for p in work]
-        lo, hi = workspace_cable_range_m(anchors, work, lim.floor_z_m, top_z)
-        lines.append(
-            f"workspace  x {_range(min(wx), max(wx))}, y {_range(min(wy), max(wy))},"
-            f" z {_range(lim.floor_z_m, top_z)} (footprint shrunk by {lim.xy_margin_m:g} m,"
-            f" {polygon_area_m2(work):.3f} m²)"
+    (x_lo, x_hi), (y_lo, y_hi), _ = ws.box()
+    lo, hi = workspace_cable_range_m(anchors, work, lim.floor_z_m, top_z)
+    lines.append(
+        f"workspace  x {_range(x_lo, x_hi)}, y {_range(y_lo, y_hi)},"
+        f" z {_range(lim.floor_z_m, top_z)} (footprint shrunk by {lim.xy_margin_m:g} m,"
+        f" {polygon_area_m2(work):.3f} m²)"
+    )
+    lines.append(
+        f"cables     allowed {lim.min_cable_m:.3f}..{lim.max_cable_m:.3f} m;"
+        f" the workspace needs {lo:.3f}..{hi:.3f} m"
+    )
+    too_long = ws.lengths_violation([hi])
+    if too_long is not None and too_long.limit == "max_cable_m":
+        notes.append(
+            f"parts of the workspace need cables up to {hi:.3f} m, longer than max_cable_m"
+            f" ({lim.max_cable_m:g} m): moves there will be refused"
         )
-        lines.append(
-            f"cables     allowed {lim.min_cable_m:.3f}..{lim.max_cable_m:.3f} m;"
-            f" the workspace needs {lo:.3f}..{hi:.3f} m"
+    too_short = ws.lengths_violation([lo])
+    if too_short is not None and too_short.limit == "min_cable_m":
+        notes.append(
+            f"parts of the workspace need cables down to {lo:.3f} m, shorter than"
+            f" min_cable_m ({lim.min_cable_m:g} m): moves there will be refused"
         )
-        if hi > lim.max_cable_m:
-            notes.append(
-                f"parts of the workspace need cables up to {hi:.3f} m, longer than max_cable_m"
-                f" ({lim.max_cable_m:g} m): moves there will be refused"
-            )
-        if lo < lim.min_cable_m:
-            notes.append(
-                f"parts of the workspace need cables down to {lo:.3f} m, shorter than"
-                f" min_cable_m ({lim.min_cable_m:g} m): moves there will be refused"
-            )
-        data["workspace"] = {
-            "polygon_m": [list(p) for p in work],
-            "x_m": [min(wx), max(wx)],
-            "y_m": [min(wy), max(wy)],
-            "z_m": [lim.floor_z_m, top_z],
-            "cable_range_m": [lo, hi],
-        }
-    else:
-        lines.append(f"workspace  empty: xy_margin_m {lim.xy_margin_m:g} m leaves nothing")
-        notes.append("the workspace is empty: every move will be refused")
+    data["workspace"] = {
+        "polygon_m": [list(p) for p in work],
+        "x_m": [x_lo, x_hi],
+        "y_m": [y_lo, y_hi],
+        "z_m": [lim.floor_z_m, top_z],
+        "cable_range_m": [lo, hi],
+    }
     lines.append(
         f"limits     speed {lim.max_speed_mps:g} m/s (default {lim.default_speed_mps:g}),"
         f" accel {lim.max_accel_mps2:g} m/s², cable speed {lim.max_cable_speed_mps:g} m/s"

@@ -345,7 +345,7 @@ def run_circle(
     from controller.core.commands import Path as PathCmd
     from controller.core.motion import circle_path
     from controller.core.states import State
-    from controller.core.workspace import Limits
+    from controller.core.workspace import Workspace
     from controller.service.daemon import Stack, build_stack
     from controller.service.pose import NullPublisher
     from controller.service.runner import start_loop
@@ -362,7 +362,7 @@ def run_circle(
         )
     if not (math.isfinite(spec.settle_s) and spec.settle_s >= 0.0):
         raise ValueError(f"settle time must be >= 0, got {spec.settle_s!r}")
-    reason = Limits(lim, cfg.geometry).check_path(points)
+    reason = Workspace.from_limits(lim, cfg.geometry).check_path(points)
     if reason is not None:
         raise ValueError(f"the circle leaves the robot's limits: {reason}")
     motion_s = estimate_duration_s(points, speed, float(lim.max_accel_mps2))

@@ -48,14 +48,12 @@ def ipk_lengths(cfg: Any, position_m: tuple[float, float, float]) -> dict[int, f
 
 
 def workspace_problem(cfg: Any, position_m: tuple[float, float, float]) -> str | None:
-    """Why `position_m` is outside the configured workspace, or None when it is inside."""
-    from controller.core.workspace import Limits
+    """Why `position_m` is not an allowed pose of the configured robot (outside the workspace
+    or a cable length out of range), or None when it is allowed; the workspace decides.
+    Raises nothing for a validated configuration."""
+    from controller.core.workspace import Workspace
 
-    limits = Limits(cfg.limits, cfg.geometry)
-    reason: str | None = limits.check_point(position_m)
-    if reason is None:
-        reason = limits.check_lengths(limits.lengths_at(position_m))
-    return reason
+    return Workspace.from_limits(cfg.limits, cfg.geometry).check_target(position_m)
 
 
 def cmd_ipk(args: argparse.Namespace) -> int:

@@ -4,8 +4,8 @@ The tools that draw the robot (`cablebot view`, `cablebot plot`) get its geometr
 configuration summary the daemon reports in its status (`status["config"]`, the dict of
 `RobotConfig.summary()`), from the one stored in a recording, or from a TOML file
 (`load_config(path).summary()`): the same dict in all three cases. `RobotShape.from_summary`
-turns it into points to draw; the workspace comes from `controller.core.workspace.Limits`, so the
-drawn workspace is the one the daemon enforces.
+turns it into points to draw; the footprint and the workspace come from
+`controller.core.workspace.Workspace`, so the drawn workspace is the one the daemon enforces.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ class RobotShape:
         workspace.
         """
         from controller.core.kinematics import Geometry, KinematicsError
-        from controller.core.workspace import Limits
+        from controller.core.workspace import Workspace
         from controller.service.config import LimitsConfig
 
         try:
@@ -72,46 +72,19 @@ class RobotShape:
             raise ShapeError(f"anchors are not finite: {anchors}")
         try:
             geometry = Geometry(anchors)
-            limits = Limits(limits_cfg, geometry)
-        except (KinematicsError, ValueError) as exc:
+            ws = Workspace.from_limits(limits_cfg, geometry)
+        except (KinematicsError, ValueError) as exc:  # WorkspaceError is a ValueError
             raise ShapeError(f"configuration summary: {exc}") from exc
-        footprint = tuple((float(x), float(y)) for x, y in geometry.footprint_m)
         return RobotShape(
             name=str(summary.get("name", "")),
             anchors_m=anchors,
-            footprint_m=footprint,
-            workspace_m=shrink_polygon(footprint, limits.xy_margin_m),
-            floor_z_m=limits.floor_z_m,
-            top_z_m=limits.top_z_m,
-            min_cable_m=limits.min_cable_m,
-            max_cable_m=limits.max_cable_m,
+            footprint_m=ws.footprint_m,
+            workspace_m=ws.polygon_m,
+            floor_z_m=ws.floor_z_m,
+            top_z_m=ws.top_z_m,
+            min_cable_m=ws.min_cable_m,
+            max_cable_m=ws.max_cable_m,
         )
-
-
-def shrink_polygon(polygon: tuple[Vec2, ...], margin_m: float) -> tuple[Vec2, ...]:
-    """The vertices of a convex counter-clockwise polygon with every edge moved in by `margin_m`.
-
-    Each vertex is where the two shifted edges next to it meet (what `Limits` tests against
-    with half-planes). Raises ShapeError for fewer than three vertices or parallel edges.
-    """
-    n = len(polygon)
-    if n < 3:
-        raise ShapeError(f"a polygon needs three vertices, got {n}")
-    lines: list[tuple[float, float, float]] = []  # nx*x + ny*y = c, outward normal
-    for k in range(n):
-        (ax, ay), (bx, by) = polygon[k], polygon[(k + 1) % n]
-        ln = math.hypot(bx - ax, by - ay)
-        nx, ny = (by - ay) / ln, -(bx - ax) / ln
-        lines.append((nx, ny, nx * ax + ny * ay - margin_m))
-    out: list[Vec2] = []
-    for k in range(n):
-        n1x, n1y, c1 = lines[k - 1]
-        n2x, n2y, c2 = lines[k]
-        det = n1x * n2y - n1y * n2x
-        if abs(det) < 1e-12:
-            raise ShapeError(f"polygon edges {k - 1} and {k} are parallel")
-        out.append(((c1 * n2y - c2 * n1y) / det, (n1x * c2 - n2x * c1) / det))
-    return tuple(out)
 
 
 def length_colour(length_m: float, lo_m: float, hi_m: float) -> tuple[float, float, float]:

@@ -10,7 +10,7 @@ Both take the payload and the tension limits from the configuration (`[payload]`
   pose: outside the geometric workspace (unless `--no-limits`; this reason comes first) or a
   tension closer than `tension_margin_n` to a limit.
 - `cablebot workspace [--config FILE] [--step M] [--png FILE]` samples the geometric
-  workspace (`controller.core.workspace.Limits`: the anchors' footprint shrunk by
+  workspace (`controller.core.workspace.Workspace`: the anchors' footprint shrunk by
   `xy_margin_m`, the z band, the cable lengths) on a grid of cells of about `--step` metres and
   prints the part where the payload can be held within the tension limits and their margin:
   its volume, the sampled geometric volume, and a bound on the sampling error (the volume of
@@ -160,25 +160,17 @@ def cmd_statics(args: argparse.Namespace) -> int:
 def workspace_map(cfg: Any, check: Any, step_m: float | None) -> Any:
     """`controller.core.statics.FeasibleWorkspace` of the geometric workspace for `check`.
 
-    The grid spans the bounding box of the shrunk footprint and the z band; a cell counts
-    where its centre is inside the geometric limits (`Limits.inside_points`) and the payload
-    can be held there with every tension `check.margin_n` inside the limits. Raises
-    StaticsInputError for a step that gives too many cells, ValueError for an empty workspace.
+    The grid spans the workspace's bounding box (`Workspace.box`); a cell counts where its
+    centre is inside the geometric limits (`Workspace.inside_points`) and the payload can be
+    held there with every tension `check.margin_n` inside the limits. Raises
+    StaticsInputError for a step that gives too many cells, WorkspaceError (a ValueError) for
+    an empty workspace.
     """
-    from controller.cli.configs import shrink_polygon
     from controller.core.statics import StaticsInputError, feasible_workspace
-    from controller.core.workspace import Limits
+    from controller.core.workspace import Workspace
 
-    lim = cfg.limits
-    limits = Limits(lim, cfg.geometry)
-    poly = shrink_polygon(
-        [(float(x), float(y)) for x, y in cfg.geometry.footprint_m], lim.xy_margin_m
-    )
-    if not poly:
-        raise ValueError(f"xy_margin_m ({lim.xy_margin_m:g} m) leaves no workspace")
-    xs = [pt[0] for pt in poly]
-    ys = [pt[1] for pt in poly]
-    box = ((min(xs), max(xs)), (min(ys), max(ys)), (lim.floor_z_m, limits.top_z_m))
+    workspace = Workspace.from_limits(cfg.limits, cfg.geometry)
+    box = workspace.box()
     spans = [hi - lo for lo, hi in box]
     step = max(spans) / DEFAULT_CELLS_PER_SPAN if step_m is None else step_m
     cells = math.prod(max(1, round(s / step)) for s in spans)
@@ -197,7 +189,7 @@ def workspace_map(cfg: Any, check: Any, step_m: float | None) -> Any:
         check.mass_kg,
         t_lo,
         t_hi,
-        inside=limits.inside_points,
+        inside=workspace.inside_points,
     )
 
 
@@ -238,9 +230,9 @@ def draw_slices(cfg: Any, check: Any, ws: Any, path: str, slices: int = SLICES) 
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from controller.core.workspace import Limits
+    from controller.core.workspace import Workspace
 
-    limits = Limits(cfg.limits, cfg.geometry)
+    limits = Workspace.from_limits(cfg.limits, cfg.geometry)
     nz = ws.zs_m.size
     idx = sorted({round(k * (nz - 1) / max(1, slices - 1)) for k in range(slices)})
     cols = min(3, len(idx))

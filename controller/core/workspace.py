@@ -1,10 +1,35 @@
-"""Limits: workspace, cable-length and cable-speed checks, with human-readable reasons.
+"""The workspace: the one place that decides whether a point, a cable length or speed, a straight
+segment or a path is allowed, with human-readable reasons.
 
-`Limits(cfg, geometry)` precomputes the anchors' plan-view convex hull as half-planes shrunk by
-`xy_margin_m`, the z band [floor_z_m, lowest anchor - top_margin_m] and the cable bounds, so
-every per-tick check is a few float operations in pure Python. Each check returns None when the
-value is fine and otherwise a reason string that names the limit and the value, used verbatim
-in a `CommandRefused` or a fault.
+Every user asks this module: the control step (each move, path and streamed target, and each
+tick's set-point, cable lengths and cable speeds), configuration validation (the limits and
+the power-up pose), the Zenoh interface's pre-check, the offline verbs (`cablebot ipk`),
+`check-config`, `view`, `plot`, `calibrate --auto`, the demo and the benchmark.
+
+The rule (`Workspace`):
+
+* plan view: inside the anchors' plan-view convex hull (`Geometry.footprint_m`) with every edge
+  moved `xy_margin_m` inwards (`footprint_contains` is the same test for any polygon and
+  margin);
+* height: `floor_z_m <= z <= top_z_m`, where `top_z_m` is the lowest anchor minus
+  `top_margin_m`;
+* cables: every length in `[min_cable_m, max_cable_m]`; no length changing faster than
+  `max_cable_speed_mps` between two set-points;
+* a straight segment: both ends allowed, and no cable shorter than `min_cable_m` on the way
+  (the workspace is convex, and a cable is longest at an end);
+* a path: every point, and every leg from the point before (and from a start, if given).
+
+Each check returns None when the value is allowed and otherwise a reason string that names the
+limit and the value, used verbatim in a `CommandRefused` or a fault. The point and length
+checks also come as a `Violation` (which limit, which cable, the value and the bound) for
+callers that word their own message, such as configuration validation naming the TOML keys.
+
+`Workspace(geometry, xy_margin_m=..., ...)` takes plain floats; `Workspace.from_limits(limits,
+geometry)` takes any object with those attributes (the service's `LimitsConfig`). Both raise
+`WorkspaceError` (naming the limit) for non-finite values, a z band that is empty, a cable
+range that is empty, or a margin that leaves no plan-view area. The half-planes, the shrunk
+polygon (`polygon_m`) and the z band are computed once, so every per-tick check is a few float
+operations in pure Python.
 
 A tolerance of `TOL_M` (1 nm) absorbs floating-point rounding of set-points that lie exactly on
 a boundary (a move to a point on the margin must not fault half-way).
@@ -19,14 +44,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 
 from controller.core.kinematics import Geometry
-from controller.service.config import LimitsConfig
 
+Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
+HalfPlane = tuple[float, float, float]
+"""(nx, ny, c) with (nx, ny) the unit outward normal of an edge: inside is nx*x + ny*y <= c."""
 
 TOL_M = 1e-9
 
@@ -39,59 +67,296 @@ _CHUNK_POINTS = 1024
 """Points converted to an array per numpy call: each call holds the GIL, keep it short."""
 
 
-class Limits:
-    """All limits of one robot (see the module docstring). Raises ValueError if the shrunk
-    polygon would be empty or the z band inverted (config validation prevents both)."""
+class WorkspaceError(ValueError):
+    """Limits that allow nothing (or are not finite). `limit` names the limit's key (e.g.
+    ``xy_margin_m``), `detail` says what is wrong with it; the message is ``limit: detail``."""
+
+    def __init__(self, limit: str, detail: str) -> None:
+        super().__init__(f"{limit}: {detail}")
+        self.limit = limit
+        self.detail = detail
+
+
+class LimitsLike(Protocol):
+    """The limits a `Workspace` is built from (the service's `LimitsConfig` is one)."""
+
+    @property
+    def xy_margin_m(self) -> float:
+        """Plan-view margin inside the anchors' convex hull (m)."""
+        ...
+
+    @property
+    def floor_z_m(self) -> float:
+        """Lowest allowed z (m)."""
+        ...
+
+    @property
+    def top_margin_m(self) -> float:
+        """Distance kept below the lowest anchor (m)."""
+        ...
+
+    @property
+    def min_cable_m(self) -> float:
+        """Shortest allowed cable (m)."""
+        ...
+
+    @property
+    def max_cable_m(self) -> float:
+        """Longest allowed cable (m)."""
+        ...
+
+    @property
+    def max_cable_speed_mps(self) -> float:
+        """Fastest allowed change of a cable length (m/s)."""
+        ...
+
+
+@dataclass(frozen=True, slots=True)
+class Violation:
+    """One broken limit of a point or of its cable lengths.
+
+    `limit`: the limit's key: ``position`` (not finite), ``xy_margin_m`` (outside the shrunk
+    plan-view polygon), ``floor_z_m``, ``top_margin_m`` (above the top), ``min_cable_m`` or
+    ``max_cable_m`` (a cable length, or ``cable_m`` for a non-finite one). `cable`: the
+    cable's number (1-based) for a cable limit, else None. `value`: the offending value (how
+    far outside the polygon, the z or the length, in m). `bound`: the limit it breaks (the
+    margin, the floor, the top z, the shortest or longest cable, in m). `reason`: the message
+    the checks return.
+    """
+
+    limit: str
+    cable: int | None
+    value: float
+    bound: float
+    reason: str
+
+
+def _half_planes(polygon_m: Sequence[Sequence[float]], margin_m: float) -> tuple[HalfPlane, ...]:
+    """The convex counter-clockwise `polygon_m` with every edge moved `margin_m` inwards."""
+    planes: list[HalfPlane] = []
+    n = len(polygon_m)
+    for k in range(n):
+        ax, ay = float(polygon_m[k][0]), float(polygon_m[k][1])
+        bx, by = float(polygon_m[(k + 1) % n][0]), float(polygon_m[(k + 1) % n][1])
+        ln = math.hypot(bx - ax, by - ay)
+        if ln == 0.0:
+            continue
+        nx, ny = (by - ay) / ln, -(bx - ax) / ln  # outward normal of a CCW polygon
+        planes.append((nx, ny, nx * ax + ny * ay - margin_m))
+    return tuple(planes)
+
+
+def _outside_by(planes: Sequence[HalfPlane], x: float, y: float) -> float:
+    """How far (x, y) lies outside the half-planes (<= 0 inside); NaN for a NaN coordinate."""
+    worst = -math.inf
+    for nx, ny, c in planes:
+        d = nx * x + ny * y - c
+        if not d <= worst:  # also takes a NaN, which then stays
+            worst = d
+    return worst
+
+
+def _inside(outside_by_m: float) -> bool:
+    """The plan-view rule: inside (up to `TOL_M`) of every shrunk edge; NaN is outside."""
+    return outside_by_m <= TOL_M
+
+
+def _clip(polygon_m: Sequence[Vec2], planes: Sequence[HalfPlane]) -> tuple[Vec2, ...]:
+    """The vertices of `polygon_m` intersected with `planes`, counter-clockwise (empty when
+    nothing is left): Sutherland-Hodgman, one half-plane at a time."""
+    out = [(float(x), float(y)) for x, y in polygon_m]
+    for nx, ny, c in planes:
+        kept: list[Vec2] = []
+        for i, p in enumerate(out):
+            q = out[(i + 1) % len(out)]
+            dp = nx * p[0] + ny * p[1] - c
+            dq = nx * q[0] + ny * q[1] - c
+            if dp <= 0.0:
+                kept.append(p)
+            if (dp < 0.0 < dq) or (dq < 0.0 < dp):
+                t = dp / (dp - dq)
+                x, y = p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])
+                # On an axis-parallel edge the coordinate is exact (a rectangle stays exact).
+                if ny == 0.0:
+                    x = c / nx
+                elif nx == 0.0:
+                    y = c / ny
+                kept.append((x, y))
+        out = kept
+        if not out:
+            break
+    return tuple(out)
+
+
+def footprint_contains(
+    polygon_m: Sequence[Sequence[float]], x_m: float, y_m: float, margin_m: float = 0.0
+) -> bool:
+    """True when (x, y) lies in the convex counter-clockwise `polygon_m` (e.g.
+    `Geometry.footprint_m`) shrunk by `margin_m`, with the workspace's rule and tolerance.
+
+    A point exactly `margin_m` from an edge is inside. Non-finite input gives False.
+    Raises nothing.
+    """
+    return _inside(_outside_by(_half_planes(polygon_m, margin_m), x_m, y_m))
+
+
+def shrink_polygon(polygon_m: Sequence[Sequence[float]], margin_m: float) -> tuple[Vec2, ...]:
+    """The vertices of the convex counter-clockwise `polygon_m` with every edge moved
+    `margin_m` inwards (counter-clockwise; empty when nothing is left). Raises nothing."""
+    pts = [(float(p[0]), float(p[1])) for p in polygon_m]
+    return _clip(pts, _half_planes(pts, margin_m))
+
+
+class Workspace:
+    """Every limit of one robot (see the module docstring).
+
+    Raises WorkspaceError (naming the limit) for a non-finite limit, `floor_z_m` not below the
+    top, `min_cable_m` not below `max_cable_m`, or an `xy_margin_m` that leaves no plan-view
+    area (even the anchors' centroid outside the shrunk polygon).
+    """
 
     __slots__ = (
         "_anchors",
-        "_edges",
-        "cfg",
+        "_planes",
         "floor_z_m",
+        "footprint_m",
         "max_cable_m",
         "max_cable_speed_mps",
         "min_cable_m",
         "polygon_m",
+        "top_margin_m",
         "top_z_m",
         "xy_margin_m",
     )
 
-    def __init__(self, cfg: LimitsConfig, geometry: Geometry) -> None:
-        self.cfg = cfg
+    footprint_m: tuple[Vec2, ...]
+    """The anchors' plan-view convex hull, counter-clockwise."""
+    polygon_m: tuple[Vec2, ...]
+    """The workspace's plan view: `footprint_m` shrunk by `xy_margin_m`, counter-clockwise."""
+
+    def __init__(
+        self,
+        geometry: Geometry,
+        *,
+        xy_margin_m: float,
+        floor_z_m: float,
+        top_margin_m: float,
+        min_cable_m: float,
+        max_cable_m: float,
+        max_cable_speed_mps: float,
+    ) -> None:
+        values = {
+            "xy_margin_m": xy_margin_m,
+            "floor_z_m": floor_z_m,
+            "top_margin_m": top_margin_m,
+            "min_cable_m": min_cable_m,
+            "max_cable_m": max_cable_m,
+            "max_cable_speed_mps": max_cable_speed_mps,
+        }
+        for name, value in values.items():
+            if not math.isfinite(value):
+                raise WorkspaceError(name, f"must be a finite number, got {value!r}")
         anchors = [(float(a[0]), float(a[1]), float(a[2])) for a in geometry.anchors_m.tolist()]
         self._anchors: tuple[Vec3, ...] = tuple(anchors)
-        hull = geometry.footprint_m
-        self.polygon_m: tuple[tuple[float, float], ...] = tuple(hull)
-        edges: list[tuple[float, float, float]] = []
-        for k in range(len(hull)):
-            (ax, ay), (bx, by) = hull[k], hull[(k + 1) % len(hull)]
-            ln = math.hypot(bx - ax, by - ay)
-            nx, ny = (by - ay) / ln, -(bx - ax) / ln  # outward normal of a CCW polygon
-            # inside the shrunk polygon: nx*x + ny*y <= c
-            edges.append((nx, ny, nx * ax + ny * ay - cfg.xy_margin_m))
-        self._edges: tuple[tuple[float, float, float], ...] = tuple(edges)
-        self.xy_margin_m = cfg.xy_margin_m
-        self.floor_z_m = cfg.floor_z_m
-        self.top_z_m = min(a[2] for a in anchors) - cfg.top_margin_m
-        self.min_cable_m = cfg.min_cable_m
-        self.max_cable_m = cfg.max_cable_m
-        self.max_cable_speed_mps = cfg.max_cable_speed_mps
+        self.footprint_m = tuple((float(x), float(y)) for x, y in geometry.footprint_m)
+        self.xy_margin_m = float(xy_margin_m)
+        self.floor_z_m = float(floor_z_m)
+        self.top_margin_m = float(top_margin_m)
+        self.top_z_m = min(a[2] for a in anchors) - self.top_margin_m
+        self.min_cable_m = float(min_cable_m)
+        self.max_cable_m = float(max_cable_m)
+        self.max_cable_speed_mps = float(max_cable_speed_mps)
+        self._planes = _half_planes(self.footprint_m, self.xy_margin_m)
         if not self.floor_z_m < self.top_z_m:
-            raise ValueError(
-                f"floor_z_m ({self.floor_z_m:g} m) must be below the top limit ({self.top_z_m:g} m)"
+            raise WorkspaceError(
+                "floor_z_m",
+                f"{self.floor_z_m:g} m must be below the lowest anchor minus top_margin_m "
+                f"({self.top_z_m:g} m)",
+            )
+        if not self.min_cable_m < self.max_cable_m:
+            raise WorkspaceError(
+                "min_cable_m",
+                f"{self.min_cable_m:g} m must be < max_cable_m ({self.max_cable_m:g} m)",
             )
         cx = sum(a[0] for a in anchors) / len(anchors)
         cy = sum(a[1] for a in anchors) / len(anchors)
-        if self._outside_by(cx, cy) > 0.0:
-            raise ValueError(f"xy_margin_m ({cfg.xy_margin_m:g} m) leaves no workspace")
+        if _outside_by(self._planes, cx, cy) > 0.0:
+            raise WorkspaceError(
+                "xy_margin_m",
+                f"{self.xy_margin_m:g} m leaves no workspace (even the anchors' centroid is "
+                "outside the shrunk plan-view polygon)",
+            )
+        self.polygon_m = _clip(self.footprint_m, self._planes)
 
-    def _outside_by(self, x: float, y: float) -> float:
-        worst = -math.inf
-        for nx, ny, c in self._edges:
-            d = nx * x + ny * y - c
-            if d > worst:
-                worst = d
-        return worst
+    @classmethod
+    def from_limits(cls, limits: LimitsLike, geometry: Geometry) -> Workspace:
+        """The workspace of `limits` (any object with the `LimitsLike` attributes, such as the
+        service's `LimitsConfig`) for `geometry`. Raises WorkspaceError as the constructor."""
+        return cls(
+            geometry,
+            xy_margin_m=float(limits.xy_margin_m),
+            floor_z_m=float(limits.floor_z_m),
+            top_margin_m=float(limits.top_margin_m),
+            min_cable_m=float(limits.min_cable_m),
+            max_cable_m=float(limits.max_cable_m),
+            max_cable_speed_mps=float(limits.max_cable_speed_mps),
+        )
+
+    # ------------------------------------------------------------------ shape
+
+    def box(self) -> tuple[tuple[float, float], tuple[float, float], tuple[float, float]]:
+        """The workspace's bounding box ((x_lo, x_hi), (y_lo, y_hi), (z_lo, z_hi)) in m: the
+        x/y extent of `polygon_m` and the z band. For a rectangular anchor layout the box is
+        the workspace itself. Raises nothing."""
+        xs = [p[0] for p in self.polygon_m]
+        ys = [p[1] for p in self.polygon_m]
+        return (min(xs), max(xs)), (min(ys), max(ys)), (self.floor_z_m, self.top_z_m)
+
+    def contains_xy(self, x_m: float, y_m: float) -> bool:
+        """True when (x, y) is inside the shrunk plan-view polygon (NaN: False). Raises
+        nothing."""
+        return _inside(_outside_by(self._planes, x_m, y_m))
+
+    # ------------------------------------------------------------------ points and lengths
+
+    def point_violation(self, p: Sequence[float]) -> Violation | None:
+        """The workspace limit point `p` (m) breaks, or None if it is in the workspace.
+
+        Non-finite points break ``position``. Raises nothing.
+        """
+        x, y, z = p[0], p[1], p[2]
+        out = _outside_by(self._planes, x, y)
+        # The per-tick path: one comparison chain (a NaN or an infinity fails it).
+        if _inside(out) and self.floor_z_m - TOL_M <= z <= self.top_z_m + TOL_M:
+            return None
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            return Violation(
+                "position", None, math.nan, math.nan, f"position ({x}, {y}, {z}) is not finite"
+            )
+        if not _inside(out):
+            return Violation(
+                "xy_margin_m",
+                None,
+                out,
+                self.xy_margin_m,
+                f"(x, y) = ({x:.4g}, {y:.4g}) m is {out:.4g} m outside the anchors' plan-view "
+                f"polygon shrunk by xy_margin_m ({self.xy_margin_m:g} m)",
+            )
+        if z < self.floor_z_m - TOL_M:
+            return Violation(
+                "floor_z_m",
+                None,
+                z,
+                self.floor_z_m,
+                f"z={z:.4g} m below the floor (floor_z_m {self.floor_z_m:g} m)",
+            )
+        return Violation(
+            "top_margin_m",
+            None,
+            z,
+            self.top_z_m,
+            f"z={z:.4g} m above the anchor plane minus margin ({self.top_z_m:.4g} m)",
+        )
 
     def check_point(self, p: Sequence[float]) -> str | None:
         """None if `p` (m) is in the workspace, else the reason (limit and value).
@@ -100,21 +365,8 @@ class Limits:
         floor_z_m <= z <= lowest anchor z - top_margin_m. Non-finite points are refused.
         Raises nothing.
         """
-        x, y, z = p[0], p[1], p[2]
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-            return f"position ({x}, {y}, {z}) is not finite"
-        for nx, ny, c in self._edges:
-            if nx * x + ny * y - c > TOL_M:
-                out = self._outside_by(x, y)
-                return (
-                    f"(x, y) = ({x:.4g}, {y:.4g}) m is {out:.4g} m outside the anchors' plan-view "
-                    f"polygon shrunk by xy_margin_m ({self.xy_margin_m:g} m)"
-                )
-        if z < self.floor_z_m - TOL_M:
-            return f"z={z:.4g} m below the floor (floor_z_m {self.floor_z_m:g} m)"
-        if z > self.top_z_m + TOL_M:
-            return f"z={z:.4g} m above the anchor plane minus margin ({self.top_z_m:.4g} m)"
-        return None
+        v = self.point_violation(p)
+        return None if v is None else v.reason
 
     def lengths_at(self, p: Sequence[float]) -> tuple[float, ...]:
         """Cable lengths (m) at point `p` (straight cables to the anchors). Raises nothing."""
@@ -124,26 +376,57 @@ class Limits:
             for ax, ay, az in self._anchors
         )
 
-    def check_lengths(self, lengths_m: Sequence[float]) -> str | None:
-        """None if every cable length is within [min_cable_m, max_cable_m], else the reason
-        naming the cable (1-based) and its length. Non-finite lengths are refused.
-        Raises nothing."""
+    def lengths_violation(self, lengths_m: Sequence[float]) -> Violation | None:
+        """The first cable whose length is outside [min_cable_m, max_cable_m] (or not
+        finite), or None. Raises nothing."""
         lo = self.min_cable_m - TOL_M
         hi = self.max_cable_m + TOL_M
         for i, length in enumerate(lengths_m):
             if not lo <= length <= hi:  # also catches NaN
                 if not math.isfinite(length):
-                    return f"cable {i + 1} length {length} is not finite"
-                if length < lo:
-                    return (
-                        f"cable {i + 1} length {length:.4g} m below min_cable_m "
-                        f"({self.min_cable_m:g} m)"
+                    return Violation(
+                        "cable_m",
+                        i + 1,
+                        length,
+                        math.nan,
+                        f"cable {i + 1} length {length} is not finite",
                     )
-                return (
+                if length < lo:
+                    return Violation(
+                        "min_cable_m",
+                        i + 1,
+                        length,
+                        self.min_cable_m,
+                        f"cable {i + 1} length {length:.4g} m below min_cable_m "
+                        f"({self.min_cable_m:g} m)",
+                    )
+                return Violation(
+                    "max_cable_m",
+                    i + 1,
+                    length,
+                    self.max_cable_m,
                     f"cable {i + 1} length {length:.4g} m above max_cable_m "
-                    f"({self.max_cable_m:g} m)"
+                    f"({self.max_cable_m:g} m)",
                 )
         return None
+
+    def check_lengths(self, lengths_m: Sequence[float]) -> str | None:
+        """None if every cable length is within [min_cable_m, max_cable_m], else the reason
+        naming the cable (1-based) and its length. Non-finite lengths are refused.
+        Raises nothing."""
+        v = self.lengths_violation(lengths_m)
+        return None if v is None else v.reason
+
+    def target_violation(self, p: Sequence[float]) -> Violation | None:
+        """The limit point `p` breaks (workspace first, then its cable lengths), or None.
+        Raises nothing."""
+        return self.point_violation(p) or self.lengths_violation(self.lengths_at(p))
+
+    def check_target(self, p: Sequence[float]) -> str | None:
+        """None if point `p` is in the workspace and all its cable lengths are within limits
+        (the check for a move target, a streamed set-point or a home pose), else the reason.
+        Raises nothing."""
+        return self.check_point(p) or self.check_lengths(self.lengths_at(p))
 
     def check_cable_speeds(
         self, prev_lengths_m: Sequence[float], lengths_m: Sequence[float], dt_s: float
@@ -165,6 +448,8 @@ class Limits:
                 )
         return None
 
+    # ------------------------------------------------------------------ segments and paths
+
     def check_segment(self, a: Sequence[float], b: Sequence[float]) -> str | None:
         """None if the straight segment a->b stays within every limit, else the reason.
 
@@ -173,7 +458,7 @@ class Limits:
         segment closest to the anchor. Raises nothing.
         """
         for p in (a, b):
-            reason = self.check_point(p) or self.check_lengths(self.lengths_at(p))
+            reason = self.check_target(p)
             if reason:
                 return reason
         ax, ay, az = a[0], a[1], a[2]
@@ -193,11 +478,6 @@ class Limits:
                     )
         return None
 
-    def check_target(self, p: Sequence[float]) -> str | None:
-        """None if point `p` is in the workspace and all its cable lengths are within limits
-        (the check for a move target or a streamed set-point), else the reason. Raises nothing."""
-        return self.check_point(p) or self.check_lengths(self.lengths_at(p))
-
     def inside_points(self, points: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
         """For an (M, 3) array of points: True where `check_target` would pass (the workspace
         and every cable length, with the same tolerance), vectorised; False for a non-finite
@@ -208,7 +488,7 @@ class Limits:
         x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
         with np.errstate(invalid="ignore", over="ignore"):
             ok = np.isfinite(pts).all(axis=1)
-            for nx, ny, c in self._edges:
+            for nx, ny, c in self._planes:
                 ok &= nx * x + ny * y - c <= TOL_M
             ok &= (z >= self.floor_z_m - TOL_M) & (z <= self.top_z_m + TOL_M)
             lo = self.min_cable_m - TOL_M
@@ -225,22 +505,26 @@ class Limits:
         start_m: Sequence[float] | None = None,
         *,
         array: np.ndarray[Any, Any] | None = None,
+        legs: bool = True,
     ) -> tuple[int, str] | None:
         """The first point of `points` that breaks a limit, as (0-based index, reason), or None.
 
-        Point i fails if it is outside the workspace or a cable length limit, or if the straight
-        leg to it from point i - 1 (from `start_m` for point 0, if given) leaves them; a leg
-        reason starts with "on the leg to it: ". Cost: a few numpy passes over the path, then
-        the scalar checks on the screened candidates only (module docstring). `array` is
-        `points_array(points)` if the caller has it already. Raises nothing.
+        Point i fails if it is outside the workspace or a cable length limit, or (with `legs`)
+        if the straight leg to it from point i - 1 (from `start_m` for point 0, if given)
+        leaves them; a leg reason starts with "on the leg to it: ". Cost: a few numpy passes
+        over the path, then the scalar checks on the screened candidates only (module
+        docstring). `array` is `points_array(points)` if the caller has it already. Raises
+        nothing.
         """
+        if not legs:
+            start_m = None
         n = len(points)
         if n < _VECTOR_MIN_POINTS:
-            return self._scalar_failure(points, start_m, range(n))
+            return self._scalar_failure(points, start_m, range(n), legs)
         arr = points_array(points) if array is None else array
         if arr is None:  # ragged or non-numeric: the scalar checks name the point
-            return self._scalar_failure(points, start_m, range(n))
-        return self._scalar_failure(points, start_m, self._screen(arr, start_m))
+            return self._scalar_failure(points, start_m, range(n), legs)
+        return self._scalar_failure(points, start_m, self._screen(arr, start_m, legs), legs)
 
     def check_path(
         self, points: Sequence[Sequence[float]], start_m: Sequence[float] | None = None
@@ -263,6 +547,7 @@ class Limits:
         points: Sequence[Sequence[float]],
         start_m: Sequence[float] | None,
         indices: Any,
+        legs: bool,
     ) -> tuple[int, str] | None:
         """The scalar verdict on points `indices` (ascending), first failure first."""
         for i in indices:
@@ -273,6 +558,8 @@ class Limits:
             reason = self.check_target(p)
             if reason is not None:
                 return i, reason
+            if not legs:
+                continue
             prev = points[i - 1] if i > 0 else start_m
             if prev is not None:
                 reason = self.check_segment(prev, p)
@@ -280,47 +567,60 @@ class Limits:
                     return i, f"on the leg to it: {reason}"
         return None
 
-    def _screen(self, pts: np.ndarray[Any, Any], start_m: Sequence[float] | None) -> Any:
+    def _screen(
+        self, pts: np.ndarray[Any, Any], start_m: Sequence[float] | None, legs: bool
+    ) -> Any:
         """Indices of the points (or of the legs to them) that may break a limit: a superset
         of those the scalar checks refuse (every threshold is moved in by `_SCREEN_M`)."""
         x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
             bad = ~np.isfinite(pts).all(axis=1)
-            for nx, ny, c in self._edges:
+            for nx, ny, c in self._planes:
                 bad |= nx * x + ny * y - c > TOL_M - _SCREEN_M
             bad |= z < self.floor_z_m - TOL_M + _SCREEN_M
             bad |= z > self.top_z_m + TOL_M - _SCREEN_M
-            if start_m is not None:
-                a = np.empty_like(pts)
-                a[0] = start_m
-                a[1:] = pts[:-1]
-            else:
-                a = pts[:-1]
-            b = pts if start_m is not None else pts[1:]
-            d = b - a
-            dd = np.einsum("ij,ij->i", d, d)
             lo = self.min_cable_m - TOL_M + _SCREEN_M
             hi = self.max_cable_m + TOL_M - _SCREEN_M
-            leg_bad = np.zeros(len(b), dtype=bool)
             for q in self._anchors:
                 rel = pts - q
                 length = np.sqrt(np.einsum("ij,ij->i", rel, rel))
                 bad |= ~((length >= lo) & (length <= hi))
-                # Closest point of each leg to the anchor (t clipped to the leg: a superset of
-                # the scalar interior test; a zero-length leg gives t = 0).
-                qa = np.asarray(q) - a
-                t = np.where(dd > 0.0, np.einsum("ij,ij->i", qa, d) / np.where(dd > 0, dd, 1), 0)
-                t = np.clip(t, 0.0, 1.0)
-                c = qa - t[:, None] * d
-                leg_bad |= np.sqrt(np.einsum("ij,ij->i", c, c)) < lo
-            if start_m is not None:
-                bad |= leg_bad
-                # The leg's own start must be within the limits too (the scalar leg check
-                # includes it); one point, checked as such.
-                bad[0] |= self.check_target(start_m) is not None
-            else:
-                bad[1:] |= leg_bad
+            if legs:
+                bad |= self._screen_legs(pts, start_m, lo)
         return np.flatnonzero(bad)
+
+    def _screen_legs(
+        self, pts: np.ndarray[Any, Any], start_m: Sequence[float] | None, lo: float
+    ) -> np.ndarray[Any, Any]:
+        """Per point: may the leg to it (from the point before, or from `start_m`) pass
+        closer than `lo` to an anchor? (A superset of the scalar interior test.)"""
+        if start_m is not None:
+            a = np.empty_like(pts)
+            a[0] = start_m
+            a[1:] = pts[:-1]
+        else:
+            a = pts[:-1]
+        b = pts if start_m is not None else pts[1:]
+        d = b - a
+        dd = np.einsum("ij,ij->i", d, d)
+        leg_bad = np.zeros(len(b), dtype=bool)
+        for q in self._anchors:
+            # Closest point of each leg to the anchor (t clipped to the leg; a zero-length
+            # leg gives t = 0).
+            qa = np.asarray(q) - a
+            t = np.where(dd > 0.0, np.einsum("ij,ij->i", qa, d) / np.where(dd > 0, dd, 1), 0)
+            t = np.clip(t, 0.0, 1.0)
+            c = qa - t[:, None] * d
+            leg_bad |= np.sqrt(np.einsum("ij,ij->i", c, c)) < lo
+        out = np.zeros(len(pts), dtype=bool)
+        if start_m is not None:
+            out |= leg_bad
+            # The leg's own start must be within the limits too (the scalar leg check
+            # includes it); one point, checked as such.
+            out[0] |= self.check_target(start_m) is not None
+        else:
+            out[1:] |= leg_bad
+        return out
 
 
 def points_array(points: Sequence[Sequence[float]]) -> np.ndarray[Any, Any] | None:

@@ -69,6 +69,7 @@ from typing import Any, overload
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
 from controller.core.reel import ReelModel, spool_buildup
 from controller.core.statics import TensionCheck
+from controller.core.workspace import Workspace, WorkspaceError
 from drivers import registry
 
 Vec3 = tuple[float, float, float]
@@ -1404,70 +1405,58 @@ def _zenoh_file_problem(path: str) -> str | None:
 
 
 def _check_limits(lim: LimitsConfig, geometry: Geometry, source: str) -> None:
-    top_z = geometry.anchor_height_min_m - lim.top_margin_m
-    if not lim.floor_z_m < top_z:
-        raise ConfigError(
-            source,
-            "limits.floor_z_m",
-            f"{lim.floor_z_m:g} m must be below the lowest anchor minus top_margin_m ({top_z:g} m)",
-        )
-    if not lim.min_cable_m < lim.max_cable_m:
-        raise ConfigError(
-            source,
-            "limits.min_cable_m",
-            f"{lim.min_cable_m:g} m must be < max_cable_m ({lim.max_cable_m:g} m)",
-        )
+    """Raise ConfigError (naming the `limits.` keys) if the limits leave no workspace or no
+    cable range (`Workspace` decides), or the default speed exceeds the maximum."""
+    problems: list[ConfigError] = []
+    try:
+        Workspace.from_limits(lim, geometry)
+    except WorkspaceError as exc:
+        problems.append(ConfigError(source, f"limits.{exc.limit}", exc.detail))
     if lim.default_speed_mps > lim.max_speed_mps:
-        raise ConfigError(
-            source,
-            "limits.default_speed_mps",
-            f"{lim.default_speed_mps:g} m/s exceeds max_speed_mps ({lim.max_speed_mps:g} m/s)",
+        problems.append(
+            ConfigError(
+                source,
+                "limits.default_speed_mps",
+                f"{lim.default_speed_mps:g} m/s exceeds max_speed_mps ({lim.max_speed_mps:g} m/s)",
+            )
         )
-    cx = sum(r[0] for r in geometry.anchors_m.tolist()) / geometry.n_cables
-    cy = sum(r[1] for r in geometry.anchors_m.tolist()) / geometry.n_cables
-    if not _footprint(geometry, cx, cy, lim.xy_margin_m):
-        raise ConfigError(
-            source,
-            "limits.xy_margin_m",
-            f"{lim.xy_margin_m:g} m leaves no workspace (even the anchors' centroid "
-            "is outside the shrunk plan-view polygon)",
-        )
+    if problems:
+        raise ConfigError.collected(source, problems)
 
 
 def _raise_point_problem(
     t: _Table, name: str, p: Vec3, lim: LimitsConfig, geometry: Geometry
 ) -> None:
-    problem = _point_problem(p, lim, geometry)
+    problem = _point_problem(p, Workspace.from_limits(lim, geometry))
     if problem is not None:
         raise t.error(name, problem)
 
 
-def _footprint(geometry: Geometry, x: float, y: float, margin: float) -> bool:
-    from controller.core.kinematics import footprint_contains
-
-    return footprint_contains(geometry, x, y, margin)
-
-
-def _point_problem(p: Vec3, lim: LimitsConfig, geometry: Geometry) -> str | None:
+def _point_problem(p: Vec3, workspace: Workspace) -> str | None:
+    """Why `p` is not an allowed pose (the workspace decides), in the words of the
+    configuration keys, or None."""
+    v = workspace.target_violation(p)
+    if v is None:
+        return None
     x, y, z = p
-    if not _footprint(geometry, x, y, lim.xy_margin_m):
+    if v.limit == "xy_margin_m":
         return (
             f"({x:g}, {y:g}) m is outside the anchors' plan-view polygon shrunk by "
-            f"limits.xy_margin_m ({lim.xy_margin_m:g} m)"
+            f"limits.xy_margin_m ({v.bound:g} m)"
         )
-    top_z = geometry.anchor_height_min_m - lim.top_margin_m
-    if z < lim.floor_z_m:
-        return f"z={z:g} m is below limits.floor_z_m ({lim.floor_z_m:g} m)"
-    if z > top_z:
-        return f"z={z:g} m is above the anchor plane minus margin ({top_z:g} m)"
-    for i, a in enumerate(geometry.anchors_m.tolist(), start=1):
-        length = math.dist(p, a)
-        if not lim.min_cable_m <= length <= lim.max_cable_m:
-            return (
-                f"cable {i} would be {length:.4g} m, outside limits.min_cable_m..max_cable_m "
-                f"({lim.min_cable_m:g}..{lim.max_cable_m:g} m)"
-            )
-    return None
+    if v.limit == "floor_z_m":
+        return f"z={z:g} m is below limits.floor_z_m ({v.bound:g} m)"
+    if v.limit == "top_margin_m":
+        return (
+            f"z={z:g} m is above the anchor plane minus margin ({v.bound:g} m), "
+            "the lowest anchor minus limits.top_margin_m"
+        )
+    if v.limit in ("min_cable_m", "max_cable_m"):
+        return (
+            f"cable {v.cable} would be {v.value:.4g} m, outside limits.min_cable_m..max_cable_m "
+            f"({workspace.min_cable_m:g}..{workspace.max_cable_m:g} m)"
+        )
+    return v.reason
 
 
 def load_config(path: str | os.PathLike[str] | None) -> RobotConfig:

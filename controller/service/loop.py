@@ -35,10 +35,12 @@ within the armed session it arrived in: one that arrives while disarmed, arming,
 ESTOPPED is discarded (counted in `status()["stream"]["discarded"]`), so arming always starts
 by holding the measured pose.
 
-Paths: a move or path is checked against the limits and prepared (speed, repeated points) in the
-thread that submits it, vectorised (`Limits.path_failure`); the tick only checks the first leg
-from where the set-point comes to rest and hands the prepared points to the planner, which
-builds each leg when it reaches it. A path of any length costs the tick the same.
+Limits: `controller.core.workspace.Workspace` (`self.workspace`) decides every target, point,
+leg, cable length and cable speed. Paths: a move or path is checked against it and prepared
+(speed, repeated points) in the thread that submits it, vectorised (`path_failure`); the tick
+only checks the first leg from where the set-point comes to rest and hands the prepared points
+to the planner, which builds each leg when it reaches it. A path of any length costs the tick
+the same.
 
 Axes: the step sees every drive family alike, through the generic status of its readings
 (`drivers.base.AxisReading`: `ready`, `fault`, `state_name`, stamps); "closed loop" here means
@@ -86,7 +88,7 @@ from controller.core.motion import MotionPlanner, check_speed, dedupe_path
 from controller.core.reel import ReelModel
 from controller.core.states import ARMED_STATES, State, check_transition, refusal
 from controller.core.statics import SINGULAR_ROW, StaticsError, TensionCheck
-from controller.core.workspace import Limits, points_array
+from controller.core.workspace import Workspace, points_array
 from controller.service.config import RobotConfig, tension_check
 from controller.service.pose import NullPublisher, PoseSample, Publisher
 from controller.service.runner import SPIN_S, LoopStats, Runner
@@ -187,7 +189,8 @@ class Controller:
         self.period_s = 1.0 / float(cfg.loop.rate_hz)
         self._max_plan_dt_s = MAX_PLANNER_DT_PERIODS * self.period_s
         self.publish_every = max(1, int(cfg.loop.publish_every))
-        self.limits = Limits(cfg.limits, self.geometry)
+        # Immutable: read from any thread (the Zenoh interface pre-checks commands with it).
+        self.workspace = Workspace.from_limits(cfg.limits, self.geometry)
         self._default_speed_mps = min(
             float(cfg.limits.default_speed_mps),
             float(cfg.limits.max_speed_mps),
@@ -423,7 +426,7 @@ class Controller:
             points = cmd.points_m
         try:
             arr = points_array(points) if len(points) > 1 else None
-            failure = self.limits.path_failure(points, array=arr)
+            failure = self.workspace.path_failure(points, array=arr)
             if failure is None and self.tension is not None:
                 failure = self._tension_failure(points, None)
             if failure is not None:
@@ -705,21 +708,21 @@ class Controller:
         sp = (float(sp[0]), float(sp[1]), float(sp[2]))
         if not (math.isfinite(sp[0]) and math.isfinite(sp[1]) and math.isfinite(sp[2])):
             raise _Fault(f"nan_setpoint: planner gave {sp}")
-        reason = self.limits.check_point(sp)
+        reason = self.workspace.check_point(sp)
         if reason is not None:
             raise _Fault(f"limit: set-point {_fmt(sp)}: {reason}")
         try:
             lengths = tuple(kinematics.ipk_point(self.geometry, sp))
         except kinematics.KinematicsError as exc:
             raise _Fault(f"ipk: {exc}") from None
-        reason = self.limits.check_lengths(lengths)
+        reason = self.workspace.check_lengths(lengths)
         if reason is not None:
             raise _Fault(f"limit: {reason}")
         if self.tension is not None and sp != self._planned_at:
             self._plan_tensions(sp)
         prev = self.setpoint_lengths_m
         if prev is not None:
-            reason = self.limits.check_cable_speeds(prev, lengths, dt)
+            reason = self.workspace.check_cable_speeds(prev, lengths, dt)
             if reason is not None:
                 raise _Fault(f"cable_speed: {reason}")
         reels = self.reels
@@ -961,29 +964,13 @@ class Controller:
             return f"not allowed in {state.value} ({self.reason}): {why}"
         return f"not allowed in {state.value}: {why}"
 
-    def check_target(self, p: Sequence[float]) -> str | None:
-        """Why `p` is not an allowed target (workspace, cable lengths, the payload's cable
-        tensions within their limits and margin), or None if it is.
-
-        Reads only the immutable limits and geometry: safe from any thread (the Zenoh interface
-        refuses out-of-workspace commands with it before they reach the queue).
-        """
-        return self._check_target(p)
-
     def _check_target(self, p: Sequence[float]) -> str | None:
-        if len(p) != 3 or not all(math.isfinite(float(v)) for v in p):
-            return f"non-finite position {list(p)}"
-        reason = self.limits.check_point((float(p[0]), float(p[1]), float(p[2])))
-        if reason is not None:
-            return reason
-        p3 = (float(p[0]), float(p[1]), float(p[2]))
-        try:
-            lengths = kinematics.ipk_point(self.geometry, p3)
-        except kinematics.KinematicsError as exc:
-            return str(exc)
-        reason = self.limits.check_lengths(tuple(lengths))
+        """Why `p` is not an allowed target (`Workspace.check_target`, then with `[payload]`
+        the payload's cable tensions within their limits and margin), or None if it is.
+        Raises nothing."""
+        reason = self.workspace.check_target(p)
         if reason is None and self.tension is not None:
-            reason = self.tension.check(p3)
+            reason = self.tension.check(p)
         return reason
 
     def _execute(
@@ -1061,7 +1048,7 @@ class Controller:
         first = motion.points_m[0]
         if self.setpoint_m is not None:
             start = self.planner.rest_point_m
-            reason = self.limits.check_segment(start, first)
+            reason = self.workspace.check_segment(start, first)
             if reason is None and self.tension is not None:
                 failure = self._tension_failure((first,), start)
                 reason = None if failure is None else failure[1].removeprefix("on the leg to it: ")

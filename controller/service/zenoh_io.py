@@ -87,8 +87,23 @@ class PoseLike(Protocol):
         ...
 
 
+class WorkspaceLike(Protocol):
+    """The part of controller.core.workspace.Workspace the command pre-check uses."""
+
+    def path_failure(
+        self,
+        points: Sequence[Sequence[float]],
+        start_m: Sequence[float] | None = None,
+        *,
+        legs: bool = True,
+    ) -> tuple[int, str] | None:
+        """The first point (0-based index, reason) that breaks a limit, or None."""
+        ...
+
+
 class ControllerLike(Protocol):
-    """The part of controller.service.loop.Controller this interface uses."""
+    """The part of controller.service.loop.Controller this interface uses (and, if it has
+    one, its `workspace`, a `WorkspaceLike`, for the command pre-check)."""
 
     def submit(self, cmd: Command) -> concurrent.futures.Future[dict[str, Any]]:
         """Queue a command; the future resolves with a reply dict or CommandRefused."""
@@ -564,23 +579,22 @@ class ZenohInterface:
         query.reply(key, dumps(reply), encoding=JSON)
 
     def _precheck(self, cmd: Command) -> str | None:
-        """Workspace check on the Zenoh thread when the controller offers `check_target`.
+        """Refuse here, on the Zenoh thread, a move or path with a point the robot may not go to.
 
-        `check_target(point) -> reason | None` must only read immutable limits and geometry.
-        The loop checks again (with the state) in any case.
+        The controller's `workspace` (a `controller.core.workspace.Workspace`: immutable, so
+        safe from this thread) checks every point, vectorised, against the workspace and the
+        cable lengths; the legs are left to the controller, which knows where the motion
+        starts. A controller without `workspace` is not pre-checked. Raises nothing.
         """
-        check: Callable[[Sequence[float]], str | None] | None = getattr(
-            self.controller, "check_target", None
-        )
-        if check is None:
+        workspace: WorkspaceLike | None = getattr(self.controller, "workspace", None)
+        if workspace is None:
             return None
         if isinstance(cmd, Move):
-            return check(cmd.position_m)
+            failure = workspace.path_failure((cmd.position_m,), legs=False)
+            return None if failure is None else failure[1]
         if isinstance(cmd, Path):
-            for i, pt in enumerate(cmd.points_m):
-                reason = check(pt)
-                if reason is not None:
-                    return f"points_m[{i}]: {reason}"
+            failure = workspace.path_failure(cmd.points_m, legs=False)
+            return None if failure is None else f"points_m[{failure[0]}]: {failure[1]}"
         return None
 
     # ---------------------------------------------------------------- set-points (Zenoh thread)

@@ -11,6 +11,7 @@ import pytest
 
 from controller.cli import configs as config_cmd
 from controller.cli import exitcodes, main
+from controller.core.workspace import shrink_polygon
 from controller.service.config import ConfigError, load_config
 
 REPO = Path(__file__).resolve().parents[2]
@@ -101,18 +102,18 @@ def test_a_workspace_that_needs_longer_cables_is_noted(
 
 def test_shrink_polygon_and_area() -> None:
     square = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
-    inner = config_cmd.shrink_polygon(square, 0.25)
+    inner = shrink_polygon(square, 0.25)
     assert sorted(inner) == sorted([(-0.75, -0.75), (0.75, -0.75), (0.75, 0.75), (-0.75, 0.75)])
     assert config_cmd.polygon_area_m2(inner) == pytest.approx(2.25)
-    assert config_cmd.shrink_polygon(square, 1.5) == []
+    assert shrink_polygon(square, 1.5) == ()
     tri = [(0.0, 0.0), (4.0, 0.0), (0.0, 3.0)]
-    assert config_cmd.polygon_area_m2(config_cmd.shrink_polygon(tri, 0.0)) == pytest.approx(6.0)
+    assert config_cmd.polygon_area_m2(shrink_polygon(tri, 0.0)) == pytest.approx(6.0)
 
 
 def test_workspace_cable_range_matches_sampling() -> None:
     cfg = load_config(REPO / "config" / "desk.toml")
     anchors = [tuple(a) for a in cfg.anchors_m]
-    poly = config_cmd.shrink_polygon(list(cfg.geometry.footprint_m), 0.05)
+    poly = shrink_polygon(cfg.geometry.footprint_m, 0.05)
     lo, hi = config_cmd.workspace_cable_range_m(anchors, poly, 0.01, 0.7)
     rng = random.Random(7)
     seen_lo, seen_hi = math.inf, 0.0

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from controller.cli.client import load_path_file
-from controller.core.workspace import Limits
+from controller.core.workspace import Workspace
 from controller.service.config import default_config
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -16,7 +16,7 @@ def test_square_path_example_loads_and_fits_the_built_in_robot() -> None:
     points = payload["points_m"]
     assert len(points) == 5 and points[-1] == [0.0, 0.0, 2.0]
     cfg = default_config()
-    limits = Limits(cfg.limits, cfg.geometry)
+    limits = Workspace.from_limits(cfg.limits, cfg.geometry)
     start = (0.0, 0.0, 2.0)
     assert limits.check_path([tuple(p) for p in points], start_m=start) is None
 

@@ -1,6 +1,6 @@
 """`cablebot view`: the scene it builds, the shipped layout, and the live server.
 
-- the drawn workspace is the one `Limits` enforces (its corners lie on the boundary);
+- the drawn workspace is the one `Workspace` enforces (its corners lie on the boundary);
 - a Foxglove WebSocket client connected to `cablebot view` while a real daemon runs gets the
   robot (anchors = the configuration's), and scene, transform and pose messages whose positions
   are the daemon's poses (matched by their stamp), the state changes as Log messages and the
@@ -21,7 +21,7 @@ from typing import Any
 import pytest
 
 from controller.cli import exitcodes
-from controller.cli.shape import RobotShape, ShapeError, length_colour, shrink_polygon
+from controller.cli.shape import RobotShape, ShapeError, length_colour
 from controller.cli.view import (
     TOPICS,
     cable_colour,
@@ -32,7 +32,7 @@ from controller.cli.view import (
     tracking_sample,
 )
 from controller.core.kinematics import Geometry
-from controller.core.workspace import Limits
+from controller.core.workspace import Workspace, shrink_polygon
 from controller.service.config import default_config
 from tests.daemon_procs import CABLEBOT, REPO, Proc, free_tcp_port
 from tests.foxglove_client import FoxgloveClient, Received
@@ -47,7 +47,7 @@ foxglove = pytest.importorskip("foxglove")
 def test_drawn_workspace_is_the_enforced_one() -> None:
     cfg = default_config()
     shape = RobotShape.from_summary(cfg.summary())
-    limits = Limits(cfg.limits, Geometry(cfg.anchors_m))
+    limits = Workspace.from_limits(cfg.limits, Geometry(cfg.anchors_m))
     assert shape.anchors_m == cfg.anchors_m
     assert len(shape.workspace_m) == len(shape.footprint_m) == 4
     assert (shape.floor_z_m, shape.top_z_m) == (limits.floor_z_m, limits.top_z_m)
@@ -72,8 +72,22 @@ def test_shrink_polygon_square_and_errors() -> None:
         (1.5, 1.5),
         (0.5, 1.5),
     ]
-    with pytest.raises(ShapeError):
-        shrink_polygon(sq[:2], 0.1)
+    assert shrink_polygon(sq, 1.0) in ((), ((1.0, 1.0),))  # nothing, or a point, is left
+    assert shrink_polygon(sq, 1.5) == ()
+    with pytest.raises(ShapeError, match="leaves no workspace"):
+        RobotShape.from_summary(
+            {
+                **default_config().summary(),
+                "limits": {**default_config().summary()["limits"], "xy_margin_m": 30.0},
+            }
+        )
+    with pytest.raises(ShapeError, match="finite"):
+        RobotShape.from_summary(
+            {
+                **default_config().summary(),
+                "limits": {**default_config().summary()["limits"], "floor_z_m": "nan"},
+            }
+        )
     with pytest.raises(ShapeError):
         RobotShape.from_summary({"reels": [{"anchor_m": [0, 0, 1]}], "limits": {}})
     with pytest.raises(ShapeError):

@@ -22,7 +22,7 @@ import pytest
 from controller.core import calibration as cal
 from controller.core import kinematics
 from controller.core.reel import ReelModel
-from controller.core.workspace import Limits
+from controller.core.workspace import Workspace
 from controller.service.config import load_config, parse_config
 
 REPO = Path(__file__).resolve().parents[2]
@@ -47,7 +47,7 @@ class Rig:
     true_reels: list[ReelModel]
     """The reels with their true (unknown) offsets."""
     node_ids: tuple[int, ...]
-    limits: Limits
+    limits: Workspace
     rng: np.random.Generator
 
     def turns(self, poses_m: np.ndarray, noise_m: float = NOISE_M) -> np.ndarray:
@@ -64,8 +64,8 @@ class Rig:
     def poses(self, n: int, margin_m: float = 0.01) -> np.ndarray:
         """`n` poses spread over the configured workspace, `margin_m` inside it."""
         lim = self.limits
-        xs = [x for x, _ in lim.polygon_m]
-        ys = [y for _, y in lim.polygon_m]
+        xs = [x for x, _ in lim.footprint_m]
+        ys = [y for _, y in lim.footprint_m]
         m = margin_m
         corners = [(dx, dy, dz) for dx in (-m, m) for dy in (-m, m) for dz in (-m, m)]
 
@@ -110,7 +110,7 @@ def make_rig(
         replace(r, offset_rev=float(o))
         for r, o in zip(reels, rng.uniform(-20, 20, len(reels)), strict=True)
     ]
-    limits = Limits(cfg.limits, kinematics.Geometry(a_cfg))
+    limits = Workspace.from_limits(cfg.limits, kinematics.Geometry(a_cfg))
     return Rig(a_cfg, a_true, reels, true_reels, cfg.node_ids, limits, rng)
 
 
@@ -467,7 +467,7 @@ def test_replace_anchor_values_refuses_what_it_cannot_edit() -> None:
 
 def test_spread_poses_stay_inside_cover_the_region_and_are_deterministic() -> None:
     cfg = load_config(DESK)
-    lim = Limits(cfg.limits, cfg.geometry)
+    lim = Workspace.from_limits(cfg.limits, cfg.geometry)
 
     def inside(p: tuple[float, float, float]) -> bool:
         return lim.check_target(p) is None

@@ -15,7 +15,6 @@ from controller.core.kinematics import (
     KinematicsError,
     SingularGeometryError,
     UnreachableError,
-    footprint_contains,
     fpk,
     fpk_batch,
     ipk,
@@ -352,20 +351,6 @@ def test_ipk_shapes(paper: Geometry) -> None:
     many = ipk(paper, [[0.0, 0.0, 0.0], [1.0, 2.0, 3.0]])
     assert many.shape == (2, 4)
     assert many[1] == pytest.approx(ipk_point(paper, (1.0, 2.0, 3.0)), abs=1e-12)
-
-
-def test_footprint_contains(paper: Geometry) -> None:
-    assert footprint_contains(paper, 0.0, 0.0)
-    assert footprint_contains(paper, 40.46, 25.0)
-    assert footprint_contains(paper, 40.0, 0.0, margin_m=0.46)
-    assert not footprint_contains(paper, 40.0, 0.0, margin_m=0.47)
-    assert not footprint_contains(paper, 41.0, 0.0)
-    assert not footprint_contains(paper, math.nan, 0.0)
-    tri = Geometry([(0, 0, 5), (10, 0, 5), (0, 10, 5), (2, 2, 5)])  # one anchor inside
-    assert footprint_contains(tri, 4.9, 4.9, margin_m=0.0)
-    assert not footprint_contains(tri, 5.1, 5.1, margin_m=0.0)
-    assert footprint_contains(tri, 4.6, 4.6, margin_m=0.5)  # 0.566 m from the long edge
-    assert not footprint_contains(tri, 4.7, 4.7, margin_m=0.5)  # 0.424 m
 
 
 # ------------------------------------------------------------------ fpk result types, batch

@@ -14,7 +14,6 @@ from controller.core.kinematics import (
     Geometry,
     SingularGeometryError,
     UnreachableError,
-    footprint_contains,
     fpk,
     fpk_batch,
     ipk,
@@ -22,6 +21,7 @@ from controller.core.kinematics import (
     three_spheres,
     three_spheres_equal_height,
 )
+from controller.core.workspace import footprint_contains
 
 FAST = settings(max_examples=200, deadline=None, derandomize=True)
 
@@ -67,7 +67,7 @@ def geom_and_point(
     assume(w.sum() > 1e-3)
     x, y = (w / w.sum()) @ a[:, :2]
     z = geom.anchor_height_min_m - draw(st.floats(min_depth_m, 40.0))
-    assert footprint_contains(geom, float(x), float(y), margin_m=-1e-9)
+    assert footprint_contains(geom.footprint_m, float(x), float(y))
     return geom, (float(x), float(y), float(z))
 
 
@@ -225,7 +225,7 @@ def test_collinear_three_refused(xs: list[float], h: float) -> None:
 @given(geom_and_point(), st.floats(0.0, 5.0))
 def test_footprint_margin(gp: tuple[Geometry, tuple[float, float, float]], margin: float) -> None:
     geom, (x, y, _) = gp
-    inside = footprint_contains(geom, x, y, margin)
+    inside = footprint_contains(geom.footprint_m, x, y, margin)
     # Brute force: distance from (x, y) to every hull edge of the plan-view points.
     from scipy.spatial import ConvexHull
 

@@ -9,19 +9,19 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from controller.core.workspace import TOL_M, Limits, points_array
+from controller.core.workspace import TOL_M, Workspace, points_array
 from tests.fakes import make_config
 
 CFG = make_config()
-LIM = Limits(CFG.limits, CFG.geometry)
+LIM = Workspace.from_limits(CFG.limits, CFG.geometry)
 # Cables of at least 10 m: a leg between two allowed points can pass too close to an anchor.
 CFG10 = make_config(limits={"min_cable_m": 10.0})
-LIM10 = Limits(CFG10.limits, CFG10.geometry)
+LIM10 = Workspace.from_limits(CFG10.limits, CFG10.geometry)
 ANCHORS = [tuple(float(v) for v in a) for a in CFG.geometry.anchors_m]
 
 
 def reference(
-    points: Sequence[Sequence[float]], start: Sequence[float] | None, lim: Limits = LIM
+    points: Sequence[Sequence[float]], start: Sequence[float] | None, lim: Workspace = LIM
 ) -> tuple[int, str] | None:
     """Point by point with the scalar checks (the definition of the verdict)."""
     prev = start
@@ -64,7 +64,7 @@ _point = st.one_of(*[_inside] * 12, _edge, _near_anchor)
 def test_vectorised_equals_point_by_point(
     points: list[tuple[float, float, float]],
     start: tuple[float, float, float] | None,
-    lim: Limits,
+    lim: Workspace,
 ) -> None:
     assert lim.path_failure(points, start) == reference(points, start, lim)
 

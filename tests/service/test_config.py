@@ -595,3 +595,36 @@ def test_a_cia402_eds_must_load(tmp_path: Path) -> None:
     assert "robot.toml: drive.eds: not a usable EDS" in msg, msg
     # The family's own checks run only on a [drive] table that is valid itself.
     assert "drive.eds" not in err(cia402(eds=str(bad), counts_per_rev=-1))
+
+
+def test_power_up_position_is_judged_by_the_workspace_in_the_words_of_the_keys() -> None:
+    from controller.core.workspace import Workspace
+
+    data = edit("homing.power_up_position_m", [0.0, 0.0, -0.5])
+    assert "homing.power_up_position_m: z=-0.5 m is below limits.floor_z_m (0 m)" in err(data)
+    data = edit("homing.power_up_position_m", [-38.45, -23.0, 6.62])  # a corner, near anchor 1
+    data["limits"]["min_cable_m"] = 5.0
+    msg = err(data)
+    assert "homing.power_up_position_m: cable 1 would be 3 m, outside " in msg, msg
+    assert "limits.min_cable_m..max_cable_m (5..100 m)" in msg, msg
+    data["limits"]["min_cable_m"] = 3.0  # the corner itself: on every boundary, allowed
+    cfg = parse(data)
+    ws = Workspace.from_limits(cfg.limits, cfg.geometry)
+    assert cfg.homing.power_up_position_m is not None
+    assert ws.check_target(cfg.homing.power_up_position_m) is None
+    # what the configuration refuses, the workspace refuses, and the other way round
+    for p in ([0.0, 0.0, 6.62 + 1e-6], [38.45 + 1e-6, 0.0, 2.0], [0.0, 23.0, 6.62]):
+        refused = ws.check_target(p) is not None
+        data = edit("homing.power_up_position_m", p)
+        if refused:
+            assert "homing.power_up_position_m" in err(data)
+        else:
+            assert parse(data).homing.power_up_position_m == tuple(p)
+
+
+def test_limits_problems_are_reported_together() -> None:
+    data = edit("limits.xy_margin_m", 30.0)
+    data["limits"]["default_speed_mps"] = 3.0
+    msg = err(data)
+    assert "limits.xy_margin_m: 30 m leaves no workspace" in msg, msg
+    assert "limits.default_speed_mps: 3 m/s exceeds max_speed_mps" in msg, msg

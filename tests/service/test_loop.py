@@ -927,13 +927,13 @@ def _circle(rig: Rig, n: int, radius_m: float = 3.0) -> tuple[tuple[float, float
 
 def test_a_long_path_costs_the_tick_no_per_point_work(monkeypatch: pytest.MonkeyPatch) -> None:
     from controller.core import motion as motion_mod
-    from controller.core import workspace as limits_mod
+    from controller.core import workspace as workspace_mod
 
     rig = _armed_rig()
     pts = _circle(rig, 10_000)
     fut = rig.ctl.submit(Path(pts, 1.0))  # checked and prepared here, in this thread
     calls = {"point": 0, "leg": 0, "ipk": 0}
-    lim = limits_mod.Limits
+    lim = workspace_mod.Workspace
     real_point, real_segment = lim.check_point, lim.check_segment
     real_ipk = kinematics.ipk_point
 

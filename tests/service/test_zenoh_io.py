@@ -8,6 +8,7 @@ import shutil
 import subprocess
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +17,7 @@ import zenoh
 
 from controller.cli import exitcodes
 from controller.core.commands import MAX_JSON_DEPTH, MAX_PAYLOAD_BYTES, QUOTE_CHARS, Move, Setpoint
+from controller.core.commands import Path as PathCmd
 from controller.service import zenoh_io
 from tests.fakes_zenoh import FakeController, FakePose, ZCfg, free_port
 
@@ -419,11 +421,44 @@ def test_open_fails_cleanly_when_the_port_is_taken() -> None:
         first.close()
 
 
-def test_precheck_uses_check_target_for_moves_and_paths() -> None:
-    iface = zenoh_io.ZenohInterface(ZCfg(), FakeController())
+def test_precheck_asks_the_workspace_once_per_move_or_path() -> None:
+    fake = FakeController()
+    iface = zenoh_io.ZenohInterface(ZCfg(), fake)
     assert iface._precheck(Move((0.0, 0.0, 1.0))) is None
     assert "outside" in str(iface._precheck(Move((0.0, 0.0, 9.0))))
+    path = PathCmd(((0.0, 0.0, 1.0), (0.0, 0.5, 1.0), (0.0, 9.0, 1.0), (0.0, 0.0, 9.0)))
+    assert iface._precheck(path) == "points_m[2]: outside the workspace: y=9.0 not in [-1.0, 1.0]"
     assert iface._precheck(Setpoint((0.0, 0.0, 9.0))) is None  # streamed: the loop limits it
+    assert fake.workspace.calls == 3  # one call per move or path, not one per point
+
+
+def test_precheck_with_the_robots_workspace() -> None:
+    import math
+    from types import SimpleNamespace
+
+    from controller.core.workspace import Workspace
+    from controller.service.config import default_config
+
+    cfg = default_config()
+    ws = Workspace.from_limits(cfg.limits, cfg.geometry)
+    iface = zenoh_io.ZenohInterface(ZCfg(), SimpleNamespace(workspace=ws))
+    a = 2.0 * math.pi / 1000
+    pts = [(10.0 * math.cos(i * a), 10.0 * math.sin(i * a), 2.0) for i in range(1000)]
+    assert iface._precheck(PathCmd(tuple(pts))) is None
+    pts[700] = (39.0, 0.0, 2.0)
+    pts[800] = (0.0, 0.0, -1.0)
+    why = ws.check_target(pts[700])
+    assert why is not None and "plan-view polygon" in why
+    assert iface._precheck(PathCmd(tuple(pts))) == f"points_m[700]: {why}"
+    assert iface._precheck(Move((0.0, 0.0, 9.0))) == ws.check_target((0.0, 0.0, 9.0))
+    # Points only: both ends allowed, the leg between them is the controller's to judge.
+    tight = Workspace.from_limits(replace(cfg.limits, min_cable_m=6.0), cfg.geometry)
+    corner = cfg.geometry.footprint_m[0]
+    ends = ((corner[0] + 6.0, corner[1] + 2.0, 6.0), (corner[0] + 2.0, corner[1] + 6.0, 6.0))
+    assert tight.check_target(ends[0]) is None and tight.check_target(ends[1]) is None
+    assert tight.check_path(list(ends)) is not None  # the leg passes under the anchor
+    iface = zenoh_io.ZenohInterface(ZCfg(), SimpleNamespace(workspace=tight))
+    assert iface._precheck(PathCmd(ends)) is None
 
 
 # ------------------------------------------------------------------------------ TLS + ACL

@@ -20,8 +20,9 @@ plan-view triangle (the best conditioned), an equal-height one preferred among e
 the paper's simplified algorithm applies.
 
 IPK is the distance from P to each anchor: ``ipk_point`` in pure Python floats for the
-control tick, ``ipk`` vectorised over rows.  ``footprint_contains`` tests a point against the
-anchors' plan-view convex hull.
+control tick, ``ipk`` vectorised over rows.  ``Geometry.footprint_m`` is the anchors' plan-view
+convex hull; whether a point is inside it (with a margin) is decided by
+``controller.core.workspace``.
 """
 
 from __future__ import annotations
@@ -49,7 +50,6 @@ __all__ = [
     "HEIGHT_TOL_M",
     "SINGULAR_REL_TOL",
     "Geometry",
-    "footprint_contains",
     "ipk",
     "ipk_point",
     "paper_anchors",
@@ -118,20 +118,6 @@ def _usable_triples(pts: Sequence[Vec3]) -> list[tuple[float, tuple[int, int, in
     return usable
 
 
-def _inward_edges(
-    hull: Sequence[tuple[float, float]],
-) -> tuple[tuple[float, float, float], ...]:
-    """(nx, ny, c) per edge of a counter-clockwise polygon: n . p + c is the distance of p
-    inside that edge."""
-    edges: list[tuple[float, float, float]] = []
-    for k in range(len(hull)):
-        (ax, ay), (bx, by) = hull[k], hull[(k + 1) % len(hull)]
-        ln = math.hypot(bx - ax, by - ay)
-        nx, ny = -(by - ay) / ln, (bx - ax) / ln  # inward normal of a CCW polygon
-        edges.append((nx, ny, -(nx * ax + ny * ay)))
-    return tuple(edges)
-
-
 class Geometry:
     """Anchor layout of an N-cable point-mass robot (N >= 3), validated at construction.
 
@@ -149,7 +135,6 @@ class Geometry:
     __slots__ = (
         "_anchors_t",
         "_fit",
-        "_hull_edges",
         "_p4",
         "_seed",
         "anchor_height_max_m",
@@ -178,7 +163,6 @@ class Geometry:
     _seed: _EqualSeed | _GeneralSeed
     _fit: _Fit
     _p4: _Planar4 | None
-    _hull_edges: tuple[tuple[float, float, float], ...]
 
     def __init__(self, anchors_m: Any, height_tol_m: float = HEIGHT_TOL_M) -> None:
         try:
@@ -237,7 +221,6 @@ class Geometry:
 
         # The anchors' plan-view convex hull, counter-clockwise (x, y) vertices.
         self.footprint_m = tuple(_convex_hull([(p[0], p[1]) for p in pts]))
-        self._hull_edges = _inward_edges(self.footprint_m)
 
     def __repr__(self) -> str:
         return f"Geometry(anchors_m={self.anchors_m.tolist()!r})"
@@ -256,16 +239,6 @@ def paper_anchors(
         [[-hl, -hw, height_m], [-hl, hw, height_m], [hl, hw, height_m], [hl, -hw, height_m]],
         dtype=np.float64,
     )
-
-
-def footprint_contains(geom: Geometry, x_m: float, y_m: float, margin_m: float = 0.0) -> bool:
-    """True when (x, y) lies in the anchors' plan-view convex hull shrunk by ``margin_m``.
-
-    A point exactly ``margin_m`` from an edge is inside.  Non-finite input gives False.
-    Raises nothing.
-    """
-    # ">=" is False for NaN, so a NaN coordinate is outside.
-    return all(nx * x_m + ny * y_m + c >= margin_m for nx, ny, c in geom._hull_edges)
 
 
 def ipk_point(geom: Geometry, position_m: Sequence[float]) -> tuple[float, ...]:
