@@ -20,6 +20,7 @@ _MODULES: tuple[str, ...] = (
     "controller.cli.statics_cmd",  # statics, workspace
     "controller.cli.configs",  # check-config, init-config
     "controller.cli.monitor",  # monitor
+    "controller.cli.jog",  # jog
     "controller.cli.demo",  # demo
     "controller.cli.bench",  # bench
     "controller.cli.view",  # view

@@ -13,7 +13,13 @@ set-point, FPK position, FPK residual, encoder cable lengths and state (prealloc
 `array('d')`, a few hundred nanoseconds per tick). At the end the demo prints the settled FPK
 error against the commanded points, the cable-length ranges and how closely the encoder lengths
 match pure IPK (against the float32 resolution of the reel model), and with `--plot DIR` draws
-four PNG figures (matplotlib, the optional `plot` extra).
+four PNG figures (matplotlib, the optional `plot` extra) with `cablebot plot`'s drawing: the
+run becomes a `plot.Trace` (`circle_trace`) whose waypoints are the circle's points, so the
+cable lengths and the position are drawn against the step, as in the paper's figures.
+
+The run in pieces: `plan_circle` checks the circle against the robot before anything starts,
+`DemoStack` starts and stops the stack, `_lap` visits the points, `_circle_run` turns the
+recorder's rows into a `CircleRun`; `summarize` and `format_summary` give the numbers.
 
 Whatever the configuration's bus and `[sim]` say, the demo always uses an in-process `virtual`
 bus with simulated nodes, never homes from or writes a state file, and publishes every tick.
@@ -41,18 +47,18 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from controller.cli.plot import FIGURES, Trace, Waypoints, plot_trace
+from controller.cli.shape import RobotShape
+
 log = logging.getLogger("cablebot.demo")
 
 FloatArray = npt.NDArray[np.float64]
 Vec3 = tuple[float, float, float]
 
-PLOT_FILES: tuple[str, ...] = (
-    "circle-3d.png",
-    "circle-cable-lengths.png",
-    "circle-fpk-xyz.png",
-    "circle-errors.png",
-)
-"""The figures `plot_circle` writes, in the README's order."""
+PLOT_NAME = "circle"
+PLOT_FILES: tuple[str, ...] = tuple(f"{PLOT_NAME}-{fig}.png" for fig in FIGURES)
+"""The figures `plot_circle` writes, in `cablebot plot`'s order: circle-3d.png,
+circle-cable-lengths.png, circle-fpk-xyz.png, circle-errors.png."""
 
 SUMMARY_LINE_PREFIX = "max settled FPK error:"
 """The last line of the demo's output starts with this (tests parse it)."""
@@ -217,6 +223,8 @@ class CircleRun:
     overruns: int
     ticks: int
     dropped_rows: int
+    shape: RobotShape | None
+    """The robot as the figures draw it (None: its configuration made no drawable shape)."""
     notes: list[str] = field(default_factory=list)
 
 
@@ -251,6 +259,10 @@ hundred milliseconds then looks like stale encoders, and after it the set-point 
 (tracking error) while the four encoder frames straddle the stall (FPK residual). None of this
 touches the settled figures the demo measures; the run's worst tracking error and residual are
 printed."""
+DEMO_SIM_WATCHDOG_FLOOR_S = 2.0
+"""The simulated drives' axis watchdog, at least (unless `strict_faults` or the configuration
+turns it off): a stall of this process longer than the watchdog would disarm an axis
+(WATCHDOG_TIMER_EXPIRED) and fault the run, as a stall beyond the stale timeout would."""
 
 
 def demo_config(
@@ -259,16 +271,21 @@ def demo_config(
     """The demo's copy of `cfg`: in-process virtual bus with simulated nodes, no state file,
     no power-up pose (the demo homes explicitly), publish every tick, Zenoh listening only on
     `zenoh_listen` (no connect, no scouting, no config file); unless `strict_faults`, the fault
-    thresholds are raised to at least `DEMO_FAULT_FLOORS`. Raises nothing.
+    thresholds are raised to at least `DEMO_FAULT_FLOORS` and a simulated drive watchdog that
+    is on to at least `DEMO_SIM_WATCHDOG_FLOOR_S`. Raises nothing.
     """
     from controller.service.config import BusConfig, HomingConfig
 
     faults = cfg.faults
+    sim = replace(cfg.sim, enabled=True)
     if not strict_faults:
         faults = replace(
             faults,
             **{k: max(float(getattr(faults, k)), v) for k, v in DEMO_FAULT_FLOORS.items()},
         )
+        if sim.watchdog_timeout_s > 0.0:
+            watchdog_s = max(float(sim.watchdog_timeout_s), DEMO_SIM_WATCHDOG_FLOOR_S)
+            sim = replace(sim, watchdog_timeout_s=watchdog_s)
 
     zen = replace(
         cfg.zenoh,
@@ -282,7 +299,7 @@ def demo_config(
         bus=BusConfig("virtual", channel),
         homing=HomingConfig(None, None),
         loop=replace(cfg.loop, publish_every=1, realtime=False),
-        sim=replace(cfg.sim, enabled=True),
+        sim=sim,
         faults=faults,
         zenoh=zen,
     )
@@ -325,6 +342,281 @@ def _result(fut: Any, timeout_s: float, what: str) -> dict[str, Any]:
     return reply
 
 
+@dataclass(frozen=True, slots=True)
+class CirclePlan:
+    """What `plan_circle` worked out before anything starts: the points, speeds and sizes."""
+
+    points: tuple[Vec3, ...]
+    """The circle's `steps + 1` points; the first is the start, the last repeats it."""
+    speed_mps: float
+    accel_mps2: float
+    motion_s: float
+    """Motion time of the lap, rest to rest at every point (without the settle holds)."""
+    rate_hz: float
+    capacity: int
+    """Rows the recorder preallocates: twice the expected run plus a minute, at the loop rate."""
+
+
+def plan_circle(cfg: Any, spec: CircleSpec) -> CirclePlan:
+    """Check `spec` against `cfg` (speed, settle time, the robot's limits) and plan the lap.
+
+    Raises ValueError for a speed outside (0, max_speed_mps], a negative settle time or a
+    circle that leaves the limits.
+    """
+    from controller.core.motion import circle_path
+    from controller.core.workspace import Workspace
+
+    points = tuple(circle_path(spec.radius_m, spec.centre_m, spec.z_m, spec.steps))
+    lim = cfg.limits
+    speed = float(lim.default_speed_mps if spec.speed_mps is None else spec.speed_mps)
+    if not (math.isfinite(speed) and 0.0 < speed <= float(lim.max_speed_mps)):
+        raise ValueError(
+            f"speed {speed:g} m/s must be > 0 and <= the config's max_speed_mps "
+            f"({float(lim.max_speed_mps):g} m/s)"
+        )
+    if not (math.isfinite(spec.settle_s) and spec.settle_s >= 0.0):
+        raise ValueError(f"settle time must be >= 0, got {spec.settle_s!r}")
+    reason = Workspace.from_limits(lim, cfg.geometry).check_path(points)
+    if reason is not None:
+        raise ValueError(f"the circle leaves the robot's limits: {reason}")
+    accel = float(lim.max_accel_mps2)
+    motion_s = estimate_duration_s(points, speed, accel)
+    rate_hz = float(cfg.loop.rate_hz)
+    expect_s = motion_s + spec.steps * (spec.settle_s + 0.05) + 5.0
+    return CirclePlan(
+        points=points,
+        speed_mps=speed,
+        accel_mps2=accel,
+        motion_s=motion_s,
+        rate_hz=rate_hz,
+        capacity=int(rate_hz * (2.0 * expect_s + 60.0)),
+    )
+
+
+def _announce(
+    cfg: Any, dcfg: Any, spec: CircleSpec, plan: CirclePlan, say: Callable[[str], None]
+) -> None:
+    """Say what is about to run: the robot, the bus, the circle, any fault threshold raised."""
+    say(
+        f"robot {cfg.name!r} ({len(cfg.reels)} reels) from {cfg.source}; simulated ODrive nodes "
+        f"{list(dcfg.node_ids)} on python-can virtual bus {dcfg.bus.channel!r}; "
+        f"loop {plan.rate_hz:g} Hz"
+    )
+    say(
+        f"circle: radius {spec.radius_m:g} m about ({spec.centre_m[0]:g}, {spec.centre_m[1]:g}) "
+        f"at z = {spec.z_m:g} m, {spec.steps} steps at {plan.speed_mps:g} m/s "
+        f"(accel {plan.accel_mps2:g} m/s^2), {spec.settle_s:g} s settle: "
+        f"about {plan.motion_s + spec.steps * spec.settle_s:.0f} s"
+    )
+    changed = [
+        f"{k} {getattr(dcfg.faults, k):g} (config {getattr(cfg.faults, k):g})"
+        for k in DEMO_FAULT_FLOORS
+        if getattr(dcfg.faults, k) != getattr(cfg.faults, k)
+    ]
+    wd_s, cfg_wd_s = dcfg.sim.watchdog_timeout_s, cfg.sim.watchdog_timeout_s
+    if wd_s != cfg_wd_s:
+        changed.append(f"simulated drive watchdog {wd_s:g} s (config {cfg_wd_s:g} s)")
+    if changed:
+        say(
+            "fault thresholds raised for a simulation sharing this process and CPU: "
+            + ", ".join(changed)
+            + " (--strict-faults keeps the config's)"
+        )
+
+
+class DemoStack:
+    """The demo's running robot, as a context manager: the daemon's stack (simulated nodes on
+    the virtual bus, driver, controller) with the effector powered up at `start_m`, Zenoh on
+    `endpoint` when it opens, a `Recorder` as the controller's publisher, and the loop thread
+    (started as the daemon starts it). Leaving the context stops and closes all of it.
+    """
+
+    def __init__(
+        self,
+        dcfg: Any,
+        start_m: Vec3,
+        capacity: int,
+        endpoint: str | None,
+        say: Callable[[str], None],
+    ) -> None:
+        self.dcfg = dcfg
+        self.start_m = start_m
+        self.capacity = capacity
+        self.endpoint = endpoint
+        self.say = say
+        self.notes: list[str] = []
+        self.zenoh_text = "off (--no-zenoh)"
+        self._stack: Any = None
+        self.controller: Any = None
+        self.recorder: Recorder
+        self._stop = threading.Event()
+        self._crashed: list[BaseException] = []
+        self._thread: threading.Thread | None = None
+        self._switch_s = sys.getswitchinterval()
+
+    def __enter__(self) -> DemoStack:
+        """Build and start everything; raises what `build_stack` raises (after closing)."""
+        from controller.service.daemon import build_stack
+        from controller.service.runner import start_loop
+
+        try:
+            # The simulated reels power up with the effector at the circle's start.
+            sim_cfg = replace(
+                self.dcfg, homing=replace(self.dcfg.homing, power_up_position_m=self.start_m)
+            )
+            # The daemon's own builder; Zenoh is optional here (opened below, or not at all).
+            self._stack = build_stack(self.dcfg, zenoh=False, sim_cfg=sim_cfg)
+            self.controller = self._stack.controller
+            inner = self._open_zenoh()
+            self.recorder = Recorder(self.controller, len(self.dcfg.reels), self.capacity, inner)
+            self.controller.publisher = self.recorder
+            # As the daemon runs it (its loop thread, switch interval and gc freeze).
+            self._thread, _sched = start_loop(
+                self.controller.runner(), self.dcfg.loop, self._stop, on_crash=self._crashed.append
+            )
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        """Stop the loop and close everything."""
+        self.close()
+
+    def close(self) -> None:
+        """Stop the loop thread, restore the interpreter's settings, close the stack."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2.0)
+        sys.setswitchinterval(self._switch_s)
+        gc.unfreeze()
+        if self._stack is not None:
+            self._stack.close()
+            self._stack = None
+
+    def _open_zenoh(self) -> Any:
+        """The Zenoh publisher on `endpoint`, or a `NullPublisher` (with a note why)."""
+        from controller.service.pose import NullPublisher
+
+        inner: Any = NullPublisher()
+        if self.endpoint is not None:
+            try:
+                from controller.service.zenoh_io import ZenohInterface
+
+                iface = ZenohInterface(self.dcfg.zenoh, self.controller)
+                iface.open()
+            except Exception as exc:
+                self.zenoh_text = f"unavailable ({type(exc).__name__}: {exc}); publishing nothing"
+                self.notes.append(f"Zenoh {self.zenoh_text}")
+            else:
+                inner = iface
+                self._stack.closers.append(("zenoh", iface.close))
+                self.zenoh_text = f"{self.endpoint}, key {self.dcfg.zenoh.prefix}/pose"
+        self.say(f"Zenoh: {self.zenoh_text}")
+        if not isinstance(inner, NullPublisher):
+            self.say(
+                f"  watch it: cablebot pose --connect {self.endpoint} "
+                f"--prefix {self.dcfg.zenoh.prefix}"
+            )
+        return inner
+
+    def fault(self) -> str | None:
+        """Why the run cannot go on (the loop crashed, FAULT or ESTOPPED), or None."""
+        from controller.core.states import State
+
+        if self._crashed:
+            return f"control loop crashed: {self._crashed[0]!r}"
+        st = self.controller.state
+        if st is State.FAULT or st is State.ESTOPPED:
+            return f"{st.value}: {self.controller.reason}"
+        return None
+
+    def home_and_arm(self, arm_timeout_s: float) -> None:
+        """Home at `start_m` (retrying while the first encoder frames arrive), arm, and wait
+        for HOLDING. Raises DemoError."""
+        from controller.core.commands import Arm, Home
+        from controller.core.states import State
+
+        deadline = time.monotonic() + 5.0
+        while True:
+            try:
+                _result(self.controller.submit(Home(self.start_m)), 3.0, "home")
+                break
+            except DemoError as exc:
+                if "stale_encoder" not in str(exc) or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.02)
+        _result(self.controller.submit(Arm()), 3.0, "arm")
+        _wait(
+            lambda: self.controller.state is State.HOLDING,
+            arm_timeout_s + 3.0,
+            "arming",
+            self.fault,
+        )
+
+    def go_to(self, p: Vec3, speed_mps: float, timeout_s: float, what: str) -> None:
+        """Send a one-point path to `p` and wait until the set-point is there and the robot
+        HOLDING. Raises DemoError."""
+        from controller.core.commands import Path as PathCmd
+        from controller.core.states import State
+
+        ctl = self.controller
+        _result(ctl.submit(PathCmd((p,), speed_mps)), 3.0, what)
+        _wait(
+            lambda: ctl.state is State.HOLDING and ctl.setpoint_m == p,
+            timeout_s,
+            what,
+            self.fault,
+        )
+
+    def settle(self, settle_s: float) -> int:
+        """Hold `settle_s`, then until the FPK position over the last `SETTLE_WINDOW_S` moved
+        less than `SETTLE_TOL_M` (bounded); return the settled row. Raises DemoError."""
+        from controller.core.states import State
+
+        recorder = self.recorder
+        t_arrive = time.monotonic()
+        first = recorder.count
+
+        def converged() -> bool:
+            if recorder.last_time_s() < t_arrive + settle_s:
+                return False
+            w = recorder.rows(first)
+            w = w[w[:, 0] >= w[-1, 0] - SETTLE_WINDOW_S, 4:7]
+            if len(w) < 3 or not np.all(np.isfinite(w)):
+                return False
+            return bool(np.max(np.ptp(w, axis=0)) <= SETTLE_TOL_M)
+
+        _wait(converged, settle_s + 5.0, "settling", self.fault)
+        if self.controller.state is not State.HOLDING:
+            raise DemoError(f"left HOLDING while settling: {self.controller.state.value}")
+        return recorder.count - 1
+
+
+def _lap(
+    ds: DemoStack, spec: CircleSpec, plan: CirclePlan, say: Callable[[str], None]
+) -> list[int]:
+    """Visit the circle's points one step at a time, settling at each; the settled rows (the
+    start's first). Says the settled error at every sixth of the lap. Raises DemoError."""
+    pts = plan.points
+    t0 = time.monotonic()
+    settled = [ds.settle(spec.settle_s)]
+    every = max(1, spec.steps // 6)
+    for k in range(1, spec.steps + 1):
+        leg_s = estimate_duration_s(pts[k - 1 : k + 1], plan.speed_mps, plan.accel_mps2)
+        ds.go_to(pts[k], plan.speed_mps, 3.0 * leg_s + 5.0, f"step {k}")
+        settled.append(ds.settle(spec.settle_s))
+        if k % every == 0 or k == spec.steps:
+            p = pts[k]
+            row = ds.recorder.rows(settled[-1])[0]
+            err_mm = float(np.linalg.norm(row[4:7] - np.asarray(p))) * 1e3
+            say(
+                f"  step {k:3d}/{spec.steps}: at ({p[0]:7.3f}, {p[1]:7.3f}, {p[2]:.3f}) m, "
+                f"settled FPK error {err_mm:.4f} mm, {time.monotonic() - t0:5.1f} s"
+            )
+    return settled
+
+
 def run_circle(
     cfg: Any,
     spec: CircleSpec,
@@ -341,192 +633,37 @@ def run_circle(
     faults or a wait times out (everything started is stopped and closed first), ValueError
     for an unusable spec.
     """
-    from controller.core.commands import Arm, Disarm, Home
-    from controller.core.commands import Path as PathCmd
-    from controller.core.motion import circle_path
-    from controller.core.states import State
-    from controller.core.workspace import Workspace
-    from controller.service.daemon import Stack, build_stack
-    from controller.service.pose import NullPublisher
-    from controller.service.runner import start_loop
+    from controller.core.commands import Disarm
 
     say = progress if progress is not None else (lambda s: None)
-    points = circle_path(spec.radius_m, spec.centre_m, spec.z_m, spec.steps)
-    start = points[0]
-    lim = cfg.limits
-    speed = float(lim.default_speed_mps if spec.speed_mps is None else spec.speed_mps)
-    if not (math.isfinite(speed) and 0.0 < speed <= float(lim.max_speed_mps)):
-        raise ValueError(
-            f"speed {speed:g} m/s must be > 0 and <= the config's max_speed_mps "
-            f"({float(lim.max_speed_mps):g} m/s)"
-        )
-    if not (math.isfinite(spec.settle_s) and spec.settle_s >= 0.0):
-        raise ValueError(f"settle time must be >= 0, got {spec.settle_s!r}")
-    reason = Workspace.from_limits(lim, cfg.geometry).check_path(points)
-    if reason is not None:
-        raise ValueError(f"the circle leaves the robot's limits: {reason}")
-    motion_s = estimate_duration_s(points, speed, float(lim.max_accel_mps2))
-    rate_hz = float(cfg.loop.rate_hz)
-    expect_s = motion_s + spec.steps * (spec.settle_s + 0.05) + 5.0
-    capacity = int(rate_hz * (2.0 * expect_s + 60.0))
-
+    plan = plan_circle(cfg, spec)
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}" if zenoh_listen == "auto" else zenoh_listen
     channel = f"cablebot-demo-{uuid.uuid4().hex[:12]}"
     dcfg = demo_config(cfg, channel=channel, zenoh_listen=endpoint, strict_faults=strict_faults)
-    say(
-        f"robot {cfg.name!r} ({len(cfg.reels)} reels) from {cfg.source}; simulated ODrive nodes "
-        f"{list(dcfg.node_ids)} on python-can virtual bus {channel!r}; loop {rate_hz:g} Hz"
-    )
-    say(
-        f"circle: radius {spec.radius_m:g} m about ({spec.centre_m[0]:g}, {spec.centre_m[1]:g}) "
-        f"at z = {spec.z_m:g} m, {spec.steps} steps at {speed:g} m/s "
-        f"(accel {float(lim.max_accel_mps2):g} m/s^2), {spec.settle_s:g} s settle: "
-        f"about {motion_s + spec.steps * spec.settle_s:.0f} s"
-    )
-    changed = [
-        f"{k} {getattr(dcfg.faults, k):g} (config {getattr(cfg.faults, k):g})"
-        for k in DEMO_FAULT_FLOORS
-        if getattr(dcfg.faults, k) != getattr(cfg.faults, k)
-    ]
-    if changed:
-        say(
-            "fault thresholds raised for a simulation sharing this process and CPU: "
-            + ", ".join(changed)
-            + " (--strict-faults keeps the config's)"
-        )
-
-    stack: Stack | None = None
-    notes: list[str] = []
-    stop_loop = threading.Event()
-    crashed: list[BaseException] = []
-    thread: threading.Thread | None = None
-    old_switch = sys.getswitchinterval()
-    try:
-        # The simulated reels power up with the effector at the circle's start.
-        sim_cfg = replace(dcfg, homing=replace(dcfg.homing, power_up_position_m=start))
-        # The daemon's own builder; Zenoh is optional here (opened below, or not at all).
-        stack = build_stack(dcfg, zenoh=False, sim_cfg=sim_cfg)
-        controller = stack.controller
-
-        inner: Any = NullPublisher()
-        zenoh_text = "off (--no-zenoh)"
-        if endpoint is not None:
-            try:
-                from controller.service.zenoh_io import ZenohInterface
-
-                iface = ZenohInterface(dcfg.zenoh, controller)
-                iface.open()
-            except Exception as exc:
-                zenoh_text = f"unavailable ({type(exc).__name__}: {exc}); publishing nothing"
-                notes.append(f"Zenoh {zenoh_text}")
-            else:
-                inner = iface
-                stack.closers.append(("zenoh", iface.close))
-                zenoh_text = f"{endpoint}, key {dcfg.zenoh.prefix}/pose"
-        say(f"Zenoh: {zenoh_text}")
-        if not isinstance(inner, NullPublisher):
-            say(f"  watch it: cablebot pose --connect {endpoint} --prefix {dcfg.zenoh.prefix}")
-        recorder = Recorder(controller, len(dcfg.reels), capacity, inner)
-        controller.publisher = recorder
-
-        # As the daemon runs it (its loop thread, switch interval and gc freeze).
-        thread, _sched = start_loop(
-            controller.runner(), dcfg.loop, stop_loop, on_crash=crashed.append
-        )
-
-        def fault() -> str | None:
-            if crashed:
-                return f"control loop crashed: {crashed[0]!r}"
-            st = controller.state
-            if st is State.FAULT or st is State.ESTOPPED:
-                return f"{st.value}: {controller.reason}"
-            return None
-
-        # Home at the circle's start (retry while the first encoder frames arrive), then arm.
-        deadline = time.monotonic() + 5.0
-        while True:
-            try:
-                _result(controller.submit(Home(start)), 3.0, "home")
-                break
-            except DemoError as exc:
-                if "stale_encoder" not in str(exc) or time.monotonic() > deadline:
-                    raise
-                time.sleep(0.02)
-        _result(controller.submit(Arm()), 3.0, "arm")
-        _wait(
-            lambda: controller.state is State.HOLDING,
-            float(cfg.faults.arm_timeout_s) + 3.0,
-            "arming",
-            fault,
-        )
+    _announce(cfg, dcfg, spec, plan, say)
+    start = plan.points[0]
+    with DemoStack(dcfg, start, plan.capacity, endpoint, say) as ds:
+        ds.home_and_arm(float(cfg.faults.arm_timeout_s))
         say(f"homed at ({start[0]:g}, {start[1]:g}, {start[2]:g}) m and armed: HOLDING")
+        t0 = time.monotonic()
+        settled = _lap(ds, spec, plan, say)
+        wall_s = time.monotonic() - t0
+        _result(ds.controller.submit(Disarm()), 3.0, "disarm")
+    return _circle_run(cfg, spec, plan, ds, settled, wall_s)
 
-        t_wall0 = time.monotonic()
-        settled: list[int] = []
 
-        def settle() -> int:
-            """Hold `settle_s`, then until the FPK position over the last `SETTLE_WINDOW_S`
-            moved less than `SETTLE_TOL_M` (bounded); return the settled row."""
-            t_arrive = time.monotonic()
-            first = recorder.count
+def _circle_run(
+    cfg: Any, spec: CircleSpec, plan: CirclePlan, ds: DemoStack, settled: list[int], wall_s: float
+) -> CircleRun:
+    """The `CircleRun` of a finished lap (`ds` stopped): the recorder's rows split into arrays
+    (times from the first settled sample), the reels' largest turns and slopes, the robot's
+    shape."""
+    from controller.cli.shape import ShapeError
 
-            def converged() -> bool:
-                if recorder.last_time_s() < t_arrive + spec.settle_s:
-                    return False
-                w = recorder.rows(first)
-                w = w[w[:, 0] >= w[-1, 0] - SETTLE_WINDOW_S, 4:7]
-                if len(w) < 3 or not np.all(np.isfinite(w)):
-                    return False
-                return bool(np.max(np.ptp(w, axis=0)) <= SETTLE_TOL_M)
-
-            _wait(converged, spec.settle_s + 5.0, "settling", fault)
-            if controller.state is not State.HOLDING:
-                raise DemoError(f"left HOLDING while settling: {controller.state.value}")
-            return recorder.count - 1
-
-        settled.append(settle())
-        every = max(1, spec.steps // 6)
-        accel = float(lim.max_accel_mps2)
-        for k in range(1, spec.steps + 1):
-            p = points[k]
-            _result(controller.submit(PathCmd((p,), speed)), 3.0, f"step {k}")
-            leg_s = estimate_duration_s([points[k - 1], p], speed, accel)
-            _wait(
-                lambda p=p: (  # type: ignore[misc]
-                    controller.state is State.HOLDING and controller.setpoint_m == p
-                ),
-                3.0 * leg_s + 5.0,
-                f"step {k}",
-                fault,
-            )
-            settled.append(settle())
-            if k % every == 0 or k == spec.steps:
-                row = recorder.rows(settled[-1])[0]
-                err_mm = float(np.linalg.norm(row[4:7] - np.asarray(p))) * 1e3
-                say(
-                    f"  step {k:3d}/{spec.steps}: at ({p[0]:7.3f}, {p[1]:7.3f}, {p[2]:.3f}) m, "
-                    f"settled FPK error {err_mm:.4f} mm, {time.monotonic() - t_wall0:5.1f} s"
-                )
-        wall_s = time.monotonic() - t_wall0
-        _result(controller.submit(Disarm()), 3.0, "disarm")
-
-        data = recorder.rows()
-        reels = list(controller.reels)
-        overruns = int(controller.loop_stats.overruns)
-        ticks = int(controller.ticks)
-        dropped = recorder.dropped
-    finally:
-        stop_loop.set()
-        if thread is not None:
-            thread.join(2.0)
-        sys.setswitchinterval(old_switch)
-        gc.unfreeze()
-        if stack is not None:
-            stack.close()
-
+    data = ds.recorder.rows()
+    reels = list(ds.controller.reels)
     n = len(cfg.reels)
     i0 = settled[0]
-    t = data[:, 0] - data[i0, 0]
     lengths = data[:, _FIXED_COLUMNS : _FIXED_COLUMNS + n]
     turns = np.array(
         [
@@ -539,14 +676,20 @@ def run_circle(
         [abs(m.length_rate_mps(float(tm), 1.0)) for m, tm in zip(reels, turns_max, strict=True)]
     )
     codes = data[:, 9].astype(int)
+    notes = list(ds.notes)
+    try:
+        shape: RobotShape | None = RobotShape.from_summary(cfg.summary())
+    except ShapeError as exc:
+        shape = None
+        notes.append(f"no robot drawn: {exc}")
     return CircleRun(
         robot=str(cfg.name),
         spec=spec,
-        speed_mps=speed,
-        rate_hz=rate_hz,
+        speed_mps=plan.speed_mps,
+        rate_hz=plan.rate_hz,
         anchors_m=np.asarray(cfg.geometry.anchors_m, dtype=np.float64),
-        points_m=np.asarray(points, dtype=np.float64),
-        t_s=t,
+        points_m=np.asarray(plan.points, dtype=np.float64),
+        t_s=data[:, 0] - data[i0, 0],
         setpoint_m=data[:, 1:4].copy(),
         fpk_m=data[:, 4:7].copy(),
         residual_m=data[:, 7].copy(),
@@ -556,11 +699,12 @@ def run_circle(
         settled_index=np.asarray(settled, dtype=np.int64),
         turns_max_abs_rev=turns_max,
         reel_slope_m_per_rev=slopes,
-        zenoh=zenoh_text,
+        zenoh=ds.zenoh_text,
         wall_s=wall_s,
-        overruns=overruns,
-        ticks=ticks,
-        dropped_rows=dropped,
+        overruns=int(ds.controller.loop_stats.overruns),
+        ticks=int(ds.controller.ticks),
+        dropped_rows=ds.recorder.dropped,
+        shape=shape,
         notes=notes,
     )
 
@@ -661,268 +805,45 @@ def format_summary(run: CircleRun, s: CircleSummary, tolerance_m: float) -> list
 # --------------------------------------------------------------------------------------------
 # Pictures
 
-_CABLE_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b")
+
+def circle_trace(run: CircleRun) -> Trace:
+    """The run as `cablebot plot` draws it: from the first settled sample on, the set-point
+    of every tick, and the circle's points as waypoints (the figures then go by step)."""
+    i0 = int(run.settled_index[0])
+    spec = run.spec
+    return Trace(
+        title=(
+            f"{run.robot!r}, circle of radius {spec.radius_m:g} m about "
+            f"({spec.centre_m[0]:g}, {spec.centre_m[1]:g}) at z = {spec.z_m:g} m, "
+            f"{spec.steps} steps"
+        ),
+        t_s=run.t_s[i0:],
+        position_m=run.fpk_m[i0:],
+        lengths_m=run.lengths_m[i0:],
+        residual_m=run.residual_m[i0:],
+        state=run.state[i0:],
+        status_t_s=run.t_s[i0:],
+        setpoint_m=run.setpoint_m[i0:],
+        status_position_m=run.fpk_m[i0:],
+        setpoint_source="every tick",
+        shape=run.shape,
+        waypoints=Waypoints(
+            run.points_m,
+            run.settled_index - i0,
+            step_label=f"step ({360.0 / spec.steps:g} degrees each)",
+        ),
+        notes=list(run.notes),
+    )
 
 
-def _step_axis(run: CircleRun) -> FloatArray:
-    """Each tick's position along the steps: settled sample k at k, time-interpolated between."""
-    ts = run.t_s[run.settled_index]
-    return np.interp(run.t_s, ts, np.arange(len(ts), dtype=np.float64))
-
-
-ZOOM_BELOW = 0.25
-"""Zoom the 3-D figure to the path when it spans less than this fraction of the robot."""
-
-
-def zoom_box_3d(anchors_m: FloatArray, path_m: FloatArray) -> tuple[FloatArray, FloatArray] | None:
-    """The (low, high) corners of a cube around `path_m` for the 3-D figure, or None.
-
-    None when the path spans at least `ZOOM_BELOW` of the anchors' plan-view extent (draw the
-    whole robot). Otherwise the cube is centred on the path with 30 % room, all three sides
-    equal so that the figure keeps the path's true shape.
-    """
-    robot_span = float(max(np.ptp(anchors_m[:, 0]), np.ptp(anchors_m[:, 1])))
-    lo = np.min(path_m, axis=0)
-    hi = np.max(path_m, axis=0)
-    span = float(np.max(hi - lo))
-    if robot_span <= 0.0 or span >= ZOOM_BELOW * robot_span:
-        return None
-    half = max(span, 1e-3) * 0.65
-    centre = (lo + hi) / 2.0
-    centre[2] = max(float(centre[2]), half)  # keep the cube above the floor (z = 0)
-    return centre - half, centre + half
-
-
-def plot_circle(run: CircleRun, out_dir: Path, summary: CircleSummary | None = None) -> list[Path]:
-    """Write the four PNG figures (`PLOT_FILES`) into `out_dir` and return their paths.
+def plot_circle(run: CircleRun, out_dir: Path) -> list[Path]:
+    """Write the four PNG figures (`PLOT_FILES`) into `out_dir` with `cablebot plot`'s
+    drawing, and return their paths.
 
     Raises ImportError without matplotlib (the `plot` extra), OSError if a file cannot be
     written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Rectangle
-
-    s = summary if summary is not None else summarize(run)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = [out_dir / name for name in PLOT_FILES]
-    i0 = int(run.settled_index[0])
-    sl = slice(i0, None)
-    t = run.t_s[sl]
-    step = _step_axis(run)[sl]
-    idx = run.settled_index
-    n = run.anchors_m.shape[0]
-    spec = run.spec
-    title_circle = (
-        f"radius {spec.radius_m:g} m, centre ({spec.centre_m[0]:g}, {spec.centre_m[1]:g}), "
-        f"z = {spec.z_m:g} m, {spec.steps} steps"
-    )
-    colours = [_CABLE_COLOURS[i % len(_CABLE_COLOURS)] for i in range(n)]
-    plt.rcParams.update({"font.size": 11, "axes.titlesize": 12, "figure.titlesize": 14})
-
-    deg = 360.0 / spec.steps
-    note_kw: dict[str, Any] = {"ha": "center", "fontsize": 9, "color": "0.3"}
-
-    # 1. The robot and the path in 3D (the paper's Figure 3). A path small beside the robot
-    # gets axes zoomed to it (equal aspect) and the anchors in a plan-view inset.
-    fig = plt.figure(figsize=(11, 5.8))
-    ax: Any = fig.add_axes((-0.04, 0.0, 0.84, 0.96), projection="3d")
-    A = run.anchors_m  # noqa: N806
-    pts = run.points_m
-    f = run.fpk_m[sl]
-    p_end = run.fpk_m[idx[-1]]
-    box = zoom_box_3d(A, np.vstack([pts, f]))
-    if box is None:
-        for i in range(n):
-            ax.plot([A[i, 0]] * 2, [A[i, 1]] * 2, [0.0, A[i, 2]], color="0.45", lw=2.5)
-        ring = np.vstack([A, A[:1]])
-        ax.plot(ring[:, 0], ring[:, 1], np.zeros(len(ring)), color="0.6", lw=1, ls=":")
-        ax.scatter(A[:, 0], A[:, 1], A[:, 2], color="k", marker="v", s=50, label="anchors B1..B4")
-        for i in range(n):
-            ax.text(A[i, 0], A[i, 1], A[i, 2] + 1.0, f"B{i + 1}", ha="center", fontsize=11)
-        cable_ends = A
-    else:
-        # Cables drawn toward their anchors only as far as the zoomed box reaches.
-        u = (A - p_end) / np.linalg.norm(A - p_end, axis=1)[:, None]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            to_wall = np.where(u > 0, (box[1] - p_end) / u, (box[0] - p_end) / u)
-        reach = np.nanmin(np.where(np.abs(u) > 1e-12, to_wall, np.inf), axis=1)
-        cable_ends = p_end + u * reach[:, None]
-    for i in range(n):
-        ax.plot(
-            [cable_ends[i, 0], p_end[0]],
-            [cable_ends[i, 1], p_end[1]],
-            [cable_ends[i, 2], p_end[2]],
-            color=colours[i],
-            lw=1.8,
-            label=f"cable {i + 1}" + ("" if box is None else f" (toward B{i + 1})"),
-        )
-    ax.plot(
-        pts[:, 0],
-        pts[:, 1],
-        pts[:, 2],
-        ls="none",
-        marker="o",
-        ms=4.5,
-        mfc="none",
-        mec="k",
-        mew=0.8,
-        label=f"commanded ({spec.steps} points)",
-    )
-    ax.plot(f[:, 0], f[:, 1], f[:, 2], color="#1f77b4", lw=1.8, label="FPK measured")
-    ax.scatter(*p_end, color="#d62728", s=45, depthshade=False, label="P, final = initial")
-    if box is None:
-        lx, ly = np.ptp(A[:, 0]), np.ptp(A[:, 1])
-        zmax = float(np.max(A[:, 2]))
-        z_scale = 3.0
-        ax.set_box_aspect((lx, ly, zmax * z_scale), zoom=1.0)
-        ax.set_zlim(0.0, zmax * 1.1)
-        scale_note = f"Vertical scale x{z_scale:g}."
-    else:
-        ax.set_xlim(box[0][0], box[1][0])
-        ax.set_ylim(box[0][1], box[1][1])
-        ax.set_zlim(box[0][2], box[1][2])
-        ax.set_box_aspect((1.0, 1.0, 1.0), zoom=0.85)
-        scale_note = "Equal scales."
-        fig.text(0.89, 0.57, "the 3-D view: red box", ha="center", fontsize=8, color="0.3")
-        ins = fig.add_axes((0.80, 0.64, 0.18, 0.28))
-        ring = np.vstack([A, A[:1]])
-        ins.plot(ring[:, 0], ring[:, 1], color="0.6", lw=1, ls=":")
-        ins.plot(A[:, 0], A[:, 1], "kv", ms=5)
-        for i in range(n):
-            ins.annotate(
-                f"B{i + 1}",
-                (A[i, 0], A[i, 1]),
-                fontsize=8,
-                ha="center",
-                xytext=(0, 5),
-                textcoords="offset points",
-            )
-        ins.plot(pts[:, 0], pts[:, 1], color="#1f77b4", lw=1.5)
-        ins.add_patch(
-            Rectangle(
-                (box[0][0], box[0][1]),
-                box[1][0] - box[0][0],
-                box[1][1] - box[0][1],
-                fill=False,
-                ec="#d62728",
-                lw=1.0,
-            )
-        )
-        ins.set_aspect("equal", adjustable="datalim")
-        ins.set_title("plan view", fontsize=9)
-        ins.tick_params(labelsize=7)
-    ax.set_xlabel("x (m)", labelpad=8)
-    ax.set_ylabel("y (m)", labelpad=8)
-    ax.set_zlabel("z (m)", labelpad=4)
-    ax.view_init(elev=26, azim=-62)
-    fig.suptitle(f"Robot {run.robot!r} and the circle: {title_circle}", y=0.97)
-    legend_at = (0.99, 0.5) if box is None else (0.99, 0.33)
-    fig.legend(loc="center right", bbox_to_anchor=legend_at, fontsize=10, framealpha=0.9)
-    fig.text(
-        0.45,
-        0.025,
-        "Cables drawn at the final (= initial) point. Measured path: FPK of the encoder "
-        f"lengths at every control tick. {scale_note}",
-        **note_kw,
-    )
-    fig.savefig(paths[0], dpi=110)
-    plt.close(fig)
-
-    # 2. Cable lengths against step (Figure 4).
-    fig, ax = plt.subplots(figsize=(10, 5.6))
-    L = run.lengths_m[sl]  # noqa: N806
-    for i in range(n):
-        ax.plot(step, L[:, i], color=colours[i], lw=1.6, label=f"cable {i + 1}")
-        ax.plot(np.arange(len(idx)), run.lengths_m[idx, i], "o", color=colours[i], ms=3)
-    ax.plot([], [], "o", color="0.3", ms=3, label="settled at a point")
-    ax.set_xlabel(f"step ({deg:g} degrees each)")
-    ax.set_ylabel("cable length (m)")
-    ax.set_title(f"Cable lengths from the encoders: {title_circle}")
-    ax.set_xlim(0, spec.steps)
-    ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.text(
-        0.45,
-        0.015,
-        "Lines: every control tick, placed between the steps by time. "
-        "Dots: the lengths once settled at each point.",
-        **note_kw,
-    )
-    fig.tight_layout(rect=(0.0, 0.04, 1.0, 1.0))
-    fig.savefig(paths[1], dpi=110)
-    plt.close(fig)
-
-    # 3. FPK x, y, z against step with the commanded values (Figure 5).
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7.8), sharex=True)
-    steps_k = np.arange(len(idx))
-    for c, (name, axc) in enumerate(zip("xyz", axes, strict=True)):
-        axc.plot(step, run.fpk_m[sl, c], color="#1f77b4", lw=1.6, label="FPK (every tick)")
-        axc.plot(steps_k, pts[:, c], "o", mfc="none", mec="k", ms=5, label="commanded point")
-        axc.set_ylabel(f"{name} (m)")
-        axc.grid(True, alpha=0.3)
-        lo, hi = float(np.nanmin(pts[:, c])), float(np.nanmax(pts[:, c]))
-        if hi - lo < 1.0:  # a constant coordinate: show it on a metre scale, not its noise
-            mid = 0.5 * (lo + hi)
-            axc.set_ylim(mid - 1.0, mid + 1.0)
-    handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.935), ncols=2)
-    axes[-1].set_xlabel(f"step ({deg:g} degrees each)")
-    axes[-1].set_xlim(0, spec.steps)
-    fig.suptitle(f"FPK Cartesian result vs commanded: {title_circle}")
-    fig.text(
-        0.5,
-        0.012,
-        "Excursions between the points are the loop's lag while moving "
-        "(see circle-errors.png); at the points the error is micrometres.",
-        **note_kw,
-    )
-    fig.tight_layout(rect=(0.0, 0.03, 1.0, 0.9))
-    fig.savefig(paths[2], dpi=110)
-    plt.close(fig)
-
-    # 4. Tracking error and FPK residual over time, in millimetres.
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(11, 6.8), sharex=True)
-    err = np.linalg.norm(run.fpk_m[sl] - run.setpoint_m[sl], axis=1) * 1e3
-    floor = 1e-4
-    a1.semilogy(t, np.maximum(err, floor), color="#1f77b4", lw=0.7, label="every tick")
-    err_settled = np.linalg.norm(run.fpk_m[idx[1:]] - pts[1:], axis=1) * 1e3
-    a1.semilogy(
-        run.t_s[idx[1:]],
-        np.maximum(err_settled, floor),
-        "o",
-        color="#d62728",
-        ms=3.5,
-        label=f"settled at the points\n(max {s.max_settled_error_m * 1e3:.3f} mm)",
-    )
-    a1.axhline(1.0, color="k", ls="--", lw=1, label="1 mm")
-    a1.set_ylabel("|FPK - commanded| (mm)")
-    a1.set_title("Tracking error: FPK position minus commanded set-point")
-    a1.grid(True, which="both", alpha=0.25)
-    a1.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=10)
-    res = run.residual_m[sl] * 1e3
-    a2.semilogy(t, np.maximum(res, floor), color="#2ca02c", lw=0.7, label="every tick")
-    a2.set_ylabel("FPK residual (mm)")
-    a2.set_xlabel("time (s)")
-    a2.set_title(f"FPK residual: RMS mismatch of the {n} cable lengths at the solved point")
-    a2.grid(True, which="both", alpha=0.25)
-    a2.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=10)
-    a2.set_xlim(0.0, float(t[-1]) if len(t) else 1.0)
-    fig.suptitle(f"Errors: {title_circle}")
-    fig.text(
-        0.45,
-        0.012,
-        "While moving, the set-points carry velocity feed-forward: the reels follow within "
-        "millimetres;\nspikes are delays of the shared CPU. "
-        f"Values below {floor:g} mm are drawn at {floor:g} mm.",
-        **note_kw,
-    )
-    fig.tight_layout(rect=(0.0, 0.05, 1.0, 1.0))
-    fig.savefig(paths[3], dpi=110)
-    plt.close(fig)
-    return paths
+    return plot_trace(circle_trace(run), out_dir, PLOT_NAME)
 
 
 # --------------------------------------------------------------------------------------------
@@ -975,7 +896,7 @@ def cmd_circle(args: argparse.Namespace) -> int:
     summary = summarize(run)
     if args.plot is not None:
         try:
-            paths = plot_circle(run, Path(args.plot), summary)
+            paths = plot_circle(run, Path(args.plot))
         except ImportError:
             say("pictures: matplotlib is missing; install cablebot[plot] for pictures")
         else:
@@ -1037,7 +958,7 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         help=(
             "keep the config's fault thresholds (by default the demo raises them to at least "
             + ", ".join(f"{k} {v:g}" for k, v in DEMO_FAULT_FLOORS.items())
-            + ")"
+            + f", and the simulated drives' watchdog to {DEMO_SIM_WATCHDOG_FLOOR_S:g} s)"
         ),
     )
     z = c.add_mutually_exclusive_group()

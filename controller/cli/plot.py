@@ -12,7 +12,11 @@ Where the numbers come from: the pose samples (every published tick: position, c
 residual, state) and the status samples (`--status-hz` of the recorder: the set-point, with the
 daemon's pose at the same instant, so the tracking error is measured at the status rate). The
 robot's geometry is the configuration stored in the recording. `Trace` holds those arrays;
-`plot_trace` draws any `Trace`, whoever made it.
+`plot_trace` draws any `Trace`, whoever made it: `cablebot demo circle` draws its figures
+here too, from a `Trace` of what its loop saw, with `Waypoints` (the points it stopped at):
+then the cable lengths and the position are drawn against the step, like the paper's figures,
+and the errors show the settled error at each point. A path small beside the robot is drawn
+zoomed (equal scales), with the whole robot in a plan-view inset.
 """
 
 from __future__ import annotations
@@ -36,12 +40,46 @@ FIGURES: tuple[str, ...] = ("3d", "cable-lengths", "fpk-xyz", "errors")
 """The figures `plot_trace` writes, as `<name>-<figure>.png`, in this order."""
 MAX_POINTS = 20000
 """Lines are thinned to about this many points (a long run stays quick to draw)."""
+MAX_MARKERS = 400
+"""Set-point samples beyond this many are drawn as a line (markers would hide the path)."""
 _CABLE_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b")
-_STATE_SHADES = {"MOVING": "#1f77b4", "FAULT": "#d62728", "ESTOPPED": "#d62728"}
+_FAULT_SHADES = {"FAULT": "#d62728", "ESTOPPED": "#d62728"}
+_STATE_SHADES = {"MOVING": "#1f77b4", **_FAULT_SHADES}
 
 
 class PlotError(RuntimeError):
     """The recording cannot be plotted (no pose samples, unreadable file); says why."""
+
+
+@dataclass(frozen=True)
+class Waypoints:
+    """The points a run stopped at, in order, and the pose row taken once settled at each.
+
+    `position_m` (K, 3): row 0 is where the run started (step 0), row k the k-th point it was
+    sent to. `row` (K,): strictly increasing indices into the trace's pose rows.
+    `step_label`: the x-axis label of the figures drawn against the step.
+    """
+
+    position_m: FloatArray
+    row: npt.NDArray[np.int64]
+    step_label: str = "step"
+
+    def __post_init__(self) -> None:
+        """Raises ValueError when the points and rows disagree in number or the rows do not
+        increase."""
+        if self.position_m.ndim != 2 or self.position_m.shape[1] != 3:
+            raise ValueError(f"waypoints must be (K, 3), got {self.position_m.shape}")
+        if self.row.shape != (self.position_m.shape[0],):
+            raise ValueError(f"{self.position_m.shape[0]} waypoints but {self.row.shape} rows")
+        if np.any(np.diff(self.row) <= 0):
+            raise ValueError("waypoint rows must increase")
+
+    def settled_error_m(self, position_m: FloatArray) -> FloatArray:
+        """|settled position - commanded point| at each point after the start (K - 1,)."""
+        return np.asarray(
+            np.linalg.norm(position_m[self.row[1:]] - self.position_m[1:], axis=1),
+            dtype=np.float64,
+        )
 
 
 @dataclass
@@ -51,7 +89,8 @@ class Trace:
     Pose rows (N): `t_s`, `position_m` (N, 3, NaN while not valid), `lengths_m` (N, n),
     `residual_m` (NaN while not valid), `state`. Status rows (M): `status_t_s`,
     `setpoint_m` (M, 3, NaN without a set-point), `status_position_m` (M, 3): the daemon's pose
-    in the same status reply. `shape`: the robot, if known.
+    in the same status reply; `setpoint_source` says how often they were taken. `shape`: the
+    robot, if known. `waypoints`: the points the run stopped at, if it did.
     """
 
     title: str
@@ -63,7 +102,9 @@ class Trace:
     status_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
     setpoint_m: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     status_position_m: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    setpoint_source: str = "status samples"
     shape: RobotShape | None = None
+    waypoints: Waypoints | None = None
     notes: list[str] = field(default_factory=list)
 
     @property
@@ -156,22 +197,89 @@ def trace_from_recording(path: Path, prefix: str | None = None) -> Trace:
     )
 
 
-def _thin(n: int) -> slice:
-    return slice(None, None, max(1, math.ceil(n / MAX_POINTS)))
+def _thin(n: int, most: int = MAX_POINTS) -> slice:
+    """Every k-th of `n` rows, k chosen so that about `most` remain."""
+    return slice(None, None, max(1, math.ceil(n / most)))
 
 
-def _shade_states(ax: Any, tr: Trace) -> None:
-    """Shade the time spans spent MOVING (blue) or in FAULT / ESTOPPED (red)."""
+ZOOM_BELOW = 0.25
+"""Zoom the 3-D figure to the path when it spans less than this fraction of the robot."""
+
+
+def zoom_box_3d(anchors_m: FloatArray, path_m: FloatArray) -> tuple[FloatArray, FloatArray] | None:
+    """The (low, high) corners of a cube around `path_m` for the 3-D figure, or None.
+
+    None when the path spans at least `ZOOM_BELOW` of the anchors' plan-view extent (draw the
+    whole robot) or holds no point. Otherwise the cube is centred on the path with 30 % room,
+    all three sides equal so that the figure keeps the path's true shape. Raises nothing.
+    """
+    path_m = path_m[np.all(np.isfinite(path_m), axis=1)]
+    robot_span = float(max(np.ptp(anchors_m[:, 0]), np.ptp(anchors_m[:, 1])))
+    if path_m.shape[0] == 0 or robot_span <= 0.0:
+        return None
+    lo = np.min(path_m, axis=0)
+    hi = np.max(path_m, axis=0)
+    span = float(np.max(hi - lo))
+    if span >= ZOOM_BELOW * robot_span:
+        return None
+    half = max(span, 1e-3) * 0.65
+    centre = (lo + hi) / 2.0
+    centre[2] = max(float(centre[2]), half)  # keep the cube above the floor (z = 0)
+    return centre - half, centre + half
+
+
+def _reference_m(tr: Trace) -> FloatArray:
+    """The commanded path: the waypoints if any, else the finite set-point samples."""
+    if tr.waypoints is not None:
+        return tr.waypoints.position_m
+    sp = tr.setpoint_m
+    return sp[np.all(np.isfinite(sp), axis=1)]
+
+
+def _step_axis(tr: Trace) -> tuple[FloatArray, str]:
+    """Where each pose row goes on the x axis of the lengths and position figures, and the
+    axis label: the step (settled row of step k at k, rows between placed by time) with
+    waypoints, else the time."""
+    wp = tr.waypoints
+    if wp is None:
+        return tr.t_s, "time (s)"
+    steps = np.arange(len(wp.row), dtype=np.float64)
+    return np.interp(tr.t_s, tr.t_s[wp.row], steps), wp.step_label
+
+
+def _shade_states(ax: Any, tr: Trace, x: FloatArray) -> None:
+    """Shade the spans of `x` spent in FAULT / ESTOPPED (red) and, unless the run went by
+    waypoints (its steps show the motion), MOVING (blue)."""
     if not tr.state:
         return
+    shades = _STATE_SHADES if tr.waypoints is None else _FAULT_SHADES
     start = 0
     for i in range(1, len(tr.state) + 1):
         if i == len(tr.state) or tr.state[i] != tr.state[start]:
-            colour = _STATE_SHADES.get(tr.state[start])
+            colour = shades.get(tr.state[start])
             if colour is not None:
-                end = tr.t_s[i] if i < len(tr.state) else tr.t_s[-1]
-                ax.axvspan(tr.t_s[start], end, color=colour, alpha=0.08, lw=0)
+                end = x[i] if i < len(tr.state) else x[-1]
+                ax.axvspan(x[start], end, color=colour, alpha=0.08, lw=0)
             start = i
+
+
+def _shade_note(tr: Trace) -> str:
+    """What the shading means, for the figure's note."""
+    if tr.waypoints is None:
+        return "Shaded: moving (blue), fault or e-stop (red)."
+    return "Shaded: fault or e-stop (red)."
+
+
+def _still_axis_limits(values_m: FloatArray, scale_m: float) -> tuple[float, float] | None:
+    """Limits for an axis the path hardly moves along (less than 2 cm): its median +- 2.5 %
+    of `scale_m` (the path's largest extent), at least +- 1 cm, so that the figure shows the
+    coordinate on the scale of the motion, not its noise. None for an axis that moves."""
+    v = values_m[np.isfinite(values_m)]
+    if v.size == 0 or float(np.ptp(v)) >= 0.02:
+        return None
+    mid = float(np.median(v))
+    half = max(0.01, 0.025 * scale_m)
+    return mid - half, mid + half
 
 
 def plot_trace(tr: Trace, out_dir: Path, name: str) -> list[Path]:
@@ -187,165 +295,282 @@ def plot_trace(tr: Trace, out_dir: Path, name: str) -> list[Path]:
 
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / f"{name}-{fig}.png" for fig in FIGURES]
-    n = tr.lengths_m.shape[1]
-    colours = [_CABLE_COLOURS[i % len(_CABLE_COLOURS)] for i in range(n)]
-    th = _thin(len(tr.t_s))
-    t = tr.t_s[th]
-    has_sp = bool(np.any(np.isfinite(tr.setpoint_m)))
-    note_kw: dict[str, Any] = {"ha": "center", "fontsize": 9, "color": "0.3"}
     plt.rcParams.update({"font.size": 11, "axes.titlesize": 12, "figure.titlesize": 14})
-    shade_note = "Shaded: moving (blue), fault or e-stop (red)."
+    draw = (_figure_3d, _figure_lengths, _figure_xyz, _figure_errors)
+    for figure, path in zip(draw, paths, strict=True):
+        fig = figure(plt, tr)
+        try:
+            fig.savefig(path, dpi=110)
+        finally:
+            plt.close(fig)
+    return paths
 
-    # 1. The robot and the path in 3D.
+
+def _colours(n: int) -> list[str]:
+    return [_CABLE_COLOURS[i % len(_CABLE_COLOURS)] for i in range(n)]
+
+
+_NOTE: dict[str, Any] = {"ha": "center", "fontsize": 9, "color": "0.3"}
+_FLOOR_MM = 1e-4
+"""Errors below this are drawn at it (a log scale has no zero)."""
+
+
+def _figure_3d(plt: Any, tr: Trace) -> Any:
+    """The robot and the path in 3-D (the paper's Figure 3). A path small beside the robot
+    gets axes zoomed to it (equal scales) and the robot in a plan-view inset."""
     fig = plt.figure(figsize=(11, 5.8))
     ax: Any = fig.add_axes((-0.04, 0.0, 0.84, 0.96), projection="3d")
     p = tr.position_m
     valid = np.all(np.isfinite(p), axis=1)
     last = p[valid][-1] if valid.any() else None
-    z_scale = 1.0
-    if tr.shape is not None:
-        A = np.asarray(tr.shape.anchors_m)  # noqa: N806
-        for i in range(A.shape[0]):
-            ax.plot([A[i, 0]] * 2, [A[i, 1]] * 2, [0.0, A[i, 2]], color="0.45", lw=2.5)
-        fp = np.asarray(tr.shape.footprint_m + tr.shape.footprint_m[:1])
-        ax.plot(fp[:, 0], fp[:, 1], np.zeros(len(fp)), color="0.6", lw=1, ls=":", label="footprint")
-        ws = np.asarray(tr.shape.workspace_m + tr.shape.workspace_m[:1])
-        for z in (tr.shape.floor_z_m, tr.shape.top_z_m):
-            ax.plot(ws[:, 0], ws[:, 1], np.full(len(ws), z), color="#2ca02c", lw=0.8, ls="--")
-        for x, y in tr.shape.workspace_m:
-            ax.plot(
-                [x, x],
-                [y, y],
-                [tr.shape.floor_z_m, tr.shape.top_z_m],
-                color="#2ca02c",
-                lw=0.8,
-                ls="--",
-            )
-        ax.plot([], [], color="#2ca02c", lw=0.8, ls="--", label="workspace")
-        ax.scatter(A[:, 0], A[:, 1], A[:, 2], color="k", marker="v", s=50, label="anchors")
-        for i in range(A.shape[0]):
-            ax.text(A[i, 0], A[i, 1], A[i, 2] * 1.08, f"B{i + 1}", ha="center", fontsize=11)
+    ref = _reference_m(tr)
+    shape = tr.shape
+    box = None
+    scale_note = ""
+    if shape is not None:
+        anchors = np.asarray(shape.anchors_m)
+        box = zoom_box_3d(anchors, np.vstack([p[valid], ref]))
+        if box is None:
+            z_scale = _draw_robot_3d(ax, shape)
+            scale_note = f" Vertical scale x{z_scale:.2g}." if z_scale != 1.0 else ""
         if last is not None:
-            for i in range(A.shape[0]):
-                ax.plot(
-                    [A[i, 0], last[0]],
-                    [A[i, 1], last[1]],
-                    [A[i, 2], last[2]],
-                    color=colours[i],
-                    lw=1.5,
-                    label=f"cable {i + 1}",
-                )
-        lx, ly = np.ptp(A[:, 0]), np.ptp(A[:, 1])
-        zmax = float(np.max(A[:, 2]))
-        z_scale = max(1.0, min(3.0, 0.5 * max(lx, ly) / zmax))
-        ax.set_box_aspect((lx, ly, zmax * z_scale), zoom=1.0)
-        ax.set_zlim(0.0, zmax * 1.1)
-    pv = p[th]
+            _draw_cables_3d(ax, anchors, last, box)
+    pv = p[_thin(len(p))]
     ax.plot(pv[:, 0], pv[:, 1], pv[:, 2], color="#1f77b4", lw=1.8, label="FPK measured")
-    if has_sp:
-        sp = tr.setpoint_m
-        ax.plot(
-            sp[:, 0],
-            sp[:, 1],
-            sp[:, 2],
-            ls="none",
-            marker="o",
-            ms=3,
-            mfc="none",
-            mec="0.3",
-            mew=0.5,
-            label="set-point (status samples)",
-        )
+    if tr.waypoints is not None:
+        label = f"commanded ({len(ref) - 1} points)"
+        ax.plot(*ref.T, ls="none", marker="o", ms=4.5, mfc="none", mec="k", mew=0.8, label=label)
+    elif 0 < len(ref) <= MAX_MARKERS:
+        label = f"set-point ({tr.setpoint_source})"
+        ax.plot(*ref.T, ls="none", marker="o", ms=3.0, mfc="none", mec="0.3", mew=0.5, label=label)
+    elif len(ref):  # many samples: a line, markers would hide the FPK path
+        rv = ref[_thin(len(ref))]
+        ax.plot(*rv.T, color="k", lw=0.8, ls="--", label=f"set-point ({tr.setpoint_source})")
     if last is not None:
         ax.scatter(*last, color="#d62728", s=40, depthshade=False, label="P, last")
+    if box is not None and shape is not None:
+        ax.set_xlim(box[0][0], box[1][0])
+        ax.set_ylim(box[0][1], box[1][1])
+        ax.set_zlim(box[0][2], box[1][2])
+        ax.set_box_aspect((1.0, 1.0, 1.0), zoom=0.85)
+        scale_note = " Equal scales."
+        _draw_plan_inset(fig, shape, p[valid] if valid.any() else ref, box)
     ax.set_xlabel("x (m)", labelpad=8)
     ax.set_ylabel("y (m)", labelpad=8)
     ax.set_zlabel("z (m)", labelpad=4)
     ax.view_init(elev=26, azim=-62)
     fig.suptitle(f"Robot and path: {tr.title}", y=0.97)
-    fig.legend(loc="center right", bbox_to_anchor=(0.99, 0.5), fontsize=10, framealpha=0.9)
-    scale_note = f" Vertical scale x{z_scale:.2g}." if z_scale != 1.0 else ""
+    legend_at = (0.99, 0.5) if box is None else (0.99, 0.33)
+    fig.legend(loc="center right", bbox_to_anchor=legend_at, fontsize=10, framealpha=0.9)
     fig.text(
         0.45,
         0.025,
         "Cables drawn at the last pose. Measured path: FPK of the encoder lengths, every "
         f"published tick.{scale_note}",
-        **note_kw,
+        **_NOTE,
     )
-    fig.savefig(paths[0], dpi=110)
-    plt.close(fig)
+    return fig
 
-    # 2. Cable lengths against time.
+
+def _draw_robot_3d(ax: Any, shape: RobotShape) -> float:
+    """Poles, anchors, footprint and workspace prism; sets the box aspect and returns the
+    vertical exaggeration (at most 3) that keeps a flat robot readable."""
+    A = np.asarray(shape.anchors_m)  # noqa: N806
+    for i in range(A.shape[0]):
+        ax.plot([A[i, 0]] * 2, [A[i, 1]] * 2, [0.0, A[i, 2]], color="0.45", lw=2.5)
+    fp = np.asarray(shape.footprint_m + shape.footprint_m[:1])
+    ax.plot(fp[:, 0], fp[:, 1], np.zeros(len(fp)), color="0.6", lw=1, ls=":", label="footprint")
+    ws = np.asarray(shape.workspace_m + shape.workspace_m[:1])
+    ws_kw: dict[str, Any] = {"color": "#2ca02c", "lw": 0.8, "ls": "--"}
+    for z in (shape.floor_z_m, shape.top_z_m):
+        ax.plot(ws[:, 0], ws[:, 1], np.full(len(ws), z), **ws_kw)
+    for x, y in shape.workspace_m:
+        ax.plot([x, x], [y, y], [shape.floor_z_m, shape.top_z_m], **ws_kw)
+    ax.plot([], [], label="workspace", **ws_kw)
+    ax.scatter(A[:, 0], A[:, 1], A[:, 2], color="k", marker="v", s=50, label="anchors")
+    for i in range(A.shape[0]):
+        ax.text(A[i, 0], A[i, 1], A[i, 2] * 1.08, f"B{i + 1}", ha="center", fontsize=11)
+    lx, ly = np.ptp(A[:, 0]), np.ptp(A[:, 1])
+    zmax = float(np.max(A[:, 2]))
+    z_scale = float(max(1.0, min(3.0, 0.5 * max(lx, ly) / zmax)))
+    ax.set_box_aspect((lx, ly, zmax * z_scale), zoom=1.0)
+    ax.set_zlim(0.0, zmax * 1.1)
+    return z_scale
+
+
+def _draw_cables_3d(
+    ax: Any, anchors_m: FloatArray, at_m: FloatArray, box: tuple[FloatArray, FloatArray] | None
+) -> None:
+    """Each cable from its anchor to `at_m`; in a zoomed box only as far as the box reaches."""
+    ends = anchors_m
+    if box is not None:
+        u = (anchors_m - at_m) / np.linalg.norm(anchors_m - at_m, axis=1)[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            to_wall = np.where(u > 0, (box[1] - at_m) / u, (box[0] - at_m) / u)
+        reach = np.nanmin(np.where(np.abs(u) > 1e-12, to_wall, np.inf), axis=1)
+        ends = at_m + u * reach[:, None]
+    for i, colour in enumerate(_colours(anchors_m.shape[0])):
+        ax.plot(
+            [ends[i, 0], at_m[0]],
+            [ends[i, 1], at_m[1]],
+            [ends[i, 2], at_m[2]],
+            color=colour,
+            lw=1.8 if box is not None else 1.5,
+            label=f"cable {i + 1}" + ("" if box is None else f" (toward B{i + 1})"),
+        )
+
+
+def _draw_plan_inset(
+    fig: Any, shape: RobotShape, path_m: FloatArray, box: tuple[FloatArray, FloatArray]
+) -> None:
+    """The whole robot seen from above, with the path and the zoomed 3-D view as a red box."""
+    from matplotlib.patches import Rectangle
+
+    A = np.asarray(shape.anchors_m)  # noqa: N806
+    fig.text(0.89, 0.57, "the 3-D view: red box", ha="center", fontsize=8, color="0.3")
+    ins = fig.add_axes((0.80, 0.64, 0.18, 0.28))
+    fp = np.asarray(shape.footprint_m + shape.footprint_m[:1])
+    ins.plot(fp[:, 0], fp[:, 1], color="0.6", lw=1, ls=":")
+    ws = np.asarray(shape.workspace_m + shape.workspace_m[:1])
+    ins.plot(ws[:, 0], ws[:, 1], color="#2ca02c", lw=0.8, ls="--")
+    ins.plot(A[:, 0], A[:, 1], "kv", ms=5)
+    for i in range(A.shape[0]):
+        ins.annotate(
+            f"B{i + 1}",
+            (A[i, 0], A[i, 1]),
+            fontsize=8,
+            ha="center",
+            xytext=(0, 5),
+            textcoords="offset points",
+        )
+    pv = path_m[_thin(len(path_m))]
+    ins.plot(pv[:, 0], pv[:, 1], color="#1f77b4", lw=1.5)
+    (x0, y0, _), (x1, y1, _) = box
+    ins.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ec="#d62728", lw=1.0))
+    ins.set_aspect("equal", adjustable="datalim")
+    ins.set_title("plan view", fontsize=9)
+    ins.tick_params(labelsize=7)
+
+
+def _figure_lengths(plt: Any, tr: Trace) -> Any:
+    """Each cable's length against time, or against the step (the paper's Figure 4)."""
     fig, ax = plt.subplots(figsize=(10, 5.6))
-    for i in range(n):
-        ax.plot(t, tr.lengths_m[th, i], color=colours[i], lw=1.6, label=f"cable {i + 1}")
-    _shade_states(ax, tr)
-    ax.set_xlabel("time (s)")
+    x, x_label = _step_axis(tr)
+    th = _thin(len(x))
+    n = tr.lengths_m.shape[1]
+    wp = tr.waypoints
+    for i, colour in enumerate(_colours(n)):
+        ax.plot(x[th], tr.lengths_m[th, i], color=colour, lw=1.6, label=f"cable {i + 1}")
+        if wp is not None:
+            ax.plot(np.arange(len(wp.row)), tr.lengths_m[wp.row, i], "o", color=colour, ms=3)
+    note = f"Every published tick. {_shade_note(tr)}"
+    if wp is not None:
+        ax.plot([], [], "o", color="0.3", ms=3, label="settled at a point")
+        ax.set_xlim(0, len(wp.row) - 1)
+        note = (
+            "Lines: every published tick, placed between the steps by time. "
+            f"Dots: the lengths once settled at each point.\n{_shade_note(tr)}"
+        )
+    _shade_states(ax, tr, x)
+    ax.set_xlabel(x_label)
     ax.set_ylabel("cable length (m)")
     ax.set_title(f"Cable lengths from the encoders: {tr.title}")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.text(0.45, 0.015, f"Every published tick. {shade_note}", **note_kw)
-    fig.tight_layout(rect=(0.0, 0.04, 1.0, 1.0))
-    fig.savefig(paths[1], dpi=110)
-    plt.close(fig)
+    fig.text(0.45, 0.015, note, **_NOTE)
+    fig.tight_layout(rect=(0.0, 0.04 if wp is None else 0.065, 1.0, 1.0))
+    return fig
 
-    # 3. FPK x, y, z against time with the set-point.
+
+def _figure_xyz(plt: Any, tr: Trace) -> Any:
+    """The FPK x, y and z against the commanded points (by step, the paper's Figure 5) or
+    against the set-point samples (by time)."""
     fig, axes = plt.subplots(3, 1, figsize=(10, 7.8), sharex=True)
+    x, x_label = _step_axis(tr)
+    th = _thin(len(x))
+    p = tr.position_m
+    wp = tr.waypoints
+    ref = _reference_m(tr)
+    moved = ref if len(ref) else p[np.all(np.isfinite(p), axis=1)]
+    scale_m = float(np.max(np.ptp(moved, axis=0))) if len(moved) else 0.0
+    has_sp = bool(np.any(np.isfinite(tr.setpoint_m)))
+    ref_label = "commanded point" if wp is not None else f"set-point ({tr.setpoint_source})"
     for c, (axis_name, axc) in enumerate(zip("xyz", axes, strict=True)):
-        axc.plot(t, p[th, c], color="#1f77b4", lw=1.6, label="FPK (every tick)")
-        if has_sp:
-            axc.plot(
-                tr.status_t_s,
-                tr.setpoint_m[:, c],
-                "o",
-                mfc="none",
-                mec="k",
-                ms=4,
-                label="set-point (status samples)",
-            )
-        _shade_states(axc, tr)
+        axc.plot(x[th], p[th, c], color="#1f77b4", lw=1.6, label="FPK (every tick)")
+        if wp is not None:
+            steps = np.arange(len(wp.row))
+            axc.plot(steps, wp.position_m[:, c], "o", mfc="none", mec="k", ms=5, label=ref_label)
+        elif has_sp and len(tr.status_t_s) <= MAX_MARKERS:
+            sp_c = tr.setpoint_m[:, c]
+            axc.plot(tr.status_t_s, sp_c, "o", mfc="none", mec="k", ms=4, label=ref_label)
+        elif has_sp:  # many samples: a line, markers would hide the FPK
+            sth = _thin(len(tr.status_t_s))
+            sp_c = tr.setpoint_m[sth, c]
+            axc.plot(tr.status_t_s[sth], sp_c, color="k", lw=0.9, ls="--", label=ref_label)
+        _shade_states(axc, tr, x)
         axc.set_ylabel(f"{axis_name} (m)")
         axc.grid(True, alpha=0.3)
-        col = p[:, c][np.isfinite(p[:, c])]
-        if col.size and float(np.ptp(col)) < 0.02:  # a still axis: a centimetre scale, not noise
-            mid = float(np.median(col))
-            axc.set_ylim(mid - 0.01, mid + 0.01)
+        lims = _still_axis_limits(ref[:, c] if len(ref) else p[:, c], scale_m)
+        if lims is not None:
+            axc.set_ylim(*lims)
+    if wp is not None:
+        axes[-1].set_xlim(0, len(wp.row) - 1)
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.935), ncols=2)
-    axes[-1].set_xlabel("time (s)")
+    axes[-1].set_xlabel(x_label)
     fig.suptitle(f"FPK position vs set-point: {tr.title}")
-    fig.text(0.5, 0.012, shade_note, **note_kw)
+    note = _shade_note(tr)
+    if wp is not None:
+        note = f"The FPK between the points: the loop's lag while moving (see the errors). {note}"
+    fig.text(0.5, 0.012, note, **_NOTE)
     fig.tight_layout(rect=(0.0, 0.03, 1.0, 0.9))
-    fig.savefig(paths[2], dpi=110)
-    plt.close(fig)
+    return fig
 
-    # 4. Tracking error and FPK residual against time, in millimetres.
+
+def _figure_errors(plt: Any, tr: Trace) -> Any:
+    """The tracking error |FPK - set-point| and the FPK residual against time, in mm."""
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(11, 6.8), sharex=True)
-    floor = 1e-4
+    floor = _FLOOR_MM
     err = tr.tracking_error_m * 1e3
     if np.any(np.isfinite(err)):
-        a1.semilogy(
-            tr.status_t_s,
-            np.maximum(err, floor),
-            "o-",
-            color="#1f77b4",
-            lw=0.8,
-            ms=3,
-            label=f"status samples\n(max {np.nanmax(err):.3g} mm)",
+        sth = _thin(len(err))
+        style: dict[str, Any] = (
+            {"marker": "o", "lw": 0.8, "ms": 3} if len(err) <= MAX_MARKERS else {"lw": 0.7}
         )
-        a1.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=10)
+        a1.semilogy(
+            tr.status_t_s[sth],
+            np.maximum(err[sth], floor),
+            color="#1f77b4",
+            label=f"{tr.setpoint_source}\n(max {np.nanmax(err):.3g} mm)",
+            **style,
+        )
     else:
         a1.text(0.5, 0.5, "no set-point in the status samples", transform=a1.transAxes, ha="center")
-    _shade_states(a1, tr)
+    wp = tr.waypoints
+    if wp is not None and len(wp.row) > 1:
+        settled = wp.settled_error_m(tr.position_m) * 1e3
+        a1.semilogy(
+            tr.t_s[wp.row[1:]],
+            np.maximum(settled, floor),
+            "o",
+            color="#d62728",
+            ms=3.5,
+            label=f"settled at the points\n(max {np.nanmax(settled):.3f} mm)",
+        )
+    if a1.get_lines():
+        a1.axhline(1.0, color="k", ls="--", lw=1, label="1 mm")
+        a1.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=10)
+    _shade_states(a1, tr, tr.t_s)
     a1.set_ylabel("|FPK - set-point| (mm)")
-    a1.set_title("Tracking error: the daemon's pose minus its set-point, per status sample")
+    a1.set_title(f"Tracking error: the pose minus the set-point ({tr.setpoint_source})")
     a1.grid(True, which="both", alpha=0.25)
+    th = _thin(len(tr.t_s))
     res = tr.residual_m[th] * 1e3
     if np.any(np.isfinite(res)):
-        a2.semilogy(t, np.maximum(res, floor), color="#2ca02c", lw=0.7, label="every tick")
+        a2.semilogy(tr.t_s[th], np.maximum(res, floor), color="#2ca02c", lw=0.7, label="every tick")
         a2.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=10)
-    _shade_states(a2, tr)
+    _shade_states(a2, tr, tr.t_s)
+    n = tr.lengths_m.shape[1]
     a2.set_ylabel("FPK residual (mm)")
     a2.set_xlabel("time (s)")
     a2.set_title(f"FPK residual: RMS mismatch of the {n} cable lengths at the solved point")
@@ -355,13 +580,11 @@ def plot_trace(tr: Trace, out_dir: Path, name: str) -> list[Path]:
     fig.text(
         0.45,
         0.012,
-        f"{shade_note} Values below {floor:g} mm are drawn at {floor:g} mm.",
-        **note_kw,
+        f"{_shade_note(tr)} Values below {floor:g} mm are drawn at {floor:g} mm.",
+        **_NOTE,
     )
     fig.tight_layout(rect=(0.0, 0.04, 1.0, 1.0))
-    fig.savefig(paths[3], dpi=110)
-    plt.close(fig)
-    return paths
+    return fig
 
 
 def cmd_plot(args: argparse.Namespace) -> int:

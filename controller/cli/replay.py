@@ -7,10 +7,10 @@ your own) sees the recorded run as if it were live. The status replies are not p
 answers `<prefix>/status` queries with the latest recorded status at the current replay time,
 so tools that read the robot's geometry from the status work too.
 
-Replay never commands a robot: command keys (`<prefix>/setpoint`, `<prefix>/cmd/**`) are not
-republished, no command queryable is declared, and replay refuses to start when a live daemon's
-liveliness token (`<prefix>/alive`) is present on the Zenoh network it joins (replay under
-another `--prefix` then).
+Replay never commands a robot: command keys (`<prefix>/setpoint`, `<prefix>/velocity`,
+`<prefix>/cmd/**`) are not republished, no command queryable is declared, and replay refuses to
+start when a live daemon's liveliness token (`<prefix>/alive`) is present on the Zenoh network
+it joins (replay under another `--prefix` then).
 
 Zenoh: by default replay is a peer listening on `tcp/127.0.0.1:7447` like the daemon (so run it
 instead of the daemon, or give `--listen`), with multicast scouting off; `--connect` joins a
@@ -34,7 +34,7 @@ from controller.cli.record import RecordedMessage, Recording, positive_number
 
 EXIT_OK = 0
 EXIT_REFUSED = 1
-COMMAND_SUFFIXES = ("setpoint", "cmd")
+COMMAND_SUFFIXES = ("setpoint", "velocity", "cmd")
 """Keys under the prefix that command the robot: never republished."""
 NOT_PUT_SUFFIXES = ("status", "alive")
 """Recorded keys that are answered (status) or only informative (alive), not put."""

@@ -16,6 +16,11 @@ may be larger) to the json module's pure-Python scanner, which is 6-30 times slo
 ordinary bytecode: the interpreter hands the GIL to a waiting thread (the loop, an e-stop)
 every switch interval instead of after the whole document. A path has at most
 `MAX_PATH_POINTS` points. Error messages quote at most `QUOTE_CHARS` characters of the input.
+
+Streamed samples take the same checks: a `setpoint` (`{"position_m": [x, y, z]}`) and a
+`velocity` sample (`{"velocity_mps": [vx, vy, vz]}`, 1 KiB at most) parse with
+`parse_command("setpoint" | "velocity", payload)`; the planner clamps a velocity's norm to the
+robot's maximum speed, so any finite vector is a valid sample here.
 """
 
 from __future__ import annotations
@@ -97,7 +102,15 @@ class Setpoint:
     position_m: Vec3
 
 
-Command = Move | Path | Stop | Estop | Arm | Disarm | Reset | Home | Setpoint
+@dataclass(frozen=True, slots=True)
+class Velocity:
+    """A velocity-input sample (joystick, RC stick): fly at `velocity_mps` until the next one;
+    zero brakes to a hold."""
+
+    velocity_mps: Vec3
+
+
+Command = Move | Path | Stop | Estop | Arm | Disarm | Reset | Home | Setpoint | Velocity
 
 VERBS: tuple[str, ...] = ("move", "path", "stop", "estop", "arm", "disarm", "reset", "home")
 
@@ -109,6 +122,7 @@ MAX_PAYLOAD_BYTES: Final[Mapping[str, int]] = MappingProxyType(
         "move": 4096,
         "home": 4096,
         "setpoint": 4096,
+        "velocity": 1024,
         # MAX_PATH_POINTS points as json.dumps(indent=2) writes them at full precision fit.
         "path": 128 * 1024,
         "stop": 1024,
@@ -118,7 +132,7 @@ MAX_PAYLOAD_BYTES: Final[Mapping[str, int]] = MappingProxyType(
         "reset": 1024,
     }
 )
-"""The largest payload, in bytes, of each verb (and of a `setpoint` sample)."""
+"""The largest payload, in bytes, of each verb (and of a `setpoint` or `velocity` sample)."""
 
 MAX_JSON_DEPTH: Final = 8
 """The deepest nesting of brackets (`[`, `{`) accepted; a valid command needs 3."""
@@ -311,6 +325,9 @@ def parse_command(verb: str, payload: bytes | str | None) -> Command:
     if verb == "setpoint":
         obj = _object(data, {"position_m"}, {"position_m"})
         return Setpoint(_vec3(obj["position_m"], "position_m"))
+    if verb == "velocity":
+        obj = _object(data, {"velocity_mps"}, {"velocity_mps"})
+        return Velocity(_vec3(obj["velocity_mps"], "velocity_mps"))
     simple: dict[str, Command] = {
         "stop": Stop(),
         "estop": Estop(),

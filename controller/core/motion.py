@@ -1,4 +1,5 @@
-"""Motion: trapezoidal straight-line moves, multi-point paths, stop-to-hold, streamed set-points.
+"""Motion: trapezoidal straight-line moves, multi-point paths, stop-to-hold, streamed set-points,
+velocity input.
 
 Everything here is deterministic and clock-free: the control loop calls
 `MotionPlanner.advance(dt_s)` once per tick with the tick's time step and gets the new position
@@ -26,6 +27,25 @@ Behaviour:
   |change of velocity| <= max accel * dt per tick (a vector bang-bang limiter along the error
   direction with a discrete-time braking curve, so it lands on a fixed target without
   overshoot and holds there exactly).
+* `MotionPlanner.command_velocity`: velocity input (a joystick, an RC stick). The commanded
+  velocity's norm is clamped to `max_speed_mps`; every tick the set-point velocity moves toward
+  it by at most `max_accel_mps2 * dt` (semi-implicit: the position advances by the new velocity),
+  so speed and acceleration stay within the limits whatever the input. Dead-man: once a sample
+  is older than `velocity_timeout_s` of planner time, the command becomes zero. A zero command
+  (or one slower than `MIN_SPEED_MPS`) brakes at `max_accel_mps2` along the current velocity to
+  a hold, and the planner then leaves velocity mode. A zero sample outside velocity mode is
+  ignored (`command_velocity` returns False): a centred stick that keeps streaming zeros never
+  stops a move; a non-zero sample takes over from any mode (hold, move, path, stop, stream) with
+  the current velocity kept, like `stream`. A move, path, stream or stop replaces velocity mode.
+* Workspace in velocity mode (`check_segment`, the workspace's straight-segment check): before
+  a tick's new set-point is taken, the planner looks ahead by the braking distance |v|^2/(2 a)
+  along the new velocity; if the segment from the new set-point to that rest point leaves the
+  workspace, it brakes along the current velocity instead. Braking stays on the segment checked
+  on the previous tick (its discrete rest point is never beyond the continuous one), so by
+  induction every set-point, and every braking path, stays inside: pushing into a boundary
+  stops just short of it. The induction needs the hand-over state's braking path inside, which
+  a move or path guarantees (its legs are checked); a stream does not, and the control loop's
+  own check of every set-point stays the last guard.
 * Speeds: `check_speed` is the rule for a commanded speed (finite and at least `MIN_SPEED_MPS`;
   the command boundary and the control loop refuse others with its reason). Speeds above
   `max_speed_mps` given to `move_to`/`follow_path` are clamped to it; the control loop says so in
@@ -35,7 +55,7 @@ Behaviour:
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 
 Vec3 = tuple[float, float, float]
 
@@ -44,6 +64,10 @@ _ZERO: Vec3 = (0.0, 0.0, 0.0)
 MIN_SPEED_MPS = 1e-3
 """The slowest commanded move or path speed (1 mm/s): slower ones are refused, because a move
 at a vanishing speed would keep the robot MOVING for hours (or, at 5e-324 m/s, forever)."""
+
+DEFAULT_VELOCITY_TIMEOUT_S = 0.25
+"""The dead-man timeout of velocity input when none is configured (`[limits]
+velocity_timeout_s`): a velocity sample older than this is treated as zero."""
 
 MAX_LEGS_PER_ADVANCE = 16
 """Path legs one `MotionPlanner.advance` may cross (bounds the per-tick cost; module docstring)."""
@@ -61,6 +85,28 @@ def check_speed(speed_mps: float) -> str | None:
     if not v >= MIN_SPEED_MPS:
         return f"must be at least {MIN_SPEED_MPS:g} m/s (the minimum speed), got {v:g} m/s"
     return None
+
+
+def clamp_velocity(velocity_mps: Sequence[float], max_speed_mps: float) -> Vec3:
+    """`velocity_mps` as a 3-tuple whose norm is at most `max_speed_mps` (same direction).
+
+    Exact for any finite input, however large (the norm is taken after scaling by the largest
+    component, so it cannot overflow). A speed below `MIN_SPEED_MPS` is returned as zero (a
+    stick's noise about its centre is no command). Raises ValueError for a non-finite or
+    malformed vector.
+    """
+    x, y, z = _finite3(velocity_mps, "velocity_mps")
+    m = max(abs(x), abs(y), abs(z))
+    if m == 0.0:
+        return _ZERO
+    ux, uy, uz = x / m, y / m, z / m
+    speed = math.hypot(ux, uy, uz) * m  # may round to inf: then it is above the maximum
+    if speed < MIN_SPEED_MPS:
+        return _ZERO
+    if speed <= max_speed_mps:
+        return (x, y, z)
+    k = max_speed_mps / math.hypot(ux, uy, uz)
+    return (ux * k, uy * k, uz * k)
 
 
 def dedupe_path(points_m: Iterable[Sequence[float]]) -> tuple[Vec3, ...]:
@@ -191,7 +237,17 @@ _HOLD = 0
 _MOVE = 1
 _STOP = 2
 _STREAM = 3
-_MODE_NAMES = {_HOLD: "hold", _MOVE: "move", _STOP: "stop", _STREAM: "stream"}
+_VELOCITY = 4
+_MODE_NAMES = {
+    _HOLD: "hold",
+    _MOVE: "move",
+    _STOP: "stop",
+    _STREAM: "stream",
+    _VELOCITY: "velocity",
+}
+
+SegmentCheck = Callable[[Vec3, Vec3], str | None]
+"""`check(a, b)`: None if the straight segment a->b is inside the workspace, else why not."""
 
 
 class MotionPlanner:
@@ -199,6 +255,8 @@ class MotionPlanner:
 
     `max_speed_mps` / `max_accel_mps2` bound every set-point trajectory it produces;
     `default_speed_mps` (default: `max_speed_mps`) is used when a move gives no speed.
+    `velocity_timeout_s` is the dead-man timeout of velocity input; `check_segment` the
+    workspace check of velocity mode (None: velocity input is not bounded by a workspace).
     Starts holding at the origin: call `hold(position)` with the measured pose before use.
     Raises ValueError on non-positive or non-finite limits.
     """
@@ -208,6 +266,9 @@ class MotionPlanner:
         max_speed_mps: float,
         max_accel_mps2: float,
         default_speed_mps: float | None = None,
+        *,
+        velocity_timeout_s: float = DEFAULT_VELOCITY_TIMEOUT_S,
+        check_segment: SegmentCheck | None = None,
     ) -> None:
         self.max_speed_mps = _positive(max_speed_mps, "max_speed_mps")
         self.max_accel_mps2 = _positive(max_accel_mps2, "max_accel_mps2")
@@ -233,6 +294,15 @@ class MotionPlanner:
         self._stop_unit: Vec3 = _ZERO
         self._stop_speed = 0.0
         self._stream_target: Vec3 = _ZERO
+        # velocity mode: the commanded velocity and the planner time since its sample
+        self.velocity_timeout_s = _positive(velocity_timeout_s, "velocity_timeout_s")
+        self._check_segment = check_segment
+        self._vel_cmd: Vec3 = _ZERO
+        self._vel_age_s = 0.0
+        self.deadman_stops = 0
+        """Times the dead-man timeout turned a non-zero velocity command into zero."""
+        self.boundary_brakes = 0
+        """Velocity-mode ticks that braked because the look-ahead left the workspace."""
 
     # ----------------------------------------------------------------------------- queries
     @property
@@ -251,18 +321,30 @@ class MotionPlanner:
         with zero velocity does not)."""
         if self._mode == _STREAM:
             return not (self._p == self._stream_target and self._v == _ZERO)
+        if self._mode == _VELOCITY:
+            # A non-zero command counts even at rest (pushed against a boundary): the state
+            # stays MOVING instead of flickering with the look-ahead.
+            return self._v != _ZERO or self._vel_cmd != _ZERO
         return self._mode != _HOLD
 
     @property
     def mode(self) -> str:
-        """'hold', 'move', 'stop' or 'stream' (for status output)."""
+        """'hold', 'move', 'stop', 'stream' or 'velocity' (for status output)."""
         return _MODE_NAMES[self._mode]
 
     @property
+    def velocity_command_mps(self) -> Vec3:
+        """The velocity input in force (zero outside velocity mode or after the dead-man)."""
+        return self._vel_cmd if self._mode == _VELOCITY else _ZERO
+
+    @property
     def target_m(self) -> Vec3:
-        """Where the set-point is heading: last path point, stream target or stop point."""
+        """Where the set-point is heading: last path point, stream target or stop point (in
+        velocity mode: where it would come to rest, `rest_point_m`)."""
         if self._mode == _HOLD:
             return self._p
+        if self._mode == _VELOCITY:
+            return self.rest_point_m
         if self._mode == _STREAM:
             return self._stream_target
         if self._pending:
@@ -308,6 +390,7 @@ class MotionPlanner:
         self._p = _finite3(position_m, "position_m")
         self._v = _ZERO
         self._mode = _HOLD
+        self._vel_cmd = _ZERO
         self._clear_path()
         self._pending = ()
 
@@ -380,6 +463,28 @@ class MotionPlanner:
         self._pending = ()
         self._mode = _STREAM
 
+    def command_velocity(self, velocity_mps: Sequence[float]) -> bool:
+        """Fly at `velocity_mps` (one velocity-input sample; see the module docstring).
+
+        The norm is clamped to max speed (`clamp_velocity`; below `MIN_SPEED_MPS` it is zero)
+        and the dead-man timer restarts. A non-zero sample enters velocity mode from any mode,
+        keeping the current velocity; a zero sample brakes to a hold in velocity mode and is
+        ignored in any other. Returns True if the sample was taken, False if ignored.
+        Raises ValueError for a non-finite or malformed vector (the planner is unchanged).
+        """
+        v = clamp_velocity(velocity_mps, self.max_speed_mps)
+        if self._mode != _VELOCITY:
+            if v == _ZERO:
+                return False
+            self._clear_path()
+            self._pending = ()
+            self._mode = _VELOCITY
+        self._vel_cmd = v
+        self._vel_age_s = 0.0
+        if v == _ZERO and self._v == _ZERO:
+            self._mode = _HOLD  # at rest already: nothing to brake
+        return True
+
     # ----------------------------------------------------------------------------- internals
     def _clear_path(self) -> None:
         self._leg = None
@@ -441,6 +546,8 @@ class MotionPlanner:
             self._advance_stop(dt_s)
         elif mode == _STREAM:
             self._advance_stream(dt_s)
+        elif mode == _VELOCITY:
+            self._advance_velocity(dt_s)
         return self._p
 
     def _advance_move(self, dt_s: float) -> None:
@@ -527,6 +634,48 @@ class MotionPlanner:
             self._p = g  # lands exactly this tick (removes rounding residue)
         else:
             self._p = (p[0] + nv[0] * dt_s, p[1] + nv[1] * dt_s, p[2] + nv[2] * dt_s)
+        self._v = nv
+
+    def _advance_velocity(self, dt_s: float) -> None:
+        a = self.max_accel_mps2
+        age = self._vel_age_s + dt_s
+        self._vel_age_s = age
+        w = self._vel_cmd
+        if age > self.velocity_timeout_s and w != _ZERO:
+            w = self._vel_cmd = _ZERO  # dead-man: no fresh sample, brake to a hold
+            self.deadman_stops += 1
+        p = self._p
+        v = self._v
+        dv_max = a * dt_s
+        # The velocity moves toward the command by at most a*dt (stays within the ball of
+        # radius max speed: both ends of the segment are in it).
+        cx, cy, cz = w[0] - v[0], w[1] - v[1], w[2] - v[2]
+        c = math.hypot(cx, cy, cz)
+        if c > dv_max:
+            k = dv_max / c
+            cx, cy, cz = cx * k, cy * k, cz * k
+        nv: Vec3 = (v[0] + cx, v[1] + cy, v[2] + cz)
+        check = self._check_segment
+        if check is not None and nv != _ZERO:
+            s = math.hypot(nv[0], nv[1], nv[2])
+            np_ = (p[0] + nv[0] * dt_s, p[1] + nv[1] * dt_s, p[2] + nv[2] * dt_s)
+            k = s / (2.0 * a)  # braking distance / speed
+            rest = (np_[0] + nv[0] * k, np_[1] + nv[1] * k, np_[2] + nv[2] * k)
+            if check(np_, rest) is not None:
+                # Brake along the current velocity: stays on the segment checked last tick.
+                self.boundary_brakes += 1
+                s0 = math.hypot(v[0], v[1], v[2])
+                if s0 <= dv_max:
+                    nv = _ZERO
+                else:
+                    f = 1.0 - dv_max / s0
+                    nv = (v[0] * f, v[1] * f, v[2] * f)
+        if nv == _ZERO:
+            self._v = _ZERO
+            if w == _ZERO:
+                self._mode = _HOLD  # at rest with nothing commanded: velocity mode ends
+            return
+        self._p = (p[0] + nv[0] * dt_s, p[1] + nv[1] * dt_s, p[2] + nv[2] * dt_s)
         self._v = nv
 
 

@@ -6,7 +6,7 @@ DISARMED. Every transition the controller makes goes through `check_transition`.
 
 `COMMAND_RULES` says, for every state, which verbs it accepts and why it refuses the others;
 the control loop asks `refusal(state, verb)` for every verb it receives (streamed set-points
-included) and README's state table is `command_table_markdown()`.
+and velocity samples included) and README's state table is `command_table_markdown()`.
 """
 
 from __future__ import annotations
@@ -72,9 +72,11 @@ COMMAND_VERBS: tuple[str, ...] = (
     "move",
     "path",
     "setpoint",
+    "velocity",
     "stop",
 )
-"""Every verb the controller takes: the `cmd/<verb>` commands plus streamed `setpoint`s."""
+"""Every verb the controller takes: the `cmd/<verb>` commands plus streamed `setpoint`s and
+`velocity` samples (velocity input is allowed exactly where streamed set-points are)."""
 
 _NOT_ARMED = "the motors are disarmed: arm first"
 _ARMING = "arming: wait for HOLDING"
@@ -95,6 +97,7 @@ COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
                 "move": _NOT_ARMED,
                 "path": _NOT_ARMED,
                 "setpoint": _NOT_ARMED,
+                "velocity": _NOT_ARMED,
                 "stop": "nothing to stop: the motors are disarmed",
             }
         ),
@@ -108,6 +111,7 @@ COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
                 "move": _ARMING,
                 "path": _ARMING,
                 "setpoint": _ARMING,
+                "velocity": _ARMING,
                 "stop": None,
             }
         ),
@@ -121,6 +125,7 @@ COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
                 "move": None,
                 "path": None,
                 "setpoint": None,
+                "velocity": None,
                 "stop": None,
             }
         ),
@@ -134,6 +139,7 @@ COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
                 "move": None,
                 "path": None,
                 "setpoint": None,
+                "velocity": None,
                 "stop": None,
             }
         ),

@@ -46,8 +46,9 @@ the simulated drives' axis watchdog; unset in a file: 0.3 s or 5 loop periods if
 `BusConfig.as_mapping()` (for `drivers.bus.open_bus`), `RobotConfig.node_ids` /
 `RobotConfig.anchors_m` properties, `bus_option_names(interface)`.
 `HomingConfig.state_file` is stored already expanded (``~`` and ``{name}`` replaced).
-In a file, `[limits]` is required with every key but `default_speed_mps` (a safe limit
-depends on the robot); all other sections are optional with the defaults of the dataclasses.
+In a file, `[limits]` is required with every key but `default_speed_mps` and
+`velocity_timeout_s` (a safe limit depends on the robot); all other sections are optional with
+the defaults of the dataclasses.
 `sim.enabled` defaults to true on the `virtual` bus (nothing else could answer there).
 """
 
@@ -187,6 +188,8 @@ class LimitsConfig:
     max_speed_mps: float = 2.0
     max_accel_mps2: float = 1.0
     default_speed_mps: float = 1.0
+    velocity_timeout_s: float = 0.25
+    """Dead-man of velocity input: no `<prefix>/velocity` sample for this long brakes to a hold."""
     min_tension_n: float | None = None
     """Least tension a cable may carry (N); required with `[payload]`."""
     max_tension_n: float | None = None
@@ -1002,6 +1005,7 @@ def _parse_limits(mt: _Table) -> LimitsConfig:
         max_speed_mps=max_speed,
         max_accel_mps2=mt.number("max_accel_mps2", required=True, gt=0.0),
         default_speed_mps=mt.number("default_speed_mps", max_speed, gt=0.0),
+        velocity_timeout_s=mt.number("velocity_timeout_s", 0.25, gt=0.0),
         min_tension_n=mt.number("min_tension_n", ge=0.0) if mt.has("min_tension_n") else None,
         max_tension_n=mt.number("max_tension_n", gt=0.0) if mt.has("max_tension_n") else None,
         tension_margin_n=mt.number("tension_margin_n", 0.0, ge=0.0),

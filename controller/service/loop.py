@@ -22,8 +22,8 @@ and which would trip the cable-speed check; `status()["loop"]["dt_clamped"]` cou
 
 Threading: the loop thread calls `tick` (through the runner) and is the only one that touches
 the driver.
-Other threads (Zenoh, the daemon) use `submit`, `submit_setpoint`, `request_estop` and
-`status`, which are thread-safe.
+Other threads (Zenoh, the daemon) use `submit`, `submit_setpoint`, `submit_velocity`,
+`request_estop` and `status`, which are thread-safe.
 
 Safety: on FAULT the motors keep receiving the last good set-point (a suspended load must not
 fall); nothing non-finite is ever commanded (a non-finite set-point is itself a fault); e-stop
@@ -41,6 +41,15 @@ leg, cable length and cable speed. Paths: a move or path is checked against it a
 only checks the first leg from where the set-point comes to rest and hands the prepared points
 to the planner, which builds each leg when it reaches it. A path of any length costs the tick
 the same.
+
+Velocity input (`submit_velocity`, a joystick's `<prefix>/velocity` samples) follows the same
+rules (latest wins, taken only while HOLDING or MOVING and within its armed session, otherwise
+discarded and counted in `status()["velocity"]["discarded"]`) and is flown by the planner's
+velocity mode (`controller.core.motion`): max speed and acceleration, the braking look-ahead
+against the workspace (`Workspace.check_segment`, the point and cable-length checks a streamed
+target gets, plus the shortest cable along the way), and the dead-man `limits.velocity_timeout_s`
+counted in planner time (after a stall the robot has moved only as far as the planner advanced).
+A non-zero sample takes over from a move or path; a zero one does not stop it.
 
 Axes: the step sees every drive family alike, through the generic status of its readings
 (`drivers.base.AxisReading`: `ready`, `fault`, `state_name`, stamps); "closed loop" here means
@@ -83,6 +92,7 @@ from controller.core.commands import (
     Setpoint,
     Stop,
     Vec3,
+    Velocity,
 )
 from controller.core.motion import MotionPlanner, check_speed, dedupe_path
 from controller.core.reel import ReelModel
@@ -146,6 +156,7 @@ _VERBS: Mapping[type, str] = {
     Reset: "reset",
     Home: "home",
     Setpoint: "setpoint",
+    Velocity: "velocity",
 }
 
 _Pending = tuple[Command, "concurrent.futures.Future[dict[str, Any]]", _Motion | None]
@@ -196,7 +207,11 @@ class Controller:
             float(cfg.limits.max_speed_mps),
         )
         self.planner = MotionPlanner(
-            cfg.limits.max_speed_mps, cfg.limits.max_accel_mps2, self._default_speed_mps
+            cfg.limits.max_speed_mps,
+            cfg.limits.max_accel_mps2,
+            self._default_speed_mps,
+            velocity_timeout_s=cfg.limits.velocity_timeout_s,
+            check_segment=self.workspace.check_segment,
         )
         f = cfg.faults
         self._stale_s = float(f.stale_timeout_s)
@@ -258,6 +273,10 @@ class Controller:
         self.stream_last_refusal: str | None = None
         self.stream_discarded = 0
         """Set-points discarded because the state takes none (written by the submitting thread)."""
+        self._velocity_cmd: tuple[Vec3, int] | None = None
+        """The latest velocity sample and the armed session it arrived in (like a set-point)."""
+        self.velocity_discarded = 0
+        """Velocity samples discarded: not armed when sent, or from an earlier armed session."""
         self._estop_at_s = 0.0
         self._estop_check_s = 0.0
         self._estop_confirmed = True
@@ -350,7 +369,8 @@ class Controller:
         """Queue `cmd` for the loop; the future resolves with a reply dict or CommandRefused.
 
         Estop bypasses the queue (it is never refused as busy). A full queue refuses at once
-        with CommandRefused("busy"). Setpoint commands go to `submit_setpoint`.
+        with CommandRefused("busy"). Setpoint and Velocity commands go to `submit_setpoint` /
+        `submit_velocity`.
         """
         fut: concurrent.futures.Future[dict[str, Any]] = concurrent.futures.Future()
         if isinstance(cmd, Estop):
@@ -358,8 +378,14 @@ class Controller:
                 self._estop_futures.append(fut)
                 self._estop_flag = True
             return fut
-        if isinstance(cmd, Setpoint):
-            why = self._offer_setpoint(cmd.position_m)
+        if isinstance(cmd, Setpoint | Velocity):
+            try:
+                if isinstance(cmd, Setpoint):
+                    why = self._offer_setpoint(cmd.position_m)
+                else:
+                    why = self._offer_velocity(cmd.velocity_mps)
+            except ValueError as exc:
+                why = str(exc)
             if why is None:
                 fut.set_result({"ok": True})
             else:
@@ -400,6 +426,28 @@ class Controller:
             self.stream_discarded += 1
             return self._refusal_text(state, why)
         self._stream_target = (p, epoch)  # one reference assignment: atomic
+        return None
+
+    def submit_velocity(self, velocity_mps: Sequence[float]) -> None:
+        """Velocity input: fly at `velocity_mps` (latest wins; see the module docstring).
+
+        Taken only while HOLDING or MOVING (`COMMAND_RULES`); otherwise discarded and counted.
+        Raises ValueError/TypeError/IndexError for a velocity that is not three finite numbers.
+        """
+        self._offer_velocity(velocity_mps)
+
+    def _offer_velocity(self, velocity_mps: Sequence[float]) -> str | None:
+        """Store a velocity sample for the tick, or return why the state discards it."""
+        v = (float(velocity_mps[0]), float(velocity_mps[1]), float(velocity_mps[2]))
+        if not (math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2])):
+            raise ValueError(f"velocity_mps must be finite, got {list(v)}")
+        epoch = self._arm_epoch  # before the state: see `_offer_setpoint`
+        state = self.state
+        why = refusal(state, "velocity")
+        if why is not None:
+            self.velocity_discarded += 1
+            return self._refusal_text(state, why)
+        self._velocity_cmd = (v, epoch)  # one reference assignment: atomic
         return None
 
     def _prepare_motion(self, cmd: Move | Path) -> _Motion:
@@ -480,6 +528,7 @@ class Controller:
             self.planner_hold()
             self.commanded_ff_rps = list(self._zero_ff)  # the hold has no feed-forward
             self._stream_target = None
+            self._velocity_cmd = None
 
     def planner_hold(self) -> None:
         """Put the planner on hold at the last good set-point (no further motion)."""
@@ -704,6 +753,17 @@ class Controller:
             else:
                 self.stream_refused += 1
                 self.stream_last_refusal = reason
+        vel = None if self._closing else self._velocity_cmd
+        if vel is not None:
+            self._velocity_cmd = None
+            if vel[1] != self._arm_epoch:
+                self.velocity_discarded += 1  # sent in an earlier armed session
+            elif (
+                self.planner.command_velocity(vel[0])
+                and self.state is State.HOLDING
+                and self.planner.moving
+            ):
+                self._set_state(State.MOVING, "velocity")
         sp = self.planner.advance(dt)
         sp = (float(sp[0]), float(sp[1]), float(sp[2]))
         if not (math.isfinite(sp[0]) and math.isfinite(sp[1]) and math.isfinite(sp[2])):
@@ -890,6 +950,7 @@ class Controller:
         self.setpoint_m = None
         self.setpoint_lengths_m = None
         self._stream_target = None
+        self._velocity_cmd = None
         for fut in futures:
             fut.set_result({"ok": True, "state": self.state.value})
 
@@ -1023,6 +1084,7 @@ class Controller:
             # A new armed session: set-points streamed before it are never taken.
             self._arm_epoch += 1
             self._stream_target = None
+            self._velocity_cmd = None
             self._set_state(S.ARMING)
             return {"ok": True, "state": S.ARMING.value}
         if isinstance(cmd, Disarm):
@@ -1111,6 +1173,7 @@ class Controller:
         self.setpoint_m = None
         self.setpoint_lengths_m = None
         self._stream_target = None
+        self._velocity_cmd = None
         self._estop_unconfirmed = ()
         self._set_state(State.DISARMED, why)
 
@@ -1212,6 +1275,12 @@ class Controller:
                 "refused": self.stream_refused,
                 "last_refusal": self.stream_last_refusal,
                 "discarded": self.stream_discarded,
+            },
+            "velocity": {
+                "command_mps": list(self.planner.velocity_command_mps),
+                "discarded": self.velocity_discarded,
+                "deadman_stops": self.planner.deadman_stops,
+                "boundary_brakes": self.planner.boundary_brakes,
             },
             "estop": (
                 {

@@ -9,10 +9,12 @@ Key space, under a configurable prefix (default `cablebot/default`):
   JSON in, JSON out;
   a refusal is an error reply `{"error": reason}` (encoding application/json)
 - `<prefix>/setpoint`  subscriber, `{"position_m": [x, y, z]}` handed to `submit_setpoint`
+- `<prefix>/velocity`  subscriber, `{"velocity_mps": [vx, vy, vz]}` handed to `submit_velocity`
+  (velocity input: joysticks, RC sticks, `cablebot jog`)
 - `<prefix>/alive`     liveliness token while the interface is open
 
 Only the exact keys drive the robot: a query on `<prefix>/cmd/*` or a put on `cablebot/**`
-reaches the queryables and the subscriber too, and is refused (counted, never executed).
+reaches the queryables and the subscribers too, and is refused (counted, never executed).
 
 Threads: zenoh-python runs each declared callback on its own Python thread, so every verb has
 its own thread. A command waits there (bounded) for the loop's reply; a slow `home` never delays
@@ -64,6 +66,7 @@ from controller.core.commands import (
     Move,
     Path,
     Setpoint,
+    Velocity,
     check_payload_size,
     clip,
     parse_command,
@@ -111,6 +114,10 @@ class ControllerLike(Protocol):
 
     def submit_setpoint(self, position_m: Sequence[float]) -> None:
         """Stream a target position (latest wins)."""
+        ...
+
+    def submit_velocity(self, velocity_mps: Sequence[float]) -> None:
+        """Velocity input: fly at this velocity (latest wins; dead-man in the controller)."""
         ...
 
     def status(self) -> dict[str, Any]:
@@ -366,6 +373,9 @@ class ZenohInterface:
         self.commands: dict[str, int] = {"ok": 0, "refused": 0, "malformed": 0, "timeout": 0}
         self.setpoints_ok = 0
         self.setpoints_bad = 0
+        self.velocity_ok = 0
+        self.velocity_bad = 0
+        self._bad_velocity_log = _RateLimitedLog(1.0)
         self._bad_setpoint_log = _RateLimitedLog(1.0)
         self._put_error_log = _RateLimitedLog(1.0)
 
@@ -402,6 +412,7 @@ class ZenohInterface:
                     )
                 )
             self._declared.append(session.declare_subscriber(f"{p}/setpoint", self._on_setpoint))
+            self._declared.append(session.declare_subscriber(f"{p}/velocity", self._on_velocity))
             self._declared.append(session.liveliness().declare_token(f"{p}/alive"))
             if self.publish_thread:
                 self._slot = _LatestSlot(self._put_pose_bytes, self._put_state_bytes)
@@ -485,6 +496,7 @@ class ZenohInterface:
         with self._lock:
             commands = dict(self.commands)
             setpoints = {"ok": self.setpoints_ok, "bad": self.setpoints_bad}
+            velocity = {"ok": self.velocity_ok, "bad": self.velocity_bad}
         return {
             "prefix": self.prefix,
             "mode": str(_get(self.zcfg, "mode", "peer")),
@@ -500,6 +512,7 @@ class ZenohInterface:
             "states_published": self.states_published,
             "commands": commands,
             "setpoints": setpoints,
+            "velocity": velocity,
         }
 
     def _count(self, key: str) -> None:
@@ -616,6 +629,24 @@ class ZenohInterface:
             return
         with self._lock:
             self.setpoints_ok += 1
+
+    def _on_velocity(self, sample: zenoh.Sample) -> None:
+        try:
+            key = f"{self.prefix}/velocity"
+            if str(sample.key_expr) != key:
+                # A put on `cablebot/**` must not fly every robot that hears it.
+                raise CommandError(f"velocity samples need the exact key {key}, not a wildcard")
+            check_payload_size("velocity", len(sample.payload))  # before any copy
+            cmd = parse_command("velocity", sample.payload.to_bytes())
+            assert isinstance(cmd, Velocity)
+            self.controller.submit_velocity(cmd.velocity_mps)
+        except Exception as exc:  # counted and logged, never raised into Zenoh
+            with self._lock:
+                self.velocity_bad += 1
+            self._bad_velocity_log.warning("bad velocity sample ignored: %s", clip(str(exc), 200))
+            return
+        with self._lock:
+            self.velocity_ok += 1
 
 
 def _reply_err(query: zenoh.Query, reason: str) -> None:

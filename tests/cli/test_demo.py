@@ -14,6 +14,7 @@ import re
 import struct
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,7 @@ import numpy as np
 import pytest
 
 from controller.cli import demo
+from controller.cli.shape import RobotShape
 from controller.core.kinematics import Geometry, ipk
 from controller.service.config import load_config, paper_robot_data
 from controller.service.pose import PoseSample
@@ -153,6 +155,7 @@ def _synthetic_run(error_m: float) -> demo.CircleRun:
         overruns=0,
         ticks=n,
         dropped_rows=0,
+        shape=RobotShape.from_summary(cfg.summary()),
     )
 
 
@@ -190,8 +193,13 @@ def test_demo_config_is_virtual_sim_without_state_file() -> None:
     assert d.zenoh.listen == ("tcp/127.0.0.1:40001",) and d.zenoh.connect == ()
     assert d.faults.stale_timeout_s == 1.0 and d.faults.tracking_max_m == 1.0
     assert d.geometry is cfg.geometry and d.reels == cfg.reels
+    assert cfg.sim.watchdog_timeout_s == pytest.approx(0.3)
+    assert d.sim.watchdog_timeout_s == demo.DEMO_SIM_WATCHDOG_FLOOR_S == 2.0
     strict = demo.demo_config(cfg, channel="c", zenoh_listen=None, strict_faults=True)
     assert strict.faults == cfg.faults and strict.zenoh.listen == ()
+    assert strict.sim.watchdog_timeout_s == cfg.sim.watchdog_timeout_s
+    off = replace(cfg, sim=replace(cfg.sim, watchdog_timeout_s=0.0))
+    assert demo.demo_config(off, channel="c", zenoh_listen=None).sim.watchdog_timeout_s == 0.0
 
 
 def test_circle_outside_the_limits_is_refused_before_anything_starts() -> None:

@@ -20,6 +20,7 @@ from controller.core.commands import (
     Reset,
     Setpoint,
     Stop,
+    Velocity,
 )
 from controller.core.states import (
     COMMAND_RULES,
@@ -35,7 +36,7 @@ README = pathlib.Path(__file__).resolve().parents[2] / "README.md"
 
 def test_every_state_rules_every_verb() -> None:
     assert set(COMMAND_RULES) == set(State)
-    assert set(COMMAND_VERBS) == set(VERBS) | {"setpoint"}
+    assert set(COMMAND_VERBS) == set(VERBS) | {"setpoint", "velocity"}
     for state, rules in COMMAND_RULES.items():
         assert set(rules) == set(COMMAND_VERBS), state
         for verb, reason in rules.items():
@@ -49,7 +50,7 @@ def test_estop_is_accepted_everywhere_and_latched_states_take_only_reset() -> No
         accepted = {v for v in COMMAND_VERBS if refusal(state, v) is None}
         assert accepted == {"estop", "reset"}
     assert refusal(State.ESTOPPED, "stop") == "estop is latched: reset first"
-    for verb in ("move", "path", "setpoint"):
+    for verb in ("move", "path", "setpoint", "velocity"):
         assert {s for s in State if refusal(s, verb) is None} == {State.HOLDING, State.MOVING}
 
 
@@ -95,6 +96,7 @@ def _command(verb: str, rig: Rig) -> Any:
         "move": Move(near),
         "path": Path((near,)),
         "setpoint": Setpoint(near),
+        "velocity": Velocity((0.1, 0.0, 0.0)),
         "stop": Stop(),
     }[verb]
 

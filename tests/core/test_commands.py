@@ -27,6 +27,7 @@ from controller.core.commands import (
     Reset,
     Setpoint,
     Stop,
+    Velocity,
     check_payload_size,
     clip,
     parse_command,
@@ -51,6 +52,9 @@ def test_every_verb_parses() -> None:
     )
     assert parse_command("home", b'{"position_m": [0, 0, 2]}') == Home((0.0, 0.0, 2.0))
     assert parse_command("setpoint", b'{"position_m": [0, 0, 2]}') == Setpoint((0.0, 0.0, 2.0))
+    assert parse_command("velocity", b'{"velocity_mps": [0.5, 0, -1]}') == Velocity(
+        (0.5, 0.0, -1.0)
+    )
     for verb, cls in (
         ("stop", Stop),
         ("estop", Estop),
@@ -127,18 +131,19 @@ def test_the_longest_path_fits_the_byte_cap_even_pretty_printed() -> None:
     assert isinstance(cmd, Path) and len(cmd.points_m) == MAX_PATH_POINTS
 
 
-# A valid payload per verb (and setpoint), to pad to the byte cap with whitespace.
+# A valid payload per verb (and per streamed sample), to pad to the byte cap with whitespace.
 VALID = {
     "move": b'{"position_m": [0, 0, 1]}',
     "path": b'{"points_m": [[0, 0, 1]]}',
     "home": b'{"position_m": [0, 0, 1]}',
     "setpoint": b'{"position_m": [0, 0, 1]}',
+    "velocity": b'{"velocity_mps": [0, 0, 1]}',
     **{verb: b"{}" for verb in ("stop", "estop", "arm", "disarm", "reset")},
 }
 
 
 def test_every_verb_has_a_byte_cap() -> None:
-    assert set(MAX_PAYLOAD_BYTES) == {*VERBS, "setpoint"} == set(VALID)
+    assert set(MAX_PAYLOAD_BYTES) == {*VERBS, "setpoint", "velocity"} == set(VALID)
     assert max(MAX_PAYLOAD_BYTES.values()) <= 128 * 1024
 
 

@@ -252,6 +252,50 @@ def test_stream_limits_speed_and_accel_and_lands_exactly(
     assert pl.position_m == final
 
 
+command = st.one_of(
+    st.tuples(st.just("move"), spoint),
+    st.tuples(st.just("stream"), spoint),
+    st.tuples(st.just("velocity"), spoint),  # m/s here: clamped to the max speed
+    st.tuples(st.just("zero"), st.just((0.0, 0.0, 0.0))),
+    st.tuples(st.just("stop"), st.just((0.0, 0.0, 0.0))),
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    spoint,
+    st.lists(st.tuples(command, st.integers(1, 300)), min_size=1, max_size=10),
+    pspeed,
+    paccel,
+    dt,
+)
+def test_any_mix_of_moves_streams_stops_and_velocity_input_keeps_the_limits(
+    start: Vec3,
+    commands: list[tuple[tuple[str, Vec3], int]],
+    vmax: float,
+    amax: float,
+    dt_s: float,
+) -> None:
+    # Every hand-over (move -> velocity, velocity -> stream, stop -> velocity, ...) keeps the
+    # velocity continuous: speed and acceleration stay within the limits on every tick.
+    pl = MotionPlanner(vmax, amax, velocity_timeout_s=0.2)
+    pl.hold(start)
+    rec = Recorder(pl, dt_s)
+    for (kind, vec), n in commands:
+        if kind == "move":
+            pl.move_to(vec)
+        elif kind == "stream":
+            pl.stream(vec)
+        elif kind in ("velocity", "zero"):
+            pl.command_velocity(vec)
+        else:
+            pl.stop()
+        rec.tick(n)
+    pl.stop()
+    rec.run_until_still(int(vmax / amax / dt_s) + 5)
+    assert pl.velocity_mps == (0.0, 0.0, 0.0)
+
+
 def test_stream_time_is_close_to_the_trapezoid() -> None:
     pl = MotionPlanner(2.0, 1.0)
     pl.hold((0, 0, 2))

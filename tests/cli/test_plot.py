@@ -1,0 +1,168 @@
+"""`cablebot plot`'s drawing of a `Trace` (no recording, no daemon): waypoints put the lengths
+and position figures on a step axis and mark the settled error; a small path is zoomed with the
+robot in a plan-view inset; many set-point samples are drawn as a line; an axis the path does
+not move along is shown on the scale of the motion."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from controller.cli import plot
+from controller.cli.shape import RobotShape
+from controller.core.kinematics import Geometry, ipk
+from controller.core.motion import circle_path
+from controller.service.config import load_config
+
+pytest.importorskip("matplotlib")
+
+
+@pytest.fixture
+def figures(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[Any]]:
+    """The matplotlib figures `plot_trace` closes, in order (3-D, lengths, xyz, errors)."""
+    import matplotlib.pyplot as plt
+
+    seen: list[Any] = []
+    real_close = plt.close
+
+    def close(fig: Any = None) -> None:
+        seen.append(fig)
+        real_close(fig)
+
+    monkeypatch.setattr(plt, "close", close)
+    yield seen
+
+
+def _trace(
+    points_m: np.ndarray, *, per_point: int = 5, status_every: int = 1, waypoints: bool = False
+) -> plot.Trace:
+    """A run that stops `per_point` rows at each of `points_m` (the FPK exactly there), with
+    the set-point every `status_every`-th row, on the paper robot."""
+    cfg = load_config(None)
+    pos = np.repeat(points_m, per_point, axis=0)
+    n = len(pos)
+    t = np.arange(n, dtype=np.float64) * 0.1
+    st = slice(None, None, status_every)
+    return plot.Trace(
+        title="test",
+        t_s=t,
+        position_m=pos,
+        lengths_m=np.asarray(ipk(Geometry(cfg.anchors_m), pos)),
+        residual_m=np.full(n, 1e-6),
+        state=["HOLDING"] * n,
+        status_t_s=t[st],
+        setpoint_m=pos[st].copy(),
+        status_position_m=pos[st].copy(),
+        shape=RobotShape.from_summary(cfg.summary()),
+        waypoints=(
+            plot.Waypoints(points_m, np.arange(len(points_m)) * per_point + per_point - 1)
+            if waypoints
+            else None
+        ),
+    )
+
+
+def _circle(radius_m: float, steps: int = 12) -> np.ndarray:
+    return np.asarray(circle_path(radius_m, (0.0, 0.0), 2.0, steps))
+
+
+def test_waypoints_must_match_their_rows() -> None:
+    pts = _circle(2.0, 4)
+    with pytest.raises(ValueError, match="5 waypoints but"):
+        plot.Waypoints(pts, np.arange(4))
+    with pytest.raises(ValueError, match="must increase"):
+        plot.Waypoints(pts, np.array([0, 1, 1, 2, 3]))
+    with pytest.raises(ValueError, match=r"\(K, 3\)"):
+        plot.Waypoints(pts[:, :2], np.arange(5))
+    wp = plot.Waypoints(pts, np.arange(5) * 2)
+    pos = np.repeat(pts, 2, axis=0)
+    pos[4, 2] += 0.003  # the settled row of point 2
+    assert wp.settled_error_m(pos) == pytest.approx([0.0, 0.003, 0.0, 0.0])
+
+
+def test_waypoints_put_lengths_and_position_on_a_step_axis(
+    tmp_path: Path, figures: list[Any]
+) -> None:
+    tr = _trace(_circle(20.0), waypoints=True)
+    assert tr.waypoints is not None
+    tr.waypoints = plot.Waypoints(
+        tr.waypoints.position_m, tr.waypoints.row, "step (30 degrees each)"
+    )
+    plot.plot_trace(tr, tmp_path, "c")
+    lengths_ax = figures[1].get_axes()[0]
+    assert lengths_ax.get_xlabel() == "step (30 degrees each)"
+    assert lengths_ax.get_xlim() == (0.0, 12.0)
+    dots = [ln for ln in lengths_ax.get_lines() if ln.get_marker() == "o" and len(ln.get_xdata())]
+    assert len(dots) == 4  # the settled lengths of each cable, at the steps 0..12
+    assert list(dots[0].get_xdata()) == list(range(13))
+    assert list(dots[0].get_ydata()) == pytest.approx(list(tr.lengths_m[tr.waypoints.row, 0]))
+    x_ax = figures[2].get_axes()[0]
+    commanded = [ln for ln in x_ax.get_lines() if ln.get_label() == "commanded point"]
+    assert len(commanded) == 1 and list(commanded[0].get_xdata()) == list(range(13))
+
+
+def test_settled_error_is_marked_on_the_error_figure(tmp_path: Path, figures: list[Any]) -> None:
+    tr = _trace(_circle(20.0), waypoints=True)
+    assert tr.waypoints is not None
+    tr.position_m[tr.waypoints.row[5], 2] += 0.25e-3
+    plot.plot_trace(tr, tmp_path, "c")
+    a1 = figures[3].get_axes()[0]
+    labels = [ln.get_label() for ln in a1.get_lines()]
+    assert "settled at the points\n(max 0.250 mm)" in labels
+    assert "1 mm" in labels
+
+
+def test_a_small_path_is_zoomed_with_the_robot_in_an_inset(
+    tmp_path: Path, figures: list[Any]
+) -> None:
+    tr = _trace(_circle(1.0))
+    plot.plot_trace(tr, tmp_path, "small")
+    axes = figures[0].get_axes()
+    assert len(axes) == 2 and axes[1].get_title() == "plan view"
+    assert tr.shape is not None
+    box = plot.zoom_box_3d(np.asarray(tr.shape.anchors_m), tr.position_m)
+    assert box is not None
+    lo, hi = box
+    assert axes[0].get_xlim() == pytest.approx((lo[0], hi[0]))
+    tr_big = _trace(_circle(20.0))
+    figures.clear()
+    plot.plot_trace(tr_big, tmp_path, "big")
+    assert len(figures[0].get_axes()) == 1
+    x0, x1 = figures[0].get_axes()[0].get_xlim()
+    assert x0 <= -40.0 and x1 >= 40.0
+
+
+def test_many_set_point_samples_are_a_line_few_are_markers(
+    tmp_path: Path, figures: list[Any]
+) -> None:
+    pts = _circle(20.0, 72)
+    dense = _trace(pts, per_point=10)  # 730 samples > MAX_MARKERS
+    assert len(dense.status_t_s) > plot.MAX_MARKERS
+    plot.plot_trace(dense, tmp_path, "dense")
+    sp = [ln for ln in figures[2].get_axes()[0].get_lines() if "set-point" in ln.get_label()]
+    assert (
+        len(sp) == 1 and sp[0].get_marker() in ("None", "", None) and sp[0].get_linestyle() == "--"
+    )
+    figures.clear()
+    sparse = _trace(pts, per_point=10, status_every=10)  # 73 samples
+    plot.plot_trace(sparse, tmp_path, "sparse")
+    sp = [ln for ln in figures[2].get_axes()[0].get_lines() if "set-point" in ln.get_label()]
+    assert len(sp) == 1 and sp[0].get_marker() == "o"
+
+
+def test_an_axis_the_path_does_not_move_along_is_drawn_to_the_motion_s_scale(
+    tmp_path: Path, figures: list[Any]
+) -> None:
+    plot.plot_trace(_trace(_circle(20.0)), tmp_path, "circle")
+    z_ax = figures[2].get_axes()[2]
+    assert z_ax.get_ylim() == pytest.approx((1.0, 3.0))  # 2.5 % of the 40 m circle
+    figures.clear()
+    still = _trace(np.array([[1.0, 2.0, 3.0]] * 4))
+    plot.plot_trace(still, tmp_path, "still")
+    for c, axc in enumerate(figures[2].get_axes()):
+        mid = still.position_m[0, c]
+        assert axc.get_ylim() == pytest.approx((mid - 0.01, mid + 0.01))  # at least 1 cm
