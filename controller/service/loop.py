@@ -47,7 +47,8 @@ rules (latest wins, taken only while HOLDING or MOVING and within its armed sess
 discarded and counted in `status()["velocity"]["discarded"]`) and is flown by the planner's
 velocity mode (`controller.core.motion`): max speed and acceleration, the braking look-ahead
 against the workspace (`Workspace.check_segment`, the point and cable-length checks a streamed
-target gets, plus the shortest cable along the way), and the dead-man `limits.velocity_timeout_s`
+target gets, plus the shortest cable along the way; with `[payload]` also the tension rule at
+points along it: `_check_segment`), and the dead-man `limits.velocity_timeout_s`
 counted in planner time (after a stall the robot has moved only as far as the planner advanced).
 A non-zero sample takes over from a move or path; a zero one does not stop it.
 
@@ -211,7 +212,7 @@ class Controller:
             cfg.limits.max_accel_mps2,
             self._default_speed_mps,
             velocity_timeout_s=cfg.limits.velocity_timeout_s,
-            check_segment=self.workspace.check_segment,
+            check_segment=self._check_segment,
         )
         f = cfg.faults
         self._stale_s = float(f.stale_timeout_s)
@@ -1024,6 +1025,26 @@ class Controller:
         if state is State.FAULT or state is State.ESTOPPED:
             return f"not allowed in {state.value} ({self.reason}): {why}"
         return f"not allowed in {state.value}: {why}"
+
+    def _check_segment(self, a: Sequence[float], b: Sequence[float]) -> str | None:
+        """Velocity mode's look-ahead: `Workspace.check_segment`, then with `[payload]` the
+        tension rule at points `_tension_step_m` apart along a->b (b included; a is where the
+        set-point is). Scalar: the look-ahead is a braking distance, a few samples. Raises
+        nothing."""
+        reason = self.workspace.check_segment(a, b)
+        chk = self.tension
+        if reason is not None or chk is None:
+            return reason
+        ax, ay, az = float(a[0]), float(a[1]), float(a[2])
+        dx, dy, dz = float(b[0]) - ax, float(b[1]) - ay, float(b[2]) - az
+        n = max(1, math.ceil(math.sqrt(dx * dx + dy * dy + dz * dz) / self._tension_step_m))
+        for k in range(1, n + 1):
+            f = k / n
+            q = (ax + f * dx, ay + f * dy, az + f * dz)
+            why = chk.check(q)
+            if why is not None:
+                return f"at {_fmt(q)}: {why}"
+        return None
 
     def _check_target(self, p: Sequence[float]) -> str | None:
         """Why `p` is not an allowed target (`Workspace.check_target`, then with `[payload]`

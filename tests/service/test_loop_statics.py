@@ -241,3 +241,37 @@ def test_configuration_of_telemetry_and_slack_is_validated() -> None:
         parse_config(data, "robot.toml")
     assert replace(cfg.faults).slack_time_s == 0.1
     assert math.isfinite(cfg.loop.torque_rtr_period_s)
+
+
+@pytest.mark.parametrize(
+    ("start", "v", "axis"),
+    [
+        ((0.0, 0.0, 2.0), (0.0, 0.0, 2.0), 2),  # straight up: the cables flatten, 495 N first
+        ((0.0, 0.0, 6.0), (0.0, 2.0, 0.0), 1),  # along y near the top, into the curved region
+    ],
+)
+def test_velocity_input_stops_short_of_the_tension_limit_without_a_fault(
+    start: tuple[float, float, float], v: tuple[float, float, float], axis: int
+) -> None:
+    rig = Rig()
+    rig.arm()
+    if math.dist(start, rig.start) > 0.0:
+        rig.do(Move(start, speed_mps=2.0))
+        rig.until(lambda: rig.state() is State.HOLDING)
+    check = rig.ctl.tension
+    assert check is not None
+    rig.setpoints.clear()
+    for _ in range(int(30.0 * 20)):  # a joystick at 20 Hz for 30 s, pushing on
+        rig.ctl.submit_velocity(v)
+        rig.tick(int(RATE_HZ / 20))
+    assert rig.state() is State.MOVING, rig.ctl.reason  # pushing: no fault
+    assert all(check.check(p) is None for p in rig.setpoints)
+    p = rig.ctl.setpoint_m
+    assert p is not None
+    assert rig.ctl.workspace.check_target(p) is None
+    beyond = list(p)
+    beyond[axis] += 0.01
+    # stopped by the tensions, within a centimetre of where they forbid it
+    assert check.check(beyond) is not None
+    assert rig.ctl.workspace.check_target(beyond) is None
+    assert rig.ctl.status()["velocity"]["boundary_brakes"] > 0
