@@ -617,7 +617,12 @@ def _motion(
             _print_reply(verb, reply, args)
             if not args.wait:
                 return EXIT_OK
-            return _wait_arrival(args, verb, poses, points)
+            # The daemon replies once the motion has started (MOVING). Poses published before it
+            # took the command may already be in the queue, HOLDING where a path also ends: they
+            # must not count as arrival. Unless the motion is already over, wait to see it move.
+            status = query(session, _key(args, "status"), None, args.timeout)
+            moving = isinstance(status, dict) and status.get("state") == "MOVING"
+            return _wait_arrival(args, verb, poses, points, seen_moving=not moving)
         finally:
             if sub is not None:
                 sub.undeclare()
@@ -626,9 +631,17 @@ def _motion(
 
 
 def _wait_arrival(
-    args: argparse.Namespace, verb: str, poses: queue.Queue[bytes], points: list[list[float]]
+    args: argparse.Namespace,
+    verb: str,
+    poses: queue.Queue[bytes],
+    points: list[list[float]],
+    *,
+    seen_moving: bool = True,
 ) -> int:
     """Follow the pose until it is within 1 mm of the last point in a still state (HOLDING).
+
+    With `seen_moving` False, HOLDING samples count only after a MOVING one (the motion was
+    still running when the wait began, and older samples may stand where the path ends).
 
     On a terminal (and without `--json`) one line shows the distance still to travel, rewritten
     in place. Raises WaitTimeout, Refused (the robot left the motion states) or DaemonAbsent.
@@ -661,7 +674,9 @@ def _wait_arrival(
             pos = last.get("position_m")
             if pos is None:
                 continue
-            if state == "HOLDING" and math.dist(pos, end) <= ARRIVED_TOL_M:
+            if state == "MOVING":
+                seen_moving = True
+            if state == "HOLDING" and seen_moving and math.dist(pos, end) <= ARRIVED_TOL_M:
                 line.clear()
                 if not args.json:
                     print(f"arrived: {format_pose(last)}", flush=True)
