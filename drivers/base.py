@@ -65,6 +65,11 @@ class AxisReading:
     state_name: str = "unknown"
     """The drive's own name for its state, for people (ODrive: "IDLE"; CiA 402: "Operation
     enabled"); "unknown" until the drive has been heard."""
+    torque_nm: float = 0.0
+    """The motor's torque estimate (N m, motor's positive direction; ODrive Get_Torques),
+    always finite; meaningful once `torque_stamp_s` is set."""
+    torque_stamp_s: float = NEVER_S
+    """Clock time when the last torque reading arrived on the bus; -inf = never."""
 
     def snapshot(self) -> AxisReading:
         """Return an independent copy of this reading."""
@@ -80,6 +85,8 @@ class AxisReading:
             self.ready,
             self.fault,
             self.state_name,
+            self.torque_nm,
+            self.torque_stamp_s,
         )
 
     def encoder_age_s(self, now_s: float) -> float:

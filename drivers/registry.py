@@ -75,6 +75,10 @@ class LoopSettings:
     """`faults.stale_timeout_s`: readings older than this fault the loop."""
     encoder_rtr: bool = False
     """`loop.encoder_rtr`: ask for encoder readings instead of waiting for broadcasts (ODrive)."""
+    torque_rtr: bool = False
+    """`loop.torque_telemetry = "rtr"`: ask for the motors' torques (ODrive Get_Torques)."""
+    torque_rtr_period_s: float = 0.01
+    """`loop.torque_rtr_period_s`: how often (with `torque_rtr`)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -17,6 +17,7 @@ _MODULES: tuple[str, ...] = (
     "controller.cli.sim",  # sim
     "controller.cli.client",  # pose, status, move, path, stop, estop, arm, disarm, reset, home
     "controller.cli.offline",  # ipk, fpk
+    "controller.cli.statics_cmd",  # statics, workspace
     "controller.cli.configs",  # check-config, init-config
     "controller.cli.monitor",  # monitor
     "controller.cli.jog",  # jog

@@ -24,6 +24,11 @@ Method
 * `batch_over_copy`: `kinematics.fpk_batch` on 1,000,000 such noisy rows over `np.copy` of the
   (1,000,000, 4) input. The table also shows the ratio on exactly consistent lengths (IPK of
   the poses), where only the three-spheres seed and the residual check run.
+* `statics_us`: `controller.core.statics.CableStatics.solve` (the tension distribution farthest
+  from the limits, the closed form for four cables) for the built-in robot's 5 kg payload, over
+  a fixed set of workspace poses, per pose; `statics_batch_us`: `CableStatics.solve_batch` on
+  100,000 such poses (the vectorised form `cablebot workspace` and path checks use), per pose.
+  The table also shows the loop's own check (`TensionCheck.check`: the solve and the reason).
 * `decode_frames_per_s`: `controller.cli.bench_rx.poll_rate`, the full receive path on one thread:
   python-can Messages on a `virtual` bus -> `cansimple.decode` -> per-axis reading update and
   stamping, 90 % encoder estimates and 10 % heartbeats for 4 axes.
@@ -130,6 +135,9 @@ class Plan:
     fpk4_poses: int
     batch_repeats: int
     batch_poses: int
+    statics_repeats: int
+    statics_poses: int
+    statics_batch_poses: int
     decode_repeats: int
     decode_frames: int
     loop_seconds: float
@@ -137,8 +145,8 @@ class Plan:
     estop_tries: int
 
 
-FULL = Plan(501, 400, 15, 32, 5, 1_000_000, 5, 50_000, 10.0, 3, 100)
-QUICK = Plan(101, 400, 5, 16, 3, 1_000_000, 3, 20_000, 2.0, 1, 50)
+FULL = Plan(501, 400, 15, 32, 5, 1_000_000, 51, 200, 100_000, 5, 50_000, 10.0, 3, 100)
+QUICK = Plan(101, 400, 5, 16, 3, 1_000_000, 11, 100, 100_000, 3, 20_000, 2.0, 1, 50)
 
 LENGTH_NOISE_M = 1e-3
 """Standard deviation of the noise put on the cable lengths for `fpk4` and the batch."""
@@ -183,6 +191,8 @@ JSON_KEYS = (
     "fpk4_us",
     "scipy_over_fpk4",
     "batch_over_copy",
+    "statics_us",
+    "statics_batch_us",
     "decode_frames_per_s",
     "zenoh_put_us",
     "loop",
@@ -444,6 +454,45 @@ def bench_batch(repeats: int, n_poses: int) -> dict[str, float]:
         out[name + "_copy_s"] = t.cpu(0) / 1e9
         out[name + "_wall_s"] = t.wall(1) / 1e9
     return out
+
+
+def bench_statics(repeats: int, n_poses: int, batch_poses: int) -> dict[str, float]:
+    """Cable tensions for the built-in robot's payload: one pose (solve, and the loop's check)
+    and a batch, in microseconds per pose."""
+    from controller.core.statics import CableStatics, TensionCheck
+    from controller.service.config import default_config
+
+    cfg = default_config()
+    assert cfg.payload is not None and cfg.tension is not None
+    mass = cfg.payload.mass_kg
+    ten = cfg.tension
+    statics = CableStatics(cfg.anchors_m, ten.min_n, ten.max_n)
+    check = TensionCheck(cfg.anchors_m, mass, ten.min_n, ten.max_n, ten.margin_n)
+    poses = [tuple(p) for p in _workspace_poses(cfg, n_poses, SEED + 5).tolist()]
+    batch = _workspace_poses(cfg, batch_poses, SEED + 6)
+    solve = statics.solve
+    checked = check.check
+
+    def run_solve() -> None:
+        for p in poses:
+            solve(p, mass)
+
+    def run_check() -> None:
+        for p in poses:
+            checked(p)
+
+    def run_batch() -> None:
+        statics.solve_batch(batch, mass)
+
+    t = interleaved([run_solve, run_check], repeats)
+    b = interleaved([run_batch], max(3, repeats // 5))
+    return {
+        "statics_us": t.cpu(0, n_poses) / 1e3,
+        "statics_wall_us": t.wall(0, n_poses) / 1e3,
+        "statics_check_us": t.cpu(1, n_poses) / 1e3,
+        "statics_batch_us": b.cpu(0, batch_poses) / 1e3,
+        "statics_batch_wall_us": b.wall(0, batch_poses) / 1e3,
+    }
 
 
 def bench_decode(repeats: int, frames: int) -> dict[str, float]:
@@ -1469,6 +1518,29 @@ def measure(
         ),
     ]
 
+    log("statics (tensions for the payload) ...")
+    sx = bench_statics(p.statics_repeats, p.statics_poses, p.statics_batch_poses)
+    rep = f"median of {p.statics_repeats} x {p.statics_poses} poses"
+    rows += [
+        Row(
+            "statics_us",
+            sx["statics_us"],
+            "us",
+            "",
+            None,
+            f"{rep}; wall {sx['statics_wall_us']:.3g}",
+        ),
+        Row("  tension check (loop)", sx["statics_check_us"], "us", "", None, rep),
+        Row(
+            "statics_batch_us",
+            sx["statics_batch_us"],
+            "us",
+            "",
+            None,
+            f"{p.statics_batch_poses:,} poses per batch; wall {sx['statics_batch_wall_us']:.3g}",
+        ),
+    ]
+
     log("receive path ...")
     dc = bench_decode(p.decode_repeats, p.decode_frames)
     rows.append(
@@ -1655,6 +1727,8 @@ def measure(
         "fpk4_us": f4["fpk4_us"],
         "scipy_over_fpk4": f4["scipy_over_fpk4"],
         "batch_over_copy": bt["batch_over_copy"],
+        "statics_us": sx["statics_us"],
+        "statics_batch_us": sx["statics_batch_us"],
         "decode_frames_per_s": dc["decode_frames_per_s"],
         "zenoh_put_us": float(k1["zenoh_put_us"]),
         "loop": {
@@ -1704,6 +1778,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         base.fpk4_poses,
         base.batch_repeats,
         args.batch_poses if args.batch_poses is not None else base.batch_poses,
+        base.statics_repeats,
+        base.statics_poses,
+        base.statics_batch_poses,
         base.decode_repeats,
         base.decode_frames,
         args.loop_seconds if args.loop_seconds is not None else base.loop_seconds,

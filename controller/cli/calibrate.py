@@ -71,12 +71,15 @@ def auto_poses(
     """`n` poses spread over the workspace described by a status `config` summary.
 
     Each pose keeps `margin_m` (default: 5 % of the workspace's smallest extent) inside every
-    limit: the cube of that half-size around it passes the workspace and cable-length checks.
+    limit: the cube of that half-size around it passes the workspace and cable-length checks
+    and, when the robot carries a payload (`payload` and `tension` in the summary), the
+    tension rule the controller applies to a target.
     Visiting order: a nearest-neighbour tour from `start_m`. Raises InputError when the
     summary lacks the anchors or limits, or the region holds too few poses.
     """
     from controller.core.calibration import CalibrationError, spread_poses
     from controller.core.kinematics import Geometry, KinematicsError
+    from controller.core.statics import TensionCheck
     from controller.core.workspace import Workspace
     from controller.service.config import LimitsConfig
 
@@ -84,6 +87,19 @@ def auto_poses(
         anchors = [tuple(float(c) for c in r["anchor_m"]) for r in summary["reels"]]
         geom = Geometry(anchors)
         ws = Workspace.from_limits(LimitsConfig(**summary["limits"]), geom)
+        ten, load = summary.get("tension"), summary.get("payload")
+        tension = (
+            None
+            if ten is None or load is None
+            else TensionCheck(
+                anchors,
+                float(load["mass_kg"]),
+                float(ten["min_n"]),
+                float(ten["max_n"]),
+                float(ten["margin_n"]),
+                str(ten["max_source"]),
+            )
+        )
     except (KeyError, TypeError, ValueError, KinematicsError) as exc:
         raise InputError(f"the daemon's status has no usable anchors and limits: {exc}") from None
     (x_lo, x_hi), (y_lo, y_hi), (z_lo, z_hi) = ws.box()
@@ -98,7 +114,8 @@ def auto_poses(
 
     def inside(p: Vec3) -> bool:
         return all(
-            ws.check_target((p[0] + dx, p[1] + dy, p[2] + dz)) is None for dx, dy, dz in corners
+            ws.check_target(q) is None and (tension is None or tension.check(q) is None)
+            for q in ((p[0] + dx, p[1] + dy, p[2] + dz) for dx, dy, dz in corners)
         )
 
     try:

@@ -197,6 +197,15 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
         f"limits     speed {lim.max_speed_mps:g} m/s (default {lim.default_speed_mps:g}),"
         f" accel {lim.max_accel_mps2:g} m/s², cable speed {lim.max_cable_speed_mps:g} m/s"
     )
+    ten = cfg.tension
+    if cfg.payload is not None and ten is not None:
+        lines.append(
+            f"statics    payload {cfg.payload.mass_kg:g} kg, cable tensions"
+            f" {ten.min_n:g}..{ten.max_n:.4g} N (maximum from {ten.max_source}),"
+            f" commands {ten.margin_n:g} N inside"
+        )
+    else:
+        lines.append("statics    no [payload]: cable tensions are not checked")
     lp = cfg.loop
     pub_hz = lp.rate_hz / max(1, lp.publish_every)
     lines.append(

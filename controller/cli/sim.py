@@ -7,9 +7,11 @@ reel.position_rev(ipk(power-up pose)) with the config's reel offsets), with the 
 section's speed, acceleration and tick and, where the family uses them, its broadcast periods
 and axis watchdog (ODrive: `watchdog_timeout_s`, on by default: a crashed daemon leaves the
 axes IDLE, not running). The family's `[drive]` options apply too (CiA 402: counts per turn,
-velocity units, EDS). Prints "READY <node ids>" on stdout once serving; runs until
-SIGTERM/SIGINT (exit 0). `start_sim_bank` is the same thing as a thread, used by `cablebot run`
-when `[sim] enabled`.
+velocity units, EDS). With `[sim] plant = "physical"` (ODrive) the axes carry the payload on
+elastic cables (`sim_plant`) and report the torque their cables need by Get_Torques. Prints
+"READY <node ids>" on stdout once serving; runs until SIGTERM/SIGINT (exit 0), then logs how
+fast it ran (ticks, late ticks, real-time factor) when the bank counts them. `start_sim_bank`
+is the same thing as a thread, used by `cablebot run` when `[sim] enabled`.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import logging
 import signal
 import sys
 import threading
+from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -56,15 +59,43 @@ def sim_settings(cfg: Any) -> Any:
     )
 
 
-def sim_bank(cfg: Any, bus: Any) -> Any:
-    """The config's simulated drives on `bus` (a `drivers.registry.SimBank`, not started).
+def sim_plant(cfg: Any, turns: Sequence[float]) -> Any:
+    """The `ReelPlant` the axes carry with `[sim] plant = "physical"` (None for "kinematic").
 
-    Raises ValueError / KinematicsError on an unusable power-up pose or settings.
+    The effector starts at rest at the power-up pose, its cables holding the payload with the
+    statics distribution farthest from the tension limits, with the motors at `turns`. Raises
+    PlantError / EquilibriumError / StaticsError (ValueErrors) if that pose cannot be held.
+    """
+    if cfg.sim.plant != "physical":
+        return None
+    from controller.core.plant import PlantParams, ReelPlant
+    from controller.service.config import tension_check
+
+    pose = tuple(float(v) for v in cfg.homing.power_up_position_m)
+    tensions = tension_check(cfg.payload, cfg.tension, cfg.geometry).solve(pose).tensions_n
+    params = PlantParams(cfg.anchors_m, float(cfg.sim.cable_ea_n), float(cfg.payload.mass_kg))
+    return ReelPlant(params, [r.reel for r in cfg.reels], pose, turns, tensions)
+
+
+def sim_bank(cfg: Any, bus: Any) -> Any:
+    """The config's simulated drives on `bus` (a `drivers.registry.SimBank`, not started),
+    carrying the physical plant when `[sim] plant = "physical"`.
+
+    Raises ValueError / KinematicsError on an unusable power-up pose or settings, ValueError
+    when the family's simulated drives cannot carry a load.
     """
     from drivers import registry
 
     fam = registry.family(cfg.drive.kind)
-    return fam.sim_bank(bus, cfg.node_ids, cfg.drive.options, sim_settings(cfg))
+    settings = sim_settings(cfg)
+    bank = fam.sim_bank(bus, cfg.node_ids, cfg.drive.options, settings)
+    plant = sim_plant(cfg, settings.initial_positions_rev)
+    if plant is not None:
+        carry = getattr(bank, "carry", None)
+        if carry is None:
+            raise ValueError(f"simulated {fam.title} drives cannot carry a physical plant")
+        carry(plant, float(cfg.sim.torque_period_s))
+    return bank
 
 
 def start_sim_bank(cfg: Any, bus: Any) -> Any:
@@ -99,10 +130,21 @@ def cmd_sim(args: argparse.Namespace) -> int:
     title = registry.family(cfg.drive.kind).title
     bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
     try:
-        bank = start_sim_bank(cfg, bus)
+        try:
+            bank = start_sim_bank(cfg, bus)
+        except ValueError as exc:  # the physical plant cannot hold the power-up pose, ...
+            log.error("simulated drives: %s", exc)
+            return 2
         try:
             nodes = ",".join(str(n) for n in cfg.node_ids)
-            log.info("simulated %s nodes %s on %s %s", title, nodes, b.interface, b.channel)
+            log.info(
+                "simulated %s nodes %s on %s %s (%s plant)",
+                title,
+                nodes,
+                b.interface,
+                b.channel,
+                cfg.sim.plant,
+            )
             print(f"READY {nodes}", flush=True)
             while not stop.wait(0.2):
                 thread = bank.thread
@@ -111,6 +153,18 @@ def cmd_sim(args: argparse.Namespace) -> int:
                     return 1
         finally:
             bank.stop()
+            stats = getattr(bank, "stats", None)
+            if stats is not None:
+                log.info(
+                    "served %d ticks (%.1f s simulated), %d late, real-time factor %.1f%s",
+                    stats.ticks,
+                    stats.simulated_s,
+                    stats.late_ticks,
+                    stats.real_time_factor,
+                    f", {stats.coupling_errors} plant errors (last: {stats.last_coupling_error})"
+                    if stats.coupling_errors
+                    else "",
+                )
     finally:
         bus.shutdown()
     return 0

@@ -10,6 +10,7 @@ Model
   effector ``P``, a point mass ``m``. Its unstretched length ``L0_i`` is what the reel has paid out:
   the caller turns motor positions into metres (``controller.core.reel.ReelModel.length_m`` gives
   the unstretched length) and passes metres in; the reel model stays out of the plant.
+  `ReelPlant` is that caller for a bank of reels: motor turns in, holding torques out.
 * Cable stiffness ``k_i = EA_i / L0_i`` (``EA`` in newtons: about 1e5 N for a desk rig's braided
   line, 1e6-1e7 N for steel rope). With ``L_i = |A_i - P|`` and ``u_i = (A_i - P) / L_i``, the
   tension is
@@ -65,6 +66,8 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
+
+from controller.core.reel import ReelModel
 
 STANDARD_GRAVITY_MPS2 = 9.80665
 """Standard gravity, m/s^2 (z is up)."""
@@ -749,3 +752,85 @@ class CablePlant:
         self._time_s += dt_s
         self._substeps = nsub
         return self._p
+
+
+class ReelPlant:
+    """One `CablePlant` driven by the motor positions of its reels: the effector couples them.
+
+    Motor turns become unstretched cable lengths through each reel's model, ``L0_i =
+    reel_i.length_m(position_rev_i) - stretch_i``, and each cable's tension becomes the motor
+    torque that holds it, ``reel_i.torque_nm(position_rev_i, t_i)`` (work balance, see
+    `controller.core.reel`). ``stretch_i`` is fixed when the plant is built: the effector rests
+    at `position_m` with `tensions_n` (a statics solution; default the simple holding
+    distribution of `CablePlant.at_pose`) while the reels are at `positions_rev`, so the
+    reels' lengths are the geometric lengths there, as the controller's kinematics assume.
+    Elsewhere the cables stretch as their tensions demand. Not thread-safe: one owner steps it.
+    Raises PlantError / EquilibriumError on bad inputs, ValueError on a wrong number of reels.
+    """
+
+    __slots__ = ("_positions", "_reels", "_stretch", "_torques", "plant")
+
+    def __init__(
+        self,
+        params: PlantParams,
+        reels: Sequence[ReelModel],
+        position_m: Sequence[float],
+        positions_rev: Sequence[float],
+        tensions_n: Sequence[float] | None = None,
+    ) -> None:
+        if len(reels) != params.cables or len(positions_rev) != params.cables:
+            raise ValueError(
+                f"{params.cables} cables need as many reels and positions, got {len(reels)} "
+                f"and {len(positions_rev)}"
+            )
+        self.plant = CablePlant.at_pose(params, position_m, tensions_n)
+        self._reels = tuple(reels)
+        positions = [_finite(f"positions_rev[{i}]", p) for i, p in enumerate(positions_rev)]
+        self._stretch = [
+            r.length_m(p) - l0
+            for r, p, l0 in zip(self._reels, positions, self.plant.unstretched_m, strict=True)
+        ]
+        self._positions = positions
+        self._torques = self._torques_now()
+
+    def _torques_now(self) -> tuple[float, ...]:
+        return tuple(
+            r.torque_nm(p, t)
+            for r, p, t in zip(self._reels, self._positions, self.plant.tensions_n, strict=True)
+        )
+
+    def step(self, positions_rev: Sequence[float], dt_s: float) -> tuple[float, ...]:
+        """Move the reels to `positions_rev` over `dt_s`, step the plant; return each motor's
+        holding torque (N m). Raises PlantError (bad input, a cable paid in past zero length,
+        the plant diverging); the state is then unchanged."""
+        reels = self._reels
+        stretch = self._stretch
+        positions = [float(p) for p in positions_rev]
+        if len(positions) != len(reels):
+            raise PlantError(f"{len(reels)} reels need as many positions, got {len(positions)}")
+        l0 = [reels[i].length_m(positions[i]) - stretch[i] for i in range(len(reels))]
+        self.plant.step(l0, dt_s)
+        self._positions = positions
+        self._torques = self._torques_now()
+        return self._torques
+
+    def slip(self, cable: int, metres: float) -> None:
+        """Let cable `cable` (0-based) slip `metres` off its drum (positive: paid out) without
+        its motor turning, from the next step on: a fault the encoders cannot see. Raises
+        IndexError for a cable that does not exist, PlantError for a non-finite length."""
+        self._stretch[cable] -= _finite("metres", metres)
+
+    @property
+    def torques_nm(self) -> tuple[float, ...]:
+        """The motors' holding torques (N m) after the last step."""
+        return self._torques
+
+    @property
+    def tensions_n(self) -> tuple[float, ...]:
+        """The cable tensions (N) after the last step."""
+        return self.plant.tensions_n
+
+    @property
+    def position_m(self) -> Vec3:
+        """The effector's position (m)."""
+        return self.plant.position_m

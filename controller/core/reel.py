@@ -21,12 +21,27 @@ homing sets it (`with_home`). With build-up, the spool's wound state at the refe
 fixed by ``reference_length_m`` (the length at which ``metres_per_rev`` holds), and homing moves
 only ``offset_rev``. The inverse solves the quadratic in closed form with the numerically stable
 root; it is valid while the metres per turn stay positive (the spool is not over-emptied).
+
+Torque and tension (ideal reel: no friction, no inertia). The work the motor does on the cable
+balances the work the cable's tension does on the effector: with the slope
+``dL/drev = length_rate_mps(position_rev, 1.0)`` (metres of anchor-to-effector length per motor
+turn, signed: positive when positive turns pay out), a motor torque ``tau`` (N m, positive in
+the motor's positive direction) holds a tension
+
+    tension_n = -tau * 2 pi / (dL/drev)
+
+The torque that holds a cable winds it in: negative on a reel whose positive turns pay out
+(``direction`` +1), positive on a mirrored one. Gear ratio, pulley block and spool build-up all
+enter through the slope, so the tension one torque holds changes with the turns when the spool
+builds up.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+
+_TWO_PI = 2.0 * math.pi
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,6 +162,42 @@ class ReelModel:
         if slope == 0.0:
             raise ValueError("reel slope is zero at this position (spool fully paid out)")
         return length_rate_mps / slope
+
+    def tension_n(self, position_rev: float, torque_nm: float) -> float:
+        """Cable tension (N) that motor torque `torque_nm` holds at `position_rev`.
+
+        Work balance (module docstring): ``-torque_nm * 2 pi / (dL/drev)``; a torque that pays
+        the cable out gives a negative number (the cable would push). Raises ValueError where
+        the length no longer depends on the position (spool empty).
+        """
+        slope = self._k1 + 2.0 * (position_rev - self.offset_rev) * self._k2
+        if slope == 0.0:
+            raise ValueError("reel slope is zero at this position (spool fully paid out)")
+        return -torque_nm * _TWO_PI / slope
+
+    def torque_nm(self, position_rev: float, tension_n: float) -> float:
+        """Motor torque (N m, motor's positive direction) that holds `tension_n` at
+        `position_rev`: ``-tension_n * (dL/drev) / 2 pi``, the inverse of `tension_n`.
+        Raises nothing."""
+        slope = self._k1 + 2.0 * (position_rev - self.offset_rev) * self._k2
+        return -tension_n * slope / _TWO_PI
+
+    def max_tension_n(
+        self, max_torque_nm: float, min_length_m: float, max_length_m: float
+    ) -> float:
+        """The largest tension (N) `max_torque_nm` holds everywhere between the two cable lengths.
+
+        The slope's magnitude is largest at one end of the range (it is linear in the turns),
+        so that end bounds the tension. Raises ValueError on a non-positive or non-finite torque
+        or a length the spool cannot reach.
+        """
+        if not (math.isfinite(max_torque_nm) and max_torque_nm > 0.0):
+            raise ValueError(f"max_torque_nm must be finite and > 0, got {max_torque_nm!r}")
+        steepest = max(
+            abs(self.length_rate_mps(self.position_rev(length), 1.0))
+            for length in (min_length_m, max_length_m)
+        )
+        return max_torque_nm * _TWO_PI / steepest
 
     def with_home(self, position_rev: float, length_m: float) -> ReelModel:
         """Return a model in which motor position `position_rev` has cable length `length_m`.

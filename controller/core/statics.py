@@ -53,7 +53,7 @@ The batch form never raises for a bad row: singular or non-finite rows get ``fea
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -72,6 +72,7 @@ __all__ = [
     "SolverUnavailable",
     "StaticsError",
     "StaticsInputError",
+    "TensionCheck",
     "Tensions",
     "feasible_workspace",
     "solve_tensions",
@@ -600,6 +601,69 @@ def _batch_closed(
     return t, ok
 
 
+class TensionCheck:
+    """The tension rule for one robot and payload: every cable within the limits, by a margin.
+
+    A pose passes when the equilibrium distribution farthest from the limits keeps every
+    tension in ``[t_min_n + margin_n, t_max_n - margin_n]`` (``Tensions.margin_n >=
+    margin_n``).  ``max_source`` names where ``t_max_n`` comes from, for messages.  Raises
+    ``StaticsInputError`` for bad anchors, mass or limits, a negative or non-finite margin, or
+    a margin that leaves no range.
+    """
+
+    __slots__ = ("margin_n", "mass_kg", "max_source", "statics")
+
+    def __init__(
+        self,
+        anchors_m: ArrayLike,
+        mass_kg: float,
+        t_min_n: float,
+        t_max_n: float,
+        margin_n: float = 0.0,
+        max_source: str = "max_tension_n",
+    ) -> None:
+        self.statics = CableStatics(anchors_m, t_min_n, t_max_n)
+        self.mass_kg = _check_mass(mass_kg)
+        m = float(margin_n)
+        if not (_finite(m) and m >= 0.0):
+            raise StaticsInputError(f"margin_n must be finite and >= 0, got {margin_n!r}")
+        if not self.statics.t_min_n + m < self.statics.t_max_n - m:
+            raise StaticsInputError(
+                f"margin_n {m:g} N leaves no range inside {self.statics.t_min_n:g}.."
+                f"{self.statics.t_max_n:g} N"
+            )
+        self.margin_n = m
+        self.max_source = max_source
+
+    def solve(self, point_m: Sequence[float]) -> Tensions:
+        """The payload's tension distribution at P (``CableStatics.solve``); raises as it does."""
+        return self.statics.solve(point_m, self.mass_kg)
+
+    def reason(self, result: Tensions) -> str | None:
+        """None if `result` passes, else why: the cable (1-based), its tension and the bound."""
+        if result.margin_n >= self.margin_n:
+            return None
+        i = result.limiting_cable
+        t = result.tensions_n[i]
+        lo, hi, m = self.statics.t_min_n, self.statics.t_max_n, self.margin_n
+        if result.limiting_bound == "min":
+            return (
+                f"cable {i + 1} tension {t:.4g} N below {lo + m:.4g} N (min_tension_n {lo:g} N "
+                f"+ tension_margin_n {m:g} N) holding {self.mass_kg:g} kg"
+            )
+        return (
+            f"cable {i + 1} tension {t:.4g} N above {hi - m:.4g} N ({self.max_source} "
+            f"{hi:.4g} N - tension_margin_n {m:g} N) holding {self.mass_kg:g} kg"
+        )
+
+    def check(self, point_m: Sequence[float]) -> str | None:
+        """None if the payload can be held at P by the rule, else the reason. Raises nothing."""
+        try:
+            return self.reason(self.statics.solve(point_m, self.mass_kg))
+        except StaticsError as exc:
+            return f"the cables cannot hold {self.mass_kg:g} kg there: {exc}"
+
+
 # -- module-level conveniences ---------------------------------------------------------------
 
 
@@ -637,6 +701,9 @@ class FeasibleWorkspace:
     misattributed by at most its volume, so this bounds the error of ``volume_m3``
     (conservatively: cells on both sides of the surface are counted) unless a feature smaller
     than a cell falls between samples.  Halving the step should change ``volume_m3`` by less.
+    With a region (``inside``), a cell counts only when its centre is in the region too, the
+    boundary is that of the intersection, and ``region_volume_m3`` is the region's sampled
+    volume (``box_volume_m3`` without one).
     """
 
     xs_m: NDArray[np.float64]
@@ -651,6 +718,8 @@ class FeasibleWorkspace:
     n_boundary: int
     volume_m3: float
     uncertainty_m3: float
+    n_region: int
+    region_volume_m3: float
 
 
 def _axis(rng: Sequence[float], step_m: float, name: str) -> tuple[NDArray[np.float64], float]:
@@ -676,13 +745,17 @@ def feasible_workspace(
     mass_kg: float,
     t_min_n: float,
     t_max_n: float,
+    inside: Callable[[NDArray[np.float64]], NDArray[np.bool_]] | None = None,
 ) -> FeasibleWorkspace:
     """Sample the box on a regular grid and return where the tensions can stay in range.
 
     The box is cut into cells of about ``step_m`` (each axis into a whole number of equal
     cells, so the cells tile the box exactly; the actual sizes are ``cell_m``) and each cell
     centre is solved with ``tensions_batch`` (singular centres count as infeasible), and so is
-    the centre of each outer face of the cells on the box's surface (for the uncertainty).  Raises
+    the centre of each outer face of the cells on the box's surface (for the uncertainty).
+    ``inside``, given an (M, 3) array of points, says which lie in a region of interest (e.g.
+    the geometric workspace, ``controller.core.workspace.Limits.inside_points``): only those
+    count as feasible.  Raises
     ``StaticsInputError`` for a bad box, step, mass or limits or more than 2e8 cells, and what
     ``tensions_batch`` raises.
     """
@@ -703,7 +776,8 @@ def feasible_workspace(
     gx, gy, gz = np.meshgrid(xs, ys, zs, indexing="ij")
     pts = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
     _, margin, feasible, _ = statics.solve_batch(pts, mass_kg)
-    feas = feasible.reshape(shape)
+    region = np.ones(total, dtype=bool) if inside is None else np.asarray(inside(pts), dtype=bool)
+    feas = (feasible & region).reshape(shape)
     boundary = np.zeros(shape, dtype=bool)
     axes = (xs, ys, zs)
     # the box's faces: first and last centre -/+ half a cell
@@ -724,7 +798,10 @@ def feasible_workspace(
             face_axes = [a if k != ax else np.array([bounds[ax][side]]) for k, a in enumerate(axes)]
             fx, fy, fz = np.meshgrid(*face_axes, indexing="ij")
             face_pts = np.stack([fx.ravel(), fy.ravel(), fz.ravel()], axis=1)
-            face_ok = statics.solve_batch(face_pts, mass_kg)[2].reshape(fx.shape)
+            face_ok = statics.solve_batch(face_pts, mass_kg)[2]
+            if inside is not None:
+                face_ok = face_ok & np.asarray(inside(face_pts), dtype=bool)
+            face_ok = face_ok.reshape(fx.shape)
             sl: list[slice] = [slice(None)] * 3
             sl[ax] = slice(layer, layer + 1)
             boundary[tuple(sl)] |= feas[tuple(sl)] != face_ok
@@ -736,6 +813,7 @@ def feasible_workspace(
     mg = margin.reshape(shape)
     mg.setflags(write=False)
     box = (xs.size * hx) * (ys.size * hy) * (zs.size * hz)
+    n_region = int(region.sum())
     return FeasibleWorkspace(
         xs_m=xs,
         ys_m=ys,
@@ -749,4 +827,6 @@ def feasible_workspace(
         n_boundary=n_boundary,
         volume_m3=n_feasible * cell,
         uncertainty_m3=n_boundary * cell,
+        n_region=n_region,
+        region_volume_m3=box if inside is None else n_region * cell,
     )

@@ -478,6 +478,27 @@ class Workspace:
                     )
         return None
 
+    def inside_points(self, points: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
+        """For an (M, 3) array of points: True where `check_target` would pass (the workspace
+        and every cable length, with the same tolerance), vectorised; False for a non-finite
+        point. Raises ValueError if `points` is not (M, 3)."""
+        pts = np.asarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"points must have shape (M, 3), got {pts.shape}")
+        x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
+        with np.errstate(invalid="ignore", over="ignore"):
+            ok = np.isfinite(pts).all(axis=1)
+            for nx, ny, c in self._planes:
+                ok &= nx * x + ny * y - c <= TOL_M
+            ok &= (z >= self.floor_z_m - TOL_M) & (z <= self.top_z_m + TOL_M)
+            lo = self.min_cable_m - TOL_M
+            hi = self.max_cable_m + TOL_M
+            for q in self._anchors:
+                rel = pts - q
+                length = np.sqrt(np.einsum("ij,ij->i", rel, rel))
+                ok &= (length >= lo) & (length <= hi)
+        return ok
+
     def path_failure(
         self,
         points: Sequence[Sequence[float]],

@@ -32,7 +32,12 @@ values run only when those values are valid themselves):
   default speed <= max speed, fault timeouts longer than two loop periods (and than the
   simulator's encoder period), every reel can pay out `max_cable_m` and keeps better than
   0.1 mm resolution over the cable range in float32 motor turns (the ODrive CANSimple
-  position type), and the power-up position (if any) is inside the limits.
+  position type), and the power-up position (if any) is inside the limits;
+* statics: with `[payload] mass_kg`, `limits.min_tension_n` is required and so is
+  `limits.max_tension_n` unless every reel gives `max_torque_nm` (the smaller maximum wins:
+  `TensionLimits`); the range must stay open inside `tension_margin_n`, and the payload must
+  be holdable at the power-up position with every tension at least the margin inside the
+  range. Without `[payload]` no tension key may be set (it would do nothing).
 
 Keys and helpers with defaults, so a file that omits them still loads:
 `LoopConfig.rt_priority` (int, 50), `LoopConfig.auto_arm` (bool | None; None = arm at start
@@ -64,6 +69,7 @@ from typing import Any, overload
 
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
 from controller.core.reel import ReelModel, spool_buildup
+from controller.core.statics import TensionCheck
 from controller.core.workspace import Workspace, WorkspaceError
 from drivers import registry
 
@@ -81,6 +87,8 @@ WATCHDOG_DEFAULT_PERIODS = 5.0
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,62}$")
 _PREFIX_RE = re.compile(r"^[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*$")
 _ZENOH_MODES = ("peer", "client", "router")
+SIM_PLANTS = ("kinematic", "physical")
+TORQUE_TELEMETRY = ("off", "cyclic", "rtr")
 
 
 class ConfigError(ValueError):
@@ -124,6 +132,9 @@ class ReelConfig:
     node_id: int
     anchor_m: Vec3
     reel: ReelModel
+    max_torque_nm: float | None = None
+    """The motor's torque limit (N m); with it the reel bounds the cable tension (see
+    `TensionLimits`). None = no bound from this reel."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,6 +168,11 @@ class LoopConfig:
     """SCHED_FIFO priority of the loop thread when `realtime` (1..99)."""
     auto_arm: bool | None = None
     """Arm at start-up; None = only when the reels are simulated in-process (`sim.enabled`)."""
+    torque_telemetry: str = "off"
+    """How the loop learns each motor's torque (measured cable tensions): "off", "cyclic" (the
+    drives broadcast Get_Torques) or "rtr" (asked every `torque_rtr_period_s`)."""
+    torque_rtr_period_s: float = 0.01
+    """With `torque_telemetry = "rtr"`: how often every axis is asked for its torques."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,6 +190,34 @@ class LimitsConfig:
     default_speed_mps: float = 1.0
     velocity_timeout_s: float = 0.25
     """Dead-man of velocity input: no `<prefix>/velocity` sample for this long brakes to a hold."""
+    min_tension_n: float | None = None
+    """Least tension a cable may carry (N); required with `[payload]`."""
+    max_tension_n: float | None = None
+    """Most tension a cable may carry (N); the reels' `max_torque_nm` may lower it."""
+    tension_margin_n: float = 0.0
+    """Every tension of a command or set-point must stay this far inside the limits (N)."""
+
+
+@dataclass(frozen=True, slots=True)
+class PayloadConfig:
+    """What the cables carry: the effector and its tool, as one point mass."""
+
+    mass_kg: float
+
+
+@dataclass(frozen=True, slots=True)
+class TensionLimits:
+    """The cable tension range statics checks against, and where its maximum comes from.
+
+    `max_n` is the smaller of `limits.max_tension_n` and the least tension any reel's
+    `max_torque_nm` holds over the cable range (`ReelModel.max_tension_n`); `max_source` names
+    the key that won. A command's tensions must lie in [min_n + margin_n, max_n - margin_n].
+    """
+
+    min_n: float
+    max_n: float
+    margin_n: float
+    max_source: str
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,6 +230,12 @@ class FaultConfig:
     tracking_max_m: float = 0.25
     arm_timeout_s: float = 2.0
     bus_error_timeout_s: float = 0.05
+    slack_tension_n: float | None = None
+    """Fault when a measured cable tension stays below this for `slack_time_s` (needs torque
+    telemetry and `[payload]`); None = no slack fault."""
+    slack_time_s: float = 0.1
+    """How long a measured tension may stay below `slack_tension_n` or above the tension
+    maximum before the loop faults."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -227,6 +277,14 @@ class SimConfig:
     """Simulated ODrive axis watchdog (axis.config.watchdog_timeout): an axis in closed loop
     that receives no command for this long disarms to IDLE with WATCHDOG_TIMER_EXPIRED;
     0 = off."""
+    plant: str = "kinematic"
+    """"kinematic": the reels move, nothing hangs on them (exact, no parameters); "physical":
+    one elastic-cable plant carries the payload and the axes report the torque their cables
+    need (`controller.core.plant.ReelPlant`; needs `[payload]` and a power-up pose)."""
+    cable_ea_n: float = 1.0e6
+    """Axial stiffness EA (N) of every simulated cable (physical plant)."""
+    torque_period_s: float = 0.01
+    """Period of each simulated axis's Get_Torques broadcast (physical plant); 0 = RTR only."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -253,6 +311,10 @@ class RobotConfig:
     zenoh: ZenohConfig
     sim: SimConfig
     source: str
+    payload: PayloadConfig | None = None
+    """None: no `[payload]`, so no statics (geometry only)."""
+    tension: TensionLimits | None = None
+    """Set exactly when `payload` is."""
     drive: DriveConfig = field(default_factory=DriveConfig)
 
     @property
@@ -280,6 +342,7 @@ class RobotConfig:
                     "mechanical_advantage": m.mechanical_advantage,
                     "spool_buildup_m_per_rev2": m.spool_buildup_m_per_rev2,
                     "reference_length_m": m.reference_length_m,
+                    "max_torque_nm": r.max_torque_nm,
                 }
             )
         return {
@@ -312,6 +375,8 @@ class RobotConfig:
                 "config_file": self.zenoh.config_file,
             },
             "sim": _fields(self.sim),
+            "payload": None if self.payload is None else _fields(self.payload),
+            "tension": None if self.tension is None else _fields(self.tension),
             "drive": {
                 "kind": self.drive.kind,
                 "options": {k: _jsonable(v) for k, v in self.drive.options.items()},
@@ -337,6 +402,9 @@ def _jsonable(v: Any) -> Any:
 
 # ------------------------------------------------------------------------------- validation
 _UNIT_WORDS = {
+    "_kg": "kilograms",
+    "_nm": "newton-metres",
+    "_n": "newtons",
     "_per_rev": "units per motor turn",
     "_per_rps": "units per motor turn per second",
     "_mps2": "metres per second squared",
@@ -597,6 +665,7 @@ _REEL_KEYS = (
     "cable_diameter_m",
     "turns_per_layer",
     "reference_length_m",
+    "max_torque_nm",
 )
 
 
@@ -635,6 +704,7 @@ def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
     else:
         buildup = t.number("spool_buildup_m_per_rev2", 0.0, ge=0.0)
     ref = t.number("reference_length_m", 0.0, ge=0.0)
+    max_torque = t.number("max_torque_nm", gt=0.0) if t.has("max_torque_nm") else None
     if not t.errs.clean_since(mark) or node_id is None or anchor is None:
         return None
     try:
@@ -649,7 +719,7 @@ def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
     except (ValueError, ArithmeticError) as exc:
         t.fail_here(f"unusable reel model: {exc}")
         return None
-    return ReelConfig(node_id=node_id, anchor_m=anchor, reel=model)
+    return ReelConfig(node_id=node_id, anchor_m=anchor, reel=model, max_torque_nm=max_torque)
 
 
 def _check_reel_range(rc: ReelConfig, i: int, lim: LimitsConfig, source: str) -> None:
@@ -696,6 +766,7 @@ _TOP_KEYS = (
     "homing",
     "zenoh",
     "sim",
+    "payload",
     "drive",
 )
 _BUS_KEYS = ("interface", "channel", "bitrate", "options")
@@ -746,7 +817,16 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         encoder_rtr=lt.boolean("encoder_rtr", d_loop.encoder_rtr),
         rt_priority=lt.integer("rt_priority", d_loop.rt_priority, ge=1, le=99),
         auto_arm=lt.boolean("auto_arm", False) if lt.has("auto_arm") else None,
+        torque_telemetry=lt.string("torque_telemetry", d_loop.torque_telemetry) or "off",
+        torque_rtr_period_s=lt.number(
+            "torque_rtr_period_s", d_loop.torque_rtr_period_s, gt=0.0, le=10.0
+        ),
     )
+    if loop.torque_telemetry not in TORQUE_TELEMETRY:
+        lt.fail(
+            "torque_telemetry",
+            f"must be one of {', '.join(TORQUE_TELEMETRY)}, got {loop.torque_telemetry!r}",
+        )
 
     # ---- limits: no defaults in a file (a safe limit depends on the robot)
     mark = errs.mark()
@@ -783,7 +863,12 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
             ge=0.0,
             le=10.0,
         ),
+        plant=st.string("plant", d_sim.plant) or d_sim.plant,
+        cable_ea_n=st.number("cable_ea_n", d_sim.cable_ea_n, gt=0.0),
+        torque_period_s=st.number("torque_period_s", d_sim.torque_period_s, ge=0.0, le=10.0),
     )
+    if sim.plant not in SIM_PLANTS:
+        st.fail("plant", f"must be one of {', '.join(SIM_PLANTS)}, got {sim.plant!r}")
     wd = sim.watchdog_timeout_s
     if 0.0 < wd < WATCHDOG_MIN_PERIODS * period_s:
         st.fail(
@@ -807,6 +892,10 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         bus_error_timeout_s=ft.number(
             "bus_error_timeout_s", d_f.bus_error_timeout_s, ge=0.0, le=10.0
         ),
+        slack_tension_n=(
+            ft.number("slack_tension_n", ge=0.0) if ft.has("slack_tension_n") else None
+        ),
+        slack_time_s=ft.number("slack_time_s", d_f.slack_time_s, ge=0.0, le=10.0),
     )
     if faults.stale_timeout_s < 2.0 * period_s:
         ft.fail(
@@ -850,6 +939,38 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     if family is not None:
         limits_used = limits if limits_ok else None
         _check_drive(top, drive, family, drive_ok, loop, faults, limits_used, reels)
+    payload, tension = _parse_statics(top, errs, limits, limits_ok, reels, geometry, pup)
+    if loop.torque_telemetry != "off" and sim.enabled and sim.plant == "kinematic":
+        lt.fail(
+            "torque_telemetry",
+            f'"{loop.torque_telemetry}" with the kinematic simulator (sim.enabled): it carries '
+            'no load and reports no torque; use sim.plant = "physical"',
+        )
+    if faults.slack_tension_n is not None:
+        if loop.torque_telemetry == "off":
+            ft.fail("slack_tension_n", 'needs measured tensions: loop.torque_telemetry is "off"')
+        if not top.has("payload"):
+            ft.fail("slack_tension_n", "needs [payload] mass_kg (tension limits need a load)")
+        elif tension is not None and not faults.slack_tension_n < tension.min_n:
+            ft.fail(
+                "slack_tension_n",
+                f"{faults.slack_tension_n:g} N must be below limits.min_tension_n "
+                f"({tension.min_n:g} N): every holding pose would be slack",
+            )
+    if sim.plant == "physical":
+        if drive.kind != "odrive":
+            st.fail(
+                "plant",
+                f'"physical" needs simulated ODrives (they report torques); drive.kind is '
+                f"{drive.kind!r}",
+            )
+        if payload is None and not top.has("payload"):
+            st.fail("plant", '"physical" needs [payload] mass_kg (what the cables carry)')
+        if pup is None and not ht.has("power_up_position_m"):
+            st.fail(
+                "plant",
+                '"physical" needs homing.power_up_position_m (where the simulated effector starts)',
+            )
 
     errs.raise_if_any()
     assert reels is not None and geometry is not None  # no problems: both were built
@@ -866,6 +987,8 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         sim=sim,
         source=source,
         drive=drive,
+        payload=payload,
+        tension=tension,
     )
 
 
@@ -883,7 +1006,115 @@ def _parse_limits(mt: _Table) -> LimitsConfig:
         max_accel_mps2=mt.number("max_accel_mps2", required=True, gt=0.0),
         default_speed_mps=mt.number("default_speed_mps", max_speed, gt=0.0),
         velocity_timeout_s=mt.number("velocity_timeout_s", 0.25, gt=0.0),
+        min_tension_n=mt.number("min_tension_n", ge=0.0) if mt.has("min_tension_n") else None,
+        max_tension_n=mt.number("max_tension_n", gt=0.0) if mt.has("max_tension_n") else None,
+        tension_margin_n=mt.number("tension_margin_n", 0.0, ge=0.0),
     )
+
+
+_TENSION_KEYS = ("min_tension_n", "max_tension_n", "tension_margin_n")
+
+
+def _parse_statics(
+    top: _Table,
+    errs: _Errors,
+    limits: LimitsConfig,
+    limits_ok: bool,
+    reels: tuple[ReelConfig, ...] | None,
+    geometry: Geometry | None,
+    power_up_m: Vec3 | None,
+) -> tuple[PayloadConfig | None, TensionLimits | None]:
+    """`[payload]` and the tension limits; (None, None) without `[payload]` (then no tension key
+    may be set: it would do nothing). Cross-checks, when their inputs are clean: a usable
+    tension range and a tension-feasible power-up pose."""
+    if not top.has("payload"):
+        lim_raw = top.raw("limits") if top.has("limits") else {}
+        for k in _TENSION_KEYS:
+            if isinstance(lim_raw, Mapping) and k in lim_raw:
+                errs.add(f"limits.{k}", "needs [payload] mass_kg (tension limits need a load)")
+        for i, r in enumerate(reels or ()):
+            if r.max_torque_nm is not None:
+                errs.add(
+                    f"reels[{i}].max_torque_nm",
+                    "needs [payload] mass_kg (tension limits need a load)",
+                )
+        return None, None
+    pt = top.sub("payload")
+    pt.finish(tuple(PayloadConfig.__dataclass_fields__))
+    mark = errs.mark()
+    mass = pt.number("mass_kg", required=True, gt=0.0)
+    if limits_ok and limits.min_tension_n is None:
+        errs.add("limits.min_tension_n", "missing (required with [payload])")
+    if not (errs.clean_since(mark) and limits_ok and reels is not None and geometry is not None):
+        return None, None
+    payload = PayloadConfig(mass_kg=mass)
+    max_n, max_source = math.inf, ""
+    if limits.max_tension_n is not None:
+        max_n, max_source = limits.max_tension_n, "limits.max_tension_n"
+    for i, r in enumerate(reels):
+        if r.max_torque_nm is None:
+            continue
+        try:
+            t = r.reel.max_tension_n(r.max_torque_nm, limits.min_cable_m, limits.max_cable_m)
+        except ValueError as exc:  # already reported by the reel range check
+            errs.add(f"reels[{i}].max_torque_nm", f"no tension bound: {exc}")
+            return None, None
+        if t < max_n:
+            max_n, max_source = t, f"reels[{i}].max_torque_nm"
+    if not math.isfinite(max_n):
+        errs.add(
+            "limits.max_tension_n",
+            "missing (required with [payload] unless every reel has max_torque_nm)",
+        )
+        return None, None
+    if any(r.max_torque_nm is None for r in reels) and limits.max_tension_n is None:
+        missing = ", ".join(f"reels[{i}]" for i, r in enumerate(reels) if r.max_torque_nm is None)
+        errs.add(
+            "limits.max_tension_n",
+            f"missing (required with [payload] unless every reel has max_torque_nm; "
+            f"{missing} has none)",
+        )
+        return None, None
+    lo = limits.min_tension_n
+    assert lo is not None
+    margin = limits.tension_margin_n
+    if not lo + margin < max_n - margin:
+        errs.add(
+            "limits.min_tension_n",
+            f"{lo:g} N + tension_margin_n ({margin:g} N) leaves no tension range below the "
+            f"maximum {max_n:.4g} N (from {max_source}) minus the margin",
+        )
+        return None, None
+    tension = TensionLimits(min_n=lo, max_n=max_n, margin_n=margin, max_source=max_source)
+    if power_up_m is not None:
+        problem = tension_problem(geometry, payload, tension, power_up_m)
+        if problem is not None:
+            errs.add("homing.power_up_position_m", problem)
+    return payload, tension
+
+
+def tension_check(
+    payload: PayloadConfig, tension: TensionLimits, geometry: Geometry
+) -> TensionCheck:
+    """The `controller.core.statics.TensionCheck` of this payload and these limits.
+
+    Raises StaticsInputError only for values validation refuses."""
+    return TensionCheck(
+        geometry.anchors_m,
+        payload.mass_kg,
+        tension.min_n,
+        tension.max_n,
+        tension.margin_n,
+        tension.max_source,
+    )
+
+
+def tension_problem(
+    geometry: Geometry, payload: PayloadConfig, tension: TensionLimits, point_m: Vec3
+) -> str | None:
+    """Why the cables cannot hold `payload` at `point_m` within the tension limits and their
+    margin, or None when they can. Raises nothing."""
+    return tension_check(payload, tension, geometry).check(point_m)
 
 
 def _parse_reels(
@@ -1294,7 +1525,11 @@ def paper_robot_data(name: str = "default") -> dict[str, Any]:
             "max_speed_mps": 2.0,
             "max_accel_mps2": 1.0,
             "default_speed_mps": 1.0,
+            "min_tension_n": 5.0,
+            "max_tension_n": 500.0,
+            "tension_margin_n": 5.0,
         },
+        "payload": {"mass_kg": 5.0},
         # Its simulated drives share the CPU with everything else on the machine (a desktop, a
         # laptop running a build): a reading may wait a few hundred ms for a busy scheduler. A
         # real rig keeps the 50 ms / 0.5 s defaults; the simulated robot must not fault on load.

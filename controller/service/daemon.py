@@ -204,6 +204,8 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
             period_s=1.0 / float(cfg.loop.rate_hz),
             stale_timeout_s=float(cfg.faults.stale_timeout_s),
             encoder_rtr=bool(cfg.loop.encoder_rtr),
+            torque_rtr=cfg.loop.torque_telemetry == "rtr",
+            torque_rtr_period_s=float(cfg.loop.torque_rtr_period_s),
         )
         driver = fam.open_driver(bus, cfg.node_ids, cfg.drive.options, loop_settings)
         if isinstance(driver, ConfigurableDriver):

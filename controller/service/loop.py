@@ -47,7 +47,8 @@ rules (latest wins, taken only while HOLDING or MOVING and within its armed sess
 discarded and counted in `status()["velocity"]["discarded"]`) and is flown by the planner's
 velocity mode (`controller.core.motion`): max speed and acceleration, the braking look-ahead
 against the workspace (`Workspace.check_segment`, the point and cable-length checks a streamed
-target gets, plus the shortest cable along the way), and the dead-man `limits.velocity_timeout_s`
+target gets, plus the shortest cable along the way; with `[payload]` also the tension rule at
+points along it: `_check_segment`), and the dead-man `limits.velocity_timeout_s`
 counted in planner time (after a stall the robot has moved only as far as the planner advanced).
 A non-zero sample takes over from a move or path; a zero one does not stop it.
 
@@ -97,8 +98,9 @@ from controller.core.commands import (
 from controller.core.motion import MotionPlanner, check_speed, dedupe_path
 from controller.core.reel import ReelModel
 from controller.core.states import ARMED_STATES, State, check_transition, refusal
+from controller.core.statics import SINGULAR_ROW, StaticsError, TensionCheck
 from controller.core.workspace import Workspace, points_array
-from controller.service.config import RobotConfig
+from controller.service.config import RobotConfig, tension_check
 from controller.service.pose import NullPublisher, PoseSample, Publisher
 from controller.service.runner import SPIN_S, LoopStats, Runner
 from drivers.base import AxisReading, BusError, ReelDriver
@@ -110,6 +112,11 @@ ESTOP_CONFIRM_S = 0.2
 """Every axis must confirm leaving closed loop this soon after an e-stop (module docstring)."""
 MAX_PLANNER_DT_PERIODS = 4.0
 """The planner advances at most this many loop periods per tick (see the module docstring)."""
+TENSION_SAMPLE_FRACTION = 0.01
+"""A move's or path's legs are checked for tensions at points this fraction of the anchors'
+span apart (the tick checks every set-point on them too)."""
+TENSION_MAX_SAMPLES = 200_000
+"""At most this many tension samples per command (the spacing grows to fit)."""
 _MAX_COMMANDS_PER_TICK = 8
 
 
@@ -205,7 +212,7 @@ class Controller:
             cfg.limits.max_accel_mps2,
             self._default_speed_mps,
             velocity_timeout_s=cfg.limits.velocity_timeout_s,
-            check_segment=self.workspace.check_segment,
+            check_segment=self._check_segment,
         )
         f = cfg.faults
         self._stale_s = float(f.stale_timeout_s)
@@ -215,6 +222,27 @@ class Controller:
         self._arm_timeout_s = float(f.arm_timeout_s)
         self._bus_err_timeout_s = float(f.bus_error_timeout_s)
         self._bus_err_since_s: float | None = None
+
+        # Statics: the tension rule for commands and set-points, the planned and measured tensions.
+        self.tension: TensionCheck | None = (
+            None
+            if cfg.tension is None or cfg.payload is None
+            else tension_check(cfg.payload, cfg.tension, cfg.geometry)
+        )
+        span = max(math.dist(a, b) for a in self._anchors for b in self._anchors)
+        self._tension_step_m = TENSION_SAMPLE_FRACTION * span
+        self.planned_tensions_n: tuple[float, ...] | None = None
+        """Tensions that hold the payload at the last good set-point (None: not known)."""
+        self.planned_margin_n: float | None = None
+        self._planned_at: Vec3 | None = None
+        self._measure = cfg.loop.torque_telemetry != "off"
+        self.measured_tensions_n: list[float | None] = [None] * self.n
+        """Tensions from the motors' torque telemetry (None: no fresh reading)."""
+        self._slack_n = f.slack_tension_n
+        self._over_n = None if cfg.tension is None else cfg.tension.max_n
+        self._tension_time_s = float(f.slack_time_s)
+        self._slack_since: list[float | None] = [None] * self.n
+        self._over_since: list[float | None] = [None] * self.n
 
         self._base_reels: tuple[ReelModel, ...] = tuple(r.reel for r in cfg.reels)
         self.reels: list[ReelModel] = list(self._base_reels)
@@ -448,6 +476,8 @@ class Controller:
         try:
             arr = points_array(points) if len(points) > 1 else None
             failure = self.workspace.path_failure(points, array=arr)
+            if failure is None and self.tension is not None:
+                failure = self._tension_failure(points, None)
             if failure is not None:
                 i, why = failure
                 where = "target" if isinstance(cmd, Move) else f"points_m[{i}]"
@@ -540,6 +570,8 @@ class Controller:
             else:
                 self._bus_err_since_s = None
             self._solve_pose(readings, now_s)
+            if self._measure:
+                self._measure_tensions(readings, now_s, state)
         except _Fault as f:
             self._fault(f.reason)
 
@@ -696,9 +728,12 @@ class Controller:
             self._fault(f"arm_timeout: {why}")
 
     def _hold_at(self, p: Vec3) -> None:
+        """Hold at `p`; _Fault if the payload cannot be held there (the tension rule)."""
         self.planner.hold(p)
         self.setpoint_m = p
         self.setpoint_lengths_m = None
+        if self.tension is not None:
+            self._plan_tensions(p)
 
     def _tick_armed(self, dt: float) -> None:
         if dt > self._max_plan_dt_s:
@@ -711,7 +746,7 @@ class Controller:
             if epoch != self._arm_epoch:
                 reason: str | None = "set-point from before the last `arm` discarded"
             else:
-                reason = self.workspace.check_target(target)
+                reason = self._check_target(target)
             if reason is None:
                 self.planner.stream(target)
                 if self.state is State.HOLDING:
@@ -744,6 +779,8 @@ class Controller:
         reason = self.workspace.check_lengths(lengths)
         if reason is not None:
             raise _Fault(f"limit: {reason}")
+        if self.tension is not None and sp != self._planned_at:
+            self._plan_tensions(sp)
         prev = self.setpoint_lengths_m
         if prev is not None:
             reason = self.workspace.check_cable_speeds(prev, lengths, dt)
@@ -759,6 +796,66 @@ class Controller:
         self.setpoint_lengths_m = lengths
         if self.state is State.MOVING and not self.planner.moving:
             self._set_state(State.HOLDING)
+
+    def _plan_tensions(self, sp: Vec3) -> None:
+        """The tensions that hold the payload at set-point `sp`; _Fault if they break the
+        tension rule (limits and margin). A held set-point is solved once."""
+        assert self.tension is not None
+        try:
+            res = self.tension.solve(sp)
+        except StaticsError as exc:
+            raise _Fault(f"tension: set-point {_fmt(sp)}: {exc}") from None
+        reason = self.tension.reason(res)
+        if reason is not None:
+            raise _Fault(f"tension: set-point {_fmt(sp)}: {reason}")
+        self.planned_tensions_n = res.tensions_n
+        self.planned_margin_n = res.margin_n
+        self._planned_at = sp
+
+    def _measure_tensions(
+        self, readings: Sequence[AxisReading], now_s: float, state: State
+    ) -> None:
+        """Cable tensions from the torque telemetry (reel model, work balance); while HOLDING
+        or MOVING, _Fault when one stays below `faults.slack_tension_n` or above the tension
+        maximum for `faults.slack_time_s`, or when an axis's torque reading is stale."""
+        armed = state is State.HOLDING or state is State.MOVING
+        stale = self._stale_s
+        reels = self.reels
+        out = self.measured_tensions_n
+        for i, r in enumerate(readings):
+            age = now_s - r.torque_stamp_s
+            t: float | None = None
+            if age <= stale and r.ready:
+                try:
+                    t = reels[i].tension_n(r.position_rev, r.torque_nm)
+                except ValueError:  # reel slope zero: no tension can be read
+                    t = None
+            out[i] = t
+            if not armed:
+                self._slack_since[i] = self._over_since[i] = None
+                continue
+            if t is None:
+                if now_s - self._arm_start_s > stale and age > stale:
+                    raise _Fault(f"stale_torque: node {r.node_id} age {age:.3f} s")
+                continue
+            slack = self._slack_n
+            if slack is not None and t < slack:
+                since = self._slack_since[i]
+                if since is None:
+                    self._slack_since[i] = since = now_s
+                if now_s - since >= self._tension_time_s:
+                    raise _Fault(f"slack: cable {i + 1} at {t:.3g} N")
+            else:
+                self._slack_since[i] = None
+            over = self._over_n
+            if over is not None and t > over:
+                since = self._over_since[i]
+                if since is None:
+                    self._over_since[i] = since = now_s
+                if now_s - since >= self._tension_time_s:
+                    raise _Fault(f"over_tension: cable {i + 1} at {t:.4g} N > {over:.4g} N")
+            else:
+                self._over_since[i] = None
 
     def _velocity_ff(
         self, sp: Vec3, v_mps: Vec3, lengths: Sequence[float], rev: Sequence[float]
@@ -822,6 +919,8 @@ class Controller:
             self.residual_m if valid else None,
             valid,
             self.state.value,
+            self.planned_tensions_n if self.setpoint_m is not None else None,
+            tuple(self.measured_tensions_n) if self._measure else None,
         )
         try:
             self.publisher.publish_pose(sample)
@@ -927,6 +1026,35 @@ class Controller:
             return f"not allowed in {state.value} ({self.reason}): {why}"
         return f"not allowed in {state.value}: {why}"
 
+    def _check_segment(self, a: Sequence[float], b: Sequence[float]) -> str | None:
+        """Velocity mode's look-ahead: `Workspace.check_segment`, then with `[payload]` the
+        tension rule at points `_tension_step_m` apart along a->b (b included; a is where the
+        set-point is). Scalar: the look-ahead is a braking distance, a few samples. Raises
+        nothing."""
+        reason = self.workspace.check_segment(a, b)
+        chk = self.tension
+        if reason is not None or chk is None:
+            return reason
+        ax, ay, az = float(a[0]), float(a[1]), float(a[2])
+        dx, dy, dz = float(b[0]) - ax, float(b[1]) - ay, float(b[2]) - az
+        n = max(1, math.ceil(math.sqrt(dx * dx + dy * dy + dz * dz) / self._tension_step_m))
+        for k in range(1, n + 1):
+            f = k / n
+            q = (ax + f * dx, ay + f * dy, az + f * dz)
+            why = chk.check(q)
+            if why is not None:
+                return f"at {_fmt(q)}: {why}"
+        return None
+
+    def _check_target(self, p: Sequence[float]) -> str | None:
+        """Why `p` is not an allowed target (`Workspace.check_target`, then with `[payload]`
+        the payload's cable tensions within their limits and margin), or None if it is.
+        Raises nothing."""
+        reason = self.workspace.check_target(p)
+        if reason is None and self.tension is not None:
+            reason = self.tension.check(p)
+        return reason
+
     def _execute(
         self,
         cmd: Command,
@@ -1004,6 +1132,9 @@ class Controller:
         if self.setpoint_m is not None:
             start = self.planner.rest_point_m
             reason = self.workspace.check_segment(start, first)
+            if reason is None and self.tension is not None:
+                failure = self._tension_failure((first,), start)
+                reason = None if failure is None else failure[1].removeprefix("on the leg to it: ")
             if reason is not None:
                 where = "target" if isinstance(cmd, Move) else "points_m[0]"
                 raise CommandRefused(
@@ -1012,6 +1143,47 @@ class Controller:
         self.planner.follow_points(motion.points_m, motion.speed_mps)
         if self.state is State.HOLDING:
             self._set_state(State.MOVING, "move" if isinstance(cmd, Move) else "path")
+
+    def _tension_failure(
+        self, points: Sequence[Sequence[float]], start_m: Sequence[float] | None
+    ) -> tuple[int, str] | None:
+        """The first point of `points` (or point on the leg to it, from `start_m` for point 0)
+        where the payload cannot be held by the tension rule, as (index, reason), or None.
+
+        Each leg is sampled every `TENSION_SAMPLE_FRACTION` of the anchors' span (coarser if
+        that would exceed `TENSION_MAX_SAMPLES`) and solved in one batch; the first failing
+        sample is solved again for its reason. Raises nothing for finite points (checked by
+        the limits before)."""
+        chk = self.tension
+        assert chk is not None
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if start_m is None:
+            starts = np.vstack([pts[:1], pts[:-1]])
+        else:
+            starts = np.vstack([np.asarray(start_m, dtype=np.float64).reshape(1, 3), pts[:-1]])
+        leg = pts - starts
+        length = np.sqrt(np.einsum("ij,ij->i", leg, leg))
+        step = self._tension_step_m
+        counts = np.maximum(1, np.ceil(length / step)).astype(np.int64)
+        total = int(counts.sum())
+        if total > TENSION_MAX_SAMPLES:
+            counts = np.maximum(1, np.ceil(counts * (TENSION_MAX_SAMPLES / total))).astype(np.int64)
+        idx = np.repeat(np.arange(len(pts)), counts)
+        # fraction j / m_k along leg k, j = 1..m_k: the last sample is the point itself
+        first = np.cumsum(counts) - counts
+        frac = (np.arange(idx.size) - first[idx] + 1) / counts[idx]
+        samples = starts[idx] + frac[:, None] * leg[idx]
+        _, margin, _, limiting = chk.statics.solve_batch(samples, chk.mass_kg)
+        bad = np.flatnonzero((limiting == SINGULAR_ROW) | (margin < chk.margin_n))
+        if bad.size == 0:
+            return None
+        j = int(bad[0])
+        i = int(idx[j])
+        q = (float(samples[j, 0]), float(samples[j, 1]), float(samples[j, 2]))
+        reason = chk.check(q) or "the tension rule fails there"
+        if frac[j] < 1.0:
+            return i, f"on the leg to it: at {_fmt(q)}: {reason}"
+        return i, reason
 
     def _disarm(self, why: str) -> None:
         try:
@@ -1032,7 +1204,7 @@ class Controller:
         old = [r.node_id for r in readings if now_s - r.stamp_s > self._stale_s]
         if old:
             raise CommandRefused(f"stale_encoder: no fresh encoder reading from nodes {old}")
-        reason = self.workspace.check_target(cmd.position_m)
+        reason = self._check_target(cmd.position_m)
         if reason is not None:
             raise CommandRefused(f"home position {_fmt(cmd.position_m)}: {reason}")
         offsets = self._home_at(readings, cmd.position_m)
@@ -1112,6 +1284,7 @@ class Controller:
                 "cable_lengths_m": [_finite_or_none(v) for v in self.lengths_m],
             },
             "setpoint_m": list(sp) if sp is not None else None,
+            "tensions": self._tension_status(sp is not None),
             "axes": axes,
             "loop": {
                 "rate_hz": 1.0 / self.period_s,
@@ -1151,6 +1324,23 @@ class Controller:
                 "errors_by_kind": dict(bs.errors_by_kind),
             },
             "config": self.cfg.summary(),
+        }
+
+    def _tension_status(self, commanded: bool) -> dict[str, Any] | None:
+        """The statics part of `status()`: None without `[payload]`."""
+        chk = self.tension
+        if chk is None:
+            return None
+        planned = self.planned_tensions_n if commanded else None
+        return {
+            "mass_kg": chk.mass_kg,
+            "min_n": chk.statics.t_min_n,
+            "max_n": chk.statics.t_max_n,
+            "margin_required_n": chk.margin_n,
+            "planned_n": list(planned) if planned is not None else None,
+            "planned_margin_n": self.planned_margin_n if planned is not None else None,
+            "measured_n": list(self.measured_tensions_n) if self._measure else None,
+            "telemetry": self.cfg.loop.torque_telemetry,
         }
 
     # ---------------------------------------------------------------- the fixed-rate loop

@@ -24,9 +24,14 @@ class PoseSample:
     residual_m: float | None
     valid: bool
     state: str
+    tensions_n: tuple[float, ...] | None = None
+    """The cable tensions that hold the payload at the set-point (with `[payload]`)."""
+    measured_tensions_n: tuple[float | None, ...] | None = None
+    """The cable tensions read from the motors' torques (with torque telemetry)."""
 
     def to_json_bytes(self) -> bytes:
         """Encode as compact JSON; non-finite numbers become null, so the output is valid JSON.
+        "tensions_n" and "measured_tensions_n" appear only when known (statics configured).
 
         Hand-formatted (about 4x faster than json.dumps for this fixed schema); float repr is
         the shortest round-tripping decimal, as json.dumps writes it.
@@ -40,10 +45,16 @@ class PoseSample:
             valid = "false"
         lengths = ",".join(map(_num, self.cable_lengths_m))
         res = "null" if self.residual_m is None else _num(self.residual_m)
+        extra = ""
+        if self.tensions_n is not None:
+            extra += f',"tensions_n":[{",".join(map(_num, self.tensions_n))}]'
+        if self.measured_tensions_n is not None:
+            measured = ",".join("null" if t is None else _num(t) for t in self.measured_tensions_n)
+            extra += f',"measured_tensions_n":[{measured}]'
         return (
             f'{{"seq":{int(self.seq)},"stamp_ns":{int(self.stamp_ns)},"position_m":{pos_s},'
             f'"cable_lengths_m":[{lengths}],"residual_m":{res},"valid":{valid},'
-            f'"state":"{_state_name(self.state)}"}}'
+            f'"state":"{_state_name(self.state)}"{extra}}}'
         ).encode()
 
 

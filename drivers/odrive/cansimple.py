@@ -16,6 +16,7 @@ tests/data/odrive-cansimple-0.6.dbc and the tests cross-check every message with
     0x0D Set_Input_Vel        input_vel f32 [rev/s] | input_torque_ff f32 [Nm] (8)
     0x0F Set_Limits           velocity_limit f32 [rev/s] | current_limit f32 [A] (8)
     0x18 Clear_Errors         identify u8                                      (1; 0 accepted)
+    0x1C Get_Torques          torque_target f32 [Nm] | torque_estimate f32 [Nm] (cyclic or RTR, 8)
 
 Encoders return a `Frame` ``(arbitration_id, data, is_remote)`` and raise ValueError on a value
 that cannot be sent (out-of-range id, NaN/inf, integer overflow). `decode` never raises: it
@@ -43,6 +44,7 @@ SET_INPUT_POS: Final = 0x0C
 SET_INPUT_VEL: Final = 0x0D
 SET_LIMITS: Final = 0x0F
 CLEAR_ERRORS: Final = 0x18
+GET_TORQUES: Final = 0x1C
 
 MAX_NODE_ID: Final = 0x3F
 VEL_FF_SCALE_RPS: Final = 0.001
@@ -248,6 +250,16 @@ class ClearErrors:
 
 
 @dataclass(frozen=True, slots=True)
+class Torques:
+    """0x1C: the torque the controller asks of the motor and the torque it estimates (N m,
+    motor's positive direction), both finite."""
+
+    node_id: int
+    torque_target_nm: float
+    torque_estimate_nm: float
+
+
+@dataclass(frozen=True, slots=True)
 class RemoteRequest:
     """An RTR frame asking node `node_id` for message `cmd_id` (e.g. 0x09, 0x03)."""
 
@@ -290,6 +302,7 @@ Message = (
     | SetInputVel
     | SetLimits
     | ClearErrors
+    | Torques
     | RemoteRequest
 )
 
@@ -426,6 +439,14 @@ def encode_clear_errors(node_id: int, identify: int = 0) -> Frame:
     return arbitration_id(node_id, CLEAR_ERRORS), _U8.pack(identify), False
 
 
+def encode_torques(node_id: int, torque_target_nm: float, torque_estimate_nm: float) -> Frame:
+    """Get_Torques data frame (0x1C), as an ODrive sends it. Raises ValueError."""
+    data = _F32F32.pack(
+        _f32("torque_target_nm", torque_target_nm), _f32("torque_estimate_nm", torque_estimate_nm)
+    )
+    return arbitration_id(node_id, GET_TORQUES), data, False
+
+
 def encode_rtr(node_id: int, cmd_id: int) -> Frame:
     """An RTR request for message `cmd_id` from `node_id` (e.g. 0x09 or 0x03). Raises ValueError."""
     return arbitration_id(node_id, cmd_id), _EMPTY, True
@@ -517,6 +538,15 @@ def _dec_clear_errors(arb_id: int, data: bytes | bytearray) -> Message | DecodeE
     return ClearErrors(arb_id >> 5, data[0] if n else 0)
 
 
+def _dec_torques(arb_id: int, data: bytes | bytearray) -> Message | DecodeError:
+    if len(data) != 8:
+        return _length_error(arb_id, data, "Get_Torques", "8")
+    target, estimate = _F32F32.unpack(data)
+    if target - target != 0.0 or estimate - estimate != 0.0:
+        return _non_finite(arb_id, "Get_Torques", target, estimate)
+    return Torques(arb_id >> 5, target, estimate)
+
+
 _Decoder = Callable[[int, bytes | bytearray], "Message | DecodeError"]
 _DECODERS: dict[int, _Decoder] = {
     HEARTBEAT: _dec_heartbeat,
@@ -529,11 +559,12 @@ _DECODERS: dict[int, _Decoder] = {
     SET_INPUT_VEL: _dec_set_input_vel,
     SET_LIMITS: _dec_set_limits,
     CLEAR_ERRORS: _dec_clear_errors,
+    GET_TORQUES: _dec_torques,
 }
 # Tuple indexed by cmd_id: one lookup per frame, None for commands this codec does not know.
 _DECODE_TABLE: tuple[_Decoder | None, ...] = tuple(_DECODERS.get(i) for i in range(32))
 
-RTR_COMMANDS: Final = frozenset({HEARTBEAT, GET_ERROR, GET_ENCODER_ESTIMATES})
+RTR_COMMANDS: Final = frozenset({HEARTBEAT, GET_ERROR, GET_ENCODER_ESTIMATES, GET_TORQUES})
 """Commands a host may request by RTR (the ODrive answers with the data frame)."""
 
 

@@ -7,7 +7,8 @@ through up to `CATCH_UP_FACTOR` times that, see `catch_up_age_s`), decodes each 
 the cyclic broadcast (or the RTR replies), axis state and axis error from the heartbeat, and with
 them the generic status the loop reads: `ready` (CLOSED_LOOP_CONTROL without an error), `fault`
 (the error bits by name with the raw value, e.g. "ESTOP_REQUESTED (0x2000000)") and `state_name`
-(the AxisState name, e.g. "IDLE"; worked out only when state or error change). Each update
+(the AxisState name, e.g. "IDLE"; worked out only when state or error change); the motor's
+torque estimate from Get_Torques (cyclic, or by RTR with `torque_rtr`). Each update
 is stamped with the frame's arrival time, not the time it was taken off the queue, so frames
 that waited in the receive queue (a stalled loop) are as old as they are: python-can's
 `Message.timestamp` is a wall-clock (time.time()) reading on the interfaces cablebot uses, so
@@ -86,6 +87,8 @@ class ODriveReels:
         *,
         encoder_rtr: bool = False,
         encoder_rtr_period_s: float = 0.0,
+        torque_rtr: bool = False,
+        torque_rtr_period_s: float = 0.01,
         max_frames_per_poll: int = 256,
         catch_up_age_s: float = math.inf,
         send_timeout_s: float = DEFAULT_SEND_TIMEOUT_S,
@@ -98,6 +101,8 @@ class ODriveReels:
         (answers arrive by the next poll), for ODrives whose cyclic broadcast is off, at most
         once per `encoder_rtr_period_s` (0 = every poll). Mind the bus load: each round is
         2 frames per axis, so 4 axes polled at 1 kHz fill a 1 Mbit/s bus; 2-5 ms is sane there.
+        `torque_rtr`: likewise request Get_Torques every `torque_rtr_period_s` (the torques of
+        drives that do not broadcast them).
         `catch_up_age_s`: when a poll reaches `max_frames_per_poll` and the last frame taken
         arrived longer ago than this, the queue holds a backlog (the loop stalled), not a flood:
         that poll goes on, up to `CATCH_UP_FACTOR` times the cap, so the readings reach the
@@ -119,11 +124,16 @@ class ODriveReels:
             raise ValueError("catch_up_age_s must be > 0")
         if not (math.isfinite(encoder_rtr_period_s) and encoder_rtr_period_s >= 0.0):
             raise ValueError("encoder_rtr_period_s must be finite and >= 0")
+        if not (math.isfinite(torque_rtr_period_s) and torque_rtr_period_s >= 0.0):
+            raise ValueError("torque_rtr_period_s must be finite and >= 0")
         self.node_ids: tuple[int, ...] = ids
         self._bus = bus
         self._encoder_rtr = encoder_rtr
         self._encoder_rtr_period_s = encoder_rtr_period_s
         self._next_rtr_s = -math.inf
+        self._torque_rtr = torque_rtr
+        self._torque_rtr_period_s = torque_rtr_period_s
+        self._next_torque_rtr_s = -math.inf
         self._max_frames = max_frames_per_poll
         self._catch_up_age_s = catch_up_age_s
         self._send_timeout_s = send_timeout_s
@@ -216,6 +226,14 @@ class ODriveReels:
                         rec.axis_error = error
                         _derive_status(rec)
                     rec.heartbeat_stamp_s = now_s - age
+            elif mtype is cs.Torques:
+                rec = by_node[m.node_id]
+                if rec is None:
+                    self._count("unknown_node", decode_error=False)
+                    continue
+                age = wall_s - msg.timestamp
+                rec.torque_nm = m.torque_estimate_nm  # type: ignore[union-attr]
+                rec.torque_stamp_s = now_s - (age if 0.0 <= age <= max_age else 0.0)
             else:
                 self._handle_other(m)
         self._stats.frames_rx += handled
@@ -225,6 +243,10 @@ class ODriveReels:
                 self._next_rtr_s = now + self._encoder_rtr_period_s
                 with contextlib.suppress(BusError):  # counted in stats; poll never raises
                     self.request_encoders()
+        if self._torque_rtr and now_s >= self._next_torque_rtr_s:
+            self._next_torque_rtr_s = now_s + self._torque_rtr_period_s
+            with contextlib.suppress(BusError):
+                self.request_torques()
         return handled
 
     def _handle_other(self, m: cs.Message | cs.DecodeError) -> None:
@@ -428,6 +450,10 @@ class ODriveReels:
             [cs.encode_rtr(n, cs.GET_ENCODER_ESTIMATES) for n in self.node_ids], "encoder RTR"
         )
 
+    def request_torques(self) -> None:
+        """RTR-request Get_Torques from every axis. Raises BusError on failure."""
+        self._send_all([cs.encode_rtr(n, cs.GET_TORQUES) for n in self.node_ids], "torque RTR")
+
     def request_errors(self) -> None:
         """RTR-request Get_Error from every axis (see `last_get_error`). Raises BusError."""
         self._send_all([cs.encode_rtr(n, cs.GET_ERROR) for n in self.node_ids], "Get_Error RTR")
@@ -448,6 +474,8 @@ def open_driver(
         bus,
         node_ids,
         encoder_rtr=loop.encoder_rtr,
+        torque_rtr=loop.torque_rtr,
+        torque_rtr_period_s=loop.torque_rtr_period_s,
         catch_up_age_s=loop.stale_timeout_s / 2.0,
     )
 

@@ -37,6 +37,15 @@ command is input_vel (Set_Input_Vel). The dynamics are integrated in sub-steps o
 At rest (no feed-forward, within `REST_SNAP_REV` of input_pos, velocity below
 `REST_SNAP_RPS`) the position snaps onto input_pos, so a settled axis reports input_pos exactly.
 
+Load (a physical plant): the bank may be given an `AxisCoupling`, stepped once per tick after
+the axes move with every axis's motor position; it returns the torque each motor needs to hold
+its cable (`controller.core.plant.ReelPlant`: one plant for all axes, since the effector couples
+them). The motion model above is unchanged (the motor follows its position loop whatever the
+load: a stiff drive); the torque is what the axis reports by Get_Torques (0x1C, cyclic every
+`torque_period_s` when > 0, and by RTR), Torque_Target and Torque_Estimate both, and 0 in IDLE
+(the reel is braked: the brake, not the motor, holds the cable). Without a coupling the torque
+is 0: the kinematic simulator knows no load.
+
 Fault injection for tests: `silence(True)` (no frames in or out), `set_axis_error(code)` (disarm
 with that error, reported by heartbeat), `send_corrupt()` (a wrong-length encoder frame),
 `send_nan()` (an encoder frame with a NaN position), `drift(rate)` (encoder estimate drifts from
@@ -54,8 +63,9 @@ import sys
 import threading
 import time
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from types import FrameType, TracebackType
-from typing import Any
+from typing import Any, Protocol
 
 import can
 
@@ -90,14 +100,16 @@ class SimODriveAxis:
         heartbeat_period_s: float = 0.1,
         pos_gain: float = DEFAULT_POS_GAIN,
         watchdog_timeout_s: float = 0.0,
+        torque_period_s: float = 0.0,
     ) -> None:
         """Create an IDLE axis at `initial_position_rev`.
 
         `max_velocity_rps` is the drive's vel_limit, `max_accel_rps2` its torque-limited
         acceleration, `pos_gain` the position loop gain in (rev/s)/rev, `watchdog_timeout_s`
-        the axis watchdog (0 = off; see the module docstring). Raises ValueError on a node id
+        the axis watchdog (0 = off; see the module docstring), `torque_period_s` the period of
+        the cyclic Get_Torques broadcast (0 = off: by RTR only). Raises ValueError on a node id
         outside 0..63, a non-finite position, a non-positive limit, gain or period, or a
-        negative or non-finite watchdog timeout.
+        negative or non-finite watchdog timeout or torque period.
         """
         if not 0 <= node_id <= cs.MAX_NODE_ID:
             raise ValueError(f"node id {node_id} is outside 0..63")
@@ -116,6 +128,8 @@ class SimODriveAxis:
             raise ValueError(
                 f"watchdog_timeout_s must be finite and >= 0, got {watchdog_timeout_s!r}"
             )
+        if not (math.isfinite(torque_period_s) and torque_period_s >= 0.0):
+            raise ValueError(f"torque_period_s must be finite and >= 0, got {torque_period_s!r}")
         self.node_id = node_id
         self.max_velocity_rps = max_velocity_rps
         self.max_accel_rps2 = max_accel_rps2
@@ -123,6 +137,10 @@ class SimODriveAxis:
         self.heartbeat_period_s = heartbeat_period_s
         self.pos_gain = pos_gain
         self.watchdog_timeout_s = watchdog_timeout_s
+        self.torque_period_s = torque_period_s
+        self.load_torque_nm = 0.0
+        """The torque the load needs of the motor (set by the bank's coupling each tick)."""
+        self._torque_due_s = 0.0
         self._since_feed_s = 0.0
         self.position_rev = float(initial_position_rev)
         self.velocity_rps = 0.0
@@ -175,6 +193,19 @@ class SimODriveAxis:
         with self._lock:
             self._drift_rate_rps = rate_rev_per_s
 
+    def set_load_torque(self, torque_nm: float) -> None:
+        """Set the torque (N m) the load needs of the motor; a non-finite value is ignored."""
+        if math.isfinite(torque_nm):
+            with self._lock:
+                self.load_torque_nm = torque_nm
+
+    @property
+    def torque_estimate_nm(self) -> float:
+        """The torque the axis reports: the load's in closed loop, 0 when IDLE (braked)."""
+        if self.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL:
+            return self.load_torque_nm
+        return 0.0
+
     @property
     def encoder_estimate_rev(self) -> float:
         """The position this axis reports (true position plus accumulated drift)."""
@@ -190,6 +221,10 @@ class SimODriveAxis:
         return cs.encode_encoder_estimates(
             self.node_id, self.position_rev + self._drift_rev, self.velocity_rps
         )
+
+    def _torques_frame(self) -> cs.Frame:
+        t = self.torque_estimate_nm
+        return cs.encode_torques(self.node_id, t, t)
 
     def _heartbeat_frame(self) -> cs.Frame:
         traj_done = self.position_rev == self.input_pos_rev and self.velocity_rps == 0.0
@@ -258,15 +293,26 @@ class SimODriveAxis:
                 return [self._heartbeat_frame()]
             if msg.cmd_id == cs.GET_ERROR:
                 return [cs.encode_get_error(self.node_id, self.axis_error, self.disarm_reason)]
+            if msg.cmd_id == cs.GET_TORQUES:
+                return [self._torques_frame()]
         return []
 
     def step(self, dt_s: float) -> list[cs.Frame]:
         """Advance the simulation by `dt_s` seconds; return the broadcasts that fall due."""
+        self.advance(dt_s)
+        return self.broadcasts(dt_s)
+
+    def advance(self, dt_s: float) -> None:
+        """Advance the motion (and watchdog, drift) by `dt_s` seconds; no frames."""
         with self._lock:
             if dt_s > 0.0:
                 self._watchdog(dt_s)
                 self._move(dt_s)
                 self._drift_rev += self._drift_rate_rps * dt_s
+
+    def broadcasts(self, dt_s: float) -> list[cs.Frame]:
+        """The cyclic frames that fall due after `dt_s` more seconds (`step` = `advance` + this)."""
+        with self._lock:
             if self._silent:
                 return []
             out: list[cs.Frame] = []
@@ -281,6 +327,11 @@ class SimODriveAxis:
             if self._encoder_due_s <= 0.0:
                 self._encoder_due_s = max(self._encoder_due_s + self.encoder_period_s, 0.0)
                 out.append(self._encoder_frame())
+            if self.torque_period_s > 0.0:
+                self._torque_due_s -= dt_s
+                if self._torque_due_s <= 0.0:
+                    self._torque_due_s = max(self._torque_due_s + self.torque_period_s, 0.0)
+                    out.append(self._torques_frame())
             self._heartbeat_due_s -= dt_s
             if self._heartbeat_due_s <= 0.0:
                 self._heartbeat_due_s = max(self._heartbeat_due_s + self.heartbeat_period_s, 0.0)
@@ -344,6 +395,39 @@ class SimODriveAxis:
         self.velocity_rps = v_new
 
 
+class AxisCoupling(Protocol):
+    """What the axes move: stepped once per tick with every axis's motor position."""
+
+    def step(self, positions_rev: Sequence[float], dt_s: float) -> Sequence[float]:
+        """Advance by `dt_s` with the motors at `positions_rev` (the bank's axis order); return
+        the torque (N m) each motor needs. May raise: the bank counts it and keeps the last
+        torques."""
+        ...
+
+
+@dataclass
+class SimStats:
+    """What the serving loop did: ticks, late ticks, time spent working, coupling errors.
+
+    `busy_s` is the time spent in the ticks' work (moving the axes, the coupling, sending), so
+    ``simulated_s / busy_s`` is the real-time factor: how many times faster than real time the
+    simulation could run on this CPU.
+    """
+
+    ticks: int = 0
+    late_ticks: int = 0
+    """Ticks that started more than one tick period late (the next deadline was reset)."""
+    simulated_s: float = 0.0
+    busy_s: float = 0.0
+    coupling_errors: int = 0
+    last_coupling_error: str | None = None
+
+    @property
+    def real_time_factor(self) -> float:
+        """Simulated time over working time (inf before any work)."""
+        return self.simulated_s / self.busy_s if self.busy_s > 0.0 else math.inf
+
+
 def _to_can(frame: cs.Frame) -> can.Message:
     arb_id, data, is_remote = frame
     return can.Message(
@@ -361,11 +445,15 @@ def run_sim(
     stop_event: threading.Event,
     *,
     tick_s: float = 0.001,
+    coupling: AxisCoupling | None = None,
+    stats: SimStats | None = None,
 ) -> None:
     """Serve `axes` on `bus` until `stop_event` is set: answer commands, broadcast every tick.
 
-    Receive errors and send errors are swallowed (a simulated node keeps running); undecodable
-    frames are ignored. Returns within about one tick after `stop_event` is set.
+    Every tick: move each axis, step the `coupling` (if any) and hand each axis its torque,
+    then send the broadcasts that fall due. Receive errors, send errors and coupling errors
+    are swallowed (a simulated node keeps running; coupling errors are counted in `stats`);
+    undecodable frames are ignored. Returns within about one tick after `stop_event` is set.
     """
     by_node: dict[int, SimODriveAxis] = {a.node_id: a for a in axes}
     if len(by_node) != len(axes):
@@ -373,6 +461,7 @@ def run_sim(
     clock = time.monotonic
     last = clock()
     next_tick = last + tick_s
+    st = SimStats() if stats is None else stats
 
     def send(frames: Iterable[cs.Frame]) -> None:
         for f in frames:
@@ -397,9 +486,25 @@ def run_sim(
             continue
         dt = now - last
         last = now
-        next_tick = next_tick + tick_s if remaining > -tick_s else now + tick_s
+        late = remaining <= -tick_s
+        next_tick = now + tick_s if late else next_tick + tick_s
         for axis in axes:
-            send(axis.step(dt))
+            axis.advance(dt)
+        if coupling is not None:
+            try:
+                torques = coupling.step([a.position_rev for a in axes], dt)
+            except Exception as exc:  # the simulated robot keeps serving; the error is counted
+                st.coupling_errors += 1
+                st.last_coupling_error = f"{type(exc).__name__}: {exc}"
+            else:
+                for axis, torque in zip(axes, torques, strict=False):
+                    axis.set_load_torque(torque)
+        for axis in axes:
+            send(axis.broadcasts(dt))
+        st.ticks += 1
+        st.late_ticks += late
+        st.simulated_s += dt
+        st.busy_s += clock() - now
 
 
 class SimODriveBank:
@@ -409,9 +514,16 @@ class SimODriveBank:
     """
 
     def __init__(
-        self, bus: can.BusABC, axes: Sequence[SimODriveAxis], *, tick_s: float = 0.001
+        self,
+        bus: can.BusABC,
+        axes: Sequence[SimODriveAxis],
+        *,
+        tick_s: float = 0.001,
+        coupling: AxisCoupling | None = None,
     ) -> None:
-        """Prepare (not start) the bank. Raises ValueError on duplicate node ids or tick_s <= 0."""
+        """Prepare (not start) the bank; `coupling` is the load the axes move (None: none).
+
+        Raises ValueError on duplicate node ids or tick_s <= 0."""
         if len({a.node_id for a in axes}) != len(axes):
             raise ValueError("duplicate node ids among simulated axes")
         if not (math.isfinite(tick_s) and tick_s > 0.0):
@@ -419,8 +531,23 @@ class SimODriveBank:
         self.bus = bus
         self.axes: tuple[SimODriveAxis, ...] = tuple(axes)
         self.tick_s = tick_s
+        self.coupling = coupling
+        self.stats = SimStats()
+        """Live counters of the serving thread (see `SimStats`)."""
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+
+    def carry(self, coupling: AxisCoupling, torque_period_s: float = 0.0) -> None:
+        """Give the axes a load before `start`: `coupling` is stepped every tick, and every
+        axis broadcasts Get_Torques every `torque_period_s` (0: by RTR only). Raises
+        RuntimeError once started, ValueError on a negative or non-finite period."""
+        if self._thread is not None:
+            raise RuntimeError("SimODriveBank already started: give it its load before")
+        if not (math.isfinite(torque_period_s) and torque_period_s >= 0.0):
+            raise ValueError(f"torque_period_s must be finite and >= 0, got {torque_period_s!r}")
+        self.coupling = coupling
+        for a in self.axes:
+            a.torque_period_s = torque_period_s
 
     def axis(self, node_id: int) -> SimODriveAxis:
         """The simulated axis with this node id. Raises KeyError if there is none."""
@@ -436,7 +563,7 @@ class SimODriveBank:
         self._thread = threading.Thread(
             target=run_sim,
             args=(self.bus, self.axes, self._stop),
-            kwargs={"tick_s": self.tick_s},
+            kwargs={"tick_s": self.tick_s, "coupling": self.coupling, "stats": self.stats},
             name="sim-odrive",
             daemon=True,
         )

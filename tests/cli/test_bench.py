@@ -26,6 +26,8 @@ TOP_KEYS = {
     "fpk4_us",
     "scipy_over_fpk4",
     "batch_over_copy",
+    "statics_us",
+    "statics_batch_us",
     "decode_frames_per_s",
     "zenoh_put_us",
     "loop",
@@ -96,6 +98,8 @@ def test_bench_quick_json(tmp_path: Path) -> None:
     assert 0.2 < data["fpk_simplified_over_general"] < 5.0
     assert abs(math.log(data["fpk_simplified_over_general"] / ratio)) < math.log(3.0)
     assert data["scipy_over_fpk4"] > 1.0  # scipy is slower by any measure
+    # a pose solved alone costs more than one of a vectorised batch
+    assert data["statics_batch_us"] < data["statics_us"] < 1e4
     assert data["decode_frames_per_s"] > 100.0
     # A frame can arrive just before a tick, but it cannot beat two process hops and a tick.
     assert 10.0 < data["e2e_p50_us"] <= data["e2e_p99_us"] < 1e6
@@ -110,6 +114,19 @@ def test_bench_quick_json(tmp_path: Path) -> None:
     ):
         assert name in table
     assert ("MISSED" in table) or ("all targets met" in table)
+
+
+def test_bench_statics_piece() -> None:
+    figures = bench.bench_statics(repeats=3, n_poses=20, batch_poses=2000)
+    assert set(figures) == {
+        "statics_us",
+        "statics_wall_us",
+        "statics_check_us",
+        "statics_batch_us",
+        "statics_batch_wall_us",
+    }
+    assert all(_number(v) and v > 0.0 for v in figures.values()), figures
+    assert figures["statics_batch_us"] < figures["statics_us"]
 
 
 def _frame_hex(pos_rev: float) -> str:

@@ -38,6 +38,10 @@ def test_desk_file_is_described(capsys: pytest.CaptureFixture[str]) -> None:
     # the desk file's own comment: anchor to the far bottom corner of the workspace is 1.54 m
     assert "cables     allowed 0.100..1.600 m; the workspace needs 0.122..1.559 m" in out
     assert "loop       1000 Hz, pose published at 100 Hz" in out
+    assert (
+        "statics    payload 0.5 kg, cable tensions 0.5..20 N (maximum from"
+        " limits.max_tension_n), commands 0.5 N inside"
+    ) in out
     assert "bus        socketcan can0, 1000000 bit/s" in out
     assert "zenoh      peer, listen tcp/127.0.0.1:7447, prefix cablebot/desk" in out
     assert lines[-1] == f"ok: {path} is valid"

@@ -424,3 +424,103 @@ def test_too_stiff_for_max_substeps_is_refused() -> None:
     with pytest.raises(PlantError, match="sub-steps"):
         plant.step(plant.unstretched_m, 0.001)
     assert plant.time_s == 0.0
+
+
+# --- a bank of reels: motor turns in, holding torques out ---------------------------------------
+
+
+def reel_plant(cfg_name: str, pose: tuple[float, float, float], mass_kg: float, ea_n: float):  # type: ignore[no-untyped-def]
+    """A ReelPlant for a shipped robot at `pose`, holding the statics distribution."""
+    from controller.core.plant import ReelPlant
+    from controller.core.statics import CableStatics
+    from controller.service.config import load_config
+
+    cfg = load_config(CONFIG / cfg_name)
+    assert cfg.tension is not None
+    tensions = CableStatics(cfg.anchors_m, cfg.tension.min_n, cfg.tension.max_n).solve(
+        pose, mass_kg
+    )
+    reels = [r.reel for r in cfg.reels]
+    turns = [
+        r.position_rev(length) for r, length in zip(reels, distances_to(cfg, pose), strict=True)
+    ]
+    params = PlantParams(cfg.anchors_m, ea_n, mass_kg)
+    return cfg, reels, turns, ReelPlant(params, reels, pose, turns, tensions.tensions_n), tensions
+
+
+def distances_to(cfg, pose):  # type: ignore[no-untyped-def]
+    return [math.dist(a, pose) for a in cfg.anchors_m]
+
+
+@pytest.mark.parametrize(
+    ("cfg_name", "pose", "mass_kg", "ea_n"),
+    [("paper-acre.toml", (3.0, -2.0, 2.0), 5.0, 1e7), ("desk.toml", (0.1, 0.05, 0.3), 0.5, 1e5)],
+)
+def test_reel_plant_holds_the_statics_distribution_at_rest(
+    cfg_name: str, pose: tuple[float, float, float], mass_kg: float, ea_n: float
+) -> None:
+    _, reels, turns, rp, statics = reel_plant(cfg_name, pose, mass_kg, ea_n)
+    for _ in range(200):
+        torques = rp.step(turns, 0.001)
+    assert math.dist(rp.position_m, pose) < 1e-9
+    assert rp.tensions_n == pytest.approx(statics.tensions_n, rel=1e-6)
+    # each motor reports the torque that holds its cable's tension (work balance)
+    for reel, p, tau, t in zip(reels, turns, torques, statics.tensions_n, strict=True):
+        assert tau == pytest.approx(reel.torque_nm(p, t), rel=1e-6)
+        assert reel.tension_n(p, tau) == pytest.approx(t, rel=1e-6)
+    assert rp.torques_nm == torques
+
+
+@pytest.mark.parametrize(
+    ("cfg_name", "pose", "mass_kg", "ea_n", "slack", "hold_s"),
+    [
+        # shallow cables, off-centre: the effector drops on cables 1, 2, 4 and cable 3 goes
+        # slack (the swing on them rings down slowly: only the effector's drag damps it)
+        ("paper-acre.toml", (-6.55, -8.6, 2.63), 5.0, 1e6, 2, 15.0),
+        # at the centre it swings onto the 2-4 diagonal: cable 1 slack, cable 3 at 0.1 N
+        ("paper-acre.toml", (0.0, 0.0, 2.0), 5.0, 1e6, 0, 10.0),
+        # steep cables: the other three keep the effector in place, cable 1 goes slack
+        ("desk.toml", (0.0, 0.0, 0.1), 0.5, 1e5, 0, 4.0),
+    ],
+)
+def test_reel_plant_paying_one_cable_out_5cm_leaves_a_slack_cable_and_statics_on_three(
+    cfg_name: str,
+    pose: tuple[float, float, float],
+    mass_kg: float,
+    ea_n: float,
+    slack: int,
+    hold_s: float,
+) -> None:
+    from controller.core.statics import CableStatics
+
+    _, reels, turns, rp, _ = reel_plant(cfg_name, pose, mass_kg, ea_n)
+    target = list(turns)
+    target[0] = reels[0].position_rev(reels[0].length_m(turns[0]) + 0.05)
+    steps = 400  # pay out over 0.4 s, then hold
+    for k in range(1, steps + 1):
+        rp.step([a + (b - a) * k / steps for a, b in zip(turns, target, strict=True)], 0.001)
+    for _ in range(round(hold_s / 0.001)):
+        torques = rp.step(target, 0.001)
+    assert math.hypot(*rp.plant.velocity_mps) < 1e-5
+    tensions = [r.tension_n(p, tau) for r, p, tau in zip(reels, target, torques, strict=True)]
+    assert tensions[slack] == 0.0
+    taut = [i for i in range(4) if i != slack]
+    anchors = [rp.plant.params.anchors_m[i] for i in taut]
+    three = CableStatics(anchors, 0.0, 1e9).solve(rp.position_m, mass_kg)
+    assert [tensions[i] for i in taut] == pytest.approx(three.tensions_n, rel=1e-4)
+
+
+def test_reel_plant_refuses_bad_inputs_and_keeps_its_state() -> None:
+    from controller.core.plant import ReelPlant
+
+    _, reels, turns, rp, _ = reel_plant("desk.toml", (0.0, 0.0, 0.1), 0.5, 1e5)
+    before = (rp.position_m, rp.tensions_n)
+    with pytest.raises(PlantError, match="4 reels need as many positions"):
+        rp.step(turns[:3], 0.001)
+    with pytest.raises(PlantError, match="dt_s"):
+        rp.step(turns, 0.0)
+    assert (rp.position_m, rp.tensions_n) == before
+    with pytest.raises(ValueError, match="as many reels"):
+        ReelPlant(rp.plant.params, reels[:3], (0.0, 0.0, 0.1), turns)
+    with pytest.raises(PlantError, match="finite"):
+        ReelPlant(rp.plant.params, reels, (0.0, 0.0, 0.1), [math.nan, 0.0, 0.0, 0.0])

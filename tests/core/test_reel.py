@@ -133,3 +133,57 @@ def test_with_home_round_trip(m: ReelModel, p_home: float, length_home: float) -
         assume(False)
         return
     assert h.length_m(p_home) == pytest.approx(length_home, rel=1e-9, abs=1e-9)
+
+
+# --- torque <-> tension ---------------------------------------------------------------------
+
+
+def test_torque_and_tension_known_values_and_sign() -> None:
+    # 15 mm drum, direct drive: 94.2 mm per motor turn; 1 N needs 15 mN m (tension x radius)
+    m = ReelModel.from_drum_radius(0.015)
+    assert m.torque_nm(3.0, 1.0) == pytest.approx(-0.015)  # holding winds in: negative
+    assert m.tension_n(3.0, -0.015) == pytest.approx(1.0)
+    mirrored = ReelModel.from_drum_radius(0.015, direction=-1)
+    assert mirrored.torque_nm(3.0, 1.0) == pytest.approx(0.015)
+    assert mirrored.tension_n(3.0, 0.015) == pytest.approx(1.0)
+    # a 10:1 gearbox and a 2:1 block: the motor feels a twentieth of the radius x tension
+    geared = ReelModel.from_drum_radius(0.015, gear_ratio=10.0, mechanical_advantage=2.0)
+    assert geared.torque_nm(0.0, 100.0) == pytest.approx(-100.0 * 0.015 / 20.0)
+
+
+def test_torque_work_balances_tension_work_with_buildup() -> None:
+    """Over a small turn the motor's work equals minus the cable's: tau dtheta = -T dL."""
+    m = ReelModel(metres_per_rev=0.1, gear_ratio=3.0, spool_buildup_m_per_rev2=0.004)
+    p, dp, tension = 7.0, 1e-6, 250.0
+    tau = m.torque_nm(p + dp / 2, tension)
+    d_length = m.length_m(p + dp) - m.length_m(p)
+    assert tau * 2 * math.pi * dp == pytest.approx(-tension * d_length, rel=1e-6)
+    # build-up: fewer metres per turn further out, so the same torque holds more tension there
+    assert m.tension_n(30.0, -1.0) > m.tension_n(0.0, -1.0) > 0.0
+
+
+def test_max_tension_from_torque_takes_the_steepest_end() -> None:
+    m = ReelModel(metres_per_rev=0.5, gear_ratio=10.0)  # 0.05 m per motor turn
+    assert m.max_tension_n(4.0, 1.0, 100.0) == pytest.approx(4.0 * 2 * math.pi / 0.05)
+    b = ReelModel(metres_per_rev=0.1, spool_buildup_m_per_rev2=0.004)
+    # wound in (short cable) the spool is fullest: most metres per turn, least tension
+    short_slope = abs(b.length_rate_mps(b.position_rev(-2.0), 1.0))
+    assert b.max_tension_n(1.0, -2.0, 0.5) == pytest.approx(2 * math.pi / short_slope)
+    with pytest.raises(ValueError, match="max_torque_nm"):
+        m.max_tension_n(0.0, 1.0, 2.0)
+    with pytest.raises(ValueError, match="max_torque_nm"):
+        m.max_tension_n(math.nan, 1.0, 2.0)
+
+
+@given(models, st.floats(-1e3, 1e3), st.floats(-1e4, 1e4))
+def test_round_trip_tension_torque_tension(m: ReelModel, p: float, tension: float) -> None:
+    assume(_in_domain(m, p))
+    tau = m.torque_nm(p, tension)
+    assert math.copysign(1.0, tau) * math.copysign(1.0, tension) * m.direction <= 0 or tau == 0
+    assert m.tension_n(p, tau) == pytest.approx(tension, rel=1e-12, abs=1e-9)
+
+
+@given(models, st.floats(-1e3, 1e3), st.floats(-100.0, 100.0))
+def test_round_trip_torque_tension_torque(m: ReelModel, p: float, tau: float) -> None:
+    assume(_in_domain(m, p))
+    assert m.torque_nm(p, m.tension_n(p, tau)) == pytest.approx(tau, rel=1e-12, abs=1e-12)

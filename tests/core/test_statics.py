@@ -655,3 +655,51 @@ def test_workspace_bad_input() -> None:
         feasible_workspace(DESK, (1.0, -1.0), (0, 1), (0, 1), 0.1, 0.5, 0.0, 10.0)
     with pytest.raises(StaticsInputError, match="too many"):
         feasible_workspace(DESK, *DESK_BOX, 1e-7, 0.5, 0.0, 10.0)
+
+
+# -- the tension rule and the workspace inside a region ----------------------------------------
+
+
+def test_tension_check_applies_the_margin_and_names_the_cable() -> None:
+    from controller.core.statics import TensionCheck
+
+    check = TensionCheck(PAPER, 5.0, 5.0, 500.0, 5.0, "limits.max_tension_n")
+    assert check.check((0.0, 0.0, 2.0)) is None  # 104.4 N each
+    res = check.solve((0.0, 0.0, 6.6))  # 571.6 N each
+    assert check.reason(res) == (
+        f"cable {res.limiting_cable + 1} tension 571.6 N above 495 N (limits.max_tension_n "
+        "500 N - tension_margin_n 5 N) holding 5 kg"
+    )
+    # 0.35 kg: 7.3 N each, inside 5..500 but not 5 N inside
+    light = TensionCheck(PAPER, 0.35, 5.0, 500.0, 5.0)
+    res = light.solve((0.0, 0.0, 2.0))
+    assert res.feasible and res.margin_n < 5.0
+    assert (light.check((0.0, 0.0, 2.0)) or "").endswith(
+        "below 10 N (min_tension_n 5 N + tension_margin_n 5 N) holding 0.35 kg"
+    )
+    assert TensionCheck(PAPER, 0.35, 5.0, 500.0, 2.0).check((0.0, 0.0, 2.0)) is None
+    assert "no cable pulls upward" in (check.check((0.0, 0.0, 9.0)) or "")
+    assert "not finite" in (check.check((math.nan, 0.0, 1.0)) or "")
+    with pytest.raises(StaticsInputError, match="margin_n"):
+        TensionCheck(PAPER, 5.0, 5.0, 500.0, -1.0)
+    with pytest.raises(StaticsInputError, match="leaves no range"):
+        TensionCheck(PAPER, 5.0, 5.0, 500.0, 250.0)
+    with pytest.raises(StaticsInputError, match="mass_kg"):
+        TensionCheck(PAPER, 0.0, 5.0, 500.0)
+
+
+def test_feasible_workspace_inside_a_region() -> None:
+    # the region: a cylinder of radius 0.3 m about the z axis, inside the desk box
+    def cylinder(pts: NDArray[np.float64]) -> NDArray[np.bool_]:
+        return np.asarray(pts[:, 0] ** 2 + pts[:, 1] ** 2 <= 0.09, dtype=np.bool_)
+
+    whole = feasible_workspace(DESK, *DESK_BOX, 0.03, 0.5, 0.0, 1e9)
+    ws = feasible_workspace(DESK, *DESK_BOX, 0.03, 0.5, 0.0, 1e9, inside=cylinder)
+    assert whole.region_volume_m3 == whole.box_volume_m3
+    # nothing limits the tensions here: the volume is the cylinder's, within the bound
+    exact = math.pi * 0.09 * (0.7 - 0.01)
+    assert abs(ws.region_volume_m3 - exact) <= ws.uncertainty_m3
+    assert ws.volume_m3 == ws.region_volume_m3
+    # the bound counts the cells on both sides of the surface: 2 x area x step
+    assert abs(ws.volume_m3 - exact) <= ws.uncertainty_m3 <= 2.2 * 1.3 * 0.03
+    assert ws.n_feasible == ws.n_region < whole.n_feasible

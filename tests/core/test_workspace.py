@@ -298,3 +298,31 @@ def test_core_does_not_import_the_service() -> None:
         "assert not bad, bad"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=60)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.floats(-45.0, 45.0), st.floats(-30.0, 30.0), st.floats(-1.0, 9.0)),
+        min_size=1,
+        max_size=40,
+    )
+)
+def test_inside_points_is_check_target_vectorised(points: list[tuple[float, float, float]]) -> None:
+    import numpy as np
+
+    # add the exact boundary points too: the tolerance must agree
+    pts = [*points, (38.45, 23.0, 0.0), (-38.45, -23.0, 6.62), (38.45 + 2e-9, 0.0, 1.0)]
+    got = LIM.inside_points(np.asarray(pts))
+    assert got.tolist() == [LIM.check_target(p) is None for p in pts]
+
+
+def test_inside_points_refuses_non_finite_and_wrong_shapes() -> None:
+    import numpy as np
+
+    assert LIM.inside_points(np.array([[math.nan, 0.0, 1.0], [0.0, 0.0, 1.0]])).tolist() == [
+        False,
+        True,
+    ]
+    with pytest.raises(ValueError, match="shape"):
+        LIM.inside_points(np.zeros((3, 2)))

@@ -81,6 +81,12 @@ GOLDEN: list[tuple[cs.Frame, int, bytes, cs.Message]] = [
         cs.SetLimits(63, 20.0, 10.5),
     ),
     (cs.encode_clear_errors(7), 0x0F8, b"\x00", cs.ClearErrors(7, 0)),
+    (
+        cs.encode_torques(2, -0.25, -0.2),
+        0x05C,
+        bytes.fromhex("000080becdcc4cbe"),
+        cs.Torques(2, -0.25, -0.20000000298023224),  # float32 of -0.2
+    ),
     (cs.encode_clear_errors(7, identify=1), 0x0F8, b"\x01", cs.ClearErrors(7, 1)),
 ]
 
@@ -92,6 +98,8 @@ def test_golden_bytes(frame: cs.Frame, arb_id: int, data: bytes, message: cs.Mes
 
 
 def test_golden_rtr() -> None:
+    assert cs.encode_rtr(2, cs.GET_TORQUES) == (0x05C, b"", True)
+    assert cs.decode(0x05C, b"", is_remote=True) == cs.RemoteRequest(2, 0x1C)
     assert cs.encode_rtr(2, cs.GET_ENCODER_ESTIMATES) == (0x049, b"", True)
     assert cs.encode_rtr(2, cs.GET_ERROR) == (0x043, b"", True)
     assert cs.decode(0x049, b"", is_remote=True) == cs.RemoteRequest(2, 0x09)
@@ -151,6 +159,8 @@ DBC_SIGNALS: list[tuple[cs.Frame, dict[str, float]]] = [
     (cs.encode_set_input_vel(7, -3.0, 0.5), {"Input_Vel": -3.0, "Input_Torque_FF": 0.5}),
     (cs.encode_set_limits(0, 25.0, 12.0), {"Velocity_Limit": 25.0, "Current_Limit": 12.0}),
     (cs.encode_clear_errors(3, 1), {"Identify": 1}),
+    (cs.encode_torques(1, 1.5, -0.75), {"Torque_Target": 1.5, "Torque_Estimate": -0.75}),
+    (cs.encode_torques(7, 0.0, 12.25), {"Torque_Target": 0.0, "Torque_Estimate": 12.25}),
 ]
 
 
@@ -193,6 +203,7 @@ def test_dbc_layout_matches_codec_for_every_supported_message(db: Any) -> None:
         cs.SET_INPUT_VEL: 8,
         cs.SET_LIMITS: 8,
         cs.CLEAR_ERRORS: 1,
+        cs.GET_TORQUES: 8,
     }
     for cmd, dlc in expected_dlc.items():
         for node in range(8):
@@ -203,6 +214,11 @@ def test_dbc_layout_matches_codec_for_every_supported_message(db: Any) -> None:
     assert sip["Vel_FF"].scale == cs.VEL_FF_SCALE_RPS and sip["Vel_FF"].is_signed
     assert sip["Torque_FF"].scale == cs.TORQUE_FF_SCALE_NM and sip["Torque_FF"].length == 16
     assert sip["Input_Pos"].is_float
+    # Get_Torques: two float32, target in the low four bytes, estimate in the high four
+    tq = {s.name: s for s in db.get_message_by_frame_id(cs.GET_TORQUES).signals}
+    assert (tq["Torque_Target"].start, tq["Torque_Estimate"].start) == (0, 32)
+    assert tq["Torque_Target"].is_float and tq["Torque_Estimate"].is_float
+    assert tq["Torque_Estimate"].unit == "Nm"
 
 
 def test_enums_match_dbc_value_tables(db: Any) -> None:
@@ -225,7 +241,13 @@ def test_enums_match_dbc_value_tables(db: Any) -> None:
 
 @pytest.mark.parametrize("length", [0, 1, 4, 7])
 def test_wrong_length_is_a_length_error(length: int) -> None:
-    for cmd in (cs.HEARTBEAT, cs.GET_ENCODER_ESTIMATES, cs.GET_ERROR, cs.SET_INPUT_POS):
+    for cmd in (
+        cs.HEARTBEAT,
+        cs.GET_ENCODER_ESTIMATES,
+        cs.GET_ERROR,
+        cs.SET_INPUT_POS,
+        cs.GET_TORQUES,
+    ):
         err = cs.decode(2 << 5 | cmd, bytes(length))
         assert isinstance(err, cs.DecodeError)
         assert err.kind is cs.DecodeErrorKind.LENGTH
@@ -238,7 +260,7 @@ def test_non_finite_encoder_values_are_rejected(bad: float) -> None:
         err = cs.decode(0x029, data)
         assert isinstance(err, cs.DecodeError)
         assert err.kind is cs.DecodeErrorKind.NON_FINITE
-    for cmd in (cs.SET_INPUT_VEL, cs.SET_LIMITS):
+    for cmd in (cs.SET_INPUT_VEL, cs.SET_LIMITS, cs.GET_TORQUES):
         assert isinstance(cs.decode(cmd, struct.pack("<ff", bad, 1.0)), cs.DecodeError)
     assert isinstance(cs.decode(cs.SET_INPUT_POS, struct.pack("<fhh", bad, 0, 0)), cs.DecodeError)
 
@@ -271,6 +293,8 @@ def test_encoders_refuse_unsendable_values() -> None:
         cs.encode_set_input_pos(0, 0.0, vel_ff_rps=32.8)
     with pytest.raises(ValueError, match="finite"):
         cs.encode_set_limits(0, math.inf, 1.0)
+    with pytest.raises(ValueError, match="torque_estimate_nm"):
+        cs.encode_torques(0, 0.0, math.nan)
     with pytest.raises(ValueError):
         cs.encode_set_axis_state(0, -1)
     with pytest.raises(ValueError):

@@ -34,6 +34,9 @@ pytestmark = pytest.mark.slow
 
 RATE_HZ = 100.0  # loop rate; publish_every = 1, so also the pose rate
 POSE_KEYS = {"seq", "stamp_ns", "position_m", "cable_lengths_m", "residual_m", "valid", "state"}
+PLANNED_TENSIONS = "tensions_n"
+"""With `[payload]` (the built-in robot has one), the tensions of the set-point, while there is
+one (armed)."""
 STATES = {"DISARMED", "ARMING", "HOLDING", "MOVING", "FAULT", "ESTOPPED"}
 
 SUBSCRIBER = r"""
@@ -74,7 +77,16 @@ def strict_json(data: bytes | str) -> Any:
 
 def check_pose_schema(p: dict[str, Any]) -> None:
     """Assert the pose schema, exactly."""
-    assert set(p) == POSE_KEYS, p
+    if p["state"] in ("HOLDING", "MOVING"):
+        assert set(p) == POSE_KEYS | {PLANNED_TENSIONS}, p
+    elif p["state"] == "FAULT":  # with the held set-point's tensions, if there is one
+        assert POSE_KEYS <= set(p) <= POSE_KEYS | {PLANNED_TENSIONS}, p
+    else:
+        assert set(p) == POSE_KEYS, p
+    if PLANNED_TENSIONS in p:
+        t = p[PLANNED_TENSIONS]
+        assert isinstance(t, list) and len(t) == 4
+        assert all(isinstance(v, float) and math.isfinite(v) and v > 0.0 for v in t)
     assert isinstance(p["seq"], int) and p["seq"] >= 0
     assert isinstance(p["stamp_ns"], int) and p["stamp_ns"] > 1_600_000_000 * 10**9
     assert isinstance(p["valid"], bool)
