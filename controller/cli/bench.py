@@ -33,29 +33,28 @@ Method
   python-can Messages on a `virtual` bus -> `cansimple.decode` -> per-axis reading update and
   stamping, 90 % encoder estimates and 10 % heartbeats for 4 axes.
 * `loop`: for each rate a fresh process (`python -m controller.cli.bench loop`, daemon-like: it
-  imports only what the daemon imports) starts four simulated ODrive nodes in another process
-  (the registry's simulated drives built by `controller.cli.sim.sim_bank`, as `cablebot sim`
+  imports only what the daemon imports) starts four simulated ODrive nodes in another process (the
+  registry's simulated drives built by `controller.service.simulated.sim_bank`, as `cablebot sim`
   does, at SCHED_FIFO one below the loop when permitted: they stand in for hardware, which a busy
   host does not slow down) on a udp_multicast bus of its own (random group and port), builds the
-  bus, driver, `Controller` and `ZenohInterface` with the daemon's own `build_stack`, sets the
-  same switch interval, GC freeze, timer slack and scheduling, and runs the controller's
-  `Runner` (the daemon's loop itself) in a thread (`controller.service.runner.start_loop`).
-  The robot is armed and moved back and forth (1 m/s, all four cables changing), so every tick
-  does the full work: poll, FPK, planner, limits, IPK, four Set_Input_Pos frames, one pose put
-  (`publish_every` 1). A fault (e.g. a simulator starved on a loaded machine) is counted and
-  shown, then reset and re-armed so the run goes on. The loop's own jitter and compute rings
-  are read every 0.1 s, so the percentiles cover every tick of the measured window (not only
-  the ring's last 4096); `ticks` and `overruns` are the loop's counters over the window.
-  Fractions are of the period. The simulated nodes' tick is 0.993 ms, not 1 ms: a real
-  ODrive's clock is independent of the host's, so its broadcasts arrive at any phase of the
-  loop's tick; two 1 ms grids on the same clock would keep one fixed phase for a whole run and
-  make the latency (and the tick's work) a draw of that phase. At 0.7 % the phase sweeps a
-  whole 1 ms period every 0.14 s, about 70 times in a run. Each loop figure is the median
-  over 3 runs per rate (1 with `--quick`), the rates interleaved (500, 1000, 500, ...). Note
-  that udp_multicast delivers the daemon's own frames back to it (python-can cannot filter
-  them), so each tick also receives its four Set_Input_Pos frames, which SocketCAN would not.
-  `frames_rx_per_tick` / `frames_tx_per_tick` are the driver's frame counters over the measured
-  window divided by its ticks: received counts every frame on the bus, the loop's own included.
+  bus, driver, `Controller` and `ZenohInterface` with the daemon's own `build_stack`, sets the same
+  switch interval, GC freeze, timer slack and scheduling, and runs the controller's `Runner` (the
+  daemon's loop itself) in a thread (`controller.service.runner.start_loop`). The robot is armed and
+  moved back and forth (1 m/s, all four cables changing), so every tick does the full work: poll,
+  FPK, planner, limits, IPK, four Set_Input_Pos frames, one pose put (`publish_every` 1). A fault
+  (e.g. a simulator starved on a loaded machine) is counted and shown, then reset and re-armed so
+  the run goes on. The loop's own jitter and compute rings are read every 0.1 s, so the percentiles
+  cover every tick of the measured window (not only the ring's last 4096); `ticks` and `overruns`
+  are the loop's counters over the window. Fractions are of the period. The simulated nodes' tick is
+  0.993 ms, not 1 ms: a real ODrive's clock is independent of the host's, so its broadcasts arrive
+  at any phase of the loop's tick; two 1 ms grids on the same clock would keep one fixed phase for a
+  whole run and make the latency (and the tick's work) a draw of that phase. At 0.7 % the phase
+  sweeps a whole 1 ms period every 0.14 s, about 70 times in a run. Each loop figure is the median
+  over 3 runs per rate (1 with `--quick`), the rates interleaved (500, 1000, 500, ...). Note that
+  udp_multicast delivers the daemon's own frames back to it (python-can cannot filter them), so each
+  tick also receives its four Set_Input_Pos frames, which SocketCAN would not. `frames_rx_per_tick`
+  / `frames_tx_per_tick` are the driver's frame counters over the measured window divided by its
+  ticks: received counts every frame on the bus, the loop's own included.
 * `loop.cia402.500`: the same run at 500 Hz on four simulated CiA 402 drives (`[drive] kind =
   "cia402"`, nodes 1..4; the daemon configures them by SDO before its loop runs): each tick
   writes two RPDOs per drive and one SYNC, and every drive answers with its TPDO. No end-to-end
@@ -607,8 +606,8 @@ def role_sim(config: str, log: str, tick_s: float) -> int:
     (ODrive frames; none for other families)."""
     import dataclasses
 
-    from controller.cli.sim import sim_settings
     from controller.service.runner import RT_PRIORITY, set_realtime
+    from controller.service.simulated import sim_settings
     from drivers import registry
     from drivers.bus import open_bus
 

@@ -170,8 +170,8 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
     what was opened; drives that cannot be configured raise RuntimeError naming the node and
     the step.
     """
-    from controller.cli.sim import start_sim_bank
     from controller.service.loop import Controller
+    from controller.service.simulated import start_sim_bank
     from drivers import registry
     from drivers.base import ConfigurableDriver, DriverError
     from drivers.bus import open_bus

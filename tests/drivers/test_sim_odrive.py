@@ -422,8 +422,8 @@ def test_process_option_parsing() -> None:
 
 
 def test_the_configured_simulated_robot_has_its_watchdog_on() -> None:
-    from controller.cli.sim import sim_bank
     from controller.service.config import default_config
+    from controller.service.simulated import sim_bank
 
     cfg = default_config()
     assert cfg.sim.watchdog_timeout_s == 1.0  # the built-in robot's allowance for a busy CPU

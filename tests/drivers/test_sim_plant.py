@@ -11,9 +11,9 @@ from typing import Any
 import can
 import pytest
 
-from controller.cli.sim import sim_bank, start_sim_bank
 from controller.core.statics import CableStatics
 from controller.service.config import RobotConfig, paper_robot_data, parse_config
+from controller.service.simulated import sim_bank, start_sim_bank
 from drivers.bus import open_bus
 from drivers.odrive import cansimple as cs
 from drivers.odrive.driver import ODriveReels

@@ -12,10 +12,10 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from controller.cli.sim import start_sim_bank
 from controller.core.commands import Arm, Move
 from controller.core.states import State
 from controller.service.loop import Controller
+from controller.service.simulated import start_sim_bank
 from drivers.bus import open_bus
 from drivers.odrive.driver import ODriveReels
 from tests.fakes import RecordingPublisher, make_config

@@ -1,0 +1,96 @@
+"""The simulated drives a robot's configuration asks for, built through the drive registry.
+
+Used by `cablebot run` (in-process, `[sim] enabled`) and by `cablebot sim` (as their own
+process). The drives are those of the config's reels, of the config's drive family (`[drive]
+kind`), initialised at the configured power-up pose (motor turns =
+reel.position_rev(ipk(power-up pose)) with the config's reel offsets), with the `[sim]` section's
+speed, acceleration and tick and, where the family uses them, its broadcast periods and axis
+watchdog. With `[sim] plant = "physical"` (ODrive) the axes carry the payload on elastic cables
+(`sim_plant`) and report the torque their cables need by Get_Torques.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from typing import Any
+
+log = logging.getLogger("cablebot.sim")
+
+
+def initial_turns(cfg: Any) -> tuple[float, ...]:
+    """Motor turns of the config's reels at the power-up pose (all 0 without one).
+
+    Raises kinematics.KinematicsError / ValueError if the power-up pose is unusable.
+    """
+    from controller.core import kinematics
+
+    pose = cfg.homing.power_up_position_m
+    if pose is None:
+        return (0.0,) * len(cfg.reels)
+    lengths = kinematics.ipk_point(cfg.geometry, tuple(float(v) for v in pose))
+    return tuple(r.reel.position_rev(L) for r, L in zip(cfg.reels, lengths, strict=True))
+
+
+def sim_settings(cfg: Any) -> Any:
+    """The `drivers.registry.SimSettings` of the config's `[sim]` section and power-up pose."""
+    from drivers.registry import SimSettings
+
+    s = cfg.sim
+    return SimSettings(
+        initial_positions_rev=initial_turns(cfg),
+        max_velocity_rps=float(s.max_velocity_rps),
+        max_accel_rps2=float(s.max_accel_rps2),
+        tick_s=float(getattr(s, "tick_s", 0.001)),
+        encoder_period_s=float(s.encoder_period_s),
+        heartbeat_period_s=float(s.heartbeat_period_s),
+        watchdog_timeout_s=float(getattr(s, "watchdog_timeout_s", 0.0)),
+    )
+
+
+def sim_plant(cfg: Any, turns: Sequence[float]) -> Any:
+    """The `ReelPlant` the axes carry with `[sim] plant = "physical"` (None for "kinematic").
+
+    The effector starts at rest at the power-up pose, its cables holding the payload with the
+    statics distribution farthest from the tension limits, with the motors at `turns`. Raises
+    PlantError / EquilibriumError / StaticsError (ValueErrors) if that pose cannot be held.
+    """
+    if cfg.sim.plant != "physical":
+        return None
+    from controller.core.plant import PlantParams, ReelPlant
+    from controller.service.config import tension_check
+
+    pose = tuple(float(v) for v in cfg.homing.power_up_position_m)
+    tensions = tension_check(cfg.payload, cfg.tension, cfg.geometry).solve(pose).tensions_n
+    params = PlantParams(cfg.anchors_m, float(cfg.sim.cable_ea_n), float(cfg.payload.mass_kg))
+    return ReelPlant(params, [r.reel for r in cfg.reels], pose, turns, tensions)
+
+
+def sim_bank(cfg: Any, bus: Any) -> Any:
+    """The config's simulated drives on `bus` (a `drivers.registry.SimBank`, not started),
+    carrying the physical plant when `[sim] plant = "physical"`.
+
+    Raises ValueError / KinematicsError on an unusable power-up pose or settings, ValueError
+    when the family's simulated drives cannot carry a load.
+    """
+    from drivers import registry
+
+    fam = registry.family(cfg.drive.kind)
+    settings = sim_settings(cfg)
+    bank = fam.sim_bank(bus, cfg.node_ids, cfg.drive.options, settings)
+    plant = sim_plant(cfg, settings.initial_positions_rev)
+    if plant is not None:
+        carry = getattr(bank, "carry", None)
+        if carry is None:
+            raise ValueError(f"simulated {fam.title} drives cannot carry a physical plant")
+        carry(plant, float(cfg.sim.torque_period_s))
+    return bank
+
+
+def start_sim_bank(cfg: Any, bus: Any) -> Any:
+    """Start `sim_bank(cfg, bus)` serving in its thread; returns the bank.
+
+    With the `virtual` interface `bus` must be a bus object of its own on the controller's
+    channel (python-can virtual buses do not hear their own frames).
+    """
+    return sim_bank(cfg, bus).start()
