@@ -1413,17 +1413,14 @@ def format_table(rows: Sequence[Row]) -> str:
     return "\n".join(lines)
 
 
-def measure(
-    plan: Plan, log: Callable[[str], None]
-) -> tuple[dict[str, Any], list[Row], dict[str, Any]]:
-    """Run every benchmark of `plan`; returns the JSON mapping of figures, the table rows and the
-    loop runs' full results (`{"loops": {rate: {...}}}`).
+def _measure_kinematics(
+    p: Plan, log: Callable[[str], None]
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any], list[Row]]:
+    """Measure the scalar three-spheres FPK, `fpk` against scipy and the batch FPK.
 
-    Raises BenchError when a figure cannot be measured.
+    Returns their figures and table rows. Raises BenchError.
     """
     rows: list[Row] = []
-    p = plan
-
     log("three-spheres (scalar) ...")
     ts = bench_three_spheres(p.scalar_repeats, p.scalar_calls)
     rep = f"median of {p.scalar_repeats} x {p.scalar_calls} calls"
@@ -1516,7 +1513,12 @@ def measure(
             rep,
         ),
     ]
+    return ts, f4, bt, rows
 
+
+def _measure_statics(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any], list[Row]]:
+    """Measure statics per pose, single and batched: figures and rows. Raises BenchError."""
+    rows: list[Row] = []
     log("statics (tensions for the payload) ...")
     sx = bench_statics(p.statics_repeats, p.statics_poses, p.statics_batch_poses)
     rep = f"median of {p.statics_repeats} x {p.statics_poses} poses"
@@ -1539,7 +1541,12 @@ def measure(
             f"{p.statics_batch_poses:,} poses per batch; wall {sx['statics_batch_wall_us']:.3g}",
         ),
     ]
+    return sx, rows
 
+
+def _measure_decode(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any], list[Row]]:
+    """Measure the receive path: its figures and table rows. Raises BenchError."""
+    rows: list[Row] = []
     log("receive path ...")
     dc = bench_decode(p.decode_repeats, p.decode_frames)
     rows.append(
@@ -1552,7 +1559,19 @@ def measure(
             f"median of {p.decode_repeats} x {p.decode_frames:,} frames",
         ),
     )
+    return dc, rows
 
+
+def _measure_loops(
+    p: Plan, log: Callable[[str], None]
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any], list[Row]]:
+    """Measure the daemon's loop at each rate on simulated ODrives, at 500 Hz on simulated
+    CiA 402 drives, and the end-to-end latency.
+
+    Returns the merged runs per rate, the CiA 402 runs, the end-to-end rate's runs and the table
+    rows. Raises BenchError.
+    """
+    rows: list[Row] = []
     runs: dict[str, list[dict[str, Any]]] = {str(rate): [] for rate in LOOP_RATES_HZ}
     for k in range(p.loop_runs):
         for rate in LOOP_RATES_HZ:  # rates interleaved, so load drifts hit both alike
@@ -1685,7 +1704,12 @@ def measure(
             f"p99 {k1['publish_to_arrival_p99_us']:.0f}",
         ),
     ]
+    return loops, ci, k1, rows
 
+
+def _measure_estop(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any], list[Row]]:
+    """Measure e-stop latency under a flood of commands: figures and rows. Raises BenchError."""
+    rows: list[Row] = []
     log(f"e-stop under a flood of hostile commands ({p.estop_tries} tries) ...")
     es = bench_estop_flood(p.estop_tries)
     flood = (
@@ -1718,6 +1742,29 @@ def measure(
             "; ".join(es["fault_reasons"])[:60],
         ),
     ]
+    return es, rows
+
+
+def measure(
+    plan: Plan, log: Callable[[str], None]
+) -> tuple[dict[str, Any], list[Row], dict[str, Any]]:
+    """Run every benchmark of `plan`; returns the JSON mapping of figures, the table rows and the
+    loop runs' full results (`{"loops": {rate: {...}}}`).
+
+    Raises BenchError when a figure cannot be measured.
+    """
+    rows: list[Row] = []
+    p = plan
+    ts, f4, bt, part = _measure_kinematics(p, log)
+    rows += part
+    sx, part = _measure_statics(p, log)
+    rows += part
+    dc, part = _measure_decode(p, log)
+    rows += part
+    loops, ci, k1, part = _measure_loops(p, log)
+    rows += part
+    es, part = _measure_estop(p, log)
+    rows += part
 
     result: dict[str, Any] = {
         "fpk_simplified_us": ts["fpk_simplified_us"],
