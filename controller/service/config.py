@@ -772,41 +772,8 @@ _TOP_KEYS = (
 _BUS_KEYS = ("interface", "channel", "bitrate", "options")
 
 
-def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
-    """Validate an already-parsed TOML mapping and return the `RobotConfig`.
-
-    `source` names the origin (file path) in error messages. Raises one ConfigError listing
-    every problem found (each naming the key path): unknown keys, wrong types or units,
-    out-of-range values, duplicate node ids, unusable anchor geometry, an unknown bus interface
-    or interface option, a bad Zenoh endpoint or file, failed cross-checks.
-    """
-    errs = _Errors(source)
-    if not isinstance(data, Mapping):
-        raise ConfigError(source, "", f"must be a table, got {_tname(data)}")
-    top = _Table(data, "", errs)
-    top.finish(_TOP_KEYS)
-    name = top.string("name", "default") or "default"
-    if not _NAME_RE.match(name):
-        top.fail("name", f"must match {_NAME_RE.pattern} (used in paths and keys), got {name!r}")
-        name = "default"
-
-    mark = errs.mark()
-    drive, family = _parse_drive(top)
-    drive_ok = errs.clean_since(mark)
-    reels = _parse_reels(top, data, errs, family)
-    geometry: Geometry | None = None
-    if reels is not None:
-        try:
-            geometry = Geometry([r.anchor_m for r in reels])
-        except SingularGeometryError as exc:
-            errs.add("reels[*].anchor_m", f"singular anchors: {exc} (anchors numbered from 1)")
-        except (KinematicsError, ArithmeticError, ValueError) as exc:
-            errs.add("reels[*].anchor_m", str(exc))
-
-    bus = _parse_bus(top)
-
-    # ---- loop
-    lt = top.sub("loop")
+def _parse_loop(lt: _Table) -> LoopConfig:
+    """The `[loop]` table (problems are recorded in the table's error list)."""
     lt.finish(tuple(LoopConfig.__dataclass_fields__))
     d_loop = LoopConfig()
     loop = LoopConfig(
@@ -827,29 +794,16 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
             "torque_telemetry",
             f"must be one of {', '.join(TORQUE_TELEMETRY)}, got {loop.torque_telemetry!r}",
         )
+    return loop
 
-    # ---- limits: no defaults in a file (a safe limit depends on the robot)
-    mark = errs.mark()
-    if top.has("limits"):
-        limits = _parse_limits(top.sub("limits"))
-    else:
-        errs.add("limits", "missing (every robot needs its own [limits])")
-        limits = LimitsConfig()  # a stand-in: the configuration is refused
-    limits_ok = errs.clean_since(mark)
-    if limits_ok and geometry is not None and reels is not None:
-        g = geometry
-        errs.check("limits", lambda: _check_limits(limits, g, source))
-        for i, r in enumerate(reels):
-            errs.check(f"reels[{i}]", functools.partial(_check_reel_range, r, i, limits, source))
-    limits_ok = limits_ok and errs.clean_since(mark)
 
-    # ---- sim (needed before faults for the cross-check)
-    st = top.sub("sim")
+def _parse_sim(st: _Table, interface: str, loop: LoopConfig) -> SimConfig:
+    """The `[sim]` table; its defaults depend on the bus interface and the loop rate."""
     st.finish(tuple(SimConfig.__dataclass_fields__))
     d_sim = SimConfig()
     period_s = 1.0 / loop.rate_hz
     sim = SimConfig(
-        enabled=st.boolean("enabled", bus.interface == "virtual"),
+        enabled=st.boolean("enabled", interface == "virtual"),
         encoder_period_s=st.number("encoder_period_s", d_sim.encoder_period_s, gt=0.0, le=1.0),
         heartbeat_period_s=st.number(
             "heartbeat_period_s", d_sim.heartbeat_period_s, gt=0.0, le=10.0
@@ -876,9 +830,12 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
             f"{wd:g} s is shorter than {WATCHDOG_MIN_PERIODS:g} loop periods "
             f"({WATCHDOG_MIN_PERIODS * period_s:g} s at {loop.rate_hz:g} Hz); 0 turns it off",
         )
+    return sim
 
-    # ---- faults
-    ft = top.sub("faults")
+
+def _parse_faults(ft: _Table, loop: LoopConfig, sim: SimConfig) -> FaultConfig:
+    """The `[faults]` table, checked against the loop rate and the simulated drives."""
+    period_s = 1.0 / loop.rate_hz
     ft.finish(tuple(FaultConfig.__dataclass_fields__))
     d_f = FaultConfig()
     faults = FaultConfig(
@@ -915,6 +872,64 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
             f"{faults.heartbeat_timeout_s:g} s is shorter than two simulated heartbeat periods "
             f"(sim.heartbeat_period_s = {sim.heartbeat_period_s:g} s)",
         )
+    return faults
+
+
+def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
+    """Validate an already-parsed TOML mapping and return the `RobotConfig`.
+
+    `source` names the origin (file path) in error messages. Raises one ConfigError listing
+    every problem found (each naming the key path): unknown keys, wrong types or units,
+    out-of-range values, duplicate node ids, unusable anchor geometry, an unknown bus interface
+    or interface option, a bad Zenoh endpoint or file, failed cross-checks.
+    """
+    errs = _Errors(source)
+    if not isinstance(data, Mapping):
+        raise ConfigError(source, "", f"must be a table, got {_tname(data)}")
+    top = _Table(data, "", errs)
+    top.finish(_TOP_KEYS)
+    name = top.string("name", "default") or "default"
+    if not _NAME_RE.match(name):
+        top.fail("name", f"must match {_NAME_RE.pattern} (used in paths and keys), got {name!r}")
+        name = "default"
+
+    mark = errs.mark()
+    drive, family = _parse_drive(top)
+    drive_ok = errs.clean_since(mark)
+    reels = _parse_reels(top, data, errs, family)
+    geometry: Geometry | None = None
+    if reels is not None:
+        try:
+            geometry = Geometry([r.anchor_m for r in reels])
+        except SingularGeometryError as exc:
+            errs.add("reels[*].anchor_m", f"singular anchors: {exc} (anchors numbered from 1)")
+        except (KinematicsError, ArithmeticError, ValueError) as exc:
+            errs.add("reels[*].anchor_m", str(exc))
+
+    bus = _parse_bus(top)
+
+    lt = top.sub("loop")
+    loop = _parse_loop(lt)
+
+    # ---- limits: no defaults in a file (a safe limit depends on the robot)
+    mark = errs.mark()
+    if top.has("limits"):
+        limits = _parse_limits(top.sub("limits"))
+    else:
+        errs.add("limits", "missing (every robot needs its own [limits])")
+        limits = LimitsConfig()  # a stand-in: the configuration is refused
+    limits_ok = errs.clean_since(mark)
+    if limits_ok and geometry is not None and reels is not None:
+        g = geometry
+        errs.check("limits", lambda: _check_limits(limits, g, source))
+        for i, r in enumerate(reels):
+            errs.check(f"reels[{i}]", functools.partial(_check_reel_range, r, i, limits, source))
+    limits_ok = limits_ok and errs.clean_since(mark)
+
+    st = top.sub("sim")
+    sim = _parse_sim(st, bus.interface, loop)
+    ft = top.sub("faults")
+    faults = _parse_faults(ft, loop, sim)
 
     # ---- homing
     ht = top.sub("homing")

@@ -211,7 +211,9 @@ def test_hold_then_pay_one_cable_out_5cm_a_cable_goes_slack_and_three_match_stat
     target[0] = reels[0].position_rev(reels[0].length_m(start[0]) + 0.05)
     assert target[0] == pytest.approx(start[0] + 1.0)
     assert wait_for(lambda: abs(readings[0].position_rev - target[0]) < 1e-6, hold, 5.0)
-    wait_for(lambda: math.hypot(*plant.plant.velocity_mps) < 2e-4, hold, 15.0)
+    # the paper robot's vertical mode settles in about 10 s of simulated time; a loaded machine
+    # runs the simulator slower than real time
+    assert wait_for(lambda: math.hypot(*plant.plant.velocity_mps) < 2e-4, hold, 60.0)
     latest_torques(listen, cfg.node_ids)
     keep(hold, 0.05)
     torques = latest_torques(listen, cfg.node_ids)
