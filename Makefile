@@ -11,10 +11,12 @@ STAMP := $(VENV)/.installed
 venv: $(STAMP)
 
 $(STAMP): pyproject.toml
+	@echo "cablebot: setting up $(VENV) and installing the package with its extras (first run: about a minute) ..."
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $(STAMP)
+	@echo "cablebot: $(VENV) ready"
 
 run: $(STAMP)
 	exec $(VENV)/bin/cablebot run

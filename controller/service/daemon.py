@@ -35,7 +35,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import FrameType
+from types import FrameType, MappingProxyType
 from typing import Any
 
 from controller.core.commands import Arm
@@ -103,14 +103,31 @@ class Notifier:
 # -------------------------------------------------------------------------------- logging
 
 
+_SYSLOG_PRIORITY = MappingProxyType(
+    {"CRITICAL": 2, "ERROR": 3, "WARNING": 4, "INFO": 6, "DEBUG": 7}
+)
+
+
+class JournalFormatter(logging.Formatter):
+    """Lines for journald: a `<N>` syslog priority prefix (so `journalctl -p err` filters) and
+    no timestamp (journald adds its own)."""
+
+    def __init__(self) -> None:
+        super().__init__("%(levelname)s %(name)s: %(message)s")
+
+    def format(self, record: logging.LogRecord) -> str:
+        """Format `record`, each line of it prefixed with its priority."""
+        prefix = f"<{_SYSLOG_PRIORITY.get(record.levelname, 6)}>"
+        return "\n".join(prefix + line for line in super().format(record).splitlines())
+
+
 def setup_logging(level: str) -> None:
-    """Log to stderr; no timestamps under journald (JOURNAL_STREAM set), which adds its own."""
-    if os.environ.get("JOURNAL_STREAM"):
-        fmt = "%(levelname)s %(name)s: %(message)s"
-    else:
-        fmt = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+    """Log to stderr; under journald (JOURNAL_STREAM set) with priority prefixes and no time."""
     handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter(fmt))
+    if os.environ.get("JOURNAL_STREAM"):
+        handler.setFormatter(JournalFormatter())
+    else:
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level.upper())

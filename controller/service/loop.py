@@ -1201,9 +1201,18 @@ class Controller:
     def _execute_home(
         self, cmd: Home, readings: Sequence[AxisReading], now_s: float
     ) -> dict[str, Any] | concurrent.futures.Future[dict[str, Any]]:
-        old = [r.node_id for r in readings if now_s - r.stamp_s > self._stale_s]
+        old = [r for r in readings if now_s - r.stamp_s > self._stale_s]
         if old:
-            raise CommandRefused(f"stale_encoder: no fresh encoder reading from nodes {old}")
+            ages = ", ".join(
+                f"node {r.node_id} "
+                + (f"{now_s - r.stamp_s:.3f} s old" if math.isfinite(r.stamp_s) else "never heard")
+                for r in old
+            )
+            raise CommandRefused(
+                f"stale_encoder: no fresh encoder reading ({ages}; faults.stale_timeout_s is "
+                f"{self._stale_s:g} s): check the drive's encoder broadcast rate, or raise "
+                "faults.stale_timeout_s"
+            )
         reason = self._check_target(cmd.position_m)
         if reason is not None:
             raise CommandRefused(f"home position {_fmt(cmd.position_m)}: {reason}")

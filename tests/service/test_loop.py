@@ -489,6 +489,18 @@ def test_home_sets_offsets_saves_and_reloads(tmp_path: pathlib.Path) -> None:
     assert again.pose_valid and _dist(again.pose_m, here) < 1e-6
 
 
+def test_home_refused_on_a_stale_reading_names_its_age_the_threshold_and_the_key() -> None:
+    rig = Rig()
+    rig.tick(2)
+    node = rig.ctl.node_ids[2]
+    rig.driver.silent = {node}
+    rig.tick(int(0.2 / DT))  # 0.2 s without an encoder frame from that node
+    reason = rig.refused(Home(rig.start))
+    assert reason.startswith("stale_encoder: no fresh encoder reading (node 2 0.2"), reason
+    assert "s old; faults.stale_timeout_s is 0.05 s" in reason, reason
+    assert "raise faults.stale_timeout_s" in reason, reason
+
+
 def test_home_refused_outside_workspace_and_while_moving() -> None:
     rig = Rig()
     rig.tick(2)
