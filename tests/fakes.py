@@ -177,9 +177,10 @@ def make_config(**sections: dict[str, Any]) -> Any:
     """The built-in default robot with fields of its sections replaced.
 
     `make_config(loop={"rate_hz": 1000}, faults={"tracking_max_m": 0.01})`; a top-level
-    field is replaced with `make_config(top={"name": "x"})`. The staleness windows are a real
-    rig's (50 ms encoder, 0.5 s heartbeat), not the built-in simulated robot's generous ones, so
-    the fault tests measure what a rig does; `faults=` overrides them.
+    field is replaced with `make_config(top={"name": "x"})`. The staleness windows and the
+    tracking limit are a real rig's (50 ms encoder, 0.5 s heartbeat, 0.25 m), not the built-in
+    simulated robot's generous ones, so the fault tests measure what a rig does; `faults=`
+    overrides them.
     """
     from controller.service.config import default_config
 
