@@ -12,7 +12,6 @@ import concurrent.futures
 import json
 import math
 import queue
-import socket
 import threading
 import time
 from collections.abc import Sequence
@@ -31,16 +30,6 @@ from controller.core.commands import (
     Reset,
     Stop,
 )
-
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that nothing listens on right now (never 7447)."""
-    while True:
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = int(s.getsockname()[1])
-        if port != 7447:
-            return port
 
 
 @dataclass

@@ -281,14 +281,6 @@ def interleaved(
     return Timed(cpu, wall)
 
 
-def free_tcp_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
-
-
 # --------------------------------------------------------------------------------------------
 # Kinematics figures
 
@@ -753,6 +745,7 @@ def loop_once(
     from controller.core.states import State
     from controller.service.daemon import Stack, build_stack
     from controller.service.runner import start_loop
+    from controller.service.zenoh_io import free_tcp_port  # Zenoh only when used
 
     zport = free_tcp_port()
     data = loop_config_data(rate_hz, zport, kind)
@@ -1241,6 +1234,8 @@ def bench_estop_flood(tries: int, flood_threads: int = ESTOP_FLOOD_THREADS) -> d
 
     rng = random.Random(SEED)
     with tempfile.TemporaryDirectory(prefix="cablebot-bench-") as tmp:
+        from controller.service.zenoh_io import free_tcp_port  # Zenoh only when used
+
         zport = free_tcp_port()
         data = estop_config_data(zport)
         cfg_path = Path(tmp) / "estop.json"

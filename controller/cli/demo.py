@@ -33,7 +33,6 @@ import importlib.util
 import itertools
 import logging
 import math
-import socket
 import sys
 import threading
 import time
@@ -234,17 +233,6 @@ SETTLE_TOL_M = 1e-6
 reels' position loops settle exponentially (time constant 1 / pos_gain = 50 ms), so this is in
 effect "the float32 encoder readings stopped changing for two time constants", i.e. the reels
 sit on their set-points to within a float32 step."""
-
-
-def free_tcp_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago (never 7447)."""
-    for _ in range(20):
-        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-            s.bind(("127.0.0.1", 0))
-            port = int(s.getsockname()[1])
-        if port != 7447:
-            return port
-    raise OSError("no free TCP port on 127.0.0.1")
 
 
 DEMO_FAULT_FLOORS: dict[str, float] = {
@@ -637,6 +625,8 @@ def run_circle(
 
     say = progress if progress is not None else (lambda s: None)
     plan = plan_circle(cfg, spec)
+    from controller.service.zenoh_io import free_tcp_port  # Zenoh only when used
+
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}" if zenoh_listen == "auto" else zenoh_listen
     channel = f"cablebot-demo-{uuid.uuid4().hex[:12]}"
     dcfg = demo_config(cfg, channel=channel, zenoh_listen=endpoint, strict_faults=strict_faults)

@@ -50,6 +50,7 @@ import json
 import logging
 import math
 import os
+import socket
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -198,6 +199,18 @@ def client_config(
 
 # --------------------------------------------------------------------------------------------
 # Helpers
+
+
+def free_tcp_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago, never Zenoh's default 7447 (for a
+    private loopback endpoint of a bench, demo or test daemon). Raises OSError if none is."""
+    for _ in range(20):
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.bind(("127.0.0.1", 0))
+            port = int(s.getsockname()[1])
+        if port != 7447:
+            return port
+    raise OSError("no free TCP port on 127.0.0.1")
 
 
 def json_safe(value: Any) -> Any:

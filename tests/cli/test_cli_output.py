@@ -26,15 +26,16 @@ import zenoh
 
 from controller.cli import client, exitcodes, main
 from controller.service import zenoh_io
+from controller.service.zenoh_io import free_tcp_port
 from tests.cli.test_client import REPO, Daemon, run
-from tests.fakes_zenoh import FakeController, ZCfg, free_port
+from tests.fakes_zenoh import FakeController, ZCfg
 
 CLI = [sys.executable, "-m", "controller.cli"]
 
 
 @pytest.fixture
 def daemon() -> Iterator[Daemon]:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     fake = FakeController(rate_hz=100.0)
     iface = zenoh_io.ZenohInterface(ZCfg(listen=(endpoint,)), fake, reply_timeout_s=1.0)
     iface.open()
@@ -164,7 +165,7 @@ def _publish_with_gaps(endpoint: str, stop: threading.Event) -> None:
 
 @pytest.mark.parametrize("json_mode", [False, True])
 def test_pose_reports_gaps_in_seq(json_mode: bool, capsys: pytest.CaptureFixture[str]) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     stop = threading.Event()
     pub = threading.Thread(target=_publish_with_gaps, args=(endpoint, stop), daemon=True)
     pub.start()

@@ -14,7 +14,8 @@ import pytest
 
 from controller.cli import client, exitcodes, main
 from controller.service import zenoh_io
-from tests.fakes_zenoh import FakeController, ZCfg, free_port
+from controller.service.zenoh_io import free_tcp_port
+from tests.fakes_zenoh import FakeController, ZCfg
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -31,7 +32,7 @@ class Daemon:
 
 @pytest.fixture
 def daemon() -> Iterator[Daemon]:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     fake = FakeController(rate_hz=100.0)
     iface = zenoh_io.ZenohInterface(ZCfg(listen=(endpoint,)), fake, reply_timeout_s=1.0)
     iface.open()
@@ -54,7 +55,7 @@ def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
 
 
 def test_no_daemon_exits_3_with_a_clear_message(capsys: pytest.CaptureFixture[str]) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     t0 = time.monotonic()
     for verb in (["status"], ["arm"], ["move", "0", "0", "1"], ["pose", "--count", "1"]):
         code, out, err = run(capsys, *verb, "--connect", endpoint)
@@ -71,7 +72,7 @@ def test_wrong_prefix_exits_3(daemon: Daemon, capsys: pytest.CaptureFixture[str]
 
 
 def test_pose_times_out_when_nothing_is_published(capsys: pytest.CaptureFixture[str]) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     fake = FakeController()  # not started: publishes nothing
     iface = zenoh_io.ZenohInterface(ZCfg(listen=(endpoint,)), fake)
     iface.open()
@@ -269,7 +270,7 @@ def test_cli_process_exit_code_without_daemon() -> None:
             "controller.cli",
             "estop",
             "--connect",
-            f"tcp/127.0.0.1:{free_port()}",
+            f"tcp/127.0.0.1:{free_tcp_port()}",
         ],
         cwd=REPO,
         capture_output=True,

@@ -11,7 +11,7 @@ import pytest
 from controller.cli import client, main
 from controller.core.commands import CommandError, Move, parse_command
 from controller.core.motion import MIN_SPEED_MPS
-from tests.fakes_zenoh import free_port
+from controller.service.zenoh_io import free_tcp_port
 
 
 @pytest.mark.parametrize("v", [5e-324, 1e-9, 0.5 * MIN_SPEED_MPS])
@@ -32,7 +32,7 @@ def test_the_parser_takes_the_minimum_and_any_speed_above() -> None:
 def test_the_cli_refuses_a_speed_below_the_minimum_before_sending(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"  # nothing listens: it must not get that far
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"  # nothing listens: it must not get that far
     code = main(["move", "0", "0", "1", "--speed", "5e-324", "--connect", endpoint])
     out, err = capsys.readouterr()
     assert code == 1 and out == ""

@@ -22,8 +22,9 @@ from controller.core.commands import MAX_PAYLOAD_BYTES, Disarm, Estop, Move, Res
 from controller.core.states import State
 from controller.service import zenoh_io
 from controller.service.config import ConfigError, paper_robot_data, parse_config
+from controller.service.zenoh_io import free_tcp_port
 from tests.fakes import make_config
-from tests.fakes_zenoh import FakeController, ZCfg, free_port
+from tests.fakes_zenoh import FakeController, ZCfg
 from tests.service.test_loop import DT, RATE_HZ, Rig, _armed_rig, _dist
 
 SAMPLE_TICKS = int(RATE_HZ / 20)  # a joystick at 20 Hz
@@ -281,7 +282,7 @@ class VelocityFake(FakeController):
 
 @pytest.fixture
 def zrig() -> Iterator[tuple[VelocityFake, zenoh_io.ZenohInterface, Any]]:
-    port = free_port()
+    port = free_tcp_port()
     fake = VelocityFake(rate_hz=100.0)
     iface = zenoh_io.ZenohInterface(
         ZCfg(listen=(f"tcp/127.0.0.1:{port}",)), fake, reply_timeout_s=1.0

@@ -19,7 +19,8 @@ from controller.cli import exitcodes
 from controller.core.commands import MAX_JSON_DEPTH, MAX_PAYLOAD_BYTES, QUOTE_CHARS, Move, Setpoint
 from controller.core.commands import Path as PathCmd
 from controller.service import zenoh_io
-from tests.fakes_zenoh import FakeController, FakePose, ZCfg, free_port
+from controller.service.zenoh_io import free_tcp_port
+from tests.fakes_zenoh import FakeController, FakePose, ZCfg
 
 
 def _strict(data: bytes) -> Any:
@@ -62,7 +63,7 @@ class Rig:
 
 @pytest.fixture
 def rig() -> Iterator[Rig]:
-    port = free_port()
+    port = free_tcp_port()
     fake = FakeController(rate_hz=100.0)
     iface = zenoh_io.ZenohInterface(
         ZCfg(listen=(f"tcp/127.0.0.1:{port}",)), fake, reply_timeout_s=1.0
@@ -322,7 +323,7 @@ def test_pose_and_state_are_published(rig: Rig) -> None:
 
 @pytest.mark.parametrize("threaded", [True, False])
 def test_both_publish_modes_deliver_poses_and_every_state_in_order(threaded: bool) -> None:
-    port = free_port()
+    port = free_tcp_port()
     fake = FakeController()
     iface = zenoh_io.ZenohInterface(
         ZCfg(listen=(f"tcp/127.0.0.1:{port}",)), fake, publish_thread=threaded
@@ -408,7 +409,7 @@ def test_bad_setpoints_are_refused_by_size_and_logged_briefly(
 
 
 def test_open_fails_cleanly_when_the_port_is_taken() -> None:
-    port = free_port()
+    port = free_tcp_port()
     fake = FakeController()
     first = zenoh_io.ZenohInterface(ZCfg(listen=(f"tcp/127.0.0.1:{port}",)), fake)
     first.open()
@@ -507,7 +508,7 @@ def test_tls_acl_example_lets_only_the_operator_command(
     from controller.cli import main
 
     _make_pki(tmp_path)
-    port = free_port()
+    port = free_tcp_port()
     endpoint = f"tls/localhost:{port}"
     # the documented file, with this test's certificate paths and port
     doc = Path(__file__).resolve().parents[2] / "docs" / "zenoh-tls-acl.json5"
