@@ -129,7 +129,10 @@ def test_daemon_sim_observer_over_udp_multicast(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_cia402_daemon_sim_observer_over_udp_multicast(tmp_path: Path) -> None:
-    cfg, info = write_config(tmp_path, _udp_bus(), base=CIA402_SIM)
+    # The simulated drives are a process sharing two busy cores with the daemon and pytest: a
+    # starved drive lags its set-point by more than the desk rig's 20 mm tracking limit. The
+    # arrival within 1 mm is what this test checks; the tracking fault has its own tests.
+    cfg, info = write_config(tmp_path, _udp_bus(), base=CIA402_SIM, faults={"tracking_max_m": 0.1})
     run_three_processes(cfg, info, kind="cia402", move_m=0.2, speed_mps=0.3, estop=True)
 
 
