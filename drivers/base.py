@@ -205,3 +205,37 @@ class ConfigurableDriver(Protocol):
         """Set up every drive (blocking, bounded). Raises a DriverError naming the node and
         the step that failed."""
         ...
+
+
+@runtime_checkable
+class TorqueDriver(Protocol):
+    """A driver whose axes can pull with a set torque instead of holding a position: the
+    pre-tension before homing (every reel winds gently at a set torque until still).
+
+    The loop calls `enter_torque_mode` once, then `command_torque` every tick (which also
+    feeds the drives' watchdogs), then `leave_torque_mode` to hold where the reels came to
+    rest. A family without torque control does not implement it; the loop refuses the
+    pre-tension for it by name.
+    """
+
+    def enter_torque_mode(self, velocity_limits_rps: Sequence[float] | None = None) -> bool:
+        """Select torque control at zero torque on every axis and enter closed loop (clearing
+        errors first on an axis that is not in closed loop yet). With `velocity_limits_rps`
+        (one per axis, > 0) the drives turn no faster than that while in torque mode, where
+        the family can set it (ODrive: Set_Limits, which needs the configured current limit).
+        Returns True if the velocity limits were applied. Raises ValueError (nothing sent) on
+        a non-finite or non-positive limit or a wrong count, BusError if a send fails."""
+        ...
+
+    def command_torque(self, torques_nm: Sequence[float]) -> None:
+        """Send one torque set-point per axis (N m, motor's positive direction). Raises
+        ValueError (and sends nothing) on a non-finite value or a wrong count, BusError if
+        the bus refuses a frame."""
+        ...
+
+    def leave_torque_mode(self, positions_rev: Sequence[float]) -> None:
+        """Hold `positions_rev` (one per axis) in position control with passthrough input:
+        the position set-point goes out before the mode change, so no drive jumps to an old
+        set-point; restores the velocity limits `enter_torque_mode` lowered. Raises
+        ValueError (nothing sent) on a non-finite value or a wrong count, BusError."""
+        ...
