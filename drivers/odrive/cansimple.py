@@ -14,6 +14,7 @@ tests/data/odrive-cansimple-0.6.dbc and the tests cross-check every message with
     0x0C Set_Input_Pos        input_pos f32 [rev] | vel_ff i16 [0.001 rev/s] |
                               torque_ff i16 [0.001 Nm]                         (8)
     0x0D Set_Input_Vel        input_vel f32 [rev/s] | input_torque_ff f32 [Nm] (8)
+    0x0E Set_Input_Torque     input_torque f32 [Nm]                            (8; 4 accepted)
     0x0F Set_Limits           velocity_limit f32 [rev/s] | current_limit f32 [A] (8)
     0x18 Clear_Errors         identify u8                                      (1; 0 accepted)
     0x1C Get_Torques          torque_target f32 [Nm] | torque_estimate f32 [Nm] (cyclic or RTR, 8)
@@ -42,6 +43,7 @@ GET_ENCODER_ESTIMATES: Final = 0x09
 SET_CONTROLLER_MODE: Final = 0x0B
 SET_INPUT_POS: Final = 0x0C
 SET_INPUT_VEL: Final = 0x0D
+SET_INPUT_TORQUE: Final = 0x0E
 SET_LIMITS: Final = 0x0F
 CLEAR_ERRORS: Final = 0x18
 GET_TORQUES: Final = 0x1C
@@ -233,6 +235,14 @@ class SetInputVel:
 
 
 @dataclass(frozen=True, slots=True)
+class SetInputTorque:
+    """0x0E: torque set-point (N m, motor's positive direction) for TORQUE_CONTROL, finite."""
+
+    node_id: int
+    input_torque_nm: float
+
+
+@dataclass(frozen=True, slots=True)
 class SetLimits:
     """0x0F: velocity limit (rev/s) and current limit (A)."""
 
@@ -300,6 +310,7 @@ Message = (
     | SetControllerMode
     | SetInputPos
     | SetInputVel
+    | SetInputTorque
     | SetLimits
     | ClearErrors
     | Torques
@@ -314,6 +325,8 @@ _HEARTBEAT = struct.Struct("<IBBBx")
 _F32F32 = struct.Struct("<ff")
 _INPUT_POS = struct.Struct("<fhh")
 _U8 = struct.Struct("<B")
+_F32 = struct.Struct("<f")
+_PAD4 = b"\x00\x00\x00\x00"
 _F32_MAX = 3.4028234663852886e38
 _EMPTY = b""
 
@@ -383,7 +396,7 @@ def encode_get_error(node_id: int, active_errors: int, disarm_reason: int) -> Fr
 
 def encode_set_axis_state(node_id: int, requested_state: int) -> Frame:
     """Set_Axis_State (0x07), 8 bytes as in the DBC. Raises ValueError."""
-    data = _U32.pack(_u32("requested_state", requested_state)) + b"\x00\x00\x00\x00"
+    data = _U32.pack(_u32("requested_state", requested_state)) + _PAD4
     return arbitration_id(node_id, SET_AXIS_STATE), data, False
 
 
@@ -422,6 +435,15 @@ def encode_set_input_vel(node_id: int, input_vel_rps: float, torque_ff_nm: float
     """Set_Input_Vel (0x0D). Raises ValueError on a non-finite value."""
     data = _F32F32.pack(_f32("input_vel_rps", input_vel_rps), _f32("torque_ff_nm", torque_ff_nm))
     return arbitration_id(node_id, SET_INPUT_VEL), data, False
+
+
+def encode_set_input_torque(node_id: int, input_torque_nm: float) -> Frame:
+    """Set_Input_Torque (0x0E), 8 bytes as in the DBC (float32 torque, 4 zero bytes).
+
+    Raises ValueError on a non-finite torque (or one beyond float32) or a bad node id.
+    """
+    data = _F32.pack(_f32("input_torque_nm", input_torque_nm)) + _PAD4
+    return arbitration_id(node_id, SET_INPUT_TORQUE), data, False
 
 
 def encode_set_limits(node_id: int, velocity_limit_rps: float, current_limit_a: float) -> Frame:
@@ -522,6 +544,16 @@ def _dec_set_input_vel(arb_id: int, data: bytes | bytearray) -> Message | Decode
     return SetInputVel(arb_id >> 5, vel, torque)
 
 
+def _dec_set_input_torque(arb_id: int, data: bytes | bytearray) -> Message | DecodeError:
+    n = len(data)
+    if n != 8 and n != 4:
+        return _length_error(arb_id, data, "Set_Input_Torque", "8 (or 4)")
+    torque = _F32.unpack_from(data)[0]
+    if torque - torque != 0.0:
+        return _non_finite(arb_id, "Set_Input_Torque", torque, 0.0)
+    return SetInputTorque(arb_id >> 5, torque)
+
+
 def _dec_set_limits(arb_id: int, data: bytes | bytearray) -> Message | DecodeError:
     if len(data) != 8:
         return _length_error(arb_id, data, "Set_Limits", "8")
@@ -557,6 +589,7 @@ _DECODERS: dict[int, _Decoder] = {
     SET_CONTROLLER_MODE: _dec_set_controller_mode,
     SET_INPUT_POS: _dec_set_input_pos,
     SET_INPUT_VEL: _dec_set_input_vel,
+    SET_INPUT_TORQUE: _dec_set_input_torque,
     SET_LIMITS: _dec_set_limits,
     CLEAR_ERRORS: _dec_clear_errors,
     GET_TORQUES: _dec_torques,

@@ -75,6 +75,12 @@ GOLDEN: list[tuple[cs.Frame, int, bytes, cs.Message]] = [
         cs.SetInputVel(4, 10.0, 0.25),
     ),
     (
+        cs.encode_set_input_torque(2, -0.75),
+        0x04E,
+        bytes.fromhex("000040bf00000000"),
+        cs.SetInputTorque(2, -0.75),
+    ),
+    (
         cs.encode_set_limits(63, 20.0, 10.5),
         0x7EF,
         bytes.fromhex("0000a04100002841"),
@@ -157,6 +163,8 @@ DBC_SIGNALS: list[tuple[cs.Frame, dict[str, float]]] = [
         {"Input_Pos": 0.125, "Vel_FF": -32.768, "Torque_FF": 32.767},
     ),
     (cs.encode_set_input_vel(7, -3.0, 0.5), {"Input_Vel": -3.0, "Input_Torque_FF": 0.5}),
+    (cs.encode_set_input_torque(5, 0.125), {"Input_Torque": 0.125}),
+    (cs.encode_set_input_torque(0, -2.5), {"Input_Torque": -2.5}),
     (cs.encode_set_limits(0, 25.0, 12.0), {"Velocity_Limit": 25.0, "Current_Limit": 12.0}),
     (cs.encode_clear_errors(3, 1), {"Identify": 1}),
     (cs.encode_torques(1, 1.5, -0.75), {"Torque_Target": 1.5, "Torque_Estimate": -0.75}),
@@ -201,6 +209,7 @@ def test_dbc_layout_matches_codec_for_every_supported_message(db: Any) -> None:
         cs.SET_CONTROLLER_MODE: 8,
         cs.SET_INPUT_POS: 8,
         cs.SET_INPUT_VEL: 8,
+        cs.SET_INPUT_TORQUE: 8,
         cs.SET_LIMITS: 8,
         cs.CLEAR_ERRORS: 1,
         cs.GET_TORQUES: 8,
@@ -219,6 +228,11 @@ def test_dbc_layout_matches_codec_for_every_supported_message(db: Any) -> None:
     assert (tq["Torque_Target"].start, tq["Torque_Estimate"].start) == (0, 32)
     assert tq["Torque_Target"].is_float and tq["Torque_Estimate"].is_float
     assert tq["Torque_Estimate"].unit == "Nm"
+    # Set_Input_Torque: one float32 in the low four bytes (the high four are unused)
+    sit = {s.name: s for s in db.get_message_by_frame_id(cs.SET_INPUT_TORQUE).signals}
+    assert set(sit) == {"Input_Torque"}
+    assert sit["Input_Torque"].start == 0 and sit["Input_Torque"].length == 32
+    assert sit["Input_Torque"].is_float and sit["Input_Torque"].unit == "Nm"
 
 
 def test_enums_match_dbc_value_tables(db: Any) -> None:
@@ -263,6 +277,21 @@ def test_non_finite_encoder_values_are_rejected(bad: float) -> None:
     for cmd in (cs.SET_INPUT_VEL, cs.SET_LIMITS, cs.GET_TORQUES):
         assert isinstance(cs.decode(cmd, struct.pack("<ff", bad, 1.0)), cs.DecodeError)
     assert isinstance(cs.decode(cs.SET_INPUT_POS, struct.pack("<fhh", bad, 0, 0)), cs.DecodeError)
+    for data in (struct.pack("<f", bad) + bytes(4), struct.pack("<f", bad)):
+        err = cs.decode(3 << 5 | cs.SET_INPUT_TORQUE, data)
+        assert isinstance(err, cs.DecodeError)
+        assert err.kind is cs.DecodeErrorKind.NON_FINITE
+        assert err.node_id == 3
+
+
+def test_set_input_torque_accepts_four_bytes_and_refuses_other_lengths() -> None:
+    # Some hosts send only the float (the DBC's DLC is 8): both decode to the same message.
+    assert cs.decode(0x04E, struct.pack("<f", 1.5)) == cs.SetInputTorque(2, 1.5)
+    assert cs.decode(0x04E, struct.pack("<f", 1.5) + bytes(4)) == cs.SetInputTorque(2, 1.5)
+    for length in (0, 3, 5, 7):
+        err = cs.decode(0x04E, bytes(length))
+        assert isinstance(err, cs.DecodeError)
+        assert err.kind is cs.DecodeErrorKind.LENGTH
 
 
 def test_unknown_command_and_extended_id() -> None:
@@ -295,6 +324,11 @@ def test_encoders_refuse_unsendable_values() -> None:
         cs.encode_set_limits(0, math.inf, 1.0)
     with pytest.raises(ValueError, match="torque_estimate_nm"):
         cs.encode_torques(0, 0.0, math.nan)
+    for bad in (math.nan, math.inf, -math.inf, 1e39):
+        with pytest.raises(ValueError, match="input_torque_nm"):
+            cs.encode_set_input_torque(0, bad)
+    with pytest.raises(ValueError, match="node_id"):
+        cs.encode_set_input_torque(64, 0.0)
     with pytest.raises(ValueError):
         cs.encode_set_axis_state(0, -1)
     with pytest.raises(ValueError):
