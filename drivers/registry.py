@@ -193,6 +193,25 @@ class Family:
         return fn(reading, armed)
 
 
+_ODRIVE_OPTIONS = (
+    Option(
+        "velocity_limit_rps",
+        "number",
+        gt=0.0,
+        doc="the drives' configured vel_limit (rev/s): with both this and current_limit_a, "
+        "cablebot lowers vel_limit during the pre-tension (Set_Limits sets both at once) and "
+        "restores these after",
+    ),
+    Option(
+        "current_limit_a",
+        "number",
+        gt=0.0,
+        doc="the drives' configured current limit (A): with both this and velocity_limit_rps, "
+        "cablebot lowers vel_limit during the pre-tension (Set_Limits sets both at once) and "
+        "restores these after",
+    ),
+)
+
 _CIA402_OPTIONS = (
     Option(
         "counts_per_rev",
@@ -241,7 +260,7 @@ FAMILIES: Mapping[str, Family] = MappingProxyType(
             title="ODrive",
             node_id_min=0,
             node_id_max=63,
-            options=(),
+            options=_ODRIVE_OPTIONS,
             driver="drivers.odrive.driver:open_driver",
             sim="drivers.odrive.sim:open_sim_bank",
             startup_note="drivers.odrive.driver:startup_note",

@@ -20,9 +20,18 @@ instead and counted in `stats.untimed_frames`. Nothing raises out of `poll`: bad
 counted in `stats` by kind and dropped, frames from nodes not in `node_ids` are counted
 ("unknown_node") and dropped, and a receive-side bus error is counted.
 
-Transmit path: `command`, `arm`, `disarm`, `estop`, `request_encoders`. A failed send is counted
-in `stats.bus_errors`/`stats.last_error`; the method still tries every axis, then raises
+Transmit path: `command`, `arm`, `disarm`, `estop`, `request_encoders`, and the torque mode of
+the pre-tension before homing (`drivers.base.TorqueDriver`: `enter_torque_mode`,
+`command_torque`, `leave_torque_mode`). A failed send is counted in
+`stats.bus_errors`/`stats.last_error`; the method still tries every axis, then raises
 `BusError` naming what failed so the loop can fault.
+
+Velocity limit in torque mode: an ODrive in TORQUE_CONTROL turns as fast as the torque
+imbalance drives it, up to its vel_limit. `enter_torque_mode` can lower vel_limit for the
+pre-tension, but CANSimple sets vel_limit and the current limit together (Set_Limits), so it
+does so only when the driver knows both configured values (`velocity_limit_rps`,
+`current_limit_a`, the `[drive]` options of the same names), which `leave_torque_mode` (or the
+next `arm`) restores.
 
 Velocity feed-forward travels as an int16 in 0.001 rev/s, so it is limited to ±32.767 rev/s:
 `command` clamps it to that range (counting `stats.ff_clamped`) instead of refusing the set-point,
@@ -52,6 +61,18 @@ TIMESTAMP_MAX_AGE_S = 3600.0
 """A frame timestamp further behind the wall clock than this is not a wall-clock reading."""
 CATCH_UP_FACTOR = 8
 """A poll that catches up with a backlog takes at most this many times `max_frames_per_poll`."""
+_F32_MAX = 3.4028234663852886e38
+
+
+def _as_float(value: object) -> float | None:
+    """`value` as a float, None if it is not a number (NaN stays NaN: the caller's range
+    check refuses it)."""
+    if isinstance(value, bool):
+        return None
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return None
 
 
 def _derive_status(r: AxisReading) -> None:
@@ -94,6 +115,8 @@ class ODriveReels:
         send_timeout_s: float = DEFAULT_SEND_TIMEOUT_S,
         clock: Callable[[], float] = time.monotonic,
         wall_clock_ns: Callable[[], int] = time.time_ns,
+        velocity_limit_rps: float | None = None,
+        current_limit_a: float | None = None,
     ) -> None:
         """Set up readings for `node_ids` (0..63, unique, at least one).
 
@@ -107,8 +130,12 @@ class ODriveReels:
         arrived longer ago than this, the queue holds a backlog (the loop stalled), not a flood:
         that poll goes on, up to `CATCH_UP_FACTOR` times the cap, so the readings reach the
         newest frames instead of showing frames from before the stall (inf = never).
+        `velocity_limit_rps` / `current_limit_a`: the drives' own configured vel_limit (rev/s)
+        and current limit (A), None = unknown; with both the torque mode may lower vel_limit
+        and restores these after (module docstring).
         Raises ValueError on bad node ids, a non-positive `max_frames_per_poll` or
-        `catch_up_age_s`, or a negative `encoder_rtr_period_s`.
+        `catch_up_age_s`, a negative `encoder_rtr_period_s`, or a limit that is not a finite
+        float32 > 0.
         """
         ids = tuple(int(n) for n in node_ids)
         if not ids:
@@ -126,7 +153,19 @@ class ODriveReels:
             raise ValueError("encoder_rtr_period_s must be finite and >= 0")
         if not (math.isfinite(torque_rtr_period_s) and torque_rtr_period_s >= 0.0):
             raise ValueError("torque_rtr_period_s must be finite and >= 0")
+        for name, limit in (
+            ("velocity_limit_rps", velocity_limit_rps),
+            ("current_limit_a", current_limit_a),
+        ):
+            f = None if limit is None else _as_float(limit)
+            if limit is not None and (f is None or not 0.0 < f <= _F32_MAX):
+                raise ValueError(f"{name} must be finite and > 0, got {limit!r}")
         self.node_ids: tuple[int, ...] = ids
+        self.velocity_limit_rps = None if velocity_limit_rps is None else float(velocity_limit_rps)
+        """The drives' configured vel_limit (rev/s), None = unknown."""
+        self.current_limit_a = None if current_limit_a is None else float(current_limit_a)
+        """The drives' configured current limit (A), None = unknown."""
+        self._limits_lowered = False
         self._bus = bus
         self._encoder_rtr = encoder_rtr
         self._encoder_rtr_period_s = encoder_rtr_period_s
@@ -408,9 +447,11 @@ class ODriveReels:
 
         Before the state request each axis with an encoder reading gets Set_Input_Pos at its
         current position, so closed loop starts holding where the reel is. Confirmation comes
-        by heartbeat (axis_state 8). Raises BusError if a send fails.
+        by heartbeat (axis_state 8). If a torque mode lowered the velocity limits and was not
+        left (a fault or an e-stop in between), the configured limits are restored first.
+        Raises BusError if a send fails.
         """
-        frames: list[cs.Frame] = []
+        frames: list[cs.Frame] = self._restore_limit_frames()
         for r in self._readings:
             frames.append(cs.encode_clear_errors(r.node_id))
             frames.append(
@@ -422,6 +463,100 @@ class ODriveReels:
                 frames.append(cs.encode_set_input_pos(r.node_id, r.position_rev))
             frames.append(cs.encode_set_axis_state(r.node_id, cs.AxisState.CLOSED_LOOP_CONTROL))
         self._send_all(frames, "arm")
+        self._limits_lowered = False
+
+    # --- torque mode (drivers.base.TorqueDriver) ------------------------------------------
+
+    def _check_values(self, values: Sequence[float], what: str, *, positive: bool) -> None:
+        """ValueError naming the node unless `values` has one finite float32 per axis (> 0
+        with `positive`)."""
+        ids = self.node_ids
+        if len(values) != len(ids):
+            raise ValueError(f"{what} needs {len(ids)} values, got {len(values)}")
+        for node, v in zip(ids, values, strict=True):
+            f = _as_float(v)
+            if f is None or not -_F32_MAX <= f <= _F32_MAX:
+                raise ValueError(f"{what} for node {node} is not a finite float32: {v!r}")
+            if positive and not f > 0.0:
+                raise ValueError(f"{what} for node {node} must be > 0, got {v!r}")
+
+    def _restore_limit_frames(self) -> list[cs.Frame]:
+        v = self.velocity_limit_rps
+        c = self.current_limit_a
+        if not self._limits_lowered or v is None or c is None:
+            return []
+        return [cs.encode_set_limits(n, v, c) for n in self.node_ids]
+
+    def enter_torque_mode(self, velocity_limits_rps: Sequence[float] | None = None) -> bool:
+        """Select TORQUE_CONTROL + PASSTHROUGH at zero torque on every axis, in closed loop.
+
+        Per axis: Clear_Errors if it is not ready (not in closed loop without error);
+        Set_Limits(limit, current_limit_a) when `velocity_limits_rps` is given and both
+        configured limits are known (Set_Limits sets both at once, and only known values can
+        be restored); Set_Input_Torque(0); Set_Controller_Mode; Set_Axis_State
+        CLOSED_LOOP_CONTROL if it is not ready. Returns True if the velocity limits were
+        applied. Raises ValueError (nothing sent) on a limit that is not finite and > 0 or a
+        wrong count, BusError if a send fails (after trying every frame).
+        """
+        if velocity_limits_rps is not None:
+            self._check_values(velocity_limits_rps, "velocity limit", positive=True)
+        current = self.current_limit_a
+        limits = velocity_limits_rps if self.velocity_limit_rps is not None else None
+        frames: list[cs.Frame] = []
+        for i, r in enumerate(self._readings):
+            n = r.node_id
+            if not r.ready:
+                frames.append(cs.encode_clear_errors(n))
+            if limits is not None and current is not None:
+                frames.append(cs.encode_set_limits(n, limits[i], current))
+            frames.append(cs.encode_set_input_torque(n, 0.0))
+            frames.append(
+                cs.encode_set_controller_mode(
+                    n, cs.ControlMode.TORQUE_CONTROL, cs.InputMode.PASSTHROUGH
+                )
+            )
+            if not r.ready:
+                frames.append(cs.encode_set_axis_state(n, cs.AxisState.CLOSED_LOOP_CONTROL))
+        applied = limits is not None and current is not None
+        if applied:
+            self._limits_lowered = True  # before sending: a partial failure may have lowered some
+        self._send_all(frames, "torque mode")
+        return applied
+
+    def command_torque(self, torques_nm: Sequence[float]) -> None:
+        """Send Set_Input_Torque to every axis (N m, motor's positive direction, `node_ids`
+        order). Raises ValueError (nothing sent) on a value that is not a finite float32 or a
+        wrong count, BusError if a send fails (after trying every axis)."""
+        self._check_values(torques_nm, "torque", positive=False)
+        ids = self.node_ids
+        self._send_all(
+            [cs.encode_set_input_torque(ids[i], torques_nm[i]) for i in range(len(ids))],
+            "Set_Input_Torque",
+        )
+
+    def leave_torque_mode(self, positions_rev: Sequence[float]) -> None:
+        """Hold `positions_rev` in POSITION_CONTROL + PASSTHROUGH; restore lowered limits.
+
+        Per axis: Set_Input_Pos(p), Set_Controller_Mode, Set_Input_Pos(p) again (the firmware
+        may reset input_pos on the mode change; the second one makes sure it holds `p`); then,
+        if `enter_torque_mode` lowered the velocity limits, Set_Limits with the configured
+        ones on every axis. Raises ValueError (nothing sent) on a position that is not a
+        finite float32 or a wrong count, BusError if a send fails (after trying every frame).
+        """
+        self._check_values(positions_rev, "position", positive=False)
+        frames: list[cs.Frame] = []
+        for n, p in zip(self.node_ids, positions_rev, strict=True):
+            hold = cs.encode_set_input_pos(n, p)
+            frames.append(hold)
+            frames.append(
+                cs.encode_set_controller_mode(
+                    n, cs.ControlMode.POSITION_CONTROL, cs.InputMode.PASSTHROUGH
+                )
+            )
+            frames.append(hold)
+        frames.extend(self._restore_limit_frames())
+        self._send_all(frames, "position mode")
+        self._limits_lowered = False
 
     def disarm(self) -> None:
         """Request IDLE on every axis. Raises BusError if a send fails."""
@@ -459,17 +594,26 @@ class ODriveReels:
         self._send_all([cs.encode_rtr(n, cs.GET_ERROR) for n in self.node_ids], "Get_Error RTR")
 
 
+_OPTIONS = frozenset({"velocity_limit_rps", "current_limit_a"})
+"""The `[drive]` options of the "odrive" family (`drivers.registry`)."""
+
+
 def open_driver(
     bus: can.BusABC, node_ids: Sequence[int], options: Mapping[str, Any], loop: LoopSettings
 ) -> ODriveReels:
-    """The registry's factory (`drivers.registry`, family "odrive"; it takes no options).
+    """The registry's factory (`drivers.registry`, family "odrive"; options
+    `velocity_limit_rps` and `current_limit_a`, the drives' configured limits).
 
     After a loop stall the driver reads through the queued frames to the newest in one poll
     (frames older than half the stale timeout are a backlog), rather than show frames from
-    before the stall. Raises ValueError on bad node ids or unknown options.
+    before the stall. Raises ValueError on bad node ids, unknown options or a bad limit.
     """
-    if options:
-        raise ValueError(f"ODrive drives take no [drive] options, got {sorted(options)}")
+    unknown = sorted(set(options) - _OPTIONS)
+    if unknown:
+        raise ValueError(
+            f"ODrive drives take no [drive] options named {unknown} "
+            f"(known: {', '.join(sorted(_OPTIONS))})"
+        )
     return ODriveReels(
         bus,
         node_ids,
@@ -477,6 +621,8 @@ def open_driver(
         torque_rtr=loop.torque_rtr,
         torque_rtr_period_s=loop.torque_rtr_period_s,
         catch_up_age_s=loop.stale_timeout_s / 2.0,
+        velocity_limit_rps=options.get("velocity_limit_rps"),
+        current_limit_a=options.get("current_limit_a"),
     )
 
 

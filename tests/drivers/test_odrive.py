@@ -12,7 +12,7 @@ import can
 import pytest
 
 from controller.cli import bench_rx as rx_bench
-from drivers.base import NEVER_S, BusError, ReelDriver
+from drivers.base import NEVER_S, BusError, ReelDriver, TorqueDriver
 from drivers.bus import BusOpenError, open_bus
 from drivers.odrive import cansimple as cs
 from drivers.odrive.driver import ODriveReels
@@ -439,3 +439,212 @@ def test_receive_path_throughput() -> None:
             break
     print(f"ODriveReels.poll on virtual bus: {rate:,.0f} frames/s")
     assert rate > 20_000
+
+
+# --- torque mode (the pre-tension before homing) ---------------------------------------------
+
+
+def _heartbeats(d: ODriveReels, peer: can.BusABC, states: dict[int, tuple[int, int]]) -> None:
+    """Give the driver a heartbeat (state, error) per node and wait until it has read them."""
+    for node, (state, error) in states.items():
+        send(peer, cs.encode_heartbeat(node, error, state))
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline:
+        d.poll()
+        if all(d.reading(n).heartbeat_stamp_s > NEVER_S for n in states):
+            return
+    raise AssertionError("heartbeats not received")
+
+
+def test_odrive_reels_is_a_torque_driver(buses: tuple[can.BusABC, can.BusABC]) -> None:
+    assert isinstance(ODriveReels(buses[0], NODES), TorqueDriver)
+
+
+def test_enter_torque_mode_frames(buses: tuple[can.BusABC, can.BusABC]) -> None:
+    bus, peer = buses
+    d = ODriveReels(bus, (4, 5, 6), velocity_limit_rps=20.0, current_limit_a=10.0)
+    # 4 idle, 5 already holding in closed loop, 6 in closed loop with an error bit
+    _heartbeats(d, peer, {4: (1, 0), 5: (8, 0), 6: (8, 0x8)})
+    assert d.enter_torque_mode([2.0, 3.0, 4.0]) is True
+    torque, passthrough = cs.ControlMode.TORQUE_CONTROL, cs.InputMode.PASSTHROUGH
+    assert (torque, passthrough) == (1, 1)
+    assert drain(peer) == [
+        cs.ClearErrors(4, 0),
+        cs.SetLimits(4, 2.0, 10.0),
+        cs.SetInputTorque(4, 0.0),
+        cs.SetControllerMode(4, torque, passthrough),
+        cs.SetAxisState(4, 8),
+        # already in closed loop: no Clear_Errors, no state request (nothing to re-enter)
+        cs.SetLimits(5, 3.0, 10.0),
+        cs.SetInputTorque(5, 0.0),
+        cs.SetControllerMode(5, torque, passthrough),
+        cs.ClearErrors(6, 0),
+        cs.SetLimits(6, 4.0, 10.0),
+        cs.SetInputTorque(6, 0.0),
+        cs.SetControllerMode(6, torque, passthrough),
+        cs.SetAxisState(6, 8),
+    ]
+    d.command_torque([-0.5, 0.25, 0.0])
+    assert drain(peer) == [
+        cs.SetInputTorque(4, -0.5),
+        cs.SetInputTorque(5, 0.25),
+        cs.SetInputTorque(6, 0.0),
+    ]
+    d.leave_torque_mode([1.5, -2.0, 3.25])
+    position = cs.ControlMode.POSITION_CONTROL
+    assert drain(peer) == [
+        cs.SetInputPos(4, 1.5, 0.0, 0.0),
+        cs.SetControllerMode(4, position, passthrough),
+        cs.SetInputPos(4, 1.5, 0.0, 0.0),
+        cs.SetInputPos(5, -2.0, 0.0, 0.0),
+        cs.SetControllerMode(5, position, passthrough),
+        cs.SetInputPos(5, -2.0, 0.0, 0.0),
+        cs.SetInputPos(6, 3.25, 0.0, 0.0),
+        cs.SetControllerMode(6, position, passthrough),
+        cs.SetInputPos(6, 3.25, 0.0, 0.0),
+        # the configured limits come back
+        cs.SetLimits(4, 20.0, 10.0),
+        cs.SetLimits(5, 20.0, 10.0),
+        cs.SetLimits(6, 20.0, 10.0),
+    ]
+    # restored once: leaving again (or arming) sends no Set_Limits
+    d.leave_torque_mode([1.5, -2.0, 3.25])
+    assert not any(isinstance(m, cs.SetLimits) for m in drain(peer))
+
+
+@pytest.mark.parametrize(
+    ("velocity_limit_rps", "current_limit_a"), [(None, None), (20.0, None), (None, 10.0)]
+)
+def test_torque_mode_leaves_the_limits_alone_without_both_configured_values(
+    buses: tuple[can.BusABC, can.BusABC],
+    velocity_limit_rps: float | None,
+    current_limit_a: float | None,
+) -> None:
+    bus, peer = buses
+    d = ODriveReels(
+        bus, (1,), velocity_limit_rps=velocity_limit_rps, current_limit_a=current_limit_a
+    )
+    assert d.enter_torque_mode([2.0]) is False  # a limit that could not be restored is not set
+    assert drain(peer) == [
+        cs.ClearErrors(1, 0),  # never heard from: not ready
+        cs.SetInputTorque(1, 0.0),
+        cs.SetControllerMode(1, 1, 1),
+        cs.SetAxisState(1, 8),
+    ]
+    d.leave_torque_mode([0.5])
+    assert drain(peer) == [
+        cs.SetInputPos(1, 0.5, 0.0, 0.0),
+        cs.SetControllerMode(1, 3, 1),
+        cs.SetInputPos(1, 0.5, 0.0, 0.0),
+    ]
+
+
+def test_enter_torque_mode_without_limits_sends_none(buses: tuple[can.BusABC, can.BusABC]) -> None:
+    bus, peer = buses
+    d = ODriveReels(bus, (1,), velocity_limit_rps=20.0, current_limit_a=10.0)
+    assert d.enter_torque_mode() is False
+    assert not any(isinstance(m, cs.SetLimits) for m in drain(peer))
+    d.leave_torque_mode([0.0])
+    assert not any(isinstance(m, cs.SetLimits) for m in drain(peer))
+
+
+def test_arm_restores_limits_a_torque_mode_lowered(buses: tuple[can.BusABC, can.BusABC]) -> None:
+    # An e-stop during the pre-tension: the torque mode is never left, the next arm restores.
+    bus, peer = buses
+    d = ODriveReels(bus, (2,), velocity_limit_rps=20.0, current_limit_a=10.0)
+    assert d.enter_torque_mode([1.0])
+    d.estop()
+    drain(peer)
+    d.arm()
+    got = drain(peer)
+    assert got[0] == cs.SetLimits(2, 20.0, 10.0)
+    assert got[1:] == [cs.ClearErrors(2, 0), cs.SetControllerMode(2, 3, 1), cs.SetAxisState(2, 8)]
+    d.arm()
+    assert not any(isinstance(m, cs.SetLimits) for m in drain(peer))
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, 1e39])
+def test_torque_mode_refuses_bad_values_and_sends_nothing(
+    buses: tuple[can.BusABC, can.BusABC], bad: float
+) -> None:
+    bus, peer = buses
+    d = ODriveReels(bus, NODES, velocity_limit_rps=20.0, current_limit_a=10.0)
+    with pytest.raises(ValueError, match="velocity limit for node 2"):
+        d.enter_torque_mode([1.0, 1.0, bad, 1.0])
+    with pytest.raises(ValueError, match="torque for node 1"):
+        d.command_torque([0.0, bad, 0.0, 0.0])
+    with pytest.raises(ValueError, match="position for node 3"):
+        d.leave_torque_mode([0.0, 0.0, 0.0, bad])
+    assert drain(peer) == []
+    assert d.stats.frames_tx == 0
+
+
+def test_torque_mode_refuses_wrong_counts_and_non_positive_limits(
+    buses: tuple[can.BusABC, can.BusABC],
+) -> None:
+    bus, peer = buses
+    d = ODriveReels(bus, NODES, velocity_limit_rps=20.0, current_limit_a=10.0)
+    for limits in ([1.0, 1.0, 0.0, 1.0], [1.0, -2.0, 1.0, 1.0]):
+        with pytest.raises(ValueError, match="must be > 0"):
+            d.enter_torque_mode(limits)
+    with pytest.raises(ValueError, match="needs 4 values, got 3"):
+        d.enter_torque_mode([1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match="needs 4 values, got 5"):
+        d.command_torque([0.0] * 5)
+    with pytest.raises(ValueError, match="needs 4 values, got 0"):
+        d.leave_torque_mode([])
+    with pytest.raises(ValueError, match="not a finite float32"):
+        d.command_torque(cast(Any, [0.0, "x", 0.0, 0.0]))
+    assert drain(peer) == []
+    # a refused limit did not count as lowered: leaving sends no Set_Limits
+    d.leave_torque_mode([0.0] * 4)
+    assert not any(isinstance(m, cs.SetLimits) for m in drain(peer))
+
+
+def test_torque_mode_send_errors_raise_bus_error_after_trying_every_axis() -> None:
+    fake = ExplodingBus()  # node 1's frames fail
+    d = ODriveReels(cast(Any, fake), NODES, velocity_limit_rps=20.0, current_limit_a=10.0)
+    with pytest.raises(BusError, match=r"torque mode to node 1.*tx buffer full"):
+        d.enter_torque_mode([1.0] * 4)
+    assert {m.arbitration_id >> 5 for m in fake.sent} == {0, 1, 2, 3}
+    fake.sent.clear()
+    with pytest.raises(BusError, match=r"Set_Input_Torque to node 1"):
+        d.command_torque([0.1] * 4)
+    assert [m.arbitration_id >> 5 for m in fake.sent] == [0, 1, 2, 3]
+    fake.sent.clear()
+    # leaving still restores the limits the failed enter may have lowered on the other axes
+    with pytest.raises(BusError, match=r"position mode to node 1"):
+        d.leave_torque_mode([0.0] * 4)
+    limits = [m for m in fake.sent if m.arbitration_id & 0x1F == cs.SET_LIMITS]
+    assert [m.arbitration_id >> 5 for m in limits] == [0, 1, 2, 3]
+    assert d.stats.bus_errors >= 3
+
+
+def test_constructor_validates_the_configured_limits(buses: tuple[can.BusABC, can.BusABC]) -> None:
+    bus = buses[0]
+    for bad in (0.0, -1.0, math.nan, math.inf, 1e39):
+        with pytest.raises(ValueError, match="velocity_limit_rps"):
+            ODriveReels(bus, [1], velocity_limit_rps=bad)
+        with pytest.raises(ValueError, match="current_limit_a"):
+            ODriveReels(bus, [1], current_limit_a=bad)
+    d = ODriveReels(bus, [1], velocity_limit_rps=15, current_limit_a=8.5)
+    assert (d.velocity_limit_rps, d.current_limit_a) == (15.0, 8.5)
+
+
+def test_open_driver_takes_the_configured_limits(buses: tuple[can.BusABC, can.BusABC]) -> None:
+    from drivers.odrive.driver import open_driver
+    from drivers.registry import LoopSettings
+
+    bus, peer = buses
+    loop = LoopSettings(0.001, 0.08)
+    d = open_driver(bus, (0,), {"velocity_limit_rps": 25.0, "current_limit_a": 12.0}, loop)
+    assert (d.velocity_limit_rps, d.current_limit_a) == (25.0, 12.0)
+    assert d.enter_torque_mode([2.0]) is True
+    d.leave_torque_mode([0.0])
+    assert drain(peer)[-1] == cs.SetLimits(0, 25.0, 12.0)
+    d = open_driver(bus, (0,), {"current_limit_a": 12.0}, loop)
+    assert (d.velocity_limit_rps, d.current_limit_a) == (None, 12.0)
+    with pytest.raises(ValueError, match="current_limit_a"):
+        open_driver(bus, (0,), {"current_limit_a": -1.0}, loop)
+    with pytest.raises(ValueError, match=r"named \['vel_limit'\]"):
+        open_driver(bus, (0,), {"vel_limit": 1.0}, loop)

@@ -58,7 +58,17 @@ def test_cia402_options_are_the_driver_keywords_with_its_defaults() -> None:
     assert fam.option("counts_per_rev").required
     with pytest.raises(KeyError):
         fam.option("period_s")  # the loop's, not an option
-    assert registry.family("odrive").options == ()
+    odrive = registry.family("odrive")
+    assert [(o.name, o.kind, o.default, o.required, o.gt) for o in odrive.options] == [
+        ("velocity_limit_rps", "number", None, False, 0.0),
+        ("current_limit_a", "number", None, False, 0.0),
+    ]
+    from drivers.odrive.driver import ODriveReels
+
+    odrive_params = inspect.signature(ODriveReels.__init__).parameters
+    for opt in odrive.options:
+        assert odrive_params[opt.name].default is None, opt.name
+        assert "pre-tension" in opt.doc
 
 
 def test_the_registry_imports_no_family_until_used() -> None:
@@ -133,7 +143,7 @@ def test_each_family_driver_arms_its_own_simulated_nodes(
     assert bank.thread is not None and not bank.thread.is_alive()
 
 
-def test_odrive_factory_takes_the_loop_settings_and_no_options(
+def test_odrive_factory_takes_the_loop_settings_and_refuses_unknown_options(
     channel: tuple[can.BusABC, can.BusABC],
 ) -> None:
     _sim_bus, bus = channel
@@ -141,8 +151,13 @@ def test_odrive_factory_takes_the_loop_settings_and_no_options(
     d = fam.open_driver(bus, (0, 1), {}, LoopSettings(0.001, 0.08, encoder_rtr=True))
     assert d._catch_up_age_s == 0.04  # type: ignore[attr-defined]
     assert d._encoder_rtr is True  # type: ignore[attr-defined]
-    with pytest.raises(ValueError, match="no \\[drive\\] options"):
+    assert d.velocity_limit_rps is None and d.current_limit_a is None  # type: ignore[attr-defined]
+    with pytest.raises(ValueError, match="no \\[drive\\] options named \\['counts_per_rev'\\]"):
         fam.open_driver(bus, (0,), {"counts_per_rev": 1.0}, LoopSettings(0.001, 0.08))
+    with pytest.raises(ValueError, match="known: current_limit_a, velocity_limit_rps"):
+        fam.open_driver(
+            bus, (0,), {"velocity_limit_rps": 5.0, "gain": 2}, LoopSettings(0.001, 0.08)
+        )
     with pytest.raises(ValueError, match=r"outside 0\.\.63"):
         fam.open_driver(bus, (64,), {}, LoopSettings(0.001, 0.08))
 
