@@ -69,6 +69,8 @@ import numpy as np
 
 from controller.core.reel import ReelModel
 
+_TWO_PI = 2.0 * math.pi
+
 STANDARD_GRAVITY_MPS2 = 9.80665
 """Standard gravity, m/s^2 (z is up)."""
 DEFAULT_CABLE_DAMPING_RATIO = 1.0
@@ -586,6 +588,21 @@ class CablePlant:
         """Sub-steps the last `step` took (0 before the first)."""
         return self._substeps
 
+    def cable_stiffness_n_per_m(self) -> tuple[float, ...]:
+        """Each cable's axial stiffness ``EA_i / L0_i`` (N/m) at the current pose with the
+        unstretched lengths last applied; 0 for a slack cable (not stretched: it pulls
+        nothing whatever its length does until it tightens). Raises nothing."""
+        px, py, pz = self._p
+        out = []
+        for i in range(self._n):
+            dx = self._ax[i] - px
+            dy = self._ay[i] - py
+            dz = self._az[i] - pz
+            l0 = self._l0[i]
+            taut = math.sqrt(dx * dx + dy * dy + dz * dz) > l0
+            out.append(self._ea[i] / l0 if taut else 0.0)
+        return tuple(out)
+
     def energy_j(self) -> float:
         """Kinetic + gravitational (zero at z = 0) + elastic energy (J) of the current state."""
         px, py, pz = self._p
@@ -768,7 +785,7 @@ class ReelPlant:
     Raises PlantError / EquilibriumError on bad inputs, ValueError on a wrong number of reels.
     """
 
-    __slots__ = ("_positions", "_reels", "_stretch", "_torques", "plant")
+    __slots__ = ("_positions", "_reels", "_stiffness", "_stretch", "_torques", "plant")
 
     def __init__(
         self,
@@ -792,12 +809,24 @@ class ReelPlant:
         ]
         self._positions = positions
         self._torques = self._torques_now()
+        self._stiffness = self._stiffness_now()
 
     def _torques_now(self) -> tuple[float, ...]:
         return tuple(
             r.torque_nm(p, t)
             for r, p, t in zip(self._reels, self._positions, self.plant.tensions_n, strict=True)
         )
+
+    def _stiffness_now(self) -> tuple[float, ...]:
+        # d(torque)/d(turns) = k * slope * slope / 2 pi: a turn moves the cable by slope metres
+        # (tension k * slope), held by a torque slope / 2 pi per newton (the reel's work balance)
+        out = []
+        for r, p, k in zip(
+            self._reels, self._positions, self.plant.cable_stiffness_n_per_m(), strict=True
+        ):
+            slope = r.length_rate_mps(p, 1.0)
+            out.append(k * slope * slope / _TWO_PI)
+        return tuple(out)
 
     def step(self, positions_rev: Sequence[float], dt_s: float) -> tuple[float, ...]:
         """Move the reels to `positions_rev` over `dt_s`, step the plant; return each motor's
@@ -812,6 +841,7 @@ class ReelPlant:
         self.plant.step(l0, dt_s)
         self._positions = positions
         self._torques = self._torques_now()
+        self._stiffness = self._stiffness_now()
         return self._torques
 
     def slip(self, cable: int, metres: float) -> None:
@@ -824,6 +854,16 @@ class ReelPlant:
     def torques_nm(self) -> tuple[float, ...]:
         """The motors' holding torques (N m) after the last step."""
         return self._torques
+
+    @property
+    def stiffness_nm_per_rev(self) -> tuple[float, ...]:
+        """How fast each motor's holding torque grows per motor turn that winds its cable in
+        (N m per rev, >= 0) after the last step, the effector held still: ``k_i * slope_i**2
+        / 2 pi`` with the cable stiffness ``k_i = EA_i / L0_i`` and ``slope_i`` the reel's
+        metres per turn; 0 for a slack cable. An upper bound of the stiffness the motor feels
+        (a moving effector only softens it), for a simulated drive to keep its explicit
+        coupling to the plant stable."""
+        return self._stiffness
 
     @property
     def tensions_n(self) -> tuple[float, ...]:

@@ -524,3 +524,39 @@ def test_reel_plant_refuses_bad_inputs_and_keeps_its_state() -> None:
         ReelPlant(rp.plant.params, reels[:3], (0.0, 0.0, 0.1), turns)
     with pytest.raises(PlantError, match="finite"):
         ReelPlant(rp.plant.params, reels, (0.0, 0.0, 0.1), [math.nan, 0.0, 0.0, 0.0])
+
+
+@pytest.mark.parametrize(
+    ("cfg_name", "pose", "mass_kg", "ea_n"),
+    [("paper-acre.toml", (3.0, -2.0, 2.0), 5.0, 1e7), ("desk.toml", (0.1, 0.05, 0.3), 0.5, 1e5)],
+)
+def test_reel_plant_stiffness_is_the_holding_torques_slope_per_turn(
+    cfg_name: str, pose: tuple[float, float, float], mass_kg: float, ea_n: float
+) -> None:
+    _, reels, turns, rp, _ = reel_plant(cfg_name, pose, mass_kg, ea_n)
+    rp.step(turns, 0.001)
+    stiffness = rp.stiffness_nm_per_rev
+    assert len(stiffness) == 4 and all(s > 0.0 for s in stiffness)
+    for i, reel in enumerate(reels):
+        slope = reel.length_rate_mps(turns[i], 1.0)
+        length = math.dist(rp.plant.params.anchors_m[i], rp.position_m)
+        l0 = rp.plant.unstretched_m[i]
+        assert stiffness[i] == pytest.approx(ea_n / l0 * slope * slope / (2 * math.pi), rel=1e-12)
+        # the same number from the torque itself: turn one motor by a little and freeze the
+        # effector (the stiffness is the cable's alone, the effector held still)
+        d = 1e-6
+        wound = l0 - d * abs(slope)  # wound in by d turns: shorter, tauter
+        tension = ea_n / wound * (length - wound)
+        before = reel.torque_nm(turns[i], rp.tensions_n[i])
+        after = reel.torque_nm(turns[i] - d * math.copysign(1.0, slope), tension)
+        assert abs(after - before) / d == pytest.approx(stiffness[i], rel=1e-3)
+
+
+def test_reel_plant_stiffness_is_zero_for_a_slack_cable() -> None:
+    _, _, turns, rp, _ = reel_plant("desk.toml", (0.0, 0.0, 0.1), 0.5, 1e5)
+    rp.slip(2, 0.01)  # 1 cm off the drum: slack at once, and stays slack with the effector still
+    rp.step(turns, 0.001)
+    stiffness = rp.stiffness_nm_per_rev
+    assert stiffness[2] == 0.0 and rp.tensions_n[2] == 0.0
+    assert all(stiffness[i] > 0.0 for i in (0, 1, 3))
+    assert rp.plant.cable_stiffness_n_per_m()[2] == 0.0
