@@ -479,6 +479,7 @@ class CablePlant:
         "_ax",
         "_ay",
         "_az",
+        "_beta",
         "_c",
         "_ea",
         "_l0",
@@ -521,6 +522,7 @@ class CablePlant:
         self._t = _static_tensions(params, self._p, self._l0)
         self._time_s = 0.0
         self._substeps = 0
+        self._beta = 0.0
 
     @classmethod
     def at_rest(
@@ -587,6 +589,12 @@ class CablePlant:
     def substeps(self) -> int:
         """Sub-steps the last `step` took (0 before the first)."""
         return self._substeps
+
+    @property
+    def cable_damping_s(self) -> float:
+        """The cable damping time ``beta`` (s) of the last step (module docstring: tension
+        ``k_i * (e_i + beta * de_i/dt)``); 0 before the first step."""
+        return self._beta
 
     def cable_stiffness_n_per_m(self) -> tuple[float, ...]:
         """Each cable's axial stiffness ``EA_i / L0_i`` (N/m) at the current pose with the
@@ -768,6 +776,7 @@ class CablePlant:
         self._l0 = l0b
         self._time_s += dt_s
         self._substeps = nsub
+        self._beta = beta
         return self._p
 
 
@@ -785,7 +794,7 @@ class ReelPlant:
     Raises PlantError / EquilibriumError on bad inputs, ValueError on a wrong number of reels.
     """
 
-    __slots__ = ("_positions", "_reels", "_stiffness", "_stretch", "_torques", "plant")
+    __slots__ = ("_damping", "_positions", "_reels", "_stiffness", "_stretch", "_torques", "plant")
 
     def __init__(
         self,
@@ -810,6 +819,7 @@ class ReelPlant:
         self._positions = positions
         self._torques = self._torques_now()
         self._stiffness = self._stiffness_now()
+        self._damping = (0.0,) * len(self._reels)
 
     def _torques_now(self) -> tuple[float, ...]:
         return tuple(
@@ -842,6 +852,8 @@ class ReelPlant:
         self._positions = positions
         self._torques = self._torques_now()
         self._stiffness = self._stiffness_now()
+        beta = self.plant.cable_damping_s
+        self._damping = tuple(k * beta for k in self._stiffness)
         return self._torques
 
     def slip(self, cable: int, metres: float) -> None:
@@ -864,6 +876,14 @@ class ReelPlant:
         (a moving effector only softens it), for a simulated drive to keep its explicit
         coupling to the plant stable."""
         return self._stiffness
+
+    @property
+    def damping_nm_s_per_rev(self) -> tuple[float, ...]:
+        """How much each motor's holding torque grows per turn per second that winds its cable
+        in (N m s per rev, >= 0) after the last step, the effector held still: the cable's
+        damping, ``stiffness_nm_per_rev * beta`` (`CablePlant.cable_damping_s`); 0 for a
+        slack cable and before the first step."""
+        return self._damping
 
     @property
     def tensions_n(self) -> tuple[float, ...]:

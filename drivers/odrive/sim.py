@@ -37,13 +37,38 @@ command is input_vel (Set_Input_Vel). The dynamics are integrated in sub-steps o
 At rest (no feed-forward, within `REST_SNAP_REV` of input_pos, velocity below
 `REST_SNAP_RPS`) the position snaps onto input_pos, so a settled axis reports input_pos exactly.
 
+TORQUE_CONTROL (Set_Input_Torque; the pre-tension before homing): the drive's velocity limiter
+and the reel's friction make the motor an overdamped torque source. Its velocity command is
+
+    vel_cmd = clamp(G * (input_torque - load_torque), -vel_limit, +vel_limit)
+
+where load_torque is the holding torque the coupling reports (below: the torque the motor needs
+to hold its cable, which winds the cable in; so a torque beyond it winds cable in, a smaller one
+pays cable out, as in `controller.core.reel`) and G is `torque_mobility_rps_per_nm`; the
+velocity moves toward it by at most `max_accel_rps2 * dt` as above, and the position follows
+the new velocity (semi-implicit Euler: the first-order approach to balance does not ring).
+Because the coupling is explicit (the load torque is updated once per bank tick, after the axes
+have moved), G is capped at ``0.5 / (stiffness * dt + damping)`` for each `advance(dt)`, with
+the stiffness (N m per rev: how fast the holding torque grows per turn) and the damping (N m s
+per rev: how fast it grows per turn per second; an elastic cable's internal damping, which over
+one tick weighs like a stiffness of damping / dt, many times the elastic one on a stiff cable)
+the coupling reports with the torque: each tick then closes at most half the torque imbalance,
+so a stiff cable (steel, short) neither rings nor diverges. Without a coupling the load torque,
+the stiffness and the damping are 0: a free reel spins at G * input_torque up to vel_limit
+(nothing holds it). Entering closed loop in TORQUE_CONTROL keeps the last input_torque (0 after
+the driver's `enter_torque_mode`) and starts from rest: the motor accelerates from standstill,
+it does not jump.
+
 Load (a physical plant): the bank may be given an `AxisCoupling`, stepped once per tick after
 the axes move with every axis's motor position; it returns the torque each motor needs to hold
 its cable (`controller.core.plant.ReelPlant`: one plant for all axes, since the effector couples
-them). The motion model above is unchanged (the motor follows its position loop whatever the
-load: a stiff drive); the torque is what the axis reports by Get_Torques (0x1C, cyclic every
-`torque_period_s` when > 0, and by RTR), Torque_Target and Torque_Estimate both, and 0 in IDLE
-(the reel is braked: the brake, not the motor, holds the cable). Without a coupling the torque
+them), and each motor's stiffness (`AxisCoupling.stiffness_nm_per_rev`). In position and
+velocity control the motion model above is unchanged (the motor follows its loop whatever the
+load: a stiff drive); the holding torque is what the axis reports by Get_Torques (0x1C, cyclic
+every `torque_period_s` when > 0, and by RTR), Torque_Target and Torque_Estimate both. In
+TORQUE_CONTROL it reports input_torque for both (the motor makes the torque it is told; the
+imbalance becomes motion), and 0 in IDLE (the reel is braked: the brake, not the motor, holds
+the cable). Without a coupling the torque
 is 0: the kinematic simulator knows no load.
 
 Fault injection for tests: `silence(True)` (no frames in or out), `set_axis_error(code)` (disarm
@@ -101,15 +126,18 @@ class SimODriveAxis:
         pos_gain: float = DEFAULT_POS_GAIN,
         watchdog_timeout_s: float = 0.0,
         torque_period_s: float = 0.0,
+        torque_mobility_rps_per_nm: float = 5.0,
     ) -> None:
         """Create an IDLE axis at `initial_position_rev`.
 
         `max_velocity_rps` is the drive's vel_limit, `max_accel_rps2` its torque-limited
         acceleration, `pos_gain` the position loop gain in (rev/s)/rev, `watchdog_timeout_s`
         the axis watchdog (0 = off; see the module docstring), `torque_period_s` the period of
-        the cyclic Get_Torques broadcast (0 = off: by RTR only). Raises ValueError on a node id
-        outside 0..63, a non-finite position, a non-positive limit, gain or period, or a
-        negative or non-finite watchdog timeout or torque period.
+        the cyclic Get_Torques broadcast (0 = off: by RTR only), `torque_mobility_rps_per_nm`
+        the velocity per newton metre of torque imbalance in TORQUE_CONTROL (G in the module
+        docstring). Raises ValueError on a node id outside 0..63, a non-finite position, a
+        non-positive limit, gain, mobility or period, or a negative or non-finite watchdog
+        timeout or torque period.
         """
         if not 0 <= node_id <= cs.MAX_NODE_ID:
             raise ValueError(f"node id {node_id} is outside 0..63")
@@ -121,6 +149,7 @@ class SimODriveAxis:
             ("encoder_period_s", encoder_period_s),
             ("heartbeat_period_s", heartbeat_period_s),
             ("pos_gain", pos_gain),
+            ("torque_mobility_rps_per_nm", torque_mobility_rps_per_nm),
         ):
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be finite and > 0, got {value!r}")
@@ -138,8 +167,15 @@ class SimODriveAxis:
         self.pos_gain = pos_gain
         self.watchdog_timeout_s = watchdog_timeout_s
         self.torque_period_s = torque_period_s
+        self.torque_mobility_rps_per_nm = torque_mobility_rps_per_nm
         self.load_torque_nm = 0.0
         """The torque the load needs of the motor (set by the bank's coupling each tick)."""
+        self.load_stiffness_nm_per_rev = 0.0
+        """How fast that torque grows per turn (set with it; caps the torque-mode mobility)."""
+        self.load_damping_nm_s_per_rev = 0.0
+        """How fast it grows per turn per second (set with it; caps the mobility too)."""
+        self.input_torque_nm = 0.0
+        """The TORQUE_CONTROL set-point (Set_Input_Torque)."""
         self._torque_due_s = 0.0
         self._since_feed_s = 0.0
         self.position_rev = float(initial_position_rev)
@@ -193,16 +229,33 @@ class SimODriveAxis:
         with self._lock:
             self._drift_rate_rps = rate_rev_per_s
 
-    def set_load_torque(self, torque_nm: float) -> None:
-        """Set the torque (N m) the load needs of the motor; a non-finite value is ignored."""
-        if math.isfinite(torque_nm):
+    def set_load_torque(
+        self,
+        torque_nm: float,
+        stiffness_nm_per_rev: float = 0.0,
+        damping_nm_s_per_rev: float = 0.0,
+    ) -> None:
+        """Set the torque (N m) the load needs of the motor, how fast it grows per turn (N m
+        per rev, >= 0) and per turn per second (N m s per rev, >= 0; see the module docstring).
+        A non-finite torque or a non-finite or negative stiffness or damping is ignored (the
+        call changes nothing)."""
+        if (
+            math.isfinite(torque_nm)
+            and 0.0 <= stiffness_nm_per_rev < math.inf
+            and 0.0 <= damping_nm_s_per_rev < math.inf
+        ):
             with self._lock:
                 self.load_torque_nm = torque_nm
+                self.load_stiffness_nm_per_rev = stiffness_nm_per_rev
+                self.load_damping_nm_s_per_rev = damping_nm_s_per_rev
 
     @property
     def torque_estimate_nm(self) -> float:
-        """The torque the axis reports: the load's in closed loop, 0 when IDLE (braked)."""
+        """The torque the axis reports: in closed loop input_torque in TORQUE_CONTROL, else the
+        load's; 0 when IDLE (braked)."""
         if self.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL:
+            if self.control_mode == cs.ControlMode.TORQUE_CONTROL:
+                return self.input_torque_nm
             return self.load_torque_nm
         return 0.0
 
@@ -278,6 +331,9 @@ class SimODriveAxis:
                 self.input_mode = cs.InputMode(msg.input_mode)
             except ValueError:
                 self.input_mode = cs.InputMode.INACTIVE
+        elif t is cs.SetInputTorque:
+            assert isinstance(msg, cs.SetInputTorque)
+            self.input_torque_nm = msg.input_torque_nm
         elif t is cs.SetInputVel:
             assert isinstance(msg, cs.SetInputVel)
             self.input_vel_rps = msg.input_vel_rps
@@ -354,6 +410,9 @@ class SimODriveAxis:
     def _move(self, dt: float) -> None:
         if self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
             return
+        if self.control_mode == cs.ControlMode.TORQUE_CONTROL:
+            self._move_torque(dt)
+            return
         if (
             self.velocity_rps == 0.0
             and self.input_vel_rps == 0.0
@@ -367,6 +426,29 @@ class SimODriveAxis:
         h = dt / n
         for _ in range(n):
             self._substep(h)
+
+    def _move_torque(self, dt: float) -> None:
+        """TORQUE_CONTROL motion over `dt` (module docstring): the load torque and stiffness
+        are those of the coupling's last tick, so the mobility is capped for this `dt`."""
+        imbalance = self.input_torque_nm - self.load_torque_nm
+        if imbalance == 0.0 and self.velocity_rps == 0.0:
+            return  # balanced at rest: nothing to integrate
+        g = self.torque_mobility_rps_per_nm
+        stiff = self.load_stiffness_nm_per_rev * dt + self.load_damping_nm_s_per_rev
+        if g * stiff > 0.5:
+            g = 0.5 / stiff
+        vmax = self.max_velocity_rps
+        vel_cmd = max(-vmax, min(vmax, g * imbalance))
+        n = min(_MAX_SUBSTEPS, math.ceil(dt / MAX_SUBSTEP_S))
+        h = dt / n
+        dv_max = self.max_accel_rps2 * h
+        v = self.velocity_rps
+        p = self.position_rev
+        for _ in range(n):
+            v += max(-dv_max, min(dv_max, vel_cmd - v))
+            p += v * h
+        self.position_rev = p
+        self.velocity_rps = v
 
     def _substep(self, h: float) -> None:
         """One integration step of the cascaded loop (see the module docstring)."""
@@ -402,6 +484,18 @@ class AxisCoupling(Protocol):
         """Advance by `dt_s` with the motors at `positions_rev` (the bank's axis order); return
         the torque (N m) each motor needs. May raise: the bank counts it and keeps the last
         torques."""
+        ...
+
+    @property
+    def stiffness_nm_per_rev(self) -> Sequence[float]:
+        """After `step`: how fast each motor's torque grows per turn (N m per rev, >= 0), the
+        magnitude of d(torque)/d(position); caps the axes' torque-control mobility."""
+        ...
+
+    @property
+    def damping_nm_s_per_rev(self) -> Sequence[float]:
+        """After `step`: how fast each motor's torque grows per turn per second (N m s per
+        rev, >= 0), the magnitude of d(torque)/d(velocity); caps the mobility too."""
         ...
 
 
@@ -450,10 +544,11 @@ def run_sim(
 ) -> None:
     """Serve `axes` on `bus` until `stop_event` is set: answer commands, broadcast every tick.
 
-    Every tick: move each axis, step the `coupling` (if any) and hand each axis its torque,
-    then send the broadcasts that fall due. Receive errors, send errors and coupling errors
-    are swallowed (a simulated node keeps running; coupling errors are counted in `stats`);
-    undecodable frames are ignored. Returns within about one tick after `stop_event` is set.
+    Every tick: move each axis, step the `coupling` (if any) and hand each axis its torque
+    stiffness and damping, then send the broadcasts that fall due. Receive errors, send errors
+    and coupling errors are swallowed (a simulated node keeps running; coupling errors are
+    counted in `stats`); undecodable frames are ignored. Returns within about one tick after
+    `stop_event` is set.
     """
     by_node: dict[int, SimODriveAxis] = {a.node_id: a for a in axes}
     if len(by_node) != len(axes):
@@ -497,8 +592,14 @@ def run_sim(
                 st.coupling_errors += 1
                 st.last_coupling_error = f"{type(exc).__name__}: {exc}"
             else:
-                for axis, torque in zip(axes, torques, strict=False):
-                    axis.set_load_torque(torque)
+                for axis, torque, stiffness, damping in zip(
+                    axes,
+                    torques,
+                    coupling.stiffness_nm_per_rev,
+                    coupling.damping_nm_s_per_rev,
+                    strict=False,
+                ):
+                    axis.set_load_torque(torque, stiffness, damping)
         for axis in axes:
             send(axis.broadcasts(dt))
         st.ticks += 1
