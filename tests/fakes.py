@@ -9,6 +9,10 @@ numbers directly is seen as the driver would report them. Tests switch
 parts of that off (`silent`, `axis_error`, `follow=False`, `position_rev` edits) to provoke
 faults. It raises ValueError on a non-finite command, as the real driver must, and records
 every commanded set-point.
+
+It is also a `drivers.base.TorqueDriver`: in torque mode each axis turns at the velocity the
+test puts in `torque_velocity_rps` (the reels wind while that is non-zero and are still when it
+is zero), and every torque set-point is recorded in `torques`.
 """
 
 from __future__ import annotations
@@ -77,15 +81,28 @@ class FakeDriver:
         self.raise_on_command: Exception | None = None
         self.armed = False
         self._pending_cmd: tuple[float, ...] | None = None
+        self.torque_mode = False
+        self.torque_velocity_rps: list[float] = [0.0] * n
+        """Each axis's velocity while in torque mode (set by the test)."""
+        self.torques: list[tuple[float, ...]] = []
+        self.velocity_limits_rps: tuple[float, ...] | None = None
+        self.limits_applied = True
+        """What `enter_torque_mode` answers when given limits."""
+        self._last_poll_s: float | None = None
 
     # ------------------------------------------------------------------ ReelDriver
     def poll(self) -> int:
         now = self.clock()
+        dt = 0.0 if self._last_poll_s is None else now - self._last_poll_s
+        self._last_poll_s = now
         handled = 0
         for i, r in enumerate(self.readings):
             if r.node_id in self.silent:
                 continue
-            if self.follow and self._pending_cmd is not None and self.armed:
+            if self.torque_mode and self.armed and r.axis_error == 0:
+                r.velocity_rps = self.torque_velocity_rps[i]
+                r.position_rev += r.velocity_rps * dt
+            elif self.follow and self._pending_cmd is not None and self.armed:
                 new = self._pending_cmd[i]
                 r.velocity_rps = 0.0
                 r.position_rev = new
@@ -127,11 +144,47 @@ class FakeDriver:
     def arm(self) -> None:
         self.calls.append("arm")
         self.armed = True
+        self.torque_mode = False
         self.axis_error.clear()
+
+    # ------------------------------------------------------------------ TorqueDriver
+    def _check(self, values: Sequence[float], what: str) -> tuple[float, ...]:
+        vals = tuple(float(v) for v in values)
+        if len(vals) != len(self.node_ids) or not all(math.isfinite(v) for v in vals):
+            raise ValueError(f"non-finite or wrong-length {what} {vals}")
+        return vals
+
+    def enter_torque_mode(self, velocity_limits_rps: Sequence[float] | None = None) -> bool:
+        if velocity_limits_rps is not None:
+            self.velocity_limits_rps = self._check(velocity_limits_rps, "velocity limits")
+        self.calls.append("enter_torque_mode")
+        if not self.armed:
+            self.axis_error.clear()
+        self.armed = True
+        self.torque_mode = True
+        self._pending_cmd = None
+        return velocity_limits_rps is not None and self.limits_applied
+
+    def command_torque(self, torques_nm: Sequence[float]) -> None:
+        vals = self._check(torques_nm, "torques")
+        if self.raise_on_command is not None:
+            self._stats.bus_errors += 1
+            self._stats.last_error = str(self.raise_on_command)
+            raise self.raise_on_command
+        self.torques.append(vals)
+
+    def leave_torque_mode(self, positions_rev: Sequence[float]) -> None:
+        vals = self._check(positions_rev, "positions")
+        self.calls.append("leave_torque_mode")
+        self.torque_mode = False
+        for r in self.readings:
+            r.velocity_rps = 0.0
+        self._pending_cmd = vals
 
     def disarm(self) -> None:
         self.calls.append("disarm")
         self.armed = False
+        self.torque_mode = False
         self._pending_cmd = None
         for r in self.readings:
             r.axis_state = IDLE
@@ -139,6 +192,7 @@ class FakeDriver:
     def estop(self) -> None:
         self.calls.append("estop")
         self.armed = False
+        self.torque_mode = False
         self._pending_cmd = None
         for r in self.readings:
             r.axis_state = IDLE

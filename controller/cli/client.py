@@ -255,6 +255,22 @@ def format_status(st: dict[str, Any]) -> str:
         lines.append(f"set-point  x={sp[0]:+.4f} y={sp[1]:+.4f} z={sp[2]:+.4f} m")
     if "homed" in st:
         lines.append(f"homed      {st.get('homed')} ({st.get('home_source')})")
+    pt = st.get("pretension")
+    if isinstance(pt, dict):
+        res = pt.get("result")
+        if pt.get("active"):
+            fastest = pt.get("fastest_cable_mps")
+            speed = "" if fastest is None else f", fastest cable {fastest * 1e3:.1f} mm/s"
+            lines.append(
+                f"pretension running {float(pt.get('elapsed_s') or 0.0):.1f} s{speed}, home at "
+                f"{_xyz(pt.get('position_m') or [])}"
+            )
+        elif isinstance(res, dict):
+            lines.append(
+                f"pretension still after {float(res.get('still_after_s', 0.0)):.2f} s, homed"
+                if res.get("ok")
+                else f"pretension ended without homing: {res.get('reason')}"
+            )
     tensions = status_tensions_n(st)
     for i, ax in enumerate(st.get("axes", [])):
         age = ax.get("age_s")
@@ -325,6 +341,14 @@ def format_reply(verb: str, reply: Any) -> str:
         return f"stop: nothing to stop (state {state})"
     if verb == "home":
         return format_home(reply)
+    if verb == "pretension":
+        tensions = reply.get("tensions_n")
+        text = "pretension: the reels pull in torque control"
+        if isinstance(tensions, list) and tensions:
+            text += " with " + ", ".join(f"{float(t):.1f}" for t in tensions) + " N"
+        if reply.get("speed_limited") is False:
+            text += " (the drives' own velocity limit caps their speed)"
+        return text + "; waiting until they are still"
     known = {"ok", "state"}
     if verb in ("move", "path"):
         known |= {"target_m", "points", "speed_mps", "speed_limited_to_mps"}
@@ -566,13 +590,73 @@ def cmd_simple(args: argparse.Namespace) -> int:
 
 
 def cmd_home(args: argparse.Namespace) -> int:
-    """home X Y Z: declare the effector's current position."""
+    """home X Y Z [--pretension]: declare the effector's current position (after pulling every
+    cable taut in torque control, with --pretension)."""
     try:
         payload = {"position_m": _vec3(xyz_from_args(args), "home")}
     except InputError as exc:
         print(f"cablebot: {exc}", file=sys.stderr)
         return EXIT_REFUSED
+    if args.pretension:
+        return _pretension(args, payload)
     return _command(args, "home", payload)
+
+
+PRETENSION_POLL_S = 0.2
+"""How often `home --pretension` asks the daemon how the pre-tension goes."""
+
+
+def _pretension(args: argparse.Namespace, payload: dict[str, Any]) -> int:
+    """Start the pre-tension, then follow the daemon's status until it ends: the home pose
+    declared (HOLDING), or the reason it did not. Raises Refused, WaitTimeout, DaemonAbsent."""
+
+    def body(session: Any) -> int:
+        reply = query(session, _key(args, "cmd/pretension"), payload, args.timeout)
+        _print_reply("pretension", reply, args)
+        line = StatusLine(sys.stdout, enabled=_isatty(sys.stdout) and not args.json)
+        t0 = time.monotonic()
+        try:
+            while True:
+                st = query(session, _key(args, "status"), None, args.timeout)
+                if not isinstance(st, dict):
+                    raise Refused(f"unexpected status reply {st!r}")
+                state = st.get("state")
+                pt = st.get("pretension") or {}
+                result = pt.get("result")
+                if state != "PRETENSIONING":
+                    line.clear()
+                    if state == "HOLDING" and isinstance(result, dict) and result.get("ok"):
+                        if args.json:
+                            print(json.dumps(result), flush=True)
+                        else:
+                            print(format_pretension_result(result), flush=True)
+                        return EXIT_OK
+                    raise Refused(f"the pre-tension ended in {state}: {st.get('reason')}")
+                now = time.monotonic()
+                if now - t0 > args.wait_timeout:
+                    raise WaitTimeout(
+                        f"still pretensioning after {args.wait_timeout:g} s (the daemon goes on)"
+                    )
+                fastest = pt.get("fastest_cable_mps")
+                speed = "" if fastest is None else f", fastest cable {fastest * 1e3:.1f} mm/s"
+                line.show(f"pretension: {now - t0:.1f} s{speed}", now)
+                time.sleep(PRETENSION_POLL_S)
+        finally:
+            line.clear()
+
+    return _run(args, body)
+
+
+def format_pretension_result(result: dict[str, Any]) -> str:
+    """The end of a pre-tension: how long until still, where homed, the tensions."""
+    parts = [
+        f"pretension: still after {float(result.get('still_after_s', 0.0)):.2f} s",
+        "homed " + format_home(result).removeprefix("home: "),
+    ]
+    measured = result.get("measured_tensions_n")
+    if isinstance(measured, list) and measured and None not in measured:
+        parts.append("measured tensions " + ", ".join(f"{t:.1f}" for t in measured) + " N")
+    return "; ".join(parts)
 
 
 def cmd_move(args: argparse.Namespace) -> int:
@@ -876,5 +960,20 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     p = sub.add_parser("home", help="declare that the effector is now at X Y Z")
     add_connection_arguments(p)
     add_xyz_arguments(p)
+    p.add_argument(
+        "--pretension",
+        action="store_true",
+        help=(
+            "first pull every cable in torque control with the tension that holds the payload "
+            "at X Y Z until the reels are still, then home there (needs [payload])"
+        ),
+    )
+    p.add_argument(
+        "--wait-timeout",
+        type=float,
+        default=120.0,
+        metavar="S",
+        help="with --pretension: give up waiting after S seconds (default 120)",
+    )
     p.add_argument("--json", action="store_true", help="print the raw JSON reply")
     p.set_defaults(func=cmd_home)

@@ -36,6 +36,7 @@ STATE_STYLES = {
     "HOLDING": "bold green",
     "MOVING": "bold cyan",
     "ARMING": "bold yellow",
+    "PRETENSIONING": "bold yellow",
     "DISARMED": "bold",
     "FAULT": "bold white on red",
     "ESTOPPED": "bold white on red",

@@ -96,6 +96,15 @@ class Home:
 
 
 @dataclass(frozen=True, slots=True)
+class Pretension:
+    """Home with pre-tension: every reel pulls in torque control with the tension statics
+    gives its cable at `position_m` until the reels are still, then the effector is declared
+    at `position_m` (`controller.core.pretension`)."""
+
+    position_m: Vec3
+
+
+@dataclass(frozen=True, slots=True)
 class Setpoint:
     """A streamed target position (joystick, external planner)."""
 
@@ -110,9 +119,21 @@ class Velocity:
     velocity_mps: Vec3
 
 
-Command = Move | Path | Stop | Estop | Arm | Disarm | Reset | Home | Setpoint | Velocity
+Command = (
+    Move | Path | Stop | Estop | Arm | Disarm | Reset | Home | Pretension | Setpoint | Velocity
+)
 
-VERBS: tuple[str, ...] = ("move", "path", "stop", "estop", "arm", "disarm", "reset", "home")
+VERBS: tuple[str, ...] = (
+    "move",
+    "path",
+    "stop",
+    "estop",
+    "arm",
+    "disarm",
+    "reset",
+    "home",
+    "pretension",
+)
 
 MAX_PATH_POINTS: Final = 1_000
 """The most points a `path` command may have (longer trajectories: stream `setpoint`s)."""
@@ -121,6 +142,7 @@ MAX_PAYLOAD_BYTES: Final[Mapping[str, int]] = MappingProxyType(
     {
         "move": 4096,
         "home": 4096,
+        "pretension": 4096,
         "setpoint": 4096,
         "velocity": 1024,
         # MAX_PATH_POINTS points as json.dumps(indent=2) writes them at full precision fit.
@@ -322,6 +344,9 @@ def parse_command(verb: str, payload: bytes | str | None) -> Command:
     if verb == "home":
         obj = _object(data, {"position_m"}, {"position_m"})
         return Home(_vec3(obj["position_m"], "position_m"))
+    if verb == "pretension":
+        obj = _object(data, {"position_m"}, {"position_m"})
+        return Pretension(_vec3(obj["position_m"], "position_m"))
     if verb == "setpoint":
         obj = _object(data, {"position_m"}, {"position_m"})
         return Setpoint(_vec3(obj["position_m"], "position_m"))

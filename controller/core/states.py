@@ -1,8 +1,10 @@
 """Controller states, the one table of allowed transitions and the one table of command rules.
 
-DISARMED -> ARMING -> HOLDING <-> MOVING, plus FAULT and ESTOPPED. ESTOPPED is reachable from
-every state, FAULT from every armed or arming state; `reset` takes FAULT/ESTOPPED back to
-DISARMED. Every transition the controller makes goes through `check_transition`.
+DISARMED -> ARMING -> HOLDING <-> MOVING, plus PRETENSIONING (the reels pull in torque control
+before the home pose is declared; from DISARMED or HOLDING, ending in HOLDING), FAULT and
+ESTOPPED. ESTOPPED is reachable from every state, FAULT from every armed, arming or
+pretensioning state; `reset` takes FAULT/ESTOPPED back to DISARMED. Every transition the
+controller makes goes through `check_transition`.
 
 `COMMAND_RULES` says, for every state, which verbs it accepts and why it refuses the others;
 the control loop asks `refusal(state, verb)` for every verb it receives (streamed set-points
@@ -23,6 +25,7 @@ class State(StrEnum):
     ARMING = "ARMING"
     HOLDING = "HOLDING"
     MOVING = "MOVING"
+    PRETENSIONING = "PRETENSIONING"
     FAULT = "FAULT"
     ESTOPPED = "ESTOPPED"
 
@@ -35,9 +38,10 @@ _S = State
 
 TRANSITIONS: Mapping[State, frozenset[State]] = MappingProxyType(
     {
-        _S.DISARMED: frozenset({_S.ARMING, _S.ESTOPPED}),
+        _S.DISARMED: frozenset({_S.ARMING, _S.PRETENSIONING, _S.ESTOPPED}),
         _S.ARMING: frozenset({_S.HOLDING, _S.DISARMED, _S.FAULT, _S.ESTOPPED}),
-        _S.HOLDING: frozenset({_S.MOVING, _S.DISARMED, _S.FAULT, _S.ESTOPPED}),
+        _S.HOLDING: frozenset({_S.MOVING, _S.PRETENSIONING, _S.DISARMED, _S.FAULT, _S.ESTOPPED}),
+        _S.PRETENSIONING: frozenset({_S.HOLDING, _S.DISARMED, _S.FAULT, _S.ESTOPPED}),
         _S.MOVING: frozenset({_S.HOLDING, _S.DISARMED, _S.FAULT, _S.ESTOPPED}),
         _S.FAULT: frozenset({_S.DISARMED, _S.ESTOPPED}),
         _S.ESTOPPED: frozenset({_S.DISARMED}),
@@ -69,6 +73,7 @@ COMMAND_VERBS: tuple[str, ...] = (
     "disarm",
     "reset",
     "home",
+    "pretension",
     "move",
     "path",
     "setpoint",
@@ -84,6 +89,7 @@ _ALREADY_ARMED = "already armed"
 _NO_RESET = "nothing to reset: disarm idles the motors"
 _FAULT = "the motors hold the last good set-point: reset first"
 _ESTOP = "estop is latched: reset first"
+_PRETENSIONING = "pretensioning: wait for HOLDING, or `stop` to end it where the reels are"
 
 COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
     {
@@ -94,6 +100,7 @@ COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
                 "disarm": None,
                 "reset": None,
                 "home": None,
+                "pretension": None,
                 "move": _NOT_ARMED,
                 "path": _NOT_ARMED,
                 "setpoint": _NOT_ARMED,
@@ -108,6 +115,7 @@ COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
                 "disarm": None,
                 "reset": "nothing to reset: disarm stops arming",
                 "home": "arming: home when DISARMED or HOLDING",
+                "pretension": "arming: home when DISARMED or HOLDING",
                 "move": _ARMING,
                 "path": _ARMING,
                 "setpoint": _ARMING,
@@ -122,6 +130,7 @@ COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
                 "disarm": None,
                 "reset": _NO_RESET,
                 "home": None,
+                "pretension": None,
                 "move": None,
                 "path": None,
                 "setpoint": None,
@@ -136,12 +145,16 @@ COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
                 "disarm": None,
                 "reset": _NO_RESET,
                 "home": "moving: stop first, then home while HOLDING",
+                "pretension": "moving: stop first, then home while HOLDING",
                 "move": None,
                 "path": None,
                 "setpoint": None,
                 "velocity": None,
                 "stop": None,
             }
+        ),
+        _S.PRETENSIONING: MappingProxyType(
+            {v: None if v in ("estop", "disarm", "stop") else _PRETENSIONING for v in COMMAND_VERBS}
         ),
         _S.FAULT: MappingProxyType(
             {v: None if v in ("estop", "reset") else _FAULT for v in COMMAND_VERBS}

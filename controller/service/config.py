@@ -68,6 +68,7 @@ from types import MappingProxyType
 from typing import Any, overload
 
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
+from controller.core.pretension import PretensionSettings
 from controller.core.reel import ReelModel, spool_buildup
 from controller.core.statics import TensionCheck
 from controller.core.workspace import Workspace, WorkspaceError
@@ -247,6 +248,31 @@ class HomingConfig:
 
     power_up_position_m: Vec3 | None = None
     state_file: str | None = None
+    pretension_ramp_s: float = 0.5
+    """Pre-tension (`cablebot home --pretension`): the torques rise from zero over this long."""
+    pretension_still_mps: float = 0.002
+    """A cable slower than this (m/s) counts as still."""
+    pretension_settle_s: float = 0.5
+    """Every cable still for this long: the home pose is declared."""
+    pretension_timeout_s: float = 30.0
+    """The pre-tension faults if the reels are not still by then."""
+    pretension_max_travel_m: float = 0.5
+    """The pre-tension faults if a cable's length changes by more than this."""
+    pretension_speed_mps: float = 0.05
+    """The drives' velocity limit in torque control, as cable speed (where the family can set
+    it: ODrive with `[drive] velocity_limit_rps` and `current_limit_a`)."""
+
+    @property
+    def pretension(self) -> PretensionSettings:
+        """The `pretension_*` keys as `controller.core.pretension.PretensionSettings`."""
+        return PretensionSettings(
+            ramp_s=self.pretension_ramp_s,
+            still_mps=self.pretension_still_mps,
+            settle_s=self.pretension_settle_s,
+            timeout_s=self.pretension_timeout_s,
+            max_travel_m=self.pretension_max_travel_m,
+            speed_mps=self.pretension_speed_mps,
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -365,6 +391,11 @@ class RobotConfig:
                     else list(self.homing.power_up_position_m)
                 ),
                 "state_file": self.homing.state_file,
+                **{
+                    k: getattr(self.homing, k)
+                    for k in HomingConfig.__dataclass_fields__
+                    if k.startswith("pretension_")
+                },
             },
             "zenoh": {
                 "prefix": self.zenoh.prefix,
@@ -947,7 +978,19 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
             state_file = os.path.expanduser(state_file.format(name=name))
         except (KeyError, IndexError, ValueError):
             ht.fail("state_file", f"only {{name}} may be substituted, got {state_file!r}")
-    homing = HomingConfig(pup, state_file)
+    d_h = HomingConfig()
+    pt = {
+        key: ht.number(key, getattr(d_h, key), gt=0.0, le=le)
+        for key, le in (
+            ("pretension_ramp_s", 60.0),
+            ("pretension_still_mps", 1.0),
+            ("pretension_settle_s", 60.0),
+            ("pretension_timeout_s", 3600.0),
+            ("pretension_max_travel_m", 1000.0),
+            ("pretension_speed_mps", 10.0),
+        )
+    }
+    homing = HomingConfig(pup, state_file, **pt)
 
     zenoh = _parse_zenoh(top, name)
 

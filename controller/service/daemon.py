@@ -501,7 +501,10 @@ def run_daemon(
     controller.begin_shutdown()
     wait_s = brake_wait_s(brake_s, float(lim.max_speed_mps), float(lim.max_accel_mps2))
     deadline = t0 + wait_s
-    while controller.state is State.MOVING and time.monotonic() < deadline:
+    # A pre-tension ends at the queued stop (the drives hold where the reels are).
+    while (
+        controller.state is State.MOVING or controller.state is State.PRETENSIONING
+    ) and time.monotonic() < deadline:
         time.sleep(0.01)
     if controller.state is State.MOVING:
         log.warning("motion not at rest after %.2f s; holding the last set-point", wait_s)

@@ -89,6 +89,7 @@ from controller.core.commands import (
     Home,
     Move,
     Path,
+    Pretension,
     Reset,
     Setpoint,
     Stop,
@@ -96,6 +97,7 @@ from controller.core.commands import (
     Velocity,
 )
 from controller.core.motion import MotionPlanner, check_speed, dedupe_path
+from controller.core.pretension import PretensionRun
 from controller.core.reel import ReelModel
 from controller.core.states import ARMED_STATES, State, check_transition, refusal
 from controller.core.statics import SINGULAR_ROW, StaticsError, TensionCheck
@@ -103,7 +105,7 @@ from controller.core.workspace import Workspace, points_array
 from controller.service.config import RobotConfig, tension_check
 from controller.service.pose import NullPublisher, PoseSample, Publisher
 from controller.service.runner import SPIN_S, LoopStats, Runner
-from drivers.base import AxisReading, BusError, ReelDriver
+from drivers.base import AxisReading, BusError, ReelDriver, TorqueDriver
 
 log = logging.getLogger("cablebot.loop")
 
@@ -156,6 +158,7 @@ _VERBS: Mapping[type, str] = {
     Disarm: "disarm",
     Reset: "reset",
     Home: "home",
+    Pretension: "pretension",
     Setpoint: "setpoint",
     Velocity: "velocity",
 }
@@ -315,6 +318,16 @@ class Controller:
 
         self.loop_stats = LoopStats()
         """The figures of the runner that calls `tick` (`runner`), reported in `status()`."""
+        self._pretension: PretensionRun | None = None
+        """The pre-tension in progress (PRETENSIONING), else None."""
+        self._pretension_at: Vec3 = (0.0, 0.0, 0.0)
+        self._torque_driver: TorqueDriver | None = None
+        """The driver as a `TorqueDriver`, from the first pre-tension on."""
+        self._pretension_tensions_n: tuple[float, ...] = ()
+        self._pt_lengths_m: list[float] = [0.0] * self.n
+        self._pt_rates_mps: list[float] = [0.0] * self.n
+        self.pretension_result: dict[str, Any] | None = None
+        """How the last pre-tension ended (None: none has ended since start-up)."""
         self._save_threads: list[threading.Thread] = []
         self._closing = False
         """Set by `begin_shutdown`: no new motion is taken."""
@@ -523,8 +536,11 @@ class Controller:
             log.exception("publish_state failed")
 
     def _fault(self, reason: str) -> None:
-        """Enter FAULT (from an armed or arming state); the last good set-point stays commanded."""
-        if self.state in (State.ARMING, State.HOLDING, State.MOVING):
+        """Enter FAULT (from an armed, arming or pretensioning state); the last good set-point
+        stays commanded (after a pre-tension: the turns where the reels were)."""
+        if self.state in (State.ARMING, State.HOLDING, State.MOVING, State.PRETENSIONING):
+            if self._end_pretension() is not None:
+                self.pretension_result = {"ok": False, "reason": reason}
             self._set_state(State.FAULT, reason)
             self.planner_hold()
             self.commanded_ff_rps = list(self._zero_ff)  # the hold has no feed-forward
@@ -587,6 +603,11 @@ class Controller:
         elif state is State.HOLDING or state is State.MOVING:
             try:
                 self._tick_armed(dt)
+            except _Fault as f:
+                self._fault(f.reason)
+        elif state is State.PRETENSIONING:
+            try:
+                self._tick_pretension(readings, now_s)
             except _Fault as f:
                 self._fault(f.reason)
         if self.state is State.FAULT:
@@ -671,7 +692,7 @@ class Controller:
                 res = kinematics.fpk(self.geometry, lengths)
             except kinematics.KinematicsError as exc:
                 self.pose_valid = False
-                if self.state is not State.DISARMED:
+                if self.state is not State.DISARMED and self._pretension is None:
                     raise _Fault(f"fpk_unreachable: {exc}") from None
                 return
             pos = res.position_m
@@ -685,7 +706,11 @@ class Controller:
         self.pose_valid = ok
         if not ok:
             raise _Fault("fpk_unreachable: non-finite solution")
-        if residual > self._residual_max_m and self.state is not State.DISARMED:
+        if (
+            residual > self._residual_max_m
+            and self.state is not State.DISARMED
+            and self._pretension is None  # slack cables are what a pre-tension takes up
+        ):
             raise _Fault(
                 f"residual: {residual * 1e3:.1f} mm > {self._residual_max_m * 1e3:.1f} mm"
                 " (slack or slipped cable)"
@@ -939,6 +964,9 @@ class Controller:
             self.driver.estop()
         except Exception as exc:
             err = str(exc)
+        if self._pretension is not None:
+            self._end_pretension()  # after the Estop: restores the drives' velocity limits
+            self.pretension_result = {"ok": False, "reason": "estop"}
         if self.state is not State.ESTOPPED:
             self._set_state(State.ESTOPPED, "estop" if err is None else f"estop (bus: {err})")
             self._estop_unconfirmed = ()
@@ -1068,7 +1096,7 @@ class Controller:
         verb = _VERBS.get(type(cmd))
         if verb is None:
             raise CommandRefused(f"unsupported command {type(cmd).__name__}")
-        if self._closing and isinstance(cmd, Move | Path | Arm | Home):
+        if self._closing and isinstance(cmd, Move | Path | Arm | Home | Pretension):
             raise CommandRefused("shutting down: no new motion")
         why = refusal(self.state, verb)
         if why is not None:
@@ -1087,7 +1115,9 @@ class Controller:
                 reply["speed_limited_to_mps"] = motion.limited_to_mps
             return reply
         if isinstance(cmd, Stop):
-            if self.state in ARMED_STATES:
+            if self.state is S.PRETENSIONING:
+                self._stop_pretension()
+            elif self.state in ARMED_STATES:
                 self.planner.stop()
             return {"ok": True, "state": self.state.value}
         if isinstance(cmd, Arm):
@@ -1117,6 +1147,8 @@ class Controller:
             return {"ok": True, "state": self.state.value}
         if isinstance(cmd, Home):
             return self._execute_home(cmd, readings, now_s)
+        if isinstance(cmd, Pretension):
+            return self._start_pretension(cmd, readings, now_s)
         raise CommandRefused(f"unsupported command {type(cmd).__name__}")
 
     def _start_motion(self, motion: _Motion, cmd: Move | Path) -> None:
@@ -1186,6 +1218,8 @@ class Controller:
         return i, reason
 
     def _disarm(self, why: str) -> None:
+        if self._end_pretension() is not None:
+            self.pretension_result = {"ok": False, "reason": why}
         try:
             self.driver.disarm()
         except Exception as exc:
@@ -1198,9 +1232,9 @@ class Controller:
         self._estop_unconfirmed = ()
         self._set_state(State.DISARMED, why)
 
-    def _execute_home(
-        self, cmd: Home, readings: Sequence[AxisReading], now_s: float
-    ) -> dict[str, Any] | concurrent.futures.Future[dict[str, Any]]:
+    def _refuse_stale(self, readings: Sequence[AxisReading], now_s: float) -> None:
+        """CommandRefused naming every axis without a fresh encoder reading (homing needs
+        them all)."""
         old = [r for r in readings if now_s - r.stamp_s > self._stale_s]
         if old:
             ages = ", ".join(
@@ -1213,6 +1247,11 @@ class Controller:
                 f"{self._stale_s:g} s): check the drive's encoder broadcast rate, or raise "
                 "faults.stale_timeout_s"
             )
+
+    def _execute_home(
+        self, cmd: Home, readings: Sequence[AxisReading], now_s: float
+    ) -> dict[str, Any] | concurrent.futures.Future[dict[str, Any]]:
+        self._refuse_stale(readings, now_s)
         reason = self._check_target(cmd.position_m)
         if reason is not None:
             raise CommandRefused(f"home position {_fmt(cmd.position_m)}: {reason}")
@@ -1229,12 +1268,20 @@ class Controller:
             "offsets_rev": dict(zip(map(str, self.node_ids), offsets, strict=True)),
             "saved": False,
         }
+        saved = self._save_home(offsets, cmd.position_m, reply)
+        return reply if saved is None else saved
+
+    def _save_home(
+        self, offsets: Sequence[float], position_m: Vec3, reply: dict[str, Any]
+    ) -> concurrent.futures.Future[dict[str, Any]] | None:
+        """Save the homing offsets to the state file off the loop thread: a future of `reply`
+        with "saved" (and "state_file" or "error"), or None without a state file."""
         if not self._state_file:
-            return reply
+            return None
         from controller.service import offsets as homing
 
         state = homing.make_record(
-            self.cfg.name, dict(zip(self.node_ids, offsets, strict=True)), cmd.position_m
+            self.cfg.name, dict(zip(self.node_ids, offsets, strict=True)), position_m
         )
         path = self._state_file
         # fsync can take tens of ms: save off the loop thread and answer when it is on disk.
@@ -1254,6 +1301,215 @@ class Controller:
         self._save_threads = [th for th in self._save_threads if th.is_alive()] + [t]
         t.start()
         return outer
+
+    # ---------------------------------------------------------------- pre-tension
+
+    def _start_pretension(
+        self, cmd: Pretension, readings: Sequence[AxisReading], now_s: float
+    ) -> dict[str, Any]:
+        """Start the pre-tension at `cmd.position_m` (`controller.core.pretension`): torque
+        control on every reel, each pulling with its cable's statics tension at that pose.
+        Raises CommandRefused (nothing sent) when the drive family has no torque control, there
+        is no `[payload]`, an encoder reading is stale, the pose breaks a limit or a reel's
+        slope is zero; CommandRefused naming the bus when entering torque control fails."""
+        drv = self.driver
+        if not isinstance(drv, TorqueDriver):
+            raise CommandRefused(
+                f"pretension: cablebot has no torque control for {self.cfg.drive.kind} drives; "
+                "home without --pretension"
+            )
+        chk = self.tension
+        if chk is None:
+            raise CommandRefused(
+                "pretension: needs [payload] mass_kg (the reels pull with the tensions that hold "
+                "the payload at the home pose)"
+            )
+        self._refuse_stale(readings, now_s)
+        p = cmd.position_m
+        reason = self._check_target(p)
+        if reason is not None:
+            raise CommandRefused(f"home position {_fmt(p)}: {reason}")
+        tensions = chk.solve(p).tensions_n
+        settings = self.cfg.homing.pretension
+        reels = self.reels
+        try:
+            torques = [
+                reels[i].torque_nm(r.position_rev, tensions[i]) for i, r in enumerate(readings)
+            ]
+            limits = [
+                abs(reels[i].velocity_rps(r.position_rev, settings.speed_mps))
+                for i, r in enumerate(readings)
+            ]
+            lengths = [reels[i].length_m(r.position_rev) for i, r in enumerate(readings)]
+            run = PretensionRun(settings, torques, lengths, now_s)
+        except ValueError as exc:  # a reel slope of zero, a non-finite number
+            raise CommandRefused(f"pretension: {exc}") from None
+        try:
+            limited = drv.enter_torque_mode(limits)
+        except (BusError, ValueError) as exc:
+            raise CommandRefused(f"bus_error: pretension: {exc}") from None
+        self._torque_driver = drv
+        self._pretension = run
+        self._pretension_at = p
+        self._pretension_tensions_n = tuple(tensions)
+        self.pretension_result = None
+        self.commanded_rev = None
+        self.commanded_ff_rps = list(self._zero_ff)
+        self.setpoint_m = None
+        self.setpoint_lengths_m = None
+        self._stream_target = None
+        self._velocity_cmd = None
+        self._arm_epoch += 1  # set-points streamed before it are never taken after it
+        speed = (
+            f"at most {settings.speed_mps:g} m/s of cable"
+            if limited
+            else "as fast as the drives' own velocity limit lets them"
+        )
+        self._set_state(
+            State.PRETENSIONING,
+            f"pretension: the reels pull in torque control ({speed}) until still, then home "
+            f"at {_fmt(p)}",
+        )
+        return {
+            "ok": True,
+            "state": State.PRETENSIONING.value,
+            "position_m": list(p),
+            "tensions_n": list(tensions),
+            "torques_nm": torques,
+            "speed_limited": limited,
+        }
+
+    def _tick_pretension(self, readings: Sequence[AxisReading], now_s: float) -> None:
+        """One tick of the pre-tension: axis checks, travel and stillness (`PretensionRun`),
+        then the ramped torques, or the home pose once the reels are still. _Fault on an axis
+        fault, a stale reading, an axis not in closed loop after `faults.arm_timeout_s`, or the
+        run failing."""
+        run = self._pretension
+        assert run is not None
+        stale = self._stale_s
+        hb = self._hb_timeout_s
+        ready = True
+        for r in readings:
+            if r.fault is not None:
+                raise _Fault(f"axis_error: node {r.node_id} {r.fault}")
+            if now_s - r.stamp_s > stale:
+                raise _Fault(f"stale_encoder: node {r.node_id} age {now_s - r.stamp_s:.3f} s")
+            if now_s - r.heartbeat_stamp_s > hb:
+                raise _Fault(
+                    f"stale_heartbeat: node {r.node_id} age {now_s - r.heartbeat_stamp_s:.3f} s"
+                )
+            if not r.ready:
+                ready = False
+                if now_s - run.start_s > self._arm_timeout_s:
+                    raise _Fault(
+                        f"pretension: node {r.node_id} not in closed loop after "
+                        f"{self._arm_timeout_s:g} s ({r.state_name})"
+                    )
+        if ready:
+            reels = self.reels
+            lengths = self._pt_lengths_m
+            rates = self._pt_rates_mps
+            for i, r in enumerate(readings):
+                lengths[i] = reels[i].length_m(r.position_rev)
+                rates[i] = reels[i].length_rate_mps(r.position_rev, r.velocity_rps)
+            why = run.update(now_s, lengths, rates)
+            if why is not None:
+                raise _Fault(f"pretension: {why}")
+            if run.done:
+                self._finish_pretension(readings, run)
+                return
+        drv = self._torque_driver
+        assert drv is not None  # set with the run
+        try:
+            drv.command_torque(run.torques_nm(now_s))
+        except BusError:
+            pass  # counted in driver.stats.bus_errors; the next tick faults if they persist
+        except ValueError as exc:
+            raise _Fault(f"nan_setpoint: driver refused a torque: {exc}") from None
+
+    def _finish_pretension(self, readings: Sequence[AxisReading], run: PretensionRun) -> None:
+        """The reels are still: hold their turns in position control, declare the home pose
+        there, save the offsets, and go HOLDING. _Fault if the pose cannot be held."""
+        p = self._pretension_at
+        self._end_pretension()
+        offsets = self._home_at(readings, p)
+        self.home_source = "pretension"
+        measured = list(self.measured_tensions_n) if self._measure else None
+        after = run.still_after_s if run.still_after_s is not None else 0.0
+        log.info(
+            "pretension: still after %.2f s; homed at %s: offsets_rev %s", after, _fmt(p), offsets
+        )
+        result: dict[str, Any] = {
+            "ok": True,
+            "position_m": list(p),
+            "still_after_s": after,
+            "tensions_n": list(self._pretension_tensions_n),
+            "measured_tensions_n": measured,
+            "offsets_rev": dict(zip(map(str, self.node_ids), offsets, strict=True)),
+            "saved": False,
+        }
+        self.pretension_result = result
+        saved = self._save_home(offsets, p, result)
+        if saved is not None:
+
+            def record(fut: concurrent.futures.Future[dict[str, Any]]) -> None:
+                self.pretension_result = fut.result()  # one reference assignment: atomic
+
+            saved.add_done_callback(record)
+        self._set_state(State.HOLDING, f"pretension: still after {after:.2f} s, homed")
+        self._hold_at(p)
+        self.setpoint_lengths_m = None
+
+    def _end_pretension(self) -> list[float] | None:
+        """Leave torque control if a pre-tension is running: every drive holds the turns its
+        reel is at (they become the commanded turns, as in FAULT) and gets its velocity limit
+        back. Returns those turns, or None when no pre-tension was running. Never raises."""
+        if self._pretension is None:
+            return None
+        self._pretension = None
+        positions = [r.position_rev for r in self.driver.read()]
+        drv = self._torque_driver
+        try:
+            assert drv is not None  # set with the run
+            drv.leave_torque_mode(positions)
+        except Exception as exc:  # the hold is re-sent every tick in FAULT
+            log.error("pretension: leaving torque control failed: %s", exc)
+        self.commanded_rev = positions
+        self.commanded_ff_rps = list(self._zero_ff)
+        return positions
+
+    def _stop_pretension(self) -> None:
+        """`stop` while pretensioning: the drives hold where the reels are; HOLDING at the
+        measured pose when it is known, else FAULT (nothing to hold the pose by)."""
+        self._end_pretension()
+        self.pretension_result = {"ok": False, "reason": "stopped"}
+        pose = self.pose_m
+        if self.homed and self.pose_valid and pose is not None:
+            self._set_state(State.HOLDING, "pretension stopped: holding where the reels are")
+            try:
+                self._hold_at(pose)
+            except _Fault as f:
+                self._fault(f.reason)
+        else:
+            self._fault(
+                "pretension stopped before the reels were still, with no known pose: the motors "
+                "hold their turns; reset, then home"
+            )
+
+    def _pretension_status(self, now_s: float) -> dict[str, Any]:
+        """The pre-tension part of `status()`."""
+        run = self._pretension
+        active = run is not None
+        return {
+            "active": active,
+            "position_m": list(self._pretension_at) if active else None,
+            "tensions_n": list(self._pretension_tensions_n) if active else None,
+            "elapsed_s": now_s - run.start_s if run is not None else None,
+            "fastest_cable_mps": (
+                run.worst_mps if run is not None and math.isfinite(run.worst_mps) else None
+            ),
+            "result": self.pretension_result,
+        }
 
     # ---------------------------------------------------------------- status
 
@@ -1294,6 +1550,7 @@ class Controller:
             },
             "setpoint_m": list(sp) if sp is not None else None,
             "tensions": self._tension_status(sp is not None),
+            "pretension": self._pretension_status(now),
             "axes": axes,
             "loop": {
                 "rate_hz": 1.0 / self.period_s,

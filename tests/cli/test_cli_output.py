@@ -295,6 +295,54 @@ def test_home_prints_a_readable_line() -> None:
     assert client.format_reply("home", reply).endswith("not saved (no [homing] state_file)")
 
 
+def test_pretension_prints_its_start_its_progress_and_its_end() -> None:
+    start = {
+        "ok": True,
+        "state": "PRETENSIONING",
+        "tensions_n": [104.44, 99.5],
+        "speed_limited": True,
+    }
+    assert client.format_reply("pretension", start) == (
+        "pretension: the reels pull in torque control with 104.4, 99.5 N; waiting until they"
+        " are still"
+    )
+    start["speed_limited"] = False
+    assert "(the drives' own velocity limit caps their speed)" in client.format_reply(
+        "pretension", start
+    )
+    result = {
+        "ok": True,
+        "position_m": [0.0, 0.0, 2.0],
+        "still_after_s": 3.104,
+        "offsets_rev": {"0": -0.43381, "1": 1.5},
+        "saved": False,
+        "measured_tensions_n": [104.41, 104.47],
+    }
+    assert client.format_pretension_result(result) == (
+        "pretension: still after 3.10 s; homed at x=+0.0000 y=+0.0000 z=+2.0000 m; offsets"
+        " (turns) node 0 -0.4338, node 1 +1.5000; not saved (no [homing] state_file);"
+        " measured tensions 104.4, 104.5 N"
+    )
+    running = {
+        "state": "PRETENSIONING",
+        "pretension": {
+            "active": True,
+            "position_m": [0.0, 0.0, 2.0],
+            "elapsed_s": 1.25,
+            "fastest_cable_mps": 0.0123,
+            "result": None,
+        },
+    }
+    assert "pretension running 1.2 s, fastest cable 12.3 mm/s, home at x=+0.000 y=+0.000" in (
+        client.format_status(running)
+    )
+    ended = {
+        "state": "FAULT",
+        "pretension": {"active": False, "result": {"ok": False, "reason": "x"}},
+    }
+    assert "pretension ended without homing: x" in client.format_status(ended)
+
+
 def test_move_reply_names_target_speed_and_a_limited_speed() -> None:
     reply = {"ok": True, "target_m": [0.5, 0.0, 2.0], "speed_mps": 2.0}
     assert (

@@ -17,6 +17,7 @@ from controller.core.commands import (
     Home,
     Move,
     Path,
+    Pretension,
     Reset,
     Setpoint,
     Stop,
@@ -74,7 +75,9 @@ def _in_state(state: State) -> Rig:
         rig.do(Arm())
         return rig
     rig.arm()
-    if state is State.MOVING:
+    if state is State.PRETENSIONING:
+        rig.do(Pretension(rig.start))
+    elif state is State.MOVING:
         s = rig.start
         rig.do(Move((s[0] + 2.0, s[1], s[2])))
     elif state is State.FAULT:
@@ -93,6 +96,7 @@ def _command(verb: str, rig: Rig) -> Any:
         "disarm": Disarm(),
         "reset": Reset(),
         "home": Home(s),
+        "pretension": Pretension(s),
         "move": Move(near),
         "path": Path((near,)),
         "setpoint": Setpoint(near),

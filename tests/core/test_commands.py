@@ -65,7 +65,17 @@ def test_every_verb_parses() -> None:
         assert parse_command(verb, None) == cls()
         assert parse_command(verb, b"") == cls()
         assert parse_command(verb, b"  {} ") == cls()
-    assert set(VERBS) == {"move", "path", "stop", "estop", "arm", "disarm", "reset", "home"}
+    assert set(VERBS) == {
+        "move",
+        "path",
+        "stop",
+        "estop",
+        "arm",
+        "disarm",
+        "reset",
+        "home",
+        "pretension",
+    }
 
 
 def test_position_values_are_floats() -> None:
@@ -136,6 +146,7 @@ VALID = {
     "move": b'{"position_m": [0, 0, 1]}',
     "path": b'{"points_m": [[0, 0, 1]]}',
     "home": b'{"position_m": [0, 0, 1]}',
+    "pretension": b'{"position_m": [0, 0, 1]}',
     "setpoint": b'{"position_m": [0, 0, 1]}',
     "velocity": b'{"velocity_mps": [0, 0, 1]}',
     **{verb: b"{}" for verb in ("stop", "estop", "arm", "disarm", "reset")},

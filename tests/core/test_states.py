@@ -21,8 +21,14 @@ def test_estop_reachable_from_every_other_state() -> None:
             assert allowed(s, S.ESTOPPED), s
 
 
-def test_fault_reachable_only_when_armed_or_arming() -> None:
-    assert {s for s in State if allowed(s, S.FAULT)} == {S.ARMING, S.HOLDING, S.MOVING}
+def test_fault_reachable_only_when_the_motors_are_on() -> None:
+    on = {S.ARMING, S.HOLDING, S.MOVING, S.PRETENSIONING}
+    assert {s for s in State if allowed(s, S.FAULT)} == on
+
+
+def test_pretension_starts_disarmed_or_holding_and_ends_holding() -> None:
+    assert {s for s in State if allowed(s, S.PRETENSIONING)} == {S.DISARMED, S.HOLDING}
+    assert TRANSITIONS[S.PRETENSIONING] == {S.HOLDING, S.DISARMED, S.FAULT, S.ESTOPPED}
 
 
 def test_reset_paths() -> None:
@@ -52,6 +58,9 @@ def test_main_sequence() -> None:
         (S.FAULT, S.MOVING),
         (S.ESTOPPED, S.HOLDING),
         (S.ESTOPPED, S.FAULT),
+        (S.PRETENSIONING, S.MOVING),
+        (S.MOVING, S.PRETENSIONING),
+        (S.FAULT, S.PRETENSIONING),
     ],
 )
 def test_forbidden(a: State, b: State) -> None:
@@ -66,5 +75,5 @@ def test_no_self_transitions() -> None:
 
 def test_table_counts() -> None:
     pairs = [(a, b) for a, b in itertools.product(State, State) if allowed(a, b)]
-    assert len(pairs) == 2 + 4 + 4 + 4 + 2 + 1
+    assert len(pairs) == 3 + 4 + 5 + 4 + 4 + 2 + 1
     assert str(S.MOVING) == "MOVING"
