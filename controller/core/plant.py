@@ -10,7 +10,8 @@ Model
   effector ``P``, a point mass ``m``. Its unstretched length ``L0_i`` is what the reel has paid out:
   the caller turns motor positions into metres (``controller.core.reel.ReelModel.length_m`` gives
   the unstretched length) and passes metres in; the reel model stays out of the plant.
-  `ReelPlant` is that caller for a bank of reels: motor turns in, holding torques out.
+  `ReelPlant` is that caller for a bank of reels: motor turns in, holding torques out; a reel
+  in torque control instead pulls its cable with a set tension and the plant turns it.
 * Cable stiffness ``k_i = EA_i / L0_i`` (``EA`` in newtons: about 1e5 N for a desk rig's braided
   line, 1e6-1e7 N for steel rope). With ``L_i = |A_i - P|`` and ``u_i = (A_i - P) / L_i``, the
   tension is
@@ -68,8 +69,6 @@ from typing import NamedTuple
 import numpy as np
 
 from controller.core.reel import ReelModel
-
-_TWO_PI = 2.0 * math.pi
 
 STANDARD_GRAVITY_MPS2 = 9.80665
 """Standard gravity, m/s^2 (z is up)."""
@@ -479,7 +478,6 @@ class CablePlant:
         "_ax",
         "_ay",
         "_az",
-        "_beta",
         "_c",
         "_ea",
         "_l0",
@@ -522,7 +520,6 @@ class CablePlant:
         self._t = _static_tensions(params, self._p, self._l0)
         self._time_s = 0.0
         self._substeps = 0
-        self._beta = 0.0
 
     @classmethod
     def at_rest(
@@ -589,27 +586,6 @@ class CablePlant:
     def substeps(self) -> int:
         """Sub-steps the last `step` took (0 before the first)."""
         return self._substeps
-
-    @property
-    def cable_damping_s(self) -> float:
-        """The cable damping time ``beta`` (s) of the last step (module docstring: tension
-        ``k_i * (e_i + beta * de_i/dt)``); 0 before the first step."""
-        return self._beta
-
-    def cable_stiffness_n_per_m(self) -> tuple[float, ...]:
-        """Each cable's axial stiffness ``EA_i / L0_i`` (N/m) at the current pose with the
-        unstretched lengths last applied; 0 for a slack cable (not stretched: it pulls
-        nothing whatever its length does until it tightens). Raises nothing."""
-        px, py, pz = self._p
-        out = []
-        for i in range(self._n):
-            dx = self._ax[i] - px
-            dy = self._ay[i] - py
-            dz = self._az[i] - pz
-            l0 = self._l0[i]
-            taut = math.sqrt(dx * dx + dy * dy + dz * dz) > l0
-            out.append(self._ea[i] / l0 if taut else 0.0)
-        return tuple(out)
 
     def energy_j(self) -> float:
         """Kinetic + gravitational (zero at z = 0) + elastic energy (J) of the current state."""
@@ -776,7 +752,6 @@ class CablePlant:
         self._l0 = l0b
         self._time_s += dt_s
         self._substeps = nsub
-        self._beta = beta
         return self._p
 
 
@@ -792,9 +767,20 @@ class ReelPlant:
     reels' lengths are the geometric lengths there, as the controller's kinematics assume.
     Elsewhere the cables stretch as their tensions demand. Not thread-safe: one owner steps it.
     Raises PlantError / EquilibriumError on bad inputs, ValueError on a wrong number of reels.
+
+    A reel in torque control (`step`'s `pulls_nm`) is an ideal torque source: its motor makes
+    the torque it is told, which holds the tension ``T = reel.tension_n(turns, torque)``; the
+    reel turns as the cable lets it. Each step, before the plant moves, its unstretched length
+    goes to the one at which the cable pulls ``T`` where the effector's velocity takes it by the
+    end of the step, ``L0 = L EA / (EA + T)`` (``T <= 0``: paid out), but no faster than its
+    speed limit (the drive's vel_limit, as cable speed): a slack cable is wound in at that speed
+    until it pulls, a pulled one eases out. So the effector feels constant forces along its
+    cables, and the motor turns are read back from the lengths (`positions_rev`). No rotor
+    inertia and no friction: a direct-drive reel on a drive whose current loop is far faster
+    than the tick.
     """
 
-    __slots__ = ("_damping", "_positions", "_reels", "_stiffness", "_stretch", "_torques", "plant")
+    __slots__ = ("_positions", "_reels", "_stretch", "_torques", "plant")
 
     def __init__(
         self,
@@ -818,8 +804,6 @@ class ReelPlant:
         ]
         self._positions = positions
         self._torques = self._torques_now()
-        self._stiffness = self._stiffness_now()
-        self._damping = (0.0,) * len(self._reels)
 
     def _torques_now(self) -> tuple[float, ...]:
         return tuple(
@@ -827,34 +811,94 @@ class ReelPlant:
             for r, p, t in zip(self._reels, self._positions, self.plant.tensions_n, strict=True)
         )
 
-    def _stiffness_now(self) -> tuple[float, ...]:
-        # d(torque)/d(turns) = k * slope * slope / 2 pi: a turn moves the cable by slope metres
-        # (tension k * slope), held by a torque slope / 2 pi per newton (the reel's work balance)
-        out = []
-        for r, p, k in zip(
-            self._reels, self._positions, self.plant.cable_stiffness_n_per_m(), strict=True
-        ):
-            slope = r.length_rate_mps(p, 1.0)
-            out.append(k * slope * slope / _TWO_PI)
-        return tuple(out)
-
-    def step(self, positions_rev: Sequence[float], dt_s: float) -> tuple[float, ...]:
+    def step(
+        self,
+        positions_rev: Sequence[float],
+        dt_s: float,
+        pulls_nm: Sequence[float | None] | None = None,
+        max_speeds_rps: Sequence[float] | None = None,
+    ) -> tuple[float, ...]:
         """Move the reels to `positions_rev` over `dt_s`, step the plant; return each motor's
-        holding torque (N m). Raises PlantError (bad input, a cable paid in past zero length,
-        the plant diverging); the state is then unchanged."""
+        torque (N m): the holding torque of its cable, or for a reel in torque control
+        (`pulls_nm[i]` not None: the motor's torque) that torque, the reel turning as the
+        class docstring says at most `max_speeds_rps[i]` (default: unlimited) and its
+        `positions_rev[i]` ignored; read the turns back from `positions_rev`. Raises
+        PlantError (bad input, a cable paid in past zero length, the plant diverging); the
+        state is then unchanged."""
         reels = self._reels
         stretch = self._stretch
+        n = len(reels)
         positions = [float(p) for p in positions_rev]
-        if len(positions) != len(reels):
-            raise PlantError(f"{len(reels)} reels need as many positions, got {len(positions)}")
-        l0 = [reels[i].length_m(positions[i]) - stretch[i] for i in range(len(reels))]
+        if len(positions) != n:
+            raise PlantError(f"{n} reels need as many positions, got {len(positions)}")
+        l0 = [reels[i].length_m(positions[i]) - stretch[i] for i in range(n)]
+        pulled: dict[int, float] = {}
+        if pulls_nm is not None:
+            for i, pull in enumerate(pulls_nm):
+                if pull is None:
+                    continue
+                torque = _finite("pulls_nm", pull)
+                speed = math.inf if max_speeds_rps is None else float(max_speeds_rps[i])
+                positions[i], l0[i] = self._pull(i, torque, speed, dt_s)
+                pulled[i] = torque
         self.plant.step(l0, dt_s)
         self._positions = positions
-        self._torques = self._torques_now()
-        self._stiffness = self._stiffness_now()
-        beta = self.plant.cable_damping_s
-        self._damping = tuple(k * beta for k in self._stiffness)
+        torques = self._torques_now()
+        if pulled:
+            torques = tuple(pulled.get(i, t) for i, t in enumerate(torques))
+        self._torques = torques
         return self._torques
+
+    def _pull(
+        self, i: int, torque_nm: float, max_speed_rps: float, dt_s: float
+    ) -> tuple[float, float]:
+        """Reel `i` in torque control: its turns and unstretched length after `dt_s` (class
+        docstring). Raises PlantError on a reel that cannot turn (zero slope)."""
+        reel = self._reels[i]
+        turns = self._positions[i]
+        try:
+            tension = reel.tension_n(turns, torque_nm)
+        except ValueError as exc:
+            raise PlantError(f"reel {i + 1}: {exc}") from None
+        plant = self.plant
+        l0 = reel.length_m(turns) - self._stretch[i]
+        if tension > 0.0:
+            ea = plant.params.ea_n[i]
+            ax, ay, az = plant.params.anchors_m[i]
+            px, py, pz = plant.position_m
+            vx, vy, vz = plant.velocity_mps
+            dx, dy, dz = ax - px, ay - py, az - pz
+            length = math.sqrt(dx * dx + dy * dy + dz * dz)
+            # The length at the end of the step, where the tension is read: following the
+            # length the step starts at would lag one step behind, a drag of EA / L0 * dt.
+            length -= (dx * vx + dy * vy + dz * vz) / length * dt_s
+            target = length * ea / (ea + tension)
+        else:
+            target = math.inf  # the motor pays out: nothing pulls back
+        step = (
+            abs(reel.length_rate_mps(turns, max_speed_rps)) * dt_s
+            if max_speed_rps < math.inf
+            else math.inf
+        )
+        change = target - l0
+        if change > step:
+            change = step
+        elif change < -step:
+            change = -step
+        if not math.isfinite(change):
+            return turns, l0  # unlimited and paying out: stays (nothing to follow)
+        new_l0 = l0 + change
+        try:
+            new_turns = reel.position_rev(new_l0 + self._stretch[i])
+        except ValueError:  # the spool cannot pay out that far: it stops where it is
+            return turns, l0
+        return new_turns, new_l0
+
+    @property
+    def positions_rev(self) -> tuple[float, ...]:
+        """The motors' turns after the last step (the given ones, or where torque control
+        turned them)."""
+        return tuple(self._positions)
 
     def slip(self, cable: int, metres: float) -> None:
         """Let cable `cable` (0-based) slip `metres` off its drum (positive: paid out) without
@@ -866,24 +910,6 @@ class ReelPlant:
     def torques_nm(self) -> tuple[float, ...]:
         """The motors' holding torques (N m) after the last step."""
         return self._torques
-
-    @property
-    def stiffness_nm_per_rev(self) -> tuple[float, ...]:
-        """How fast each motor's holding torque grows per motor turn that winds its cable in
-        (N m per rev, >= 0) after the last step, the effector held still: ``k_i * slope_i**2
-        / 2 pi`` with the cable stiffness ``k_i = EA_i / L0_i`` and ``slope_i`` the reel's
-        metres per turn; 0 for a slack cable. An upper bound of the stiffness the motor feels
-        (a moving effector only softens it), for a simulated drive to keep its explicit
-        coupling to the plant stable."""
-        return self._stiffness
-
-    @property
-    def damping_nm_s_per_rev(self) -> tuple[float, ...]:
-        """How much each motor's holding torque grows per turn per second that winds its cable
-        in (N m s per rev, >= 0) after the last step, the effector held still: the cable's
-        damping, ``stiffness_nm_per_rev * beta`` (`CablePlant.cable_damping_s`); 0 for a
-        slack cable and before the first step."""
-        return self._damping
 
     @property
     def tensions_n(self) -> tuple[float, ...]:

@@ -10,8 +10,10 @@ eased out, and when every reel has been still for a while the home pose is decla
 (the offsets that make the encoders say it), as Hangprinter users home with their motors in
 torque mode.
 
-`PretensionRun` is one such run, fed by the control loop every tick: it ramps the torques in
-over `ramp_s` (no jerk on a slack line), and says when every cable has been slower than
+`PretensionRun` is one such run, fed by the control loop every tick: it ramps the tensions in
+over `ramp_s` (no jerk on a slack line; the loop turns them into motor torques through the
+reel model at the reels' turns of that tick, so a spool that builds up still pulls the
+tension, not just the torque, of the start), and says when every cable has been slower than
 `still_mps` for `settle_s` (done), or why the run failed: a cable that moved more than
 `max_travel_m` (a reel that spins free, a cable that slips or is not anchored) or no stillness
 within `timeout_s`.
@@ -32,11 +34,14 @@ class PretensionSettings:
     construction if a value is not finite and positive."""
 
     ramp_s: float = 0.5
-    """The torques rise linearly from zero over this long."""
-    still_mps: float = 0.002
+    """The tensions rise linearly from zero over this long."""
+    still_mps: float = 0.001
     """A cable slower than this (m/s) is still."""
-    settle_s: float = 0.5
-    """Every cable must be still for this long before the home pose is declared."""
+    settle_s: float = 2.0
+    """Every cable must be still for this long before the home pose is declared: longer than
+    half the slowest swing of the effector (on long, flat cables its vertical bounce changes
+    the cable lengths by only a fraction of its motion, so a short window sees a turning point
+    as stillness)."""
     timeout_s: float = 30.0
     """The run fails if the reels are not still by then."""
     max_travel_m: float = 0.5
@@ -52,44 +57,43 @@ class PretensionSettings:
 
 
 class PretensionRun:
-    """One pre-tension in progress (see the module docstring); the loop calls `torques_nm`
-    and `update` every tick. Not thread-safe: the loop thread owns it.
+    """One pre-tension in progress (see the module docstring); the loop calls `ramp` and
+    `update` every tick. Not thread-safe: the loop thread owns it.
 
-    `torques_nm` are the full torques (one per reel, N m, motor's positive direction),
-    `start_lengths_m` the cable lengths from the encoders when the run starts (only their
-    changes matter, so an unhomed reel model serves), `start_s` the clock time it starts.
+    `tensions_n` are the full tensions (one per cable, N), `start_lengths_m` the cable
+    lengths from the encoders when the run starts (only their changes matter, so an unhomed
+    reel model serves), `start_s` the clock time it starts.
     Raises ValueError on a non-finite value or mismatched lengths.
     """
 
     __slots__ = (
-        "_ramped",
         "_still_since_s",
-        "_torques",
         "settings",
         "start_lengths_m",
         "start_s",
         "still_after_s",
+        "tensions_n",
         "worst_mps",
     )
 
     def __init__(
         self,
         settings: PretensionSettings,
-        torques_nm: Sequence[float],
+        tensions_n: Sequence[float],
         start_lengths_m: Sequence[float],
         start_s: float,
     ) -> None:
-        torques = [float(t) for t in torques_nm]
+        tensions = tuple(float(t) for t in tensions_n)
         lengths = [float(v) for v in start_lengths_m]
-        if len(torques) != len(lengths) or not torques:
+        if len(tensions) != len(lengths) or not tensions:
             raise ValueError(
-                f"one torque per cable length needed, got {len(torques)} and {len(lengths)}"
+                f"one tension per cable length needed, got {len(tensions)} and {len(lengths)}"
             )
-        if not all(map(math.isfinite, [*torques, *lengths, start_s])):
-            raise ValueError("pre-tension torques, lengths and start time must be finite")
+        if not all(map(math.isfinite, [*tensions, *lengths, start_s])):
+            raise ValueError("pre-tension tensions, lengths and start time must be finite")
         self.settings = settings
-        self._torques = torques
-        self._ramped = [0.0] * len(torques)
+        self.tensions_n = tensions
+        """The full tensions, once ramped in (N)."""
         self.start_lengths_m = lengths
         self.start_s = float(start_s)
         self._still_since_s: float | None = None
@@ -98,20 +102,11 @@ class PretensionRun:
         self.worst_mps = math.inf
         """The fastest cable's speed at the last update (m/s)."""
 
-    @property
-    def full_torques_nm(self) -> tuple[float, ...]:
-        """The torques once ramped in (N m)."""
-        return tuple(self._torques)
-
-    def torques_nm(self, now_s: float) -> list[float]:
-        """The torques to command at clock time `now_s`: ramped in linearly over `ramp_s`.
-        The list is reused from tick to tick (copy it to keep it). Raises nothing."""
+    def ramp(self, now_s: float) -> float:
+        """The fraction of the full tensions to pull with at clock time `now_s`: 0 at the
+        start, rising linearly to 1 over `ramp_s`. Raises nothing."""
         f = (now_s - self.start_s) / self.settings.ramp_s
-        f = 0.0 if not f > 0.0 else min(f, 1.0)
-        out = self._ramped
-        for i, t in enumerate(self._torques):
-            out[i] = f * t
-        return out
+        return 0.0 if not f > 0.0 else min(f, 1.0)
 
     def update(
         self, now_s: float, lengths_m: Sequence[float], rates_mps: Sequence[float]

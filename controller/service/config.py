@@ -250,10 +250,11 @@ class HomingConfig:
     state_file: str | None = None
     pretension_ramp_s: float = 0.5
     """Pre-tension (`cablebot home --pretension`): the torques rise from zero over this long."""
-    pretension_still_mps: float = 0.002
+    pretension_still_mps: float = 0.001
     """A cable slower than this (m/s) counts as still."""
-    pretension_settle_s: float = 0.5
-    """Every cable still for this long: the home pose is declared."""
+    pretension_settle_s: float = 2.0
+    """Every cable still for this long: the home pose is declared (longer than half the
+    effector's slowest swing)."""
     pretension_timeout_s: float = 30.0
     """The pre-tension faults if the reels are not still by then."""
     pretension_max_travel_m: float = 0.5

@@ -323,9 +323,9 @@ class Controller:
         self._pretension_at: Vec3 = (0.0, 0.0, 0.0)
         self._torque_driver: TorqueDriver | None = None
         """The driver as a `TorqueDriver`, from the first pre-tension on."""
-        self._pretension_tensions_n: tuple[float, ...] = ()
         self._pt_lengths_m: list[float] = [0.0] * self.n
         self._pt_rates_mps: list[float] = [0.0] * self.n
+        self._pt_torques_nm: list[float] = [0.0] * self.n
         self.pretension_result: dict[str, Any] | None = None
         """How the last pre-tension ended (None: none has ended since start-up)."""
         self._save_threads: list[threading.Thread] = []
@@ -1341,7 +1341,7 @@ class Controller:
                 for i, r in enumerate(readings)
             ]
             lengths = [reels[i].length_m(r.position_rev) for i, r in enumerate(readings)]
-            run = PretensionRun(settings, torques, lengths, now_s)
+            run = PretensionRun(settings, tensions, lengths, now_s)
         except ValueError as exc:  # a reel slope of zero, a non-finite number
             raise CommandRefused(f"pretension: {exc}") from None
         try:
@@ -1351,7 +1351,6 @@ class Controller:
         self._torque_driver = drv
         self._pretension = run
         self._pretension_at = p
-        self._pretension_tensions_n = tuple(tensions)
         self.pretension_result = None
         self.commanded_rev = None
         self.commanded_ff_rps = list(self._zero_ff)
@@ -1420,8 +1419,15 @@ class Controller:
                 return
         drv = self._torque_driver
         assert drv is not None  # set with the run
+        # The tensions through the reel model at this tick's turns: a spool that builds up
+        # keeps pulling the tension, not the torque, of the start.
+        f = run.ramp(now_s)
+        torques = self._pt_torques_nm
+        reels = self.reels
+        for i, r in enumerate(readings):
+            torques[i] = reels[i].torque_nm(r.position_rev, f * run.tensions_n[i])
         try:
-            drv.command_torque(run.torques_nm(now_s))
+            drv.command_torque(torques)
         except BusError:
             pass  # counted in driver.stats.bus_errors; the next tick faults if they persist
         except ValueError as exc:
@@ -1443,7 +1449,7 @@ class Controller:
             "ok": True,
             "position_m": list(p),
             "still_after_s": after,
-            "tensions_n": list(self._pretension_tensions_n),
+            "tensions_n": list(run.tensions_n),
             "measured_tensions_n": measured,
             "offsets_rev": dict(zip(map(str, self.node_ids), offsets, strict=True)),
             "saved": False,
@@ -1503,7 +1509,7 @@ class Controller:
         return {
             "active": active,
             "position_m": list(self._pretension_at) if active else None,
-            "tensions_n": list(self._pretension_tensions_n) if active else None,
+            "tensions_n": list(run.tensions_n) if run is not None else None,
             "elapsed_s": now_s - run.start_s if run is not None else None,
             "fastest_cable_mps": (
                 run.worst_mps if run is not None and math.isfinite(run.worst_mps) else None

@@ -37,39 +37,25 @@ command is input_vel (Set_Input_Vel). The dynamics are integrated in sub-steps o
 At rest (no feed-forward, within `REST_SNAP_REV` of input_pos, velocity below
 `REST_SNAP_RPS`) the position snaps onto input_pos, so a settled axis reports input_pos exactly.
 
-TORQUE_CONTROL (Set_Input_Torque; the pre-tension before homing): the drive's velocity limiter
-and the reel's friction make the motor an overdamped torque source. Its velocity command is
-
-    vel_cmd = clamp(G * (input_torque - load_torque), -vel_limit, +vel_limit)
-
-where load_torque is the holding torque the coupling reports (below: the torque the motor needs
-to hold its cable, which winds the cable in; so a torque beyond it winds cable in, a smaller one
-pays cable out, as in `controller.core.reel`) and G is `torque_mobility_rps_per_nm`; the
-velocity moves toward it by at most `max_accel_rps2 * dt` as above, and the position follows
-the new velocity (semi-implicit Euler: the first-order approach to balance does not ring).
-Because the coupling is explicit (the load torque is updated once per bank tick, after the axes
-have moved), G is capped at ``0.5 / (stiffness * dt + damping)`` for each `advance(dt)`, with
-the stiffness (N m per rev: how fast the holding torque grows per turn) and the damping (N m s
-per rev: how fast it grows per turn per second; an elastic cable's internal damping, which over
-one tick weighs like a stiffness of damping / dt, many times the elastic one on a stiff cable)
-the coupling reports with the torque: each tick then closes at most half the torque imbalance,
-so a stiff cable (steel, short) neither rings nor diverges. Without a coupling the load torque,
-the stiffness and the damping are 0: a free reel spins at G * input_torque up to vel_limit
-(nothing holds it). Entering closed loop in TORQUE_CONTROL keeps the last input_torque (0 after
-the driver's `enter_torque_mode`) and starts from rest: the motor accelerates from standstill,
-it does not jump.
+TORQUE_CONTROL (Set_Input_Torque; the pre-tension before homing): the motor makes the torque it
+is told (Torque_Target = Torque_Estimate = input_torque by Get_Torques). With a load (below) the
+load decides how the reel turns: the coupling treats the reel as an ideal torque source that
+pulls its cable with the tension that torque holds, turning no faster than vel_limit
+(`controller.core.plant.ReelPlant.step`, `pulls_nm`), and the axis takes the turns the
+coupling gives it. Without a load nothing resists the motor: a free reel spins at
+G * input_torque, up to vel_limit, with G = `torque_mobility_rps_per_nm` (a friction-limited
+free spin), reached at most at `max_accel_rps2`. Entering closed loop in TORQUE_CONTROL keeps
+the last input_torque (0 after the driver's `enter_torque_mode`) and starts from rest.
 
 Load (a physical plant): the bank may be given an `AxisCoupling`, stepped once per tick after
-the axes move with every axis's motor position; it returns the torque each motor needs to hold
-its cable (`controller.core.plant.ReelPlant`: one plant for all axes, since the effector couples
-them), and each motor's stiffness (`AxisCoupling.stiffness_nm_per_rev`). In position and
-velocity control the motion model above is unchanged (the motor follows its loop whatever the
-load: a stiff drive); the holding torque is what the axis reports by Get_Torques (0x1C, cyclic
-every `torque_period_s` when > 0, and by RTR), Torque_Target and Torque_Estimate both. In
-TORQUE_CONTROL it reports input_torque for both (the motor makes the torque it is told; the
-imbalance becomes motion), and 0 in IDLE (the reel is braked: the brake, not the motor, holds
-the cable). Without a coupling the torque
-is 0: the kinematic simulator knows no load.
+the axes move with every axis's motor position (and the torque of every axis in torque
+control); it returns the torque each motor makes or needs to hold its cable
+(`controller.core.plant.ReelPlant`: one plant for all axes, since the effector couples them).
+In position and velocity control the motion model above is unchanged (the motor follows its
+loop whatever the load: a stiff drive); the holding torque is what the axis reports by
+Get_Torques (0x1C, cyclic every `torque_period_s` when > 0, and by RTR), Torque_Target and
+Torque_Estimate both; 0 in IDLE (the reel is braked: the brake, not the motor, holds the
+cable). Without a coupling the torque is 0: the kinematic simulator knows no load.
 
 Fault injection for tests: `silence(True)` (no frames in or out), `set_axis_error(code)` (disarm
 with that error, reported by heartbeat), `send_corrupt()` (a wrong-length encoder frame),
@@ -134,7 +120,7 @@ class SimODriveAxis:
         acceleration, `pos_gain` the position loop gain in (rev/s)/rev, `watchdog_timeout_s`
         the axis watchdog (0 = off; see the module docstring), `torque_period_s` the period of
         the cyclic Get_Torques broadcast (0 = off: by RTR only), `torque_mobility_rps_per_nm`
-        the velocity per newton metre of torque imbalance in TORQUE_CONTROL (G in the module
+        the velocity per newton metre of a free reel in TORQUE_CONTROL (G in the module
         docstring). Raises ValueError on a node id outside 0..63, a non-finite position, a
         non-positive limit, gain, mobility or period, or a negative or non-finite watchdog
         timeout or torque period.
@@ -170,10 +156,8 @@ class SimODriveAxis:
         self.torque_mobility_rps_per_nm = torque_mobility_rps_per_nm
         self.load_torque_nm = 0.0
         """The torque the load needs of the motor (set by the bank's coupling each tick)."""
-        self.load_stiffness_nm_per_rev = 0.0
-        """How fast that torque grows per turn (set with it; caps the torque-mode mobility)."""
-        self.load_damping_nm_s_per_rev = 0.0
-        """How fast it grows per turn per second (set with it; caps the mobility too)."""
+        self.coupled = False
+        """True when a coupling (a load) turns this axis in TORQUE_CONTROL (set by the bank)."""
         self.input_torque_nm = 0.0
         """The TORQUE_CONTROL set-point (Set_Input_Torque)."""
         self._torque_due_s = 0.0
@@ -229,25 +213,30 @@ class SimODriveAxis:
         with self._lock:
             self._drift_rate_rps = rate_rev_per_s
 
-    def set_load_torque(
-        self,
-        torque_nm: float,
-        stiffness_nm_per_rev: float = 0.0,
-        damping_nm_s_per_rev: float = 0.0,
-    ) -> None:
-        """Set the torque (N m) the load needs of the motor, how fast it grows per turn (N m
-        per rev, >= 0) and per turn per second (N m s per rev, >= 0; see the module docstring).
-        A non-finite torque or a non-finite or negative stiffness or damping is ignored (the
-        call changes nothing)."""
-        if (
-            math.isfinite(torque_nm)
-            and 0.0 <= stiffness_nm_per_rev < math.inf
-            and 0.0 <= damping_nm_s_per_rev < math.inf
-        ):
+    def set_load_torque(self, torque_nm: float) -> None:
+        """Set the torque (N m) the load needs of the motor; a non-finite value is ignored."""
+        if math.isfinite(torque_nm):
             with self._lock:
                 self.load_torque_nm = torque_nm
-                self.load_stiffness_nm_per_rev = stiffness_nm_per_rev
-                self.load_damping_nm_s_per_rev = damping_nm_s_per_rev
+
+    @property
+    def pull_nm(self) -> float | None:
+        """The torque the motor makes in TORQUE_CONTROL (closed loop), else None: what the
+        bank hands its coupling, which then turns the reel (`follow_load`)."""
+        if (
+            self.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL
+            and self.control_mode == cs.ControlMode.TORQUE_CONTROL
+        ):
+            return self.input_torque_nm
+        return None
+
+    def follow_load(self, position_rev: float, dt_s: float) -> None:
+        """In TORQUE_CONTROL with a load: the reel is at `position_rev` after `dt_s` (the
+        coupling turned it); the velocity follows. A non-finite value is ignored."""
+        if math.isfinite(position_rev) and dt_s > 0.0:
+            with self._lock:
+                self.velocity_rps = (position_rev - self.position_rev) / dt_s
+                self.position_rev = position_rev
 
     @property
     def torque_estimate_nm(self) -> float:
@@ -411,7 +400,8 @@ class SimODriveAxis:
         if self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
             return
         if self.control_mode == cs.ControlMode.TORQUE_CONTROL:
-            self._move_torque(dt)
+            if not self.coupled:  # with a load, the coupling turns the reel (`follow_load`)
+                self._move_free_torque(dt)
             return
         if (
             self.velocity_rps == 0.0
@@ -427,18 +417,12 @@ class SimODriveAxis:
         for _ in range(n):
             self._substep(h)
 
-    def _move_torque(self, dt: float) -> None:
-        """TORQUE_CONTROL motion over `dt` (module docstring): the load torque and stiffness
-        are those of the coupling's last tick, so the mobility is capped for this `dt`."""
-        imbalance = self.input_torque_nm - self.load_torque_nm
-        if imbalance == 0.0 and self.velocity_rps == 0.0:
-            return  # balanced at rest: nothing to integrate
-        g = self.torque_mobility_rps_per_nm
-        stiff = self.load_stiffness_nm_per_rev * dt + self.load_damping_nm_s_per_rev
-        if g * stiff > 0.5:
-            g = 0.5 / stiff
+    def _move_free_torque(self, dt: float) -> None:
+        """TORQUE_CONTROL without a load over `dt` (module docstring): spin at G * torque."""
+        if self.input_torque_nm == 0.0 and self.velocity_rps == 0.0:
+            return  # no torque, at rest: nothing to integrate
         vmax = self.max_velocity_rps
-        vel_cmd = max(-vmax, min(vmax, g * imbalance))
+        vel_cmd = max(-vmax, min(vmax, self.torque_mobility_rps_per_nm * self.input_torque_nm))
         n = min(_MAX_SUBSTEPS, math.ceil(dt / MAX_SUBSTEP_S))
         h = dt / n
         dv_max = self.max_accel_rps2 * h
@@ -480,22 +464,23 @@ class SimODriveAxis:
 class AxisCoupling(Protocol):
     """What the axes move: stepped once per tick with every axis's motor position."""
 
-    def step(self, positions_rev: Sequence[float], dt_s: float) -> Sequence[float]:
-        """Advance by `dt_s` with the motors at `positions_rev` (the bank's axis order); return
-        the torque (N m) each motor needs. May raise: the bank counts it and keeps the last
-        torques."""
+    def step(
+        self,
+        positions_rev: Sequence[float],
+        dt_s: float,
+        pulls_nm: Sequence[float | None] | None = None,
+        max_speeds_rps: Sequence[float] | None = None,
+    ) -> Sequence[float]:
+        """Advance by `dt_s` with the motors at `positions_rev` (the bank's axis order), those
+        in torque control pulling with `pulls_nm` (None for the others) at most
+        `max_speeds_rps`; return the torque (N m) each motor makes or needs. May raise: the
+        bank counts it and keeps the last torques."""
         ...
 
     @property
-    def stiffness_nm_per_rev(self) -> Sequence[float]:
-        """After `step`: how fast each motor's torque grows per turn (N m per rev, >= 0), the
-        magnitude of d(torque)/d(position); caps the axes' torque-control mobility."""
-        ...
-
-    @property
-    def damping_nm_s_per_rev(self) -> Sequence[float]:
-        """After `step`: how fast each motor's torque grows per turn per second (N m s per
-        rev, >= 0), the magnitude of d(torque)/d(velocity); caps the mobility too."""
+    def positions_rev(self) -> Sequence[float]:
+        """After `step`: every motor's turns (those given, or where the load turned an axis in
+        torque control)."""
         ...
 
 
@@ -544,8 +529,9 @@ def run_sim(
 ) -> None:
     """Serve `axes` on `bus` until `stop_event` is set: answer commands, broadcast every tick.
 
-    Every tick: move each axis, step the `coupling` (if any) and hand each axis its torque
-    stiffness and damping, then send the broadcasts that fall due. Receive errors, send errors
+    Every tick: move each axis, step the `coupling` (if any, with the torques of the axes in
+    torque control) and hand each axis its torque (and an axis in torque control the turns the
+    load gave it), then send the broadcasts that fall due. Receive errors, send errors
     and coupling errors are swallowed (a simulated node keeps running; coupling errors are
     counted in `stats`); undecodable frames are ignored. Returns within about one tick after
     `stop_event` is set.
@@ -557,6 +543,9 @@ def run_sim(
     last = clock()
     next_tick = last + tick_s
     st = SimStats() if stats is None else stats
+    if coupling is not None:
+        for a in axes:
+            a.coupled = True
 
     def send(frames: Iterable[cs.Frame]) -> None:
         for f in frames:
@@ -587,19 +576,23 @@ def run_sim(
             axis.advance(dt)
         if coupling is not None:
             try:
-                torques = coupling.step([a.position_rev for a in axes], dt)
+                pulls = [a.pull_nm for a in axes]
+                any_pull = any(p is not None for p in pulls)
+                torques = coupling.step(
+                    [a.position_rev for a in axes],
+                    dt,
+                    pulls if any_pull else None,
+                    [a.max_velocity_rps for a in axes] if any_pull else None,
+                )
             except Exception as exc:  # the simulated robot keeps serving; the error is counted
                 st.coupling_errors += 1
                 st.last_coupling_error = f"{type(exc).__name__}: {exc}"
             else:
-                for axis, torque, stiffness, damping in zip(
-                    axes,
-                    torques,
-                    coupling.stiffness_nm_per_rev,
-                    coupling.damping_nm_s_per_rev,
-                    strict=False,
-                ):
-                    axis.set_load_torque(torque, stiffness, damping)
+                positions = coupling.positions_rev if any_pull else None
+                for k, axis in enumerate(axes):
+                    axis.set_load_torque(torques[k])
+                    if positions is not None and pulls[k] is not None:
+                        axis.follow_load(positions[k], dt)
         for axis in axes:
             send(axis.broadcasts(dt))
         st.ticks += 1

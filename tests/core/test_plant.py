@@ -526,37 +526,83 @@ def test_reel_plant_refuses_bad_inputs_and_keeps_its_state() -> None:
         ReelPlant(rp.plant.params, reels, (0.0, 0.0, 0.1), [math.nan, 0.0, 0.0, 0.0])
 
 
+# --- reels in torque control (the pre-tension) ---------------------------------------------
+
+
+def _pull_until_still(rp, pulls, speeds, dt=0.001, max_s=60.0, still_mps=1e-4):  # type: ignore[no-untyped-def]
+    """Step `rp` with every reel in torque control until the effector has been slower than
+    `still_mps` for 1 s; returns the simulated seconds it took."""
+    still = 0
+    steps = 0
+    while steps * dt < max_s:
+        rp.step(rp.positions_rev, dt, pulls, speeds)
+        steps += 1
+        still = still + 1 if math.hypot(*rp.plant.velocity_mps) < still_mps else 0
+        if still * dt >= 1.0:
+            return steps * dt
+    raise AssertionError(f"not still after {max_s} s: at {rp.position_m}")
+
+
 @pytest.mark.parametrize(
     ("cfg_name", "pose", "mass_kg", "ea_n"),
-    [("paper-acre.toml", (3.0, -2.0, 2.0), 5.0, 1e7), ("desk.toml", (0.1, 0.05, 0.3), 0.5, 1e5)],
+    [("paper-acre.toml", (3.0, -2.0, 2.0), 5.0, 2e5), ("desk.toml", (0.1, 0.05, 0.3), 0.5, 1e5)],
 )
-def test_reel_plant_stiffness_is_the_holding_torques_slope_per_turn(
+def test_reels_pulling_the_statics_torques_hold_the_pose_and_draw_the_effector_back_to_it(
     cfg_name: str, pose: tuple[float, float, float], mass_kg: float, ea_n: float
 ) -> None:
-    _, reels, turns, rp, _ = reel_plant(cfg_name, pose, mass_kg, ea_n)
-    rp.step(turns, 0.001)
-    stiffness = rp.stiffness_nm_per_rev
-    assert len(stiffness) == 4 and all(s > 0.0 for s in stiffness)
-    for i, reel in enumerate(reels):
-        slope = reel.length_rate_mps(turns[i], 1.0)
-        length = math.dist(rp.plant.params.anchors_m[i], rp.position_m)
-        l0 = rp.plant.unstretched_m[i]
-        assert stiffness[i] == pytest.approx(ea_n / l0 * slope * slope / (2 * math.pi), rel=1e-12)
-        # the same number from the torque itself: turn one motor by a little and freeze the
-        # effector (the stiffness is the cable's alone, the effector held still)
-        d = 1e-6
-        wound = l0 - d * abs(slope)  # wound in by d turns: shorter, tauter
-        tension = ea_n / wound * (length - wound)
-        before = reel.torque_nm(turns[i], rp.tensions_n[i])
-        after = reel.torque_nm(turns[i] - d * math.copysign(1.0, slope), tension)
-        assert abs(after - before) / d == pytest.approx(stiffness[i], rel=1e-3)
+    _, reels, turns, rp, statics = reel_plant(cfg_name, pose, mass_kg, ea_n)
+    pulls = [r.torque_nm(p, t) for r, p, t in zip(reels, turns, statics.tensions_n, strict=True)]
+    speeds = [abs(r.velocity_rps(p, 0.05)) for r, p in zip(reels, turns, strict=True)]
+    # at the pose, pulling exactly what holds it: nothing moves, the torques are the pulls
+    torques = rp.step(turns, 0.001, pulls, speeds)
+    assert torques == pytest.approx(pulls, rel=1e-12)
+    assert math.dist(rp.position_m, pose) < 1e-9
+    assert list(rp.tensions_n) == pytest.approx(statics.tensions_n, rel=1e-6)
+    # two cables slip 2 and 1 cm off their drums: slack, the effector falls onto the others;
+    # the reels wind them in (at most 0.05 m/s) and the constant pulls draw it back to the pose
+    rp.slip(1, 0.02)
+    rp.slip(3, 0.01)
+    rp.step(rp.positions_rev, 0.001, pulls, speeds)
+    assert rp.tensions_n[1] == 0.0 and rp.tensions_n[3] == 0.0
+    took = _pull_until_still(rp, pulls, speeds)
+    assert math.dist(rp.position_m, pose) < 1e-3, (rp.position_m, took)
+    assert list(rp.tensions_n) == pytest.approx(statics.tensions_n, rel=1e-3)
+    # and the reels that slipped are where the geometry wants them again: 2 and 1 cm wound in
+    assert rp.positions_rev[1] - turns[1] == pytest.approx(
+        -0.02 / reels[1].length_rate_mps(turns[1], 1.0), rel=0.05
+    )
+    assert rp.positions_rev[3] - turns[3] == pytest.approx(
+        -0.01 / reels[3].length_rate_mps(turns[3], 1.0), rel=0.05
+    )
 
 
-def test_reel_plant_stiffness_is_zero_for_a_slack_cable() -> None:
-    _, _, turns, rp, _ = reel_plant("desk.toml", (0.0, 0.0, 0.1), 0.5, 1e5)
-    rp.slip(2, 0.01)  # 1 cm off the drum: slack at once, and stays slack with the effector still
-    rp.step(turns, 0.001)
-    stiffness = rp.stiffness_nm_per_rev
-    assert stiffness[2] == 0.0 and rp.tensions_n[2] == 0.0
-    assert all(stiffness[i] > 0.0 for i in (0, 1, 3))
-    assert rp.plant.cable_stiffness_n_per_m()[2] == 0.0
+def test_a_slack_cable_is_wound_in_no_faster_than_the_speed_limit() -> None:
+    _, reels, turns, rp, statics = reel_plant("desk.toml", (0.0, 0.0, 0.1), 0.5, 1e5)
+    rp.slip(0, 0.1)  # 10 cm of slack on cable 1
+    pulls: list[float | None] = [
+        reels[0].torque_nm(turns[0], statics.tensions_n[0]),
+        None,
+        None,
+        None,
+    ]
+    speed_rps = abs(reels[0].velocity_rps(turns[0], 0.05))  # 0.05 m/s of cable
+    start = rp.positions_rev[0]
+    for _ in range(100):  # 0.1 s: 5 mm at most, still slack
+        rp.step(turns, 0.001, pulls, [speed_rps, 0.0, 0.0, 0.0])
+    wound_m = abs(reels[0].length_m(rp.positions_rev[0]) - reels[0].length_m(start))
+    assert wound_m == pytest.approx(0.005, rel=1e-6)
+    assert rp.tensions_n[0] == 0.0
+    assert rp.torques_nm[0] == pulls[0]  # the motor makes its torque, slack or not
+    assert rp.positions_rev[1:] == tuple(turns[1:])  # position-controlled reels: as given
+
+
+def test_a_torque_that_pays_out_lets_the_reel_run_at_the_speed_limit() -> None:
+    _, reels, turns, rp, _ = reel_plant("desk.toml", (0.0, 0.0, 0.1), 0.5, 1e5)
+    speed_rps = 2.0
+    push = -reels[2].torque_nm(turns[2], 1.0)  # the torque of a cable that would push
+    for _ in range(10):
+        rp.step(turns, 0.001, [None, None, push, None], [0.0, 0.0, speed_rps, 0.0])
+    assert abs(rp.positions_rev[2] - turns[2]) == pytest.approx(0.02, rel=1e-9)
+    assert reels[2].length_m(rp.positions_rev[2]) > reels[2].length_m(turns[2])  # paid out
+    with pytest.raises(PlantError, match="pulls_nm"):
+        rp.step(turns, 0.001, [None, None, math.nan, None])

@@ -13,12 +13,12 @@ from controller.core.pretension import PretensionRun, PretensionSettings
 S = PretensionSettings(
     ramp_s=0.5, still_mps=0.002, settle_s=0.5, timeout_s=10.0, max_travel_m=0.3, speed_mps=0.05
 )
-TORQUES = (-0.8, -0.9, 0.7, -1.0)
+TENSIONS = (104.4, 90.0, 120.5, 99.0)
 LENGTHS = (40.0, 41.0, 42.0, 43.0)
 
 
 def _run() -> PretensionRun:
-    return PretensionRun(S, TORQUES, LENGTHS, 100.0)
+    return PretensionRun(S, TENSIONS, LENGTHS, 100.0)
 
 
 @pytest.mark.parametrize(
@@ -31,23 +31,21 @@ def test_settings_must_be_finite_and_positive(field: str, bad: float) -> None:
 
 
 def test_run_refuses_mismatched_or_non_finite_inputs() -> None:
-    with pytest.raises(ValueError, match="one torque per cable"):
-        PretensionRun(S, TORQUES, LENGTHS[:3], 0.0)
+    with pytest.raises(ValueError, match="one tension per cable"):
+        PretensionRun(S, TENSIONS, LENGTHS[:3], 0.0)
     with pytest.raises(ValueError, match="finite"):
         PretensionRun(S, (math.nan, 0.0, 0.0, 0.0), LENGTHS, 0.0)
     with pytest.raises(ValueError, match="finite"):
-        PretensionRun(S, TORQUES, LENGTHS, math.inf)
+        PretensionRun(S, TENSIONS, LENGTHS, math.inf)
 
 
 @given(st.floats(min_value=-10.0, max_value=10.0))
-def test_torques_ramp_in_linearly_and_never_overshoot(dt_s: float) -> None:
+def test_the_ramp_rises_linearly_from_zero_to_one(dt_s: float) -> None:
     run = _run()
-    got = run.torques_nm(100.0 + dt_s)
-    f = min(max(dt_s / S.ramp_s, 0.0), 1.0)
-    for g, full in zip(got, TORQUES, strict=True):
-        assert g == pytest.approx(f * full, abs=1e-12)
-        assert abs(g) <= abs(full)
-        assert g == 0.0 or math.copysign(1.0, g) == math.copysign(1.0, full)
+    f = run.ramp(100.0 + dt_s)
+    assert 0.0 <= f <= 1.0
+    assert f == pytest.approx(min(max(dt_s / S.ramp_s, 0.0), 1.0), abs=1e-12)
+    assert run.tensions_n == TENSIONS
 
 
 def test_still_after_the_ramp_for_the_settle_time_is_done() -> None:

@@ -496,121 +496,57 @@ def test_free_axis_in_torque_mode_turns_at_mobility_times_torque_up_to_vel_limit
 
 def test_entering_closed_loop_in_torque_mode_starts_from_rest() -> None:
     axis = SimODriveAxis(1, initial_position_rev=3.0, max_accel_rps2=200.0)
-    axis.set_load_torque(-1.0)
     axis.handle(cs.SetControllerMode(1, cs.ControlMode.TORQUE_CONTROL, cs.InputMode.PASSTHROUGH))
-    axis.handle(cs.SetInputTorque(1, 0.0))
+    axis.handle(cs.SetInputTorque(1, -1.0))
     axis.step(0.1)  # IDLE: braked, nothing moves, torque 0
     assert (axis.position_rev, axis.velocity_rps, axis.torque_estimate_nm) == (3.0, 0.0, 0.0)
+    assert axis.pull_nm is None
     axis.handle(cs.SetAxisState(1, cs.AxisState.CLOSED_LOOP_CONTROL))
-    assert axis.torque_estimate_nm == 0.0
+    assert axis.torque_estimate_nm == -1.0 and axis.pull_nm == -1.0
     axis.step(0.001)
-    # the load pays cable out (zero torque against -1 N m), but from standstill: one tick of
-    # acceleration, not a jump to G * 1 N m
-    assert axis.velocity_rps == pytest.approx(0.2)
-    assert axis.position_rev == pytest.approx(3.0 + 0.2 * 0.001)
+    # from standstill: one tick of acceleration, not a jump to G * 1 N m
+    assert axis.velocity_rps == pytest.approx(-0.2)
+    assert axis.position_rev == pytest.approx(3.0 - 0.2 * 0.001)
 
 
 def test_torque_mode_integrates_where_position_mode_would_rest() -> None:
     # In closed loop the set-point equals the position and the axis is still: the position
-    # mode's fast path would skip it, but in torque mode an imbalance must move the reel.
+    # mode's fast path would skip it, but in torque mode a torque must move a free reel.
     axis = torque_axis()
     assert axis.position_rev == axis.input_pos_rev and axis.velocity_rps == 0.0
     axis.handle(cs.SetInputTorque(1, 0.1))
     axis.step(0.01)
     assert axis.velocity_rps > 0.0 and axis.position_rev > 0.0
-    # balanced and at rest: it stays exactly where it is
-    balanced = torque_axis()
-    balanced.set_load_torque(0.3, 5.0)
-    balanced.handle(cs.SetInputTorque(1, 0.3))
-    balanced.step(1.0)
-    assert (balanced.position_rev, balanced.velocity_rps) == (0.0, 0.0)
+    # no torque and at rest: it stays exactly where it is
+    idle = torque_axis()
+    idle.step(1.0)
+    assert (idle.position_rev, idle.velocity_rps) == (0.0, 0.0)
 
 
-class Spring:
-    """A linear torsion spring with damping on one axis: the holding torque of a cable wound
-    around the reel, ``torque = -(k * (p0 - p) + c * v)`` (winding in, at p < p0, pulls harder);
-    a slack cable (p > p0) pulls nothing."""
-
-    def __init__(self, k_nm_per_rev: float, c_nm_s_per_rev: float, p0_rev: float) -> None:
-        self.k = k_nm_per_rev
-        self.c = c_nm_s_per_rev
-        self.p0 = p0_rev
-        self.last = p0_rev
-
-    def torque(self, p: float, dt: float) -> float:
-        v = (p - self.last) / dt
-        self.last = p
-        stretch = self.p0 - p
-        return -max(0.0, self.k * stretch - self.c * v) if stretch > 0.0 else 0.0
-
-    def stiffness(self) -> tuple[float, float]:
-        """(stiffness, damping) the coupling reports: 0 while slack, as `ReelPlant` does."""
-        return (self.k, self.c) if self.last < self.p0 else (0.0, 0.0)
-
-
-@pytest.mark.parametrize(
-    ("k_nm_per_rev", "c_nm_s_per_rev"),
-    [
-        (8.0, 0.0),  # braided line, no damping
-        (8.0, 0.15),  # with its internal damping (17 ticks of it, as the plant's)
-        (2.0e3, 0.0),  # EA 1e7 on a 10 cm cable, 0.05 m per turn: ~4000 N m/rev
-        (4.0e3, 60.0),
-    ],
-)
-def test_torque_mode_against_a_stiff_spring_settles_at_the_balance_without_ringing(
-    k_nm_per_rev: float, c_nm_s_per_rev: float
-) -> None:
-    dt = 0.001
-    want_nm = -0.8  # wind in until the spring holds 0.8 N m
-    axis = torque_axis(max_velocity_rps=20.0, max_accel_rps2=200.0)
-    spring = Spring(k_nm_per_rev, c_nm_s_per_rev, p0_rev=-0.5)  # 0.5 turn of slack first
-    axis.handle(cs.SetInputTorque(1, want_nm))
-    balance = spring.p0 + want_nm / k_nm_per_rev
-    errors = []
-    caught = None
-    for i in range(3000):
-        axis.advance(dt)
-        axis.set_load_torque(spring.torque(axis.position_rev, dt), *spring.stiffness())
-        errors.append(axis.position_rev - balance)
-        if caught is None and axis.position_rev < spring.p0:
-            caught = i
-    assert abs(errors[-1]) < 1e-9 and abs(axis.velocity_rps) < 1e-6
-    assert axis.load_torque_nm == pytest.approx(want_nm, rel=1e-6)
-    # once the cable caught, no ringing: the reel overruns the catch (it brakes at max_accel
-    # from its take-up speed), comes back, and creeps onto the balance from one side
-    assert caught is not None
-    after = errors[caught:]
-    turns = [
-        k
-        for k in range(1, len(after) - 1)
-        if (after[k] - after[k - 1]) * (after[k + 1] - after[k]) < 0.0
-    ]
-    assert len(turns) <= 2, turns
-
-
-def test_without_the_cap_a_stiff_spring_would_ring() -> None:
-    # the same stiff spring, its stiffness withheld from the axis: the explicit coupling rings
-    # (held to a limit cycle only by the acceleration limit)
-    dt = 0.001
-    axis = torque_axis(max_velocity_rps=20.0, max_accel_rps2=200.0)
-    spring = Spring(2.0e3, 0.0, p0_rev=0.0)
+def test_a_coupled_axis_in_torque_mode_is_turned_by_its_load() -> None:
+    axis = torque_axis(max_velocity_rps=20.0)
+    axis.coupled = True
     axis.handle(cs.SetInputTorque(1, -0.8))
-    late = []
-    for i in range(2000):
-        axis.advance(dt)
-        axis.set_load_torque(spring.torque(axis.position_rev, dt))  # stiffness not given
-        if i >= 1900:
-            late.append(abs(axis.velocity_rps))
-    assert sum(late) / len(late) > 0.1  # still swinging after 1.9 s instead of settling
+    axis.step(0.5)
+    assert (axis.position_rev, axis.velocity_rps) == (0.0, 0.0)  # it does not move itself
+    assert axis.pull_nm == -0.8
+    axis.follow_load(-0.004, 0.001)  # the plant wound it in 0.004 turns in one tick
+    assert (axis.position_rev, axis.velocity_rps) == (-0.004, pytest.approx(-4.0))
+    (frame,) = [f for f in axis.step(0.01) if cs.decode(*f).__class__ is cs.EncoderEstimates]
+    assert cs.decode(*frame) == cs.EncoderEstimates(1, pytest.approx(-0.004), pytest.approx(-4.0))
+    axis.follow_load(math.nan, 0.001)  # ignored
+    assert axis.position_rev == -0.004
+    # in position control the load does not turn it: pull_nm says so to the bank
+    axis.handle(cs.SetControllerMode(1, cs.ControlMode.POSITION_CONTROL, cs.InputMode.PASSTHROUGH))
+    assert axis.pull_nm is None
 
 
 def test_set_load_torque_ignores_bad_values() -> None:
     axis = SimODriveAxis(1)
-    axis.set_load_torque(-0.5, 3.0, 0.1)
-    for bad in ((math.nan, 1.0, 0.0), (0.1, -1.0, 0.0), (0.1, math.inf, 0.0), (0.1, 1.0, -0.1)):
-        axis.set_load_torque(*bad)
-    assert (axis.load_torque_nm, axis.load_stiffness_nm_per_rev) == (-0.5, 3.0)
-    assert axis.load_damping_nm_s_per_rev == 0.1
+    axis.set_load_torque(-0.5)
+    for bad in (math.nan, math.inf, -math.inf):
+        axis.set_load_torque(bad)
+    assert axis.load_torque_nm == -0.5
     with pytest.raises(ValueError, match="torque_mobility_rps_per_nm"):
         SimODriveAxis(1, torque_mobility_rps_per_nm=0.0)
 

@@ -17,7 +17,9 @@ from controller.core.statics import solve_tensions
 from tests.fakes import make_config
 from tests.service.test_loop import DT, RATE_HZ, Rig
 
-SETTLE_TICKS = int((0.5 + 0.5) * RATE_HZ)  # ramp_s + settle_s at the defaults
+RAMP_S = 0.5  # the defaults
+SETTLE_S = 2.0
+SETTLE_TICKS = int((RAMP_S + SETTLE_S) * RATE_HZ)
 
 
 def _statics(rig: Rig, p: tuple[float, float, float]) -> tuple[float, ...]:
@@ -61,7 +63,7 @@ def test_pretension_pulls_with_the_statics_torques_then_homes_where_the_reels_re
     rig.driver.torque_velocity_rps = [0.0] * 4
     n = rig.until(lambda: rig.state() is not State.PRETENSIONING, 2 * SETTLE_TICKS)
     assert rig.driver.torques[-1] == pytest.approx(want)
-    assert n >= int(0.5 * RATE_HZ) - 2  # still for settle_s before the home is declared
+    assert n >= int(SETTLE_S * RATE_HZ) - 2  # still for settle_s before the home is declared
     assert rig.state() is State.HOLDING, rig.ctl.reason
     assert rig.ctl.home_source == "pretension"
     assert "leave_torque_mode" in rig.driver.calls
@@ -78,7 +80,7 @@ def test_pretension_pulls_with_the_statics_torques_then_homes_where_the_reels_re
     assert st["active"] is False
     res = st["result"]
     assert res["ok"] is True and res["position_m"] == list(p)
-    assert res["still_after_s"] == pytest.approx(0.7 + 0.5, abs=0.05)
+    assert res["still_after_s"] == pytest.approx(0.7 + SETTLE_S, abs=0.05)
     assert set(res["offsets_rev"]) == {str(n) for n in rig.ctl.node_ids}
     # and the robot moves as usual
     rig.do(Move((p[0] + 0.5, p[1], p[2])))
