@@ -226,6 +226,12 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
         + ("no power-up pose (run `cablebot home X Y Z`)" if pu is None else f"power-up {pu} m")
         + (f", offsets saved to {h.state_file}" if h.state_file else ", offsets not saved")
     )
+    if cfg.payload is not None:
+        lines.append(
+            f"pretension `home --pretension`: at most {h.pretension_speed_mps:g} m/s of cable, "
+            f"still below {h.pretension_still_mps * 1e3:g} mm/s for {h.pretension_settle_s:g} s, "
+            f"at most {h.pretension_max_travel_m:g} m per cable in {h.pretension_timeout_s:g} s"
+        )
     b = cfg.bus
     opts = "".join(f", {k}={v}" for k, v in b.options.items())
     rate = "" if b.bitrate is None else f", {b.bitrate} bit/s"

@@ -1324,6 +1324,11 @@ class Controller:
                 "pretension: needs [payload] mass_kg (the reels pull with the tensions that hold "
                 "the payload at the home pose)"
             )
+        if self.cfg.sim.enabled and self.cfg.sim.plant == "kinematic":
+            raise CommandRefused(
+                'pretension: the kinematic simulator carries no load, so its reels would spin '
+                'free; use [sim] plant = "physical"'
+            )
         self._refuse_stale(readings, now_s)
         p = cmd.position_m
         reason = self._check_target(p)

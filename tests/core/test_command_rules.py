@@ -30,6 +30,7 @@ from controller.core.states import (
     command_table_markdown,
     refusal,
 )
+from tests.fakes import make_config
 from tests.service.test_loop import RATE_HZ, Rig
 
 README = pathlib.Path(__file__).resolve().parents[2] / "README.md"
@@ -62,7 +63,8 @@ def test_readme_shows_the_table_of_the_code() -> None:
 
 def _in_state(state: State) -> Rig:
     """A fresh rig (fake driver and clock) brought to `state`."""
-    rig = Rig()
+    # Drives of a real rig (a kinematic simulator has nothing to pre-tension against).
+    rig = Rig(make_config(loop={"rate_hz": RATE_HZ}, sim={"enabled": False}))
     rig.tick(2)
     if state is State.DISARMED:
         return rig

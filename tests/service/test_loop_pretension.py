@@ -28,8 +28,14 @@ def _statics(rig: Rig, p: tuple[float, float, float]) -> tuple[float, ...]:
     return solve_tensions(cfg.anchors_m, p, cfg.payload.mass_kg, t.min_n, t.max_n).tensions_n
 
 
+def _rig_cfg(**homing: Any) -> Any:
+    """The built-in robot on real (fake) drives: its kinematic simulator off."""
+    cfg = make_config(loop={"rate_hz": RATE_HZ}, sim={"enabled": False})
+    return replace(cfg, homing=replace(cfg.homing, **homing)) if homing else cfg
+
+
 def _armed_rig(**kw: Any) -> Rig:
-    rig = Rig(**kw)
+    rig = Rig(**{"cfg": _rig_cfg(), **kw})
     rig.arm()
     return rig
 
@@ -88,7 +94,7 @@ def test_pretension_pulls_with_the_statics_torques_then_homes_where_the_reels_re
 
 
 def test_pretension_from_disarmed_arms_in_torque_control() -> None:
-    rig = Rig()
+    rig = Rig(_rig_cfg())
     rig.tick(2)
     assert rig.state() is State.DISARMED and not rig.driver.armed
     rig.do(Pretension(rig.start))
@@ -129,9 +135,7 @@ def test_a_reel_that_winds_on_and_on_faults_and_holds_where_it_is() -> None:
 
 
 def test_reels_that_never_come_still_fault_at_the_timeout() -> None:
-    cfg = make_config(loop={"rate_hz": RATE_HZ})
-    cfg = replace(cfg, homing=replace(cfg.homing, pretension_timeout_s=2.0))
-    rig = _armed_rig(cfg=cfg)
+    rig = _armed_rig(cfg=_rig_cfg(pretension_timeout_s=2.0))
     rig.do(Pretension(rig.start))
     ticks = 0
     while rig.state() is State.PRETENSIONING:
@@ -202,7 +206,7 @@ def test_an_axis_fault_during_the_pretension_faults() -> None:
 
 
 def test_pretension_is_refused_without_a_payload() -> None:
-    cfg = replace(make_config(loop={"rate_hz": RATE_HZ}), payload=None, tension=None)
+    cfg = replace(_rig_cfg(), payload=None, tension=None)
     rig = _armed_rig(cfg=cfg)
     why = rig.refused(Pretension(rig.start))
     assert "needs [payload] mass_kg" in why
@@ -256,10 +260,18 @@ def test_pretension_outside_the_limits_or_with_stale_encoders_is_refused() -> No
     why = rig.refused(Pretension((s[0], s[1], 7.5)))  # 0.12 m under the anchors
     assert why.startswith("home position [0.0000, 0.0000, 7.5000]: z=7.5 m above"), why
     assert rig.state() is State.HOLDING
-    rig = Rig()  # disarmed: a stale encoder refuses the command (armed, it faults first)
+    rig = Rig(_rig_cfg())  # disarmed: a stale encoder refuses it (armed, it faults first)
     rig.tick(2)
     rig.driver.silent = {rig.ctl.node_ids[1]}
     rig.clock.advance(0.2)
     why = rig.refused(Pretension(s))
     assert why.startswith("stale_encoder: no fresh encoder reading (node 1"), why
     assert "enter_torque_mode" not in rig.driver.calls
+
+
+def test_pretension_is_refused_on_the_kinematic_simulator() -> None:
+    rig = Rig()  # the built-in robot: in-process simulated reels with nothing hanging on them
+    rig.arm()
+    why = rig.refused(Pretension(rig.start))
+    assert "the kinematic simulator carries no load" in why and 'plant = "physical"' in why
+    assert rig.state() is State.HOLDING
