@@ -1326,7 +1326,7 @@ class Controller:
             )
         if self.cfg.sim.enabled and self.cfg.sim.plant == "kinematic":
             raise CommandRefused(
-                'pretension: the kinematic simulator carries no load, so its reels would spin '
+                "pretension: the kinematic simulator carries no load, so its reels would spin "
                 'free; use [sim] plant = "physical"'
             )
         self._refuse_stale(readings, now_s)
