@@ -218,13 +218,17 @@ class TorqueDriver(Protocol):
     pre-tension for it by name.
     """
 
-    def enter_torque_mode(self, velocity_limits_rps: Sequence[float] | None = None) -> bool:
-        """Select torque control at zero torque on every axis and enter closed loop (clearing
-        errors first on an axis that is not in closed loop yet). With `velocity_limits_rps`
-        (one per axis, > 0) the drives turn no faster than that while in torque mode, where
-        the family can set it (ODrive: Set_Limits, which needs the configured current limit).
-        Returns True if the velocity limits were applied. Raises ValueError (nothing sent) on
-        a non-finite or non-positive limit or a wrong count, BusError if a send fails."""
+    def enter_torque_mode(
+        self, torques_nm: Sequence[float], velocity_limits_rps: Sequence[float] | None = None
+    ) -> bool:
+        """Select torque control on every axis with `torques_nm` (one per axis, N m, motor's
+        positive direction) set before the mode changes, so no axis ever pulls with zero (a
+        suspended load would drop), and enter closed loop (clearing errors first on an axis
+        that is not in closed loop yet). With `velocity_limits_rps` (one per axis, > 0) the
+        drives turn no faster than that while in torque mode, where the family can set it
+        (ODrive: Set_Limits, which needs the configured current limit). Returns True if the
+        velocity limits were applied. Raises ValueError (nothing sent) on a non-finite value,
+        a non-positive limit or a wrong count, BusError if a send fails."""
         ...
 
     def command_torque(self, torques_nm: Sequence[float]) -> None:

@@ -154,10 +154,14 @@ class FakeDriver:
             raise ValueError(f"non-finite or wrong-length {what} {vals}")
         return vals
 
-    def enter_torque_mode(self, velocity_limits_rps: Sequence[float] | None = None) -> bool:
+    def enter_torque_mode(
+        self, torques_nm: Sequence[float], velocity_limits_rps: Sequence[float] | None = None
+    ) -> bool:
+        vals = self._check(torques_nm, "torques")
         if velocity_limits_rps is not None:
             self.velocity_limits_rps = self._check(velocity_limits_rps, "velocity limits")
         self.calls.append("enter_torque_mode")
+        self.torques.append(vals)
         if not self.armed:
             self.axis_error.clear()
         self.armed = True

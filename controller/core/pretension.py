@@ -10,10 +10,12 @@ eased out, and when every reel has been still for a while the home pose is decla
 (the offsets that make the encoders say it), as Hangprinter users home with their motors in
 torque mode.
 
-`PretensionRun` is one such run, fed by the control loop every tick: it ramps the tensions in
-over `ramp_s` (no jerk on a slack line; the loop turns them into motor torques through the
-reel model at the reels' turns of that tick, so a spool that builds up still pulls the
-tension, not just the torque, of the start), and says when every cable has been slower than
+`PretensionRun` is one such run, fed by the control loop every tick (which turns its tensions
+into motor torques through the reel model at the reels' turns of that tick, so a spool that
+builds up still pulls the tension, not the torque, of the start). The reels pull the full
+tensions from the first tick: a lower start would let a reel that carries the payload pay out
+and the effector drop, and the drives' velocity limit keeps the take-up of a slack line gentle.
+It says when every cable has been slower than
 `still_mps` for `settle_s` (done), or why the run failed: a cable that moved more than
 `max_travel_m` (a reel that spins free, a cable that slips or is not anchored) or no stillness
 within `timeout_s`.
@@ -33,8 +35,6 @@ class PretensionSettings:
     """How a pre-tension runs (`[homing]` keys `pretension_*`). Raises ValueError on
     construction if a value is not finite and positive."""
 
-    ramp_s: float = 0.5
-    """The tensions rise linearly from zero over this long."""
     still_mps: float = 0.001
     """A cable slower than this (m/s) is still."""
     settle_s: float = 2.0
@@ -50,15 +50,15 @@ class PretensionSettings:
     """The drives turn no faster than this much cable per second while in torque control."""
 
     def __post_init__(self) -> None:
-        for name in ("ramp_s", "still_mps", "settle_s", "timeout_s", "max_travel_m", "speed_mps"):
+        for name in ("still_mps", "settle_s", "timeout_s", "max_travel_m", "speed_mps"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0.0):
                 raise ValueError(f"PretensionSettings.{name} must be finite and > 0, got {v!r}")
 
 
 class PretensionRun:
-    """One pre-tension in progress (see the module docstring); the loop calls `ramp` and
-    `update` every tick. Not thread-safe: the loop thread owns it.
+    """One pre-tension in progress (see the module docstring); the loop calls `update` every
+    tick. Not thread-safe: the loop thread owns it.
 
     `tensions_n` are the full tensions (one per cable, N), `start_lengths_m` the cable
     lengths from the encoders when the run starts (only their changes matter, so an unhomed
@@ -93,7 +93,7 @@ class PretensionRun:
             raise ValueError("pre-tension tensions, lengths and start time must be finite")
         self.settings = settings
         self.tensions_n = tensions
-        """The full tensions, once ramped in (N)."""
+        """The tensions to pull with (N)."""
         self.start_lengths_m = lengths
         self.start_s = float(start_s)
         self._still_since_s: float | None = None
@@ -101,12 +101,6 @@ class PretensionRun:
         """Seconds from the start until the reels were declared still (None: not yet)."""
         self.worst_mps = math.inf
         """The fastest cable's speed at the last update (m/s)."""
-
-    def ramp(self, now_s: float) -> float:
-        """The fraction of the full tensions to pull with at clock time `now_s`: 0 at the
-        start, rising linearly to 1 over `ramp_s`. Raises nothing."""
-        f = (now_s - self.start_s) / self.settings.ramp_s
-        return 0.0 if not f > 0.0 else min(f, 1.0)
 
     def update(
         self, now_s: float, lengths_m: Sequence[float], rates_mps: Sequence[float]
@@ -135,7 +129,7 @@ class PretensionRun:
                 worst_i = i
         self.worst_mps = worst
         elapsed = now_s - self.start_s
-        if worst < s.still_mps and elapsed >= s.ramp_s:
+        if worst < s.still_mps:
             if self._still_since_s is None:
                 self._still_since_s = now_s
             if now_s - self._still_since_s >= s.settle_s:
@@ -153,5 +147,5 @@ class PretensionRun:
 
     @property
     def done(self) -> bool:
-        """True once every cable has been still for `settle_s` (after the ramp)."""
+        """True once every cable has been still for `settle_s`."""
         return self.still_after_s is not None

@@ -248,10 +248,8 @@ class HomingConfig:
 
     power_up_position_m: Vec3 | None = None
     state_file: str | None = None
-    pretension_ramp_s: float = 0.5
-    """Pre-tension (`cablebot home --pretension`): the torques rise from zero over this long."""
     pretension_still_mps: float = 0.001
-    """A cable slower than this (m/s) counts as still."""
+    """Pre-tension (`cablebot home --pretension`): a cable slower than this (m/s) is still."""
     pretension_settle_s: float = 2.0
     """Every cable still for this long: the home pose is declared (longer than half the
     effector's slowest swing)."""
@@ -267,7 +265,6 @@ class HomingConfig:
     def pretension(self) -> PretensionSettings:
         """The `pretension_*` keys as `controller.core.pretension.PretensionSettings`."""
         return PretensionSettings(
-            ramp_s=self.pretension_ramp_s,
             still_mps=self.pretension_still_mps,
             settle_s=self.pretension_settle_s,
             timeout_s=self.pretension_timeout_s,
@@ -983,7 +980,6 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     pt = {
         key: ht.number(key, getattr(d_h, key), gt=0.0, le=le)
         for key, le in (
-            ("pretension_ramp_s", 60.0),
             ("pretension_still_mps", 1.0),
             ("pretension_settle_s", 60.0),
             ("pretension_timeout_s", 3600.0),

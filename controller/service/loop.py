@@ -1350,7 +1350,7 @@ class Controller:
         except ValueError as exc:  # a reel slope of zero, a non-finite number
             raise CommandRefused(f"pretension: {exc}") from None
         try:
-            limited = drv.enter_torque_mode(limits)
+            limited = drv.enter_torque_mode(torques, limits)
         except (BusError, ValueError) as exc:
             raise CommandRefused(f"bus_error: pretension: {exc}") from None
         self._torque_driver = drv
@@ -1385,9 +1385,9 @@ class Controller:
 
     def _tick_pretension(self, readings: Sequence[AxisReading], now_s: float) -> None:
         """One tick of the pre-tension: axis checks, travel and stillness (`PretensionRun`),
-        then the ramped torques, or the home pose once the reels are still. _Fault on an axis
-        fault, a stale reading, an axis not in closed loop after `faults.arm_timeout_s`, or the
-        run failing."""
+        then the torques of the tensions, or the home pose once the reels are still. _Fault on
+        an axis fault, a stale reading, an axis not in closed loop after `faults.arm_timeout_s`,
+        or the run failing."""
         run = self._pretension
         assert run is not None
         stale = self._stale_s
@@ -1426,11 +1426,11 @@ class Controller:
         assert drv is not None  # set with the run
         # The tensions through the reel model at this tick's turns: a spool that builds up
         # keeps pulling the tension, not the torque, of the start.
-        f = run.ramp(now_s)
         torques = self._pt_torques_nm
         reels = self.reels
+        tensions = run.tensions_n
         for i, r in enumerate(readings):
-            torques[i] = reels[i].torque_nm(r.position_rev, f * run.tensions_n[i])
+            torques[i] = reels[i].torque_nm(r.position_rev, tensions[i])
         try:
             drv.command_torque(torques)
         except BusError:

@@ -487,17 +487,22 @@ class ODriveReels:
             return []
         return [cs.encode_set_limits(n, v, c) for n in self.node_ids]
 
-    def enter_torque_mode(self, velocity_limits_rps: Sequence[float] | None = None) -> bool:
-        """Select TORQUE_CONTROL + PASSTHROUGH at zero torque on every axis, in closed loop.
+    def enter_torque_mode(
+        self, torques_nm: Sequence[float], velocity_limits_rps: Sequence[float] | None = None
+    ) -> bool:
+        """Select TORQUE_CONTROL + PASSTHROUGH with `torques_nm` on every axis, in closed loop.
 
         Per axis: Clear_Errors if it is not ready (not in closed loop without error);
         Set_Limits(limit, current_limit_a) when `velocity_limits_rps` is given and both
         configured limits are known (Set_Limits sets both at once, and only known values can
-        be restored); Set_Input_Torque(0); Set_Controller_Mode; Set_Axis_State
+        be restored); Set_Input_Torque(torque) before the mode changes (an axis holding a
+        suspended load never pulls with zero); Set_Controller_Mode; Set_Axis_State
         CLOSED_LOOP_CONTROL if it is not ready. Returns True if the velocity limits were
-        applied. Raises ValueError (nothing sent) on a limit that is not finite and > 0 or a
-        wrong count, BusError if a send fails (after trying every frame).
+        applied. Raises ValueError (nothing sent) on a torque that is not a finite float32, a
+        limit that is not finite and > 0, or a wrong count, BusError if a send fails (after
+        trying every frame).
         """
+        self._check_values(torques_nm, "torque", positive=False)
         if velocity_limits_rps is not None:
             self._check_values(velocity_limits_rps, "velocity limit", positive=True)
         current = self.current_limit_a
@@ -509,7 +514,7 @@ class ODriveReels:
                 frames.append(cs.encode_clear_errors(n))
             if limits is not None and current is not None:
                 frames.append(cs.encode_set_limits(n, limits[i], current))
-            frames.append(cs.encode_set_input_torque(n, 0.0))
+            frames.append(cs.encode_set_input_torque(n, torques_nm[i]))
             frames.append(
                 cs.encode_set_controller_mode(
                     n, cs.ControlMode.TORQUE_CONTROL, cs.InputMode.PASSTHROUGH

@@ -45,7 +45,7 @@ pulls its cable with the tension that torque holds, turning no faster than vel_l
 coupling gives it. Without a load nothing resists the motor: a free reel spins at
 G * input_torque, up to vel_limit, with G = `torque_mobility_rps_per_nm` (a friction-limited
 free spin), reached at most at `max_accel_rps2`. Entering closed loop in TORQUE_CONTROL keeps
-the last input_torque (0 after the driver's `enter_torque_mode`) and starts from rest.
+the last input_torque (the driver's `enter_torque_mode` sets it first) and starts from rest.
 
 Load (a physical plant): the bank may be given an `AxisCoupling`, stepped once per tick after
 the axes move with every axis's motor position (and the torque of every axis in torque

@@ -5,13 +5,11 @@ from __future__ import annotations
 import math
 
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 
 from controller.core.pretension import PretensionRun, PretensionSettings
 
 S = PretensionSettings(
-    ramp_s=0.5, still_mps=0.002, settle_s=0.5, timeout_s=10.0, max_travel_m=0.3, speed_mps=0.05
+    still_mps=0.002, settle_s=0.5, timeout_s=10.0, max_travel_m=0.3, speed_mps=0.05
 )
 TENSIONS = (104.4, 90.0, 120.5, 99.0)
 LENGTHS = (40.0, 41.0, 42.0, 43.0)
@@ -22,7 +20,7 @@ def _run() -> PretensionRun:
 
 
 @pytest.mark.parametrize(
-    "field", ["ramp_s", "still_mps", "settle_s", "timeout_s", "max_travel_m", "speed_mps"]
+    "field", ["still_mps", "settle_s", "timeout_s", "max_travel_m", "speed_mps"]
 )
 @pytest.mark.parametrize("bad", [0.0, -1.0, math.nan, math.inf])
 def test_settings_must_be_finite_and_positive(field: str, bad: float) -> None:
@@ -39,16 +37,7 @@ def test_run_refuses_mismatched_or_non_finite_inputs() -> None:
         PretensionRun(S, TENSIONS, LENGTHS, math.inf)
 
 
-@given(st.floats(min_value=-10.0, max_value=10.0))
-def test_the_ramp_rises_linearly_from_zero_to_one(dt_s: float) -> None:
-    run = _run()
-    f = run.ramp(100.0 + dt_s)
-    assert 0.0 <= f <= 1.0
-    assert f == pytest.approx(min(max(dt_s / S.ramp_s, 0.0), 1.0), abs=1e-12)
-    assert run.tensions_n == TENSIONS
-
-
-def test_still_after_the_ramp_for_the_settle_time_is_done() -> None:
+def test_still_for_the_settle_time_is_done() -> None:
     run = _run()
     still = (0.0005, -0.001, 0.0, 0.0019)
     t = 100.0
@@ -56,8 +45,7 @@ def test_still_after_the_ramp_for_the_settle_time_is_done() -> None:
         assert run.update(t, LENGTHS, still) is None
         t += 0.01
         assert t < 102.0, "never done"
-    # the ramp (0.5 s) must end before stillness counts, then 0.5 s of stillness
-    assert run.still_after_s == pytest.approx(S.ramp_s + S.settle_s, abs=0.011)
+    assert run.still_after_s == pytest.approx(S.settle_s, abs=0.011)
 
 
 def test_a_moving_cable_restarts_the_settle_time() -> None:
@@ -65,16 +53,16 @@ def test_a_moving_cable_restarts_the_settle_time() -> None:
     still = (0.0, 0.0, 0.0, 0.0)
     moving = (0.0, 0.0, 0.003, 0.0)
     t = 100.0
-    for _ in range(90):  # 0.9 s: still from 0.5 s on
+    for _ in range(40):  # 0.4 s still
         run.update(t, LENGTHS, still)
         t += 0.01
-    run.update(t, LENGTHS, moving)  # at 0.9 s cable 3 moves: stillness starts again
+    run.update(t, LENGTHS, moving)  # at 0.4 s cable 3 moves: stillness starts again
     assert run.worst_mps == pytest.approx(0.003)
     t += 0.01
     while not run.done:
         assert run.update(t, LENGTHS, still) is None
         t += 0.01
-    assert run.still_after_s == pytest.approx(0.91 + S.settle_s, abs=0.011)
+    assert run.still_after_s == pytest.approx(0.41 + S.settle_s, abs=0.011)
 
 
 def test_a_non_finite_rate_counts_as_moving() -> None:

@@ -465,22 +465,22 @@ def test_enter_torque_mode_frames(buses: tuple[can.BusABC, can.BusABC]) -> None:
     d = ODriveReels(bus, (4, 5, 6), velocity_limit_rps=20.0, current_limit_a=10.0)
     # 4 idle, 5 already holding in closed loop, 6 in closed loop with an error bit
     _heartbeats(d, peer, {4: (1, 0), 5: (8, 0), 6: (8, 0x8)})
-    assert d.enter_torque_mode([2.0, 3.0, 4.0]) is True
+    assert d.enter_torque_mode([-0.8, 0.7, -0.9], [2.0, 3.0, 4.0]) is True
     torque, passthrough = cs.ControlMode.TORQUE_CONTROL, cs.InputMode.PASSTHROUGH
     assert (torque, passthrough) == (1, 1)
     assert drain(peer) == [
         cs.ClearErrors(4, 0),
         cs.SetLimits(4, 2.0, 10.0),
-        cs.SetInputTorque(4, 0.0),
+        cs.SetInputTorque(4, pytest.approx(-0.8)),  # the torque first: never zero in between
         cs.SetControllerMode(4, torque, passthrough),
         cs.SetAxisState(4, 8),
         # already in closed loop: no Clear_Errors, no state request (nothing to re-enter)
         cs.SetLimits(5, 3.0, 10.0),
-        cs.SetInputTorque(5, 0.0),
+        cs.SetInputTorque(5, pytest.approx(0.7)),
         cs.SetControllerMode(5, torque, passthrough),
         cs.ClearErrors(6, 0),
         cs.SetLimits(6, 4.0, 10.0),
-        cs.SetInputTorque(6, 0.0),
+        cs.SetInputTorque(6, pytest.approx(-0.9)),
         cs.SetControllerMode(6, torque, passthrough),
         cs.SetAxisState(6, 8),
     ]
@@ -524,10 +524,10 @@ def test_torque_mode_leaves_the_limits_alone_without_both_configured_values(
     d = ODriveReels(
         bus, (1,), velocity_limit_rps=velocity_limit_rps, current_limit_a=current_limit_a
     )
-    assert d.enter_torque_mode([2.0]) is False  # a limit that could not be restored is not set
-    assert drain(peer) == [
+    assert d.enter_torque_mode([-0.5], [2.0]) is False  # a limit that could not be restored
+    assert drain(peer) == [  # is not set
         cs.ClearErrors(1, 0),  # never heard from: not ready
-        cs.SetInputTorque(1, 0.0),
+        cs.SetInputTorque(1, -0.5),
         cs.SetControllerMode(1, 1, 1),
         cs.SetAxisState(1, 8),
     ]
@@ -542,7 +542,7 @@ def test_torque_mode_leaves_the_limits_alone_without_both_configured_values(
 def test_enter_torque_mode_without_limits_sends_none(buses: tuple[can.BusABC, can.BusABC]) -> None:
     bus, peer = buses
     d = ODriveReels(bus, (1,), velocity_limit_rps=20.0, current_limit_a=10.0)
-    assert d.enter_torque_mode() is False
+    assert d.enter_torque_mode([0.0]) is False
     assert not any(isinstance(m, cs.SetLimits) for m in drain(peer))
     d.leave_torque_mode([0.0])
     assert not any(isinstance(m, cs.SetLimits) for m in drain(peer))
@@ -552,7 +552,7 @@ def test_arm_restores_limits_a_torque_mode_lowered(buses: tuple[can.BusABC, can.
     # An e-stop during the pre-tension: the torque mode is never left, the next arm restores.
     bus, peer = buses
     d = ODriveReels(bus, (2,), velocity_limit_rps=20.0, current_limit_a=10.0)
-    assert d.enter_torque_mode([1.0])
+    assert d.enter_torque_mode([0.0], [1.0])
     d.estop()
     drain(peer)
     d.arm()
@@ -570,7 +570,9 @@ def test_torque_mode_refuses_bad_values_and_sends_nothing(
     bus, peer = buses
     d = ODriveReels(bus, NODES, velocity_limit_rps=20.0, current_limit_a=10.0)
     with pytest.raises(ValueError, match="velocity limit for node 2"):
-        d.enter_torque_mode([1.0, 1.0, bad, 1.0])
+        d.enter_torque_mode([0.0] * 4, [1.0, 1.0, bad, 1.0])
+    with pytest.raises(ValueError, match="torque for node 0"):
+        d.enter_torque_mode([bad, 0.0, 0.0, 0.0], [1.0] * 4)
     with pytest.raises(ValueError, match="torque for node 1"):
         d.command_torque([0.0, bad, 0.0, 0.0])
     with pytest.raises(ValueError, match="position for node 3"):
@@ -586,9 +588,11 @@ def test_torque_mode_refuses_wrong_counts_and_non_positive_limits(
     d = ODriveReels(bus, NODES, velocity_limit_rps=20.0, current_limit_a=10.0)
     for limits in ([1.0, 1.0, 0.0, 1.0], [1.0, -2.0, 1.0, 1.0]):
         with pytest.raises(ValueError, match="must be > 0"):
-            d.enter_torque_mode(limits)
+            d.enter_torque_mode([0.0] * 4, limits)
     with pytest.raises(ValueError, match="needs 4 values, got 3"):
-        d.enter_torque_mode([1.0, 1.0, 1.0])
+        d.enter_torque_mode([0.0] * 4, [1.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match="needs 4 values, got 2"):
+        d.enter_torque_mode([0.0] * 2, [1.0] * 4)
     with pytest.raises(ValueError, match="needs 4 values, got 5"):
         d.command_torque([0.0] * 5)
     with pytest.raises(ValueError, match="needs 4 values, got 0"):
@@ -605,7 +609,7 @@ def test_torque_mode_send_errors_raise_bus_error_after_trying_every_axis() -> No
     fake = ExplodingBus()  # node 1's frames fail
     d = ODriveReels(cast(Any, fake), NODES, velocity_limit_rps=20.0, current_limit_a=10.0)
     with pytest.raises(BusError, match=r"torque mode to node 1.*tx buffer full"):
-        d.enter_torque_mode([1.0] * 4)
+        d.enter_torque_mode([0.1] * 4, [1.0] * 4)
     assert {m.arbitration_id >> 5 for m in fake.sent} == {0, 1, 2, 3}
     fake.sent.clear()
     with pytest.raises(BusError, match=r"Set_Input_Torque to node 1"):
@@ -639,7 +643,7 @@ def test_open_driver_takes_the_configured_limits(buses: tuple[can.BusABC, can.Bu
     loop = LoopSettings(0.001, 0.08)
     d = open_driver(bus, (0,), {"velocity_limit_rps": 25.0, "current_limit_a": 12.0}, loop)
     assert (d.velocity_limit_rps, d.current_limit_a) == (25.0, 12.0)
-    assert d.enter_torque_mode([2.0]) is True
+    assert d.enter_torque_mode([0.0], [2.0]) is True
     d.leave_torque_mode([0.0])
     assert drain(peer)[-1] == cs.SetLimits(0, 25.0, 12.0)
     d = open_driver(bus, (0,), {"current_limit_a": 12.0}, loop)
