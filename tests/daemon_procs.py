@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import signal
 import subprocess
 import sys
@@ -57,6 +58,17 @@ def to_toml(data: Mapping[str, Any]) -> str:
             lines.append(f"\n[[{name}]]")
             lines.extend(f"{k} = {_toml_value(x)}" for k, x in t.items() if x is not None)
     return "\n".join(lines) + "\n"
+
+
+def udp_bus() -> dict[str, Any]:
+    """A `[bus]` table of a udp_multicast bus of its own: a random group and port (the port
+    isolates it: udp_multicast binds it); frames never leave the host (TTL 0, the default)."""
+    group = f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}"
+    return {
+        "interface": "udp_multicast",
+        "channel": group,
+        "options": {"port": random.randint(40000, 49000)},
+    }
 
 
 def write_config(

@@ -368,13 +368,19 @@ class Controller:
         log.info("homing offsets loaded from %s", self._state_file)
 
     def _home_at(self, readings: Sequence[AxisReading], position_m: Vec3) -> tuple[float, ...]:
-        """Set the reel offsets so that the current readings map to `position_m`."""
+        """Set the reel offsets so that the current readings map to `position_m`; the pose is
+        `position_m` from now on (not from the next tick's solve: a status read in between
+        must not show the pose of the old offsets under the new home)."""
         lengths = kinematics.ipk_point(self.geometry, position_m)
         self.reels = [
             base.with_home(r.position_rev, L)
             for base, r, L in zip(self._base_reels, readings, lengths, strict=True)
         ]
         self.homed = True
+        self.lengths_m[:] = [float(v) for v in lengths]
+        self._fpk_lengths_m[:] = self.lengths_m
+        self.pose_m = (float(position_m[0]), float(position_m[1]), float(position_m[2]))
+        self.residual_m = 0.0
         return tuple(m.offset_rev for m in self.reels)
 
     # ---------------------------------------------------------------- thread-safe API
@@ -632,10 +638,15 @@ class Controller:
                 f"bus_error: {self.driver.stats.last_error} (failing for {now_s - since:.3f} s)"
             )
 
-    def _check_axes(self, readings: Sequence[AxisReading], now_s: float) -> None:
-        """Armed: every axis without a fault, fresh, and ready (the drives' generic status)."""
+    def _check_axes(
+        self, readings: Sequence[AxisReading], now_s: float, *, ready: bool = True
+    ) -> bool:
+        """Armed: every axis without a fault, fresh, and (with `ready`) ready (the drives'
+        generic status); _Fault naming the first that is not. Returns whether every axis is
+        ready."""
         stale = self._stale_s
         hb = self._hb_timeout_s
+        all_ready = True
         for r in readings:
             if r.fault is not None:
                 raise _Fault(f"axis_error: node {r.node_id} {r.fault}")
@@ -646,7 +657,10 @@ class Controller:
                     f"stale_heartbeat: node {r.node_id} age {now_s - r.heartbeat_stamp_s:.3f} s"
                 )
             if not r.ready:
-                raise _Fault(f"axis_state: node {r.node_id} left closed loop ({r.state_name})")
+                if ready:
+                    raise _Fault(f"axis_state: node {r.node_id} left closed loop ({r.state_name})")
+                all_ready = False
+        return all_ready
 
     def _solve_pose(self, readings: Sequence[AxisReading], now_s: float) -> None:
         """Lengths from the encoders, then the pose by FPK (invalid when unhomed or unheard)."""
@@ -1390,25 +1404,13 @@ class Controller:
         or the run failing."""
         run = self._pretension
         assert run is not None
-        stale = self._stale_s
-        hb = self._hb_timeout_s
-        ready = True
-        for r in readings:
-            if r.fault is not None:
-                raise _Fault(f"axis_error: node {r.node_id} {r.fault}")
-            if now_s - r.stamp_s > stale:
-                raise _Fault(f"stale_encoder: node {r.node_id} age {now_s - r.stamp_s:.3f} s")
-            if now_s - r.heartbeat_stamp_s > hb:
-                raise _Fault(
-                    f"stale_heartbeat: node {r.node_id} age {now_s - r.heartbeat_stamp_s:.3f} s"
-                )
-            if not r.ready:
-                ready = False
-                if now_s - run.start_s > self._arm_timeout_s:
-                    raise _Fault(
-                        f"pretension: node {r.node_id} not in closed loop after "
-                        f"{self._arm_timeout_s:g} s ({r.state_name})"
-                    )
+        ready = self._check_axes(readings, now_s, ready=False)
+        if not ready and now_s - run.start_s > self._arm_timeout_s:
+            r = next(r for r in readings if not r.ready)
+            raise _Fault(
+                f"pretension: node {r.node_id} not in closed loop after "
+                f"{self._arm_timeout_s:g} s ({r.state_name})"
+            )
         if ready:
             reels = self.reels
             lengths = self._pt_lengths_m

@@ -30,6 +30,7 @@ from tests.daemon_procs import (
     OBSERVER,
     REPO,
     Proc,
+    udp_bus,
     write_config,
     zenoh_session,
     zquery,
@@ -37,15 +38,6 @@ from tests.daemon_procs import (
 
 CIA402_SIM = REPO / "config" / "cia402-sim.toml"
 READY_STATE = {"odrive": "CLOSED_LOOP_CONTROL", "cia402": "Operation enabled"}
-
-
-def _udp_bus() -> dict[str, Any]:
-    group = f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}"
-    return {
-        "interface": "udp_multicast",
-        "channel": group,
-        "options": {"port": random.randint(40000, 49000)},
-    }
 
 
 def run_three_processes(
@@ -123,7 +115,7 @@ def run_three_processes(
 
 @pytest.mark.slow
 def test_daemon_sim_observer_over_udp_multicast(tmp_path: Path) -> None:
-    cfg, info = write_config(tmp_path, _udp_bus())
+    cfg, info = write_config(tmp_path, udp_bus())
     run_three_processes(cfg, info)
 
 
@@ -132,7 +124,7 @@ def test_cia402_daemon_sim_observer_over_udp_multicast(tmp_path: Path) -> None:
     # The simulated drives are a process sharing two busy cores with the daemon and pytest: a
     # starved drive lags its set-point by more than the desk rig's 20 mm tracking limit. The
     # arrival within 1 mm is what this test checks; the tracking fault has its own tests.
-    cfg, info = write_config(tmp_path, _udp_bus(), base=CIA402_SIM, faults={"tracking_max_m": 0.1})
+    cfg, info = write_config(tmp_path, udp_bus(), base=CIA402_SIM, faults={"tracking_max_m": 0.1})
     run_three_processes(cfg, info, kind="cia402", move_m=0.2, speed_mps=0.3, estop=True)
 
 
@@ -140,7 +132,7 @@ def test_cia402_daemon_refuses_to_start_when_a_drive_does_not_answer(tmp_path: P
     # No simulated drives on the bus: the SDO set-up of the first drive times out, and the
     # daemon exits 1 at start-up naming the node and the step (nothing armed, nothing sent
     # but the set-up's first request).
-    cfg, _info = write_config(tmp_path, _udp_bus(), base=CIA402_SIM, drive={"sdo_timeout_s": 0.1})
+    cfg, _info = write_config(tmp_path, udp_bus(), base=CIA402_SIM, drive={"sdo_timeout_s": 0.1})
     d = Proc([*CABLEBOT, "run", "--config", str(cfg)], "daemon")
     try:
         line = d.wait_line("start-up failed", 30, stderr=True)
@@ -154,7 +146,7 @@ def test_cia402_daemon_refuses_to_start_when_a_drive_does_not_answer(tmp_path: P
 
 @pytest.mark.slow
 def test_sigkill_during_home_save_leaves_old_or_new_file(tmp_path: Path) -> None:
-    cfg, info = write_config(tmp_path, _udp_bus())
+    cfg, info = write_config(tmp_path, udp_bus())
     state_file: Path = info["state_file"]
     sim = Proc([*CABLEBOT, "sim", "--config", str(cfg)], "sim")
     try:
@@ -260,7 +252,7 @@ def test_sd_notify_ready_watchdog_status_and_sigint(tmp_path: Path) -> None:
 def test_daemon_refuses_to_start_when_its_zenoh_port_is_taken(tmp_path: Path) -> None:
     # A robot that nobody can watch or stop over the network must not run: the daemon exits 1
     # at start-up (nothing armed yet) with the reason, instead of running unreachable.
-    cfg, info = write_config(tmp_path, _udp_bus(), sim_enabled=True)
+    cfg, info = write_config(tmp_path, udp_bus(), sim_enabled=True)
     port = int(info["endpoint"].rsplit(":", 1)[1])
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", port))

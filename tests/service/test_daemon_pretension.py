@@ -5,7 +5,6 @@ CLI in a third, over udp_multicast on this host."""
 from __future__ import annotations
 
 import math
-import random
 import signal
 import subprocess
 import tomllib
@@ -14,16 +13,16 @@ from typing import Any
 
 import pytest
 
-from tests.daemon_procs import CABLEBOT, REPO, Proc, to_toml, write_config, zenoh_session, zquery
-
-
-def _udp_bus() -> dict[str, Any]:
-    group = f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}"
-    return {
-        "interface": "udp_multicast",
-        "channel": group,
-        "options": {"port": random.randint(40000, 49000)},
-    }
+from tests.daemon_procs import (
+    CABLEBOT,
+    REPO,
+    Proc,
+    to_toml,
+    udp_bus,
+    write_config,
+    zenoh_session,
+    zquery,
+)
 
 
 def _cli(info: dict[str, Any], *args: str, timeout_s: float) -> subprocess.CompletedProcess[str]:
@@ -40,7 +39,7 @@ def _cli(info: dict[str, Any], *args: str, timeout_s: float) -> subprocess.Compl
 def test_home_with_pretension_through_the_daemon_then_move(tmp_path: Path) -> None:
     cfg, info = write_config(
         tmp_path,
-        _udp_bus(),
+        udp_bus(),
         loop={"torque_telemetry": "cyclic"},
         sim={
             "plant": "physical",

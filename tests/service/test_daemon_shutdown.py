@@ -12,7 +12,6 @@ import concurrent.futures
 import contextlib
 import logging
 import math
-import random
 import signal
 import socket
 import sys
@@ -42,7 +41,7 @@ from controller.service.loop import Controller
 from drivers.base import AxisReading
 from drivers.bus import open_bus
 from drivers.odrive import cansimple as cs
-from tests.daemon_procs import CABLEBOT, Proc, write_config, zenoh_session, zquery
+from tests.daemon_procs import CABLEBOT, Proc, udp_bus, write_config, zenoh_session, zquery
 from tests.fakes import FakeClock, FakeDriver, make_config, power_up_turns
 
 # ------------------------------------------------------------------------------ unit level
@@ -294,15 +293,6 @@ def test_begin_shutdown_refuses_new_motion_brakes_at_max_accel_and_holds_without
 LOADED_HOST_FAULTS = {"stale_timeout_s": 0.5, "heartbeat_timeout_s": 1.5, "tracking_max_m": 1.0}
 
 
-def _udp_bus() -> dict[str, Any]:
-    group = f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}"
-    return {
-        "interface": "udp_multicast",
-        "channel": group,
-        "options": {"port": random.randint(40000, 49000), "hop_limit": 0},
-    }
-
-
 class BusTap:
     """Every decodable CANSimple frame on the robot's bus, with its local arrival time."""
 
@@ -393,7 +383,7 @@ def _cruise_at_max_speed(info: dict[str, Any]) -> Any:
 def test_sigterm_at_max_speed_brakes_to_rest_and_leaves_a_zero_feed_forward_hold(
     tmp_path: Path,
 ) -> None:
-    bus = _udp_bus()
+    bus = udp_bus()
     cfg_path, info = write_config(tmp_path, bus, faults=LOADED_HOST_FAULTS)
     cfg = load_config(cfg_path)
     nodes = list(cfg.node_ids)
@@ -460,7 +450,7 @@ def test_sigterm_at_max_speed_brakes_to_rest_and_leaves_a_zero_feed_forward_hold
 def test_kill_9_mid_move_leaves_the_axes_idle_and_still_within_the_watchdog_time(
     tmp_path: Path,
 ) -> None:
-    bus = _udp_bus()
+    bus = udp_bus()
     cfg_path, info = write_config(tmp_path, bus, faults=LOADED_HOST_FAULTS)
     cfg = load_config(cfg_path)
     nodes = list(cfg.node_ids)
@@ -566,7 +556,7 @@ def _sim_nodes(bus: dict[str, Any], cfg: Any, nodes: Sequence[int]) -> Proc:
 def test_ready_waits_for_every_reel_and_silent_nodes_are_named_until_they_answer(
     tmp_path: Path,
 ) -> None:
-    bus = _udp_bus()
+    bus = udp_bus()
     cfg_path, _info = write_config(
         tmp_path, bus, faults={"arm_timeout_s": 0.5}, loop={"auto_arm": True}
     )

@@ -71,6 +71,10 @@ def test_pretension_pulls_with_the_statics_torques_then_homes_where_the_reels_re
     assert n >= int(SETTLE_S * RATE_HZ) - 2  # still for settle_s before the home is declared
     assert rig.state() is State.HOLDING, rig.ctl.reason
     assert rig.ctl.home_source == "pretension"
+    # in the very tick it homes, the pose is the home pose (not the old offsets' pose of the
+    # wound-in cables, 14 mm shorter)
+    assert rig.ctl.pose_m == p and rig.ctl.residual_m == 0.0
+    assert rig.ctl.status()["pose"]["position_m"] == list(p)
     assert "leave_torque_mode" in rig.driver.calls
     # declared at p: the encoders now say p, and the motors hold the turns they rest at
     rest = [r.position_rev for r in rig.driver.readings]
@@ -274,3 +278,15 @@ def test_pretension_is_refused_on_the_kinematic_simulator() -> None:
     why = rig.refused(Pretension(rig.start))
     assert "the kinematic simulator carries no load" in why and 'plant = "physical"' in why
     assert rig.state() is State.HOLDING
+
+
+def test_an_axis_that_does_not_enter_closed_loop_faults_after_the_arm_timeout() -> None:
+    rig = Rig(_rig_cfg())
+    rig.tick(2)
+    node = rig.ctl.node_ids[2]
+    rig.driver.no_closed_loop = {node}
+    rig.do(Pretension(rig.start))
+    rig.until(lambda: rig.state() is not State.PRETENSIONING, int(3 * RATE_HZ))
+    assert rig.state() is State.FAULT
+    assert rig.ctl.reason == f"pretension: node {node} not in closed loop after 2 s (IDLE)"
+    assert "leave_torque_mode" in rig.driver.calls

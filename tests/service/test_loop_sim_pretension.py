@@ -5,86 +5,23 @@ the home pose is declared where the effector really is; then the robot moves as 
 from __future__ import annotations
 
 import math
-import threading
-import time
-import uuid
-from collections.abc import Callable, Iterator
-from dataclasses import replace
+from collections.abc import Iterator
 
 import pytest
 
 from controller.core.commands import Move, Pretension
 from controller.core.states import State
 from controller.service.config import tension_check
-from controller.service.loop import Controller
-from controller.service.simulated import start_sim_bank
-from drivers.bus import open_bus
-from drivers.odrive.driver import ODriveReels
-from tests.fakes import RecordingPublisher, make_config
+from tests.service.test_loop_sim_statics import PhysicalRig
 
-RATE_HZ = 250.0
-
-
-class PhysicalRig:
-    def __init__(self) -> None:
-        channel = f"test-loop-pretension-{uuid.uuid4().hex[:8]}"
-        cfg = make_config(
-            bus={"interface": "virtual", "channel": channel},
-            loop={"rate_hz": RATE_HZ, "realtime": False, "torque_telemetry": "cyclic"},
-            # a shared host: generous staleness (see test_loop_sim.py)
-            faults={
-                "stale_timeout_s": 0.5,
-                "heartbeat_timeout_s": 1.0,
-                "slack_tension_n": 1.0,
-                "slack_time_s": 0.1,
-            },
-            sim={
-                "plant": "physical",
-                "torque_period_s": 0.004,
-                "cable_ea_n": 2e5,
-                "watchdog_timeout_s": 1.0,
-            },
-        )
-        # Stillness to 0.2 mm/s of cable for 3 s: the effector's vertical bounce on the paper
-        # robot's long flat cables (period about 5 s) shows in the cables at an eighth of it.
-        self.cfg = replace(
-            cfg,
-            homing=replace(
-                cfg.homing,
-                pretension_still_mps=0.0002,
-                pretension_settle_s=3.0,
-                pretension_timeout_s=60.0,
-            ),
-        )
-        self.sim_bus = open_bus("virtual", channel)
-        self.bus = open_bus("virtual", channel)
-        self.bank = start_sim_bank(self.cfg, self.sim_bus)
-        self.driver = ODriveReels(self.bus, [r.node_id for r in self.cfg.reels])
-        self.pub = RecordingPublisher()
-        self.ctl = Controller(self.cfg, self.driver, self.pub)
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self.ctl.run, args=(self.stop,), daemon=True)
-        self.thread.start()
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join(2.0)
-        self.bank.stop()
-        self.bus.shutdown()
-        self.sim_bus.shutdown()
-
-    def wait(self, pred: Callable[[], bool], timeout_s: float, what: str) -> float:
-        t0 = time.monotonic()
-        while not pred():
-            if time.monotonic() - t0 > timeout_s:
-                raise AssertionError(f"timed out waiting for {what}: {self.ctl.status()}")
-            time.sleep(0.01)
-        return time.monotonic() - t0
+# Stillness to 0.2 mm/s of cable for 3 s: the effector's vertical bounce on the paper robot's
+# long flat cables (period about 5 s) shows in the cables at an eighth of it.
+HOMING = {"pretension_still_mps": 0.0002, "pretension_settle_s": 3.0, "pretension_timeout_s": 60.0}
 
 
 @pytest.fixture
 def rig() -> Iterator[PhysicalRig]:
-    r = PhysicalRig()
+    r = PhysicalRig("cyclic", HOMING)
     yield r
     r.close()
 

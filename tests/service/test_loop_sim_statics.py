@@ -8,7 +8,9 @@ import math
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import replace
+from typing import Any
 
 import pytest
 
@@ -24,9 +26,12 @@ RATE_HZ = 250.0
 
 
 class PhysicalRig:
-    def __init__(self, telemetry: str) -> None:
+    """The controller in its loop thread and simulated ODrives carrying the payload, on a
+    virtual bus of their own; `homing` replaces `[homing]` keys."""
+
+    def __init__(self, telemetry: str, homing: Mapping[str, Any] | None = None) -> None:
         channel = f"test-loop-phys-{uuid.uuid4().hex[:8]}"
-        self.cfg = make_config(
+        cfg = make_config(
             bus={"interface": "virtual", "channel": channel},
             loop={"rate_hz": RATE_HZ, "realtime": False, "torque_telemetry": telemetry},
             # a shared host: generous staleness (see test_loop_sim.py)
@@ -47,6 +52,7 @@ class PhysicalRig:
                 "watchdog_timeout_s": 1.0,
             },
         )
+        self.cfg = replace(cfg, homing=replace(cfg.homing, **homing)) if homing else cfg
         self.sim_bus = open_bus("virtual", channel)
         self.bus = open_bus("virtual", channel)
         self.bank = start_sim_bank(self.cfg, self.sim_bus)
@@ -69,12 +75,14 @@ class PhysicalRig:
         self.bus.shutdown()
         self.sim_bus.shutdown()
 
-    def wait(self, pred: Callable[[], bool], timeout_s: float, what: str) -> None:
-        deadline = time.monotonic() + timeout_s
+    def wait(self, pred: Callable[[], bool], timeout_s: float, what: str) -> float:
+        """Poll `pred` until it holds (at most `timeout_s`); returns the seconds it took."""
+        t0 = time.monotonic()
         while not pred():
-            if time.monotonic() > deadline:
+            if time.monotonic() - t0 > timeout_s:
                 raise AssertionError(f"timed out waiting for {what}: {self.ctl.status()}")
             time.sleep(0.005)
+        return time.monotonic() - t0
 
     def measured(self) -> list[float | None]:
         return list(self.ctl.status()["tensions"]["measured_n"])
