@@ -290,3 +290,27 @@ def test_an_axis_that_does_not_enter_closed_loop_faults_after_the_arm_timeout() 
     assert rig.state() is State.FAULT
     assert rig.ctl.reason == f"pretension: node {node} not in closed loop after 2 s (IDLE)"
     assert "leave_torque_mode" in rig.driver.calls
+
+
+def test_pretension_homes_an_unhomed_robot_and_stop_before_the_end_faults_holding() -> None:
+    # No power-up pose and no state file: the pre-tension is how this robot gets homed.
+    rig = Rig(_rig_cfg(power_up_position_m=None), homed=False)
+    rig.tick(2)
+    assert not rig.ctl.homed and not rig.ctl.pose_valid
+    p = (0.0, 0.0, 2.0)
+    rig.do(Pretension(p))
+    rig.until(lambda: rig.state() is not State.PRETENSIONING, 2 * SETTLE_TICKS)
+    assert rig.state() is State.HOLDING and rig.ctl.home_source == "pretension"
+    assert rig.ctl.pose_m == p
+
+    rig = Rig(_rig_cfg(power_up_position_m=None), homed=False)
+    rig.tick(2)
+    rig.do(Pretension(p))
+    rig.tick(10)
+    reply = rig.do(Stop())
+    assert reply["state"] == "FAULT" and rig.state() is State.FAULT
+    assert (rig.ctl.reason or "").startswith("pretension stopped before the reels were still")
+    assert not rig.ctl.homed and not rig.driver.torque_mode
+    rig.tick(3)
+    held = [r.position_rev for r in rig.driver.readings]
+    assert rig.driver.commands[-1] == pytest.approx(held, abs=1e-9)  # holding the turns
