@@ -29,6 +29,12 @@ Method
   a fixed set of workspace poses, per pose; `statics_batch_us`: `CableStatics.solve_batch` on
   100,000 such poses (the vectorised form `cablebot workspace` and path checks use), per pose.
   The table also shows the loop's own check (`TensionCheck.check`: the solve and the reason).
+* `sim_plant_rtf`: the physical simulator's real-time factor (simulated seconds per CPU
+  second) at 1 kHz: four simulated ODrive axes carrying the built-in robot's payload on elastic
+  cables (`drivers.odrive.sim.step_axes` with the `ReelPlant` of `[sim] plant = "physical"`,
+  plus each axis's broadcast frames, no bus), holding in position control (`position`) and
+  pulling in torque control as the pre-tension does (`torque`). 1 is what keeping up takes; the
+  margin above it is what a busy host may take away.
 * `decode_frames_per_s`: `controller.cli.bench_rx.poll_rate`, the full receive path on one thread:
   python-can Messages on a `virtual` bus -> `cansimple.decode` -> per-axis reading update and
   stamping, 90 % encoder estimates and 10 % heartbeats for 4 axes.
@@ -115,7 +121,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import FrameType
 from typing import IO, Any
@@ -137,6 +143,7 @@ class Plan:
     statics_repeats: int
     statics_poses: int
     statics_batch_poses: int
+    sim_seconds: float
     decode_repeats: int
     decode_frames: int
     loop_seconds: float
@@ -144,8 +151,8 @@ class Plan:
     estop_tries: int
 
 
-FULL = Plan(501, 400, 15, 32, 5, 1_000_000, 51, 200, 100_000, 5, 50_000, 10.0, 3, 100)
-QUICK = Plan(101, 400, 5, 16, 3, 1_000_000, 11, 100, 100_000, 3, 20_000, 2.0, 1, 50)
+FULL = Plan(501, 400, 15, 32, 5, 1_000_000, 51, 200, 100_000, 5.0, 5, 50_000, 10.0, 3, 100)
+QUICK = Plan(101, 400, 5, 16, 3, 1_000_000, 11, 100, 100_000, 1.0, 3, 20_000, 2.0, 1, 50)
 
 LENGTH_NOISE_M = 1e-3
 """Standard deviation of the noise put on the cable lengths for `fpk4` and the batch."""
@@ -167,6 +174,7 @@ TARGET_SIMPLIFIED_US = 2.0
 TARGET_SCIPY_OVER_FPK4 = 100.0
 TARGET_BATCH_OVER_COPY = 20.0
 TARGET_DECODE_FRAMES_PER_S = 20_000.0
+TARGET_SIM_RTF = 1.0
 TARGET_JITTER_P99_FRAC = 0.10
 TARGET_COMPUTE_P99_FRAC = 0.25
 TARGET_OVERRUN_FRAC = 0.001
@@ -192,6 +200,7 @@ JSON_KEYS = (
     "batch_over_copy",
     "statics_us",
     "statics_batch_us",
+    "sim_plant_rtf",
     "decode_frames_per_s",
     "zenoh_put_us",
     "loop",
@@ -484,6 +493,48 @@ def bench_statics(repeats: int, n_poses: int, batch_poses: int) -> dict[str, flo
         "statics_batch_us": b.cpu(0, batch_poses) / 1e3,
         "statics_batch_wall_us": b.wall(0, batch_poses) / 1e3,
     }
+
+
+def bench_sim_plant(seconds: float) -> dict[str, float]:
+    """Real-time factor of four simulated ODrives carrying the built-in robot's payload at
+    1 kHz (module docstring), holding in position control and pulling in torque control."""
+    from controller.service.config import default_config, tension_check
+    from controller.service.simulated import initial_turns, sim_plant
+    from drivers.odrive import cansimple as cs
+    from drivers.odrive.sim import SimODriveAxis, step_axes
+
+    cfg = replace(default_config(), sim=replace(default_config().sim, plant="physical"))
+    assert cfg.payload is not None and cfg.tension is not None
+    assert cfg.homing.power_up_position_m is not None
+    turns = initial_turns(cfg)
+    pose = tuple(float(v) for v in cfg.homing.power_up_position_m)
+    tensions = tension_check(cfg.payload, cfg.tension, cfg.geometry).solve(pose).tensions_n
+    dt = 0.001
+    ticks = max(1, round(seconds / dt))
+    out: dict[str, float] = {}
+    for mode in ("position", "torque"):
+        plant = sim_plant(cfg, turns)
+        axes = [
+            SimODriveAxis(n, initial_position_rev=t)
+            for n, t in zip(cfg.node_ids, turns, strict=True)
+        ]
+        for a, r, t, n in zip(axes, cfg.reels, turns, tensions, strict=True):
+            a.coupled = True
+            if mode == "torque":
+                a.handle(cs.SetInputTorque(a.node_id, r.reel.torque_nm(t, n)))
+                a.handle(cs.SetControllerMode(a.node_id, cs.ControlMode.TORQUE_CONTROL, 1))
+            a.handle(cs.SetAxisState(a.node_id, cs.AxisState.CLOSED_LOOP_CONTROL))
+
+        def run(axes: list[SimODriveAxis] = axes, plant: Any = plant) -> None:
+            for _ in range(ticks):
+                step_axes(axes, plant, dt)
+                for a in axes:
+                    a.broadcasts(dt)
+
+        timed = interleaved([run], 1, warm_up=False)
+        out[mode] = ticks * dt / (timed.cpu(0) / 1e9)
+        out[f"{mode}_tick_us"] = timed.cpu(0, ticks) / 1e3
+    return out
 
 
 def bench_decode(repeats: int, frames: int) -> dict[str, float]:
@@ -1539,6 +1590,25 @@ def _measure_statics(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any
     return sx, rows
 
 
+def _measure_sim(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any], list[Row]]:
+    """Measure the physical simulator's real-time factor: figures and rows."""
+    log("physical simulator ...")
+    sp = bench_sim_plant(p.sim_seconds)
+    rows = [
+        Row(
+            f"sim_plant_rtf.{mode}",
+            sp[mode],
+            "x",
+            f">= {TARGET_SIM_RTF:g}",
+            sp[mode] >= TARGET_SIM_RTF,
+            f"{p.sim_seconds:g} simulated s at 1 kHz, 4 axes; "
+            f"{sp[mode + '_tick_us']:.3g} us a tick",
+        )
+        for mode in ("position", "torque")
+    ]
+    return sp, rows
+
+
 def _measure_decode(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any], list[Row]]:
     """Measure the receive path: its figures and table rows. Raises BenchError."""
     rows: list[Row] = []
@@ -1754,6 +1824,8 @@ def measure(
     rows += part
     sx, part = _measure_statics(p, log)
     rows += part
+    sp, part = _measure_sim(p, log)
+    rows += part
     dc, part = _measure_decode(p, log)
     rows += part
     loops, ci, k1, part = _measure_loops(p, log)
@@ -1770,6 +1842,7 @@ def measure(
         "batch_over_copy": bt["batch_over_copy"],
         "statics_us": sx["statics_us"],
         "statics_batch_us": sx["statics_batch_us"],
+        "sim_plant_rtf": {"position": sp["position"], "torque": sp["torque"]},
         "decode_frames_per_s": dc["decode_frames_per_s"],
         "zenoh_put_us": float(k1["zenoh_put_us"]),
         "loop": {
@@ -1812,21 +1885,10 @@ def machine_line() -> str:
 def cmd_bench(args: argparse.Namespace) -> int:
     """Entry point of `cablebot bench`."""
     base = QUICK if args.quick else FULL
-    plan = Plan(
-        base.scalar_repeats,
-        base.scalar_calls,
-        base.fpk4_repeats,
-        base.fpk4_poses,
-        base.batch_repeats,
-        args.batch_poses if args.batch_poses is not None else base.batch_poses,
-        base.statics_repeats,
-        base.statics_poses,
-        base.statics_batch_poses,
-        base.decode_repeats,
-        base.decode_frames,
-        args.loop_seconds if args.loop_seconds is not None else base.loop_seconds,
-        base.loop_runs,
-        base.estop_tries,
+    plan = replace(
+        base,
+        batch_poses=args.batch_poses if args.batch_poses is not None else base.batch_poses,
+        loop_seconds=args.loop_seconds if args.loop_seconds is not None else base.loop_seconds,
     )
 
     t_start = time.monotonic()

@@ -518,6 +518,30 @@ def _to_can(frame: cs.Frame) -> can.Message:
     )
 
 
+def step_axes(axes: Sequence[SimODriveAxis], coupling: AxisCoupling | None, dt_s: float) -> None:
+    """One tick of the simulated drives' motion, no frames: every axis advances `dt_s`, then
+    the `coupling` (if any) steps with their positions and the torques of those in torque
+    control, and each axis gets its load torque (one in torque control also the turns the load
+    gave it). Raises whatever the coupling raises (the axes have moved; the loads stay)."""
+    for axis in axes:
+        axis.advance(dt_s)
+    if coupling is None:
+        return
+    pulls = [a.pull_nm for a in axes]
+    any_pull = any(p is not None for p in pulls)
+    torques = coupling.step(
+        [a.position_rev for a in axes],
+        dt_s,
+        pulls if any_pull else None,
+        [a.max_velocity_rps for a in axes] if any_pull else None,
+    )
+    positions = coupling.positions_rev if any_pull else None
+    for k, axis in enumerate(axes):
+        axis.set_load_torque(torques[k])
+        if positions is not None and pulls[k] is not None:
+            axis.follow_load(positions[k], dt_s)
+
+
 def run_sim(
     bus: can.BusABC,
     axes: Sequence[SimODriveAxis],
@@ -572,27 +596,11 @@ def run_sim(
         last = now
         late = remaining <= -tick_s
         next_tick = now + tick_s if late else next_tick + tick_s
-        for axis in axes:
-            axis.advance(dt)
-        if coupling is not None:
-            try:
-                pulls = [a.pull_nm for a in axes]
-                any_pull = any(p is not None for p in pulls)
-                torques = coupling.step(
-                    [a.position_rev for a in axes],
-                    dt,
-                    pulls if any_pull else None,
-                    [a.max_velocity_rps for a in axes] if any_pull else None,
-                )
-            except Exception as exc:  # the simulated robot keeps serving; the error is counted
-                st.coupling_errors += 1
-                st.last_coupling_error = f"{type(exc).__name__}: {exc}"
-            else:
-                positions = coupling.positions_rev if any_pull else None
-                for k, axis in enumerate(axes):
-                    axis.set_load_torque(torques[k])
-                    if positions is not None and pulls[k] is not None:
-                        axis.follow_load(positions[k], dt)
+        try:
+            step_axes(axes, coupling, dt)
+        except Exception as exc:  # the simulated robot keeps serving; the error is counted
+            st.coupling_errors += 1
+            st.last_coupling_error = f"{type(exc).__name__}: {exc}"
         for axis in axes:
             send(axis.broadcasts(dt))
         st.ticks += 1

@@ -28,6 +28,7 @@ TOP_KEYS = {
     "batch_over_copy",
     "statics_us",
     "statics_batch_us",
+    "sim_plant_rtf",
     "decode_frames_per_s",
     "zenoh_put_us",
     "loop",
@@ -90,7 +91,9 @@ def test_bench_quick_json(tmp_path: Path) -> None:
     assert set(es) == ESTOP_KEYS
     assert all(_number(v) for v in es.values()), es
     assert 0.0 < es["reply_p50"] <= es["reply_p99"] and 0.0 < es["frame_p50"] <= es["frame_p99"]
-    for key in TOP_KEYS - {"loop", "estop_latency_flood_ms"}:
+    rtf = data["sim_plant_rtf"]
+    assert set(rtf) == {"position", "torque"} and all(_number(v) and v > 0.0 for v in rtf.values())
+    for key in TOP_KEYS - {"loop", "estop_latency_flood_ms", "sim_plant_rtf"}:
         assert _number(data[key]), (key, data[key])
         assert data[key] > 0.0, (key, data[key])
     assert data["fpk_simplified_us"] < 1e3 and data["fpk_general_us"] < 1e3
@@ -127,6 +130,14 @@ def test_bench_statics_piece() -> None:
     }
     assert all(_number(v) and v > 0.0 for v in figures.values()), figures
     assert figures["statics_batch_us"] < figures["statics_us"]
+
+
+def test_bench_sim_plant_piece() -> None:
+    figures = bench.bench_sim_plant(0.2)
+    assert set(figures) == {"position", "position_tick_us", "torque", "torque_tick_us"}
+    assert all(_number(v) and v > 0.0 for v in figures.values()), figures
+    for mode in ("position", "torque"):  # the factor is a tick's 1 ms over its CPU time
+        assert figures[mode] == pytest.approx(1e3 / figures[f"{mode}_tick_us"], rel=1e-9)
 
 
 def _frame_hex(pos_rev: float) -> str:

@@ -17,7 +17,7 @@ from controller.service.simulated import sim_bank, start_sim_bank
 from drivers.bus import open_bus
 from drivers.odrive import cansimple as cs
 from drivers.odrive.driver import ODriveReels
-from drivers.odrive.sim import SimODriveAxis, SimODriveBank, SimStats, run_sim
+from drivers.odrive.sim import SimODriveAxis, SimODriveBank, SimStats, run_sim, step_axes
 
 DT = 0.001
 
@@ -311,16 +311,7 @@ def test_pretension_in_torque_mode_takes_up_a_slipped_cable_and_restores_the_sta
     plant.slip(0, 0.05)
 
     def tick() -> None:
-        for a in axes:
-            a.advance(DT)
-        pulls = [a.pull_nm for a in axes]
-        torques = plant.step(
-            [a.position_rev for a in axes], DT, pulls, [a.max_velocity_rps for a in axes]
-        )
-        for a, t, p, pull in zip(axes, torques, plant.positions_rev, pulls, strict=True):
-            a.set_load_torque(t)
-            if pull is not None:
-                a.follow_load(p, DT)
+        step_axes(axes, plant, DT)
 
     tick()
     assert plant.tensions_n[0] == 0.0  # slack
