@@ -49,7 +49,7 @@ import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType, TracebackType
+from types import FrameType
 from typing import Any
 
 import can
@@ -61,6 +61,7 @@ from drivers.bus import open_bus
 from drivers.cia402.profile import DriveState
 from drivers.odrive.sim import DEFAULT_POS_GAIN, MAX_SUBSTEP_S, _floats, _option
 from drivers.registry import SimSettings
+from drivers.simbank import ThreadedSimBank
 
 EDS_PATH = Path(__file__).with_name("cia402.eds")
 DEFAULT_COUNTS_PER_REV = 131072
@@ -674,11 +675,13 @@ class SimCiA402Drive:
             self._power_up()
 
 
-class SimCiA402Bank:
+class SimCiA402Bank(ThreadedSimBank):
     """Simulated CiA 402 drives served on `bus` by a background thread (a context manager).
 
     The bank does not own the bus: the caller shuts it down after `stop()`.
     """
+
+    thread_name = "sim-cia402"
 
     def __init__(
         self,
@@ -705,14 +708,13 @@ class SimCiA402Bank:
             initial = [float(x) for x in initial_position_rev]
             if len(initial) != len(ids):
                 raise ValueError(f"{len(ids)} initial positions needed, got {len(initial)}")
+        super().__init__()
         self.bus = bus
         self.drives: tuple[SimCiA402Drive, ...] = tuple(
             SimCiA402Drive(n, initial_position_rev=x, **drive_options)
             for n, x in zip(ids, initial, strict=True)
         )
         self.tick_s = tick_s
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
 
     def axis(self, node_id: int) -> SimCiA402Drive:
         """The simulated drive with this node id. Raises KeyError if there is none."""
@@ -721,43 +723,8 @@ class SimCiA402Bank:
                 return d
         raise KeyError(node_id)
 
-    def start(self) -> SimCiA402Bank:
-        """Send the boot-ups and start the serving thread (once). Returns self."""
-        if self._thread is not None:
-            raise RuntimeError("SimCiA402Bank already started")
-        self._thread = threading.Thread(
-            target=run_sim,
-            args=(self.bus, self.drives, self._stop),
-            kwargs={"tick_s": self.tick_s},
-            name="sim-cia402",
-            daemon=True,
-        )
-        self._thread.start()
-        return self
-
-    def stop(self, timeout_s: float = 2.0) -> bool:
-        """Stop the thread and join it within `timeout_s`; return True if it has ended."""
-        self._stop.set()
-        if self._thread is None:
-            return True
-        self._thread.join(timeout_s)
-        return not self._thread.is_alive()
-
-    @property
-    def thread(self) -> threading.Thread | None:
-        """The serving thread once started, else None."""
-        return self._thread
-
-    def __enter__(self) -> SimCiA402Bank:
-        return self.start()
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
+    def _serve(self, stop: threading.Event) -> None:
+        run_sim(self.bus, self.drives, stop, tick_s=self.tick_s)
 
 
 def open_sim_bank(

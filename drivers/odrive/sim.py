@@ -75,7 +75,7 @@ import threading
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from types import FrameType, TracebackType
+from types import FrameType
 from typing import Any, Protocol
 
 import can
@@ -83,6 +83,7 @@ import can
 from drivers.bus import open_bus
 from drivers.odrive import cansimple as cs
 from drivers.registry import SimSettings
+from drivers.simbank import ThreadedSimBank
 
 _NAN_ENCODER = struct.pack("<ff", math.nan, 0.0)
 
@@ -609,11 +610,13 @@ def run_sim(
         st.busy_s += clock() - now
 
 
-class SimODriveBank:
+class SimODriveBank(ThreadedSimBank):
     """Simulated ODrive axes served on `bus` by a background thread (a context manager).
 
     The bank does not own the bus: the caller shuts it down after `stop()`.
     """
+
+    thread_name = "sim-odrive"
 
     def __init__(
         self,
@@ -630,20 +633,19 @@ class SimODriveBank:
             raise ValueError("duplicate node ids among simulated axes")
         if not (math.isfinite(tick_s) and tick_s > 0.0):
             raise ValueError("tick_s must be finite and > 0")
+        super().__init__()
         self.bus = bus
         self.axes: tuple[SimODriveAxis, ...] = tuple(axes)
         self.tick_s = tick_s
         self.coupling = coupling
         self.stats = SimStats()
         """Live counters of the serving thread (see `SimStats`)."""
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
 
     def carry(self, coupling: AxisCoupling, torque_period_s: float = 0.0) -> None:
         """Give the axes a load before `start`: `coupling` is stepped every tick, and every
         axis broadcasts Get_Torques every `torque_period_s` (0: by RTR only). Raises
         RuntimeError once started, ValueError on a negative or non-finite period."""
-        if self._thread is not None:
+        if self.started:
             raise RuntimeError("SimODriveBank already started: give it its load before")
         if not (math.isfinite(torque_period_s) and torque_period_s >= 0.0):
             raise ValueError(f"torque_period_s must be finite and >= 0, got {torque_period_s!r}")
@@ -658,43 +660,10 @@ class SimODriveBank:
                 return a
         raise KeyError(node_id)
 
-    def start(self) -> SimODriveBank:
-        """Start the serving thread (once). Returns self."""
-        if self._thread is not None:
-            raise RuntimeError("SimODriveBank already started")
-        self._thread = threading.Thread(
-            target=run_sim,
-            args=(self.bus, self.axes, self._stop),
-            kwargs={"tick_s": self.tick_s, "coupling": self.coupling, "stats": self.stats},
-            name="sim-odrive",
-            daemon=True,
+    def _serve(self, stop: threading.Event) -> None:
+        run_sim(
+            self.bus, self.axes, stop, tick_s=self.tick_s, coupling=self.coupling, stats=self.stats
         )
-        self._thread.start()
-        return self
-
-    def stop(self, timeout_s: float = 2.0) -> bool:
-        """Stop the thread and join it within `timeout_s`; return True if it has ended."""
-        self._stop.set()
-        if self._thread is None:
-            return True
-        self._thread.join(timeout_s)
-        return not self._thread.is_alive()
-
-    @property
-    def thread(self) -> threading.Thread | None:
-        """The serving thread once started, else None."""
-        return self._thread
-
-    def __enter__(self) -> SimODriveBank:
-        return self.start()
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.stop()
 
 
 def open_sim_bank(
