@@ -127,6 +127,23 @@ class BusStats:
     commands_heard: int = 0
     """Host-to-drive commands heard on the bus (own frames echoed back, or another master's)."""
 
+    def count(self, kind: str, *, decode_error: bool = False) -> None:
+        """Count one received frame that was not taken, by `kind`: a decode error
+        (`decode_error`), host traffic heard on the bus (kind "not_for_host": `commands_heard`,
+        not a loss), or else a dropped frame. Raises nothing."""
+        if decode_error:
+            self.decode_errors += 1
+        elif kind == "not_for_host":
+            self.commands_heard += 1
+        else:
+            self.dropped += 1
+        self.errors_by_kind[kind] = self.errors_by_kind.get(kind, 0) + 1
+
+    def count_bus_error(self, text: str) -> None:
+        """Count one failed send (or receive-side OS error) described by `text`."""
+        self.bus_errors += 1
+        self.last_error = text
+
     def snapshot(self) -> BusStats:
         """Return an independent copy of these counters."""
         return BusStats(

@@ -347,7 +347,7 @@ class CiA402Reels:
             try:
                 msg = recv(0.002)
             except Exception as exc:
-                self._count_bus_error(f"receive: {type(exc).__name__}: {exc}")
+                self._stats.count_bus_error(f"receive: {type(exc).__name__}: {exc}")
                 stop.wait(0.01)
                 continue
             if msg is not None:
@@ -480,7 +480,7 @@ class CiA402Reels:
             try:
                 msg = recv(0.0)
             except Exception as exc:  # a receive error must never escape into the loop
-                self._count_bus_error(f"receive: {type(exc).__name__}: {exc}")
+                self._stats.count_bus_error(f"receive: {type(exc).__name__}: {exc}")
                 break
             if msg is None:
                 break
@@ -500,11 +500,11 @@ class CiA402Reels:
     def _handle(self, msg: can.Message) -> None:
         if msg.is_error_frame:
             # SocketCAN error frame: bus-off, controller or protocol trouble.
-            self._count_bus_error(f"CAN error frame 0x{msg.arbitration_id:x}")
-            self._count("error_frame", decode_error=False)
+            self._stats.count_bus_error(f"CAN error frame 0x{msg.arbitration_id:x}")
+            self._stats.count("error_frame")
             return
         if msg.is_extended_id:
-            self._count("extended_id", decode_error=True)
+            self._stats.count("extended_id", decode_error=True)
             return
         arb = msg.arbitration_id
         d = self._tpdo_by_cob.get(arb)
@@ -512,20 +512,20 @@ class CiA402Reels:
             self._on_tpdo(d, msg.data)
             return
         if arb in self._host_cob_ids or msg.is_remote_frame:
-            self._count("not_for_host", decode_error=False)
+            self._stats.count("not_for_host")
             return
         if arb in self._sdo_answer_ids:
             if not self._configuring:  # nobody waits for it: not queued for later
-                self._count("sdo_unsolicited", decode_error=False)
+                self._stats.count("sdo_unsolicited")
                 return
         elif arb not in self._canopen_cob_ids:
-            self._count("unknown_cob_id", decode_error=False)
+            self._stats.count("unknown_cob_id")
             return
         try:
             self._network.notify(arb, msg.data, msg.timestamp)
         except Exception as exc:  # canopen raises on malformed heartbeat/EMCY payloads
             kind = "length" if isinstance(exc, struct.error) else "bad_frame"
-            self._count(kind, decode_error=True)
+            self._stats.count(kind, decode_error=True)
             owner = self._by_node.get(arb & 0x7F)
             if owner is not None:
                 owner.bad_frames += 1
@@ -534,7 +534,7 @@ class CiA402Reels:
         layout = d.tpdo1
         if len(data) != layout.size:
             d.bad_frames += 1
-            self._count("length", decode_error=True)
+            self._stats.count("length", decode_error=True)
             return
         values = layout.unpack(data)
         counts = values[1]
@@ -618,20 +618,6 @@ class CiA402Reels:
             r.axis_error = 0
         else:
             r.axis_error = d.emcy.code if d.emcy is not None else profile.NO_EMCY_CODE
-
-    def _count(self, kind: str, *, decode_error: bool) -> None:
-        stats = self._stats
-        if decode_error:
-            stats.decode_errors += 1
-        elif kind == "not_for_host":  # host traffic heard on the bus: not a lost frame
-            stats.commands_heard += 1
-        else:
-            stats.dropped += 1
-        stats.errors_by_kind[kind] = stats.errors_by_kind.get(kind, 0) + 1
-
-    def _count_bus_error(self, text: str) -> None:
-        self._stats.bus_errors += 1
-        self._stats.last_error = text
 
     def read(self) -> Sequence[AxisReading]:
         """Latest reading per axis, in `node_ids` order (live objects updated by `poll`)."""

@@ -215,7 +215,7 @@ class ODriveReels:
             try:
                 msg = recv(0.0)
             except Exception as exc:  # a receive error must never escape into the loop
-                self._count_bus_error(f"receive: {type(exc).__name__}: {exc}")
+                self._stats.count_bus_error(f"receive: {type(exc).__name__}: {exc}")
                 break
             if msg is None:
                 break
@@ -229,7 +229,7 @@ class ODriveReels:
             if msg.is_error_frame:
                 # SocketCAN error frame: bus-off, controller or protocol trouble. A bus error
                 # for the loop (which faults when they persist), not a dropped data frame.
-                self._count_bus_error(f"CAN error frame 0x{msg.arbitration_id:x}")
+                self._stats.count_bus_error(f"CAN error frame 0x{msg.arbitration_id:x}")
                 errs = self._stats.errors_by_kind
                 errs["error_frame"] = errs.get("error_frame", 0) + 1
                 continue
@@ -238,7 +238,7 @@ class ODriveReels:
             if mtype is encoder_type or mtype is heartbeat_type:
                 rec = by_node[m.node_id]
                 if rec is None:
-                    self._count("unknown_node", decode_error=False)
+                    self._stats.count("unknown_node")
                     continue
                 age = wall_s - msg.timestamp
                 if age < 0.0:
@@ -268,7 +268,7 @@ class ODriveReels:
             elif mtype is cs.Torques:
                 rec = by_node[m.node_id]
                 if rec is None:
-                    self._count("unknown_node", decode_error=False)
+                    self._stats.count("unknown_node")
                     continue
                 age = wall_s - msg.timestamp
                 rec.torque_nm = m.torque_estimate_nm  # type: ignore[union-attr]
@@ -293,31 +293,16 @@ class ODriveReels:
             node = m.node_id
             self._bad_frames_by_node[node] = self._bad_frames_by_node.get(node, 0) + 1
             self._last_decode_error[node] = m
-            self._count(m.kind.value, decode_error=True)
+            self._stats.count(m.kind.value, decode_error=True)
         elif isinstance(m, cs.GetError):
             if self._by_node[m.node_id] is None:
-                self._count("unknown_node", decode_error=False)
+                self._stats.count("unknown_node")
             else:
                 self._last_get_error[m.node_id] = m
         else:
             # Host-to-ODrive commands and RTR requests: our own frames echoed back (e.g. by
             # udp_multicast) or another master on the bus. Not for us, and not lost either.
-            self._stats.commands_heard += 1
-            self._stats.errors_by_kind["not_for_host"] = (
-                self._stats.errors_by_kind.get("not_for_host", 0) + 1
-            )
-
-    def _count(self, kind: str, *, decode_error: bool) -> None:
-        stats = self._stats
-        if decode_error:
-            stats.decode_errors += 1
-        else:
-            stats.dropped += 1
-        stats.errors_by_kind[kind] = stats.errors_by_kind.get(kind, 0) + 1
-
-    def _count_bus_error(self, text: str) -> None:
-        self._stats.bus_errors += 1
-        self._stats.last_error = text
+            self._stats.count("not_for_host")
 
     def read(self) -> Sequence[AxisReading]:
         """Latest reading per axis, in `node_ids` order (live objects updated by `poll`)."""
@@ -402,7 +387,7 @@ class ODriveReels:
                 bus.send(msg, timeout=timeout)
             except Exception as exc:  # CanError, OSError, or anything an interface raises
                 text = f"send {what} to node {arb_id >> 5}: {type(exc).__name__}: {exc}"
-                self._count_bus_error(text)
+                self._stats.count_bus_error(text)
                 failures.append(text)
             else:
                 self._stats.frames_tx += 1
