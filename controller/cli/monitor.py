@@ -221,6 +221,17 @@ def render(
         )
     sp = st.get("setpoint_m")
     t.add_row("set-point", _xyz(sp) if sp is not None else "none")
+    pt = st.get("pretension") or {}
+    if pt.get("active"):
+        t.add_row(
+            "pretension",
+            Text(
+                f"{_num(pt.get('elapsed_s'), '.1f')} s, fastest cable "
+                f"{_num(pt.get('fastest_cable_mps'), '.2f', 1e3)} mm/s; home at "
+                f"{_xyz(pt.get('position_m'))}",
+                style="yellow",
+            ),
+        )
     rate = "-" if pose_rate_hz is None else f"{pose_rate_hz:.0f}/s"
     missed = Text(f"{snap.missed} missed", style="bold yellow" if snap.missed else "")
     stream = Text(f"seq {pose.get('seq', '-')}  {rate}  {snap.received} received, ")

@@ -280,6 +280,33 @@ def test_render_puts_a_fault_in_red_with_what_to_do() -> None:
     assert "\x1b[1;31m" in line  # bold red
 
 
+def test_render_shows_a_running_pretension() -> None:
+    from rich.console import Console
+
+    from controller.cli.monitor import Snapshot, render
+
+    status = {
+        "state": "PRETENSIONING",
+        "reason": "pretension: the reels pull in torque control",
+        "pretension": {
+            "active": True,
+            "position_m": [0.3, 0.0, 2.0],
+            "elapsed_s": 4.25,
+            "fastest_cable_mps": 0.00312,
+        },
+    }
+    snap = Snapshot(pose={"state": "PRETENSIONING"}, pose_rx_s=1.0, status=status)
+    console = Console(record=True, width=120)
+    console.print(render(snap, 1.1, 50.0, "t"))
+    text = console.export_text()
+    assert "PRETENSIONING" in text and "(pretension: the reels pull in torque control)" in text
+    assert "pretension  4.2 s, fastest cable 3.12 mm/s; home at x   +0.3000" in text
+    status["pretension"] = {"active": False, "result": None}
+    console = Console(record=True, width=120)
+    console.print(render(snap, 1.1, 50.0, "t"))
+    assert "fastest cable" not in console.export_text()
+
+
 def test_render_says_when_no_pose_arrives() -> None:
     from rich.console import Console
 
