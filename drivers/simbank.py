@@ -4,14 +4,24 @@ A family's bank (`drivers.odrive.sim.SimODriveBank`, `drivers.cia402.sim.SimCiA4
 what one serving run is (`_serve`: answer frames and step the nodes until the stop event is
 set); this class starts it once in a daemon thread, stops and joins it, and makes the bank a
 context manager. The bank does not own the bus: the caller shuts it down after `stop()`.
-Only the standard library is imported here.
+
+`add_bus_arguments` and `serve_process` are the shared part of the families' command lines
+(`python -m drivers.odrive.sim`, `python -m drivers.cia402.sim`): the bus options, and serving
+until SIGTERM/SIGINT (or `--duration-s`) with "READY <nodes>" on stdout once the bus is open.
 """
 
 from __future__ import annotations
 
+import argparse
+import math
+import signal
 import threading
-from types import TracebackType
-from typing import Self
+from collections.abc import Callable, Sequence
+from types import FrameType, TracebackType
+from typing import TYPE_CHECKING, Any, Self
+
+if TYPE_CHECKING:
+    import can
 
 
 class ThreadedSimBank:
@@ -66,3 +76,86 @@ class ThreadedSimBank:
         tb: TracebackType | None,
     ) -> None:
         self.stop()
+
+
+# --------------------------------------------------------------------------------------------
+# The simulators' command lines
+
+
+def floats_arg(text: str, n: int) -> list[float]:
+    """`n` finite numbers from "a,b,..." (one value stands for all `n`). Raises
+    argparse.ArgumentTypeError otherwise."""
+    values = [float(v) for v in text.split(",")] if text else [0.0]
+    if len(values) == 1:
+        values = values * n
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"need 1 or {n} finite values, got {text!r}")
+    return values
+
+
+def option_arg(text: str) -> tuple[str, Any]:
+    """A python-can keyword from "KEY=VALUE" (integers, floats and true/false parsed). Raises
+    SystemExit without a KEY or "="."""
+    key, sep, raw = text.partition("=")
+    if not sep or not key:
+        raise SystemExit(f"--option needs KEY=VALUE, got {text!r}")
+    value: Any = raw
+    if raw.lower() in ("true", "false"):
+        value = raw.lower() == "true"
+    else:
+        for conv in (int, float):
+            try:
+                value = conv(raw)
+                break
+            except ValueError:
+                pass
+    return key, value
+
+
+def add_bus_arguments(p: argparse.ArgumentParser) -> None:
+    """The bus options every simulator process takes, and `--tick-s`, `--duration-s`."""
+    p.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
+    p.add_argument("--channel", required=True, help="channel, e.g. vcan0 or a multicast group")
+    p.add_argument("--bitrate", type=int, default=None)
+    p.add_argument("--port", type=int, default=None, help="udp_multicast port")
+    p.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="further python-can interface keyword (repeatable); numbers and true/false parsed",
+    )
+    p.add_argument("--tick-s", type=float, default=0.001)
+    p.add_argument("--duration-s", type=float, default=None, help="exit after this long")
+
+
+def serve_process(
+    args: argparse.Namespace,
+    nodes: Sequence[int],
+    serve: Callable[[can.BusABC, threading.Event], None],
+) -> int:
+    """Open the bus of `add_bus_arguments`' options, say "READY <nodes>", and run
+    `serve(bus, stop)` until SIGTERM/SIGINT or `--duration-s`; shut the bus down. Returns 0."""
+    from drivers.bus import open_bus
+
+    options: dict[str, Any] = dict(option_arg(o) for o in args.option)
+    if args.port is not None:
+        options["port"] = args.port
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    if args.duration_s is not None:
+        timer = threading.Timer(args.duration_s, stop.set)
+        timer.daemon = True
+        timer.start()
+    bus = open_bus(args.interface, args.channel, args.bitrate, **options)
+    try:
+        print("READY " + ",".join(str(n) for n in nodes), flush=True)
+        serve(bus, stop)
+    finally:
+        bus.shutdown()
+    return 0

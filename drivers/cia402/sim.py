@@ -41,7 +41,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
-import signal
 import struct
 import sys
 import threading
@@ -49,7 +48,6 @@ import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import can
@@ -57,11 +55,10 @@ import canopen
 from canopen.objectdictionary import ODVariable
 from canopen.sdo.exceptions import SdoAbortedError
 
-from drivers.bus import open_bus
 from drivers.cia402.profile import DriveState
-from drivers.odrive.sim import DEFAULT_POS_GAIN, MAX_SUBSTEP_S, _floats, _option
+from drivers.odrive.sim import DEFAULT_POS_GAIN, MAX_SUBSTEP_S
 from drivers.registry import SimSettings
-from drivers.simbank import ThreadedSimBank
+from drivers.simbank import ThreadedSimBank, add_bus_arguments, floats_arg, serve_process
 
 EDS_PATH = Path(__file__).with_name("cia402.eds")
 DEFAULT_COUNTS_PER_REV = 131072
@@ -803,17 +800,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     Prints "READY <nodes>" on stdout once the bus is open and the drives are served.
     """
     p = argparse.ArgumentParser(prog="python -m drivers.cia402.sim", description=__doc__)
-    p.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
-    p.add_argument("--channel", required=True, help="channel, e.g. vcan0 or a multicast group")
-    p.add_argument("--bitrate", type=int, default=None)
-    p.add_argument("--port", type=int, default=None, help="udp_multicast port")
-    p.add_argument(
-        "--option",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="further python-can interface keyword (repeatable); numbers and true/false parsed",
-    )
+    add_bus_arguments(p)
     p.add_argument("--nodes", default="1,2,3,4", help="comma-separated CANopen node ids")
     p.add_argument("--initial-rev", default="0", help="one value, or one per node")
     p.add_argument("--counts-per-rev", type=float, default=DEFAULT_COUNTS_PER_REV)
@@ -822,41 +809,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument(
         "--pos-gain", type=float, default=DEFAULT_POS_GAIN, help="position gain, (rev/s)/rev"
     )
-    p.add_argument("--tick-s", type=float, default=0.001)
-    p.add_argument("--duration-s", type=float, default=None, help="exit after this long")
     args = p.parse_args(argv)
     nodes = [int(n) for n in args.nodes.split(",")]
-    options: dict[str, Any] = dict(_option(o) for o in args.option)
-    if args.port is not None:
-        options["port"] = args.port
-    stop = threading.Event()
+    initial = floats_arg(args.initial_rev, len(nodes))
 
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
-    if args.duration_s is not None:
-        timer = threading.Timer(args.duration_s, stop.set)
-        timer.daemon = True
-        timer.start()
-    bus = open_bus(args.interface, args.channel, args.bitrate, **options)
-    try:
+    def serve(bus: can.BusABC, stop: threading.Event) -> None:
         bank = SimCiA402Bank(
             bus,
             nodes,
-            initial_position_rev=_floats(args.initial_rev, len(nodes)),
+            initial_position_rev=initial,
             tick_s=args.tick_s,
             counts_per_rev=args.counts_per_rev,
             max_velocity_rps=args.max_velocity_rps,
             max_accel_rps2=args.max_accel_rps2,
             pos_gain=args.pos_gain,
         )
-        print("READY " + ",".join(str(n) for n in nodes), flush=True)
         run_sim(bus, bank.drives, stop, tick_s=args.tick_s)
-    finally:
-        bus.shutdown()
-    return 0
+
+    return serve_process(args, nodes, serve)
 
 
 if __name__ == "__main__":

@@ -68,22 +68,19 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
-import signal
 import struct
 import sys
 import threading
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from types import FrameType
 from typing import Any, Protocol
 
 import can
 
-from drivers.bus import open_bus
 from drivers.odrive import cansimple as cs
 from drivers.registry import SimSettings
-from drivers.simbank import ThreadedSimBank
+from drivers.simbank import ThreadedSimBank, add_bus_arguments, floats_arg, serve_process
 
 _NAN_ENCODER = struct.pack("<ff", math.nan, 0.0)
 
@@ -693,49 +690,13 @@ def open_sim_bank(
     return SimODriveBank(bus, axes, tick_s=sim.tick_s)
 
 
-def _floats(text: str, n: int) -> list[float]:
-    values = [float(v) for v in text.split(",")] if text else [0.0]
-    if len(values) == 1:
-        values = values * n
-    if len(values) != n or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"need 1 or {n} finite values, got {text!r}")
-    return values
-
-
-def _option(text: str) -> tuple[str, Any]:
-    key, sep, raw = text.partition("=")
-    if not sep or not key:
-        raise SystemExit(f"--option needs KEY=VALUE, got {text!r}")
-    value: Any = raw
-    if raw.lower() in ("true", "false"):
-        value = raw.lower() == "true"
-    else:
-        for conv in (int, float):
-            try:
-                value = conv(raw)
-                break
-            except ValueError:
-                pass
-    return key, value
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """`python -m drivers.odrive.sim`: serve simulated axes on a bus until SIGTERM/SIGINT.
 
     Prints "READY <nodes>" on stdout once the bus is open and the axes are served.
     """
     p = argparse.ArgumentParser(prog="python -m drivers.odrive.sim", description=__doc__)
-    p.add_argument("--interface", required=True, help="python-can interface, e.g. socketcan")
-    p.add_argument("--channel", required=True, help="channel, e.g. vcan0 or a multicast group")
-    p.add_argument("--bitrate", type=int, default=None)
-    p.add_argument("--port", type=int, default=None, help="udp_multicast port")
-    p.add_argument(
-        "--option",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="further python-can interface keyword (repeatable); numbers and true/false parsed",
-    )
+    add_bus_arguments(p)
     p.add_argument("--nodes", default="0,1,2,3", help="comma-separated node ids")
     p.add_argument("--initial-rev", default="0", help="one value, or one per node")
     p.add_argument("--max-velocity-rps", type=float, default=20.0)
@@ -745,17 +706,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--encoder-period-s", type=float, default=0.01)
     p.add_argument("--heartbeat-period-s", type=float, default=0.1)
-    p.add_argument("--tick-s", type=float, default=0.001)
     p.add_argument(
         "--watchdog-timeout-s",
         type=float,
         default=0.0,
         help="axis watchdog: IDLE after this long in closed loop without a command (0: off)",
     )
-    p.add_argument("--duration-s", type=float, default=None, help="exit after this long")
     args = p.parse_args(argv)
     nodes = [int(n) for n in args.nodes.split(",")]
-    initial = _floats(args.initial_rev, len(nodes))
+    initial = floats_arg(args.initial_rev, len(nodes))
     axes = [
         SimODriveAxis(
             n,
@@ -769,27 +728,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         for n, x in zip(nodes, initial, strict=True)
     ]
-    options: dict[str, Any] = dict(_option(o) for o in args.option)
-    if args.port is not None:
-        options["port"] = args.port
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
-    if args.duration_s is not None:
-        timer = threading.Timer(args.duration_s, stop.set)
-        timer.daemon = True
-        timer.start()
-    bus = open_bus(args.interface, args.channel, args.bitrate, **options)
-    try:
-        print("READY " + ",".join(str(n) for n in nodes), flush=True)
-        run_sim(bus, axes, stop, tick_s=args.tick_s)
-    finally:
-        bus.shutdown()
-    return 0
+    return serve_process(
+        args, nodes, lambda bus, stop: run_sim(bus, axes, stop, tick_s=args.tick_s)
+    )
 
 
 if __name__ == "__main__":

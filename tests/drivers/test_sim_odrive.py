@@ -412,14 +412,14 @@ def test_bank_stops_within_bound() -> None:
 
 
 def test_process_option_parsing() -> None:
-    from drivers.odrive.sim import _option
+    from drivers.simbank import option_arg
 
-    assert _option("tty_baudrate=115200") == ("tty_baudrate", 115200)
-    assert _option("receive_own_messages=false") == ("receive_own_messages", False)
-    assert _option("hop_limit=1.5") == ("hop_limit", 1.5)
-    assert _option("serial=ABC") == ("serial", "ABC")
+    assert option_arg("tty_baudrate=115200") == ("tty_baudrate", 115200)
+    assert option_arg("receive_own_messages=false") == ("receive_own_messages", False)
+    assert option_arg("hop_limit=1.5") == ("hop_limit", 1.5)
+    assert option_arg("serial=ABC") == ("serial", "ABC")
     with pytest.raises(SystemExit):
-        _option("novalue")
+        option_arg("novalue")
 
 
 def test_the_configured_simulated_robot_has_its_watchdog_on() -> None:
