@@ -101,7 +101,7 @@ def _value(v: Any) -> str:
     if isinstance(v, str):
         return f'`"{v}"`'
     if isinstance(v, float):
-        return f"{v:g}"
+        return f"{v:g}".replace("e+0", "e").replace("e+", "e")
     if isinstance(v, tuple | list):
         return f"`{json.dumps(list(v))}`"
     return str(v)
@@ -128,6 +128,8 @@ def _option_row(family: registry.Family, o: registry.Option) -> str:
     unit = "path" if o.kind == "path" else unit_of(o.name)
     rng = _range(o)
     text = f"{family.title}: {o.doc}" + (f" ({rng})" if rng else "")
+    if o.kind == "path":
+        text += "; `~` expanded; the file must exist"
     return f"| `{o.name}` | {unit} | {_cell(default)} | {_cell(text)} |"
 
 
