@@ -104,8 +104,8 @@ def test_unit_is_a_template_without_a_hard_coded_install_path() -> None:
     assert svc["RestartPreventExitStatus"] == str(exitcodes.USAGE)  # a configuration error
     for key, value in (*unit["Unit"].items(), *svc.items()):
         assert "/opt/" not in value and ".venv" not in value, (key, value)
-    readme = (REPO / "README.md").read_text()
-    assert "systemctl enable --now cablebot@desk" in readme
+    guide = (REPO / "docs" / "hardware.md").read_text()
+    assert "systemctl enable --now cablebot@desk" in guide
 
 
 def test_unit_passes_systemd_analyze_verify(tmp_path: Path) -> None:
