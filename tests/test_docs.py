@@ -117,16 +117,15 @@ def anchors(path: Path) -> set[str]:
 def broken_links(doc: Path, text: str) -> list[str]:
     """The relative links of `text` (a document at `doc`) whose file or heading is missing."""
     broken = []
-    for line in prose_lines(text):
-        for target in LINK.findall(line):
-            if re.match(r"^[a-z][a-z0-9+.-]*:", target):  # https:, mailto:, ...
-                continue
-            path_part, _, anchor = target.partition("#")
-            path = doc if not path_part else (doc.parent / path_part).resolve()
-            if not path.exists():
-                broken.append(f"{target}: no such file")
-            elif anchor and (path.suffix != ".md" or anchor not in anchors(path)):
-                broken.append(f"{target}: no heading #{anchor} in {path.name}")
+    for target in LINK.findall("\n".join(prose_lines(text))):  # link texts may wrap lines
+        if re.match(r"^[a-z][a-z0-9+.-]*:", target):  # https:, mailto:, ...
+            continue
+        path_part, _, anchor = target.partition("#")
+        path = doc if not path_part else (doc.parent / path_part).resolve()
+        if not path.exists():
+            broken.append(f"{target}: no such file")
+        elif anchor and (path.suffix != ".md" or anchor not in anchors(path)):
+            broken.append(f"{target}: no heading #{anchor} in {path.name}")
     return broken
 
 
@@ -140,12 +139,14 @@ def test_the_link_check_finds_a_missing_file_and_a_missing_heading() -> None:
     doc = ROOT / "README.md"
     text = (
         "[ok](docs/operating.md#exit-codes) [gone](docs/nothing.md) "
-        "[bad](docs/operating.md#no-such-heading) `[code](docs/nothing.md)`\n"
+        "[bad](docs/operating.md#no-such-heading) [wrapped\ntext](docs/gone.md)\n"
+        "`[code](docs/nothing.md)`\n"
         "```\n[fenced](docs/nothing.md)\n```\n![pic](docs/img/circle-3d.png)"
     )
     assert broken_links(doc, text) == [
         "docs/nothing.md: no such file",
         "docs/operating.md#no-such-heading: no heading #no-such-heading in operating.md",
+        "docs/gone.md: no such file",
     ]
 
 
