@@ -10,7 +10,10 @@ configuration reference from them. The unit of a key is part of its name (`_m`, 
 (`drivers.registry.Option`).
 
 Adding a key: one field (or `Key` row) here with its default and description, and the line of
-the parser (`controller.service.config.parse`) that reads and range-checks it.
+the parser (`controller.service.config.parse`) that reads and range-checks it; then `make docs`
+writes the reference (a test fails until it is current). Adding a section: its dataclass here,
+a `Section` row in `SECTIONS` (the top level then accepts the table), a field of `RobotConfig`
+and the parser's function for it.
 """
 
 from __future__ import annotations
