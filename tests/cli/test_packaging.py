@@ -53,6 +53,11 @@ def test_wheel_holds_the_examples_and_the_unit(tmp_path: Path) -> None:
         with zipfile.ZipFile(wheel) as z:
             assert z.read(f"{pkg}/{name}") == (REPO / "config" / name).read_bytes()
     assert "controller/cli/configs.py" in names and "controller/cli/monitor.py" in names
+    # Every package of the source tree ships (pyproject.toml lists them one by one).
+    for init in sorted(
+        (*(REPO / "controller").rglob("__init__.py"), *(REPO / "drivers").rglob("__init__.py"))
+    ):
+        assert init.relative_to(REPO).as_posix() in names, init.parent.relative_to(REPO)
 
 
 def test_the_examples_are_found_through_the_package() -> None:
