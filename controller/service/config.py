@@ -340,6 +340,7 @@ class RobotConfig:
     tension: TensionLimits | None = None
     """Set exactly when `payload` is."""
     drive: DriveConfig = field(default_factory=DriveConfig)
+    ros2: Ros2Config = field(default_factory=lambda: Ros2Config())
 
     @property
     def node_ids(self) -> tuple[int, ...]:
@@ -797,6 +798,7 @@ _TOP_KEYS = (
     "sim",
     "payload",
     "drive",
+    "ros2",
 )
 _BUS_KEYS = ("interface", "channel", "bitrate", "options")
 
@@ -990,6 +992,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     homing = HomingConfig(pup, state_file, **pt)
 
     zenoh = _parse_zenoh(top, name)
+    ros2 = _parse_ros2(top)
 
     if family is not None:
         limits_used = limits if limits_ok else None
@@ -1044,6 +1047,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         drive=drive,
         payload=payload,
         tension=tension,
+        ros2=ros2,
     )
 
 
@@ -1620,3 +1624,39 @@ def default_config() -> RobotConfig:
     Raises nothing (the data is valid by construction; a test checks it).
     """
     return parse_config(paper_robot_data("default"), "<built-in default>")
+
+
+# --- [ros2]: the pose and commands as ROS 2 topics (rmw_zenoh wire format) ------------------
+_ROS2_NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+
+
+@dataclass(frozen=True, slots=True)
+class Ros2Config:
+    """`[ros2]`: take part in a ROS 2 graph over the daemon's Zenoh session (rmw_zenoh)."""
+
+    enabled: bool = False
+    domain_id: int = 0
+    namespace: str = "/cablebot"
+    """Absolute ROS namespace of the node and its topics ("/" for none)."""
+    node_name: str = "cablebot"
+    frame_id: str = "world"
+    """The robot's world frame: stamped on published poses, required of goal poses."""
+
+
+def _parse_ros2(top: _Table) -> Ros2Config:
+    rt = top.sub("ros2")
+    rt.finish(tuple(Ros2Config.__dataclass_fields__))
+    d = Ros2Config()
+    enabled = rt.boolean("enabled", d.enabled)
+    domain_id = rt.integer("domain_id", d.domain_id, ge=0, le=232)
+    ns = rt.string("namespace", d.namespace) or d.namespace
+    parts = ns.strip("/").split("/") if ns != "/" else []
+    if not ns.startswith("/") or not all(_ROS2_NAME_RE.match(x) for x in parts):
+        rt.fail("namespace", f"must be an absolute ROS namespace like '/cablebot', got {ns!r}")
+    node_name = rt.string("node_name", d.node_name) or d.node_name
+    if not _ROS2_NAME_RE.match(node_name):
+        rt.fail("node_name", f"must be a ROS name (letters, digits, _), got {node_name!r}")
+    frame_id = rt.string("frame_id", d.frame_id) or d.frame_id
+    if not frame_id.isprintable() or len(frame_id) > 256:
+        rt.fail("frame_id", f"must be printable and at most 256 characters, got {frame_id!r}")
+    return Ros2Config(enabled, domain_id, ns.rstrip("/") or "/", node_name, frame_id)
