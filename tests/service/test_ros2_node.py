@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 from typing import Any
 
@@ -12,7 +13,7 @@ from rosbags.typesys import Stores, get_typestore
 from controller.service.config import ConfigError, load_config, paper_robot_data
 from controller.service.pose import FanOutPublisher, PoseSample
 from controller.service.ros2.bench import measure_publish_cost
-from controller.service.ros2.node import SampleEncoder
+from controller.service.ros2.node import SampleEncoder, _Handoff
 from tests.daemon_procs import to_toml
 
 TS = get_typestore(Stores.ROS2_JAZZY)
@@ -143,3 +144,35 @@ def test_bench_figure_is_measured() -> None:
         value = out[key]
         assert value is not None and value > 0.0, out
     assert out["rosbags_encode_us"] is not None  # rosbags is a test dependency
+
+
+class _Sink:
+    def __init__(self) -> None:
+        self.states: list[bytes] = []
+
+    def put_sample(self, sample: Any) -> None:
+        pass
+
+    def put_state(self, data: bytes) -> None:
+        self.states.append(data)
+
+
+def test_the_publisher_thread_idles_without_spinning_and_repeats_the_state() -> None:
+    sink = _Sink()
+    handoff = _Handoff(sink)  # type: ignore[arg-type]
+    try:
+        cpu0, t0 = time.thread_time(), time.process_time()
+        idle_until = time.monotonic() + 2.5  # past the first repeat time, nothing to repeat
+        while time.monotonic() < idle_until:
+            time.sleep(0.05)
+        spent = (time.process_time() - t0) - (time.thread_time() - cpu0)
+        handoff.offer_state(b"s")
+        deadline = time.monotonic() + 20.0
+        while len(sink.states) < 3:  # the change, then a repeat every STATE_REPEAT_S
+            assert time.monotonic() < deadline, sink.states
+            time.sleep(0.05)
+    finally:
+        handoff.close()
+    assert sink.states[:3] == [b"s", b"s", b"s"]
+    # a spinning thread would burn about a CPU-second per idle second
+    assert spent < 0.1, spent

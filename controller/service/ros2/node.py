@@ -177,22 +177,26 @@ class _Handoff:
         while True:
             with self._cond:
                 while self._item is None and not self._states and not self._closed:
-                    if not self._cond.wait(timeout=max(0.0, next_repeat - time.monotonic())):
+                    remaining = next_repeat - time.monotonic()
+                    if remaining <= 0.0:
                         break
+                    self._cond.wait(remaining)
                 item, self._item = self._item, None
                 states, self._states = self._states, []
                 closed = self._closed
             if closed:
                 return
             try:  # never let the publisher thread die
-                for data in states:
-                    node.put_state(data)
-                    last_state = data
+                now = time.monotonic()
                 if states:
-                    next_repeat = time.monotonic() + STATE_REPEAT_S
-                elif last_state is not None and time.monotonic() >= next_repeat:
-                    node.put_state(last_state)
-                    next_repeat = time.monotonic() + STATE_REPEAT_S
+                    for data in states:
+                        node.put_state(data)
+                    last_state = states[-1]
+                    next_repeat = now + STATE_REPEAT_S
+                elif now >= next_repeat:
+                    if last_state is not None:
+                        node.put_state(last_state)
+                    next_repeat = now + STATE_REPEAT_S
                 if item is not None:
                     node.put_sample(item)
             except Exception as exc:
