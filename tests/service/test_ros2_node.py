@@ -44,6 +44,14 @@ def test_cable_velocity_is_the_length_rate_between_samples() -> None:
     js = TS.deserialize_cdr(second, "sensor_msgs/msg/JointState")
     assert js.velocity == pytest.approx([1.0, -2.0])
     assert len(js.effort) == 0
+    # the next tick saw no new encoder reading (same stamp): the same rate, not an empty one
+    again = enc.cables(_sample(10**18 + 10_000_000, (1.01, 1.98)))
+    assert list(TS.deserialize_cdr(again, "sensor_msgs/msg/JointState").velocity) == list(
+        js.velocity
+    )
+    third = enc.cables(_sample(10**18 + 20_000_000, (1.03, 1.98)))
+    js3 = TS.deserialize_cdr(third, "sensor_msgs/msg/JointState")
+    assert js3.velocity == pytest.approx([2.0, 0.0])
 
 
 def test_effort_is_the_measured_tension_only_when_every_cable_has_one() -> None:

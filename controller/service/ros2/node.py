@@ -6,7 +6,7 @@ installation), for node `<namespace>/<node_name>` in domain `domain_id`:
 - publisher `<namespace>/pose`      geometry_msgs/msg/PoseStamped, the estimated pose in
   `frame_id` (identity orientation), one per published tick while the pose is valid
 - publisher `<namespace>/cables`    sensor_msgs/msg/JointState, one joint `cable<i>` per cable:
-  position = length (m), velocity = its rate between published samples (m/s; empty on the
+  position = length (m), velocity = its rate between encoder readings (m/s; empty on the
   first), effort = measured tension (N; empty unless every cable's is known)
 - publisher `<namespace>/state`     std_msgs/msg/String, the JSON of `<prefix>/state`
   (`{"state", "reason", "stamp_ns"}`) on every change and again every second
@@ -94,6 +94,7 @@ class SampleEncoder:
         self._joints: cdr.JointStateEncoder | None = None
         self._prev: tuple[int, Sequence[float]] | None = None
         self._vel: list[float] = []
+        self._vel_known = False
 
     def pose(self, sample: Any) -> bytes | None:
         """PoseStamped payload, or None when the pose is not valid (nothing is published)."""
@@ -113,6 +114,7 @@ class SampleEncoder:
             self._joints = cdr.JointStateEncoder(self.frame_id, [f"cable{i}" for i in range(n)])
             self._vel = [0.0] * n
             self._prev = None
+            self._vel_known = False
         stamp = int(sample.stamp_ns)
         velocity: list[float] | None = None
         prev = self._prev
@@ -122,6 +124,11 @@ class SampleEncoder:
             for i in range(n):
                 vel[i] = (lengths[i] - prev[1][i]) / dt_s
             velocity = vel
+            self._vel_known = True
+        elif prev is not None and stamp == prev[0] and self._vel_known:
+            velocity = self._vel  # the same encoder reading as the last sample: its rate
+        else:
+            self._vel_known = False
         measured = sample.measured_tensions_n
         effort = None
         if measured is not None and len(measured) == n and None not in measured:
@@ -133,7 +140,8 @@ class SampleEncoder:
                 data = self._joints.encode(stamp, lengths)
             except cdr.CdrError:
                 return None
-        self._prev = (stamp, lengths)
+        if prev is None or stamp != prev[0]:
+            self._prev = (stamp, lengths)
         return data
 
 
