@@ -249,6 +249,16 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
                 raise RuntimeError(zenoh_open_problem(cfg.zenoh, exc)) from exc
             closers.append(("zenoh", iface.close))
             controller.publisher = iface
+            rcfg = getattr(cfg, "ros2", None)
+            if rcfg is not None and rcfg.enabled:
+                from controller.service.pose import FanOutPublisher
+                from controller.service.ros2.node import Ros2Node
+
+                ros2 = Ros2Node(rcfg, iface)
+                ros2.open()
+                closers.append(("ros2", ros2.close))
+                iface.status_extras["ros2"] = ros2.stats
+                controller.publisher = FanOutPublisher(iface, ros2)
     except BaseException:
         _close_all(closers)
         raise

@@ -391,6 +391,8 @@ class ZenohInterface:
         self._bad_velocity_log = _RateLimitedLog(1.0)
         self._bad_setpoint_log = _RateLimitedLog(1.0)
         self._put_error_log = _RateLimitedLog(1.0)
+        self.status_extras: dict[str, Callable[[], dict[str, Any]]] = {}
+        """More sections of the status reply, by name (e.g. "ros2": the ROS 2 node's stats)."""
 
     # ---------------------------------------------------------------- lifecycle
 
@@ -539,6 +541,8 @@ class ZenohInterface:
         try:
             status = dict(self.controller.status())
             status["zenoh"] = self.stats()
+            for name, section in self.status_extras.items():
+                status[name] = section()
             query.reply(key, dumps(status), encoding=JSON)
         except Exception as exc:
             log.exception("status query failed")
@@ -603,6 +607,10 @@ class ZenohInterface:
                 return
         self._count("ok")
         query.reply(key, dumps(reply), encoding=JSON)
+
+    def precheck(self, cmd: Command) -> str | None:
+        """Why `cmd` is refused before it reaches the controller (see `_precheck`), or None."""
+        return self._precheck(cmd)
 
     def _precheck(self, cmd: Command) -> str | None:
         """Refuse here, on the Zenoh thread, a move or path with a point the robot may not go to.

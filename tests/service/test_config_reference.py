@@ -25,7 +25,7 @@ from controller.service.config import reference as ref
 
 ROOT = Path(__file__).resolve().parents[2]
 DOC = ROOT / "docs" / "configuration.md"
-HEADING = re.compile(r"^## (?:Top level|`\[\[?([a-z_]+)\]\]?`)\s*$")
+HEADING = re.compile(r"^## (?:Top level|`\[\[?([a-z0-9_]+)\]\]?`)\s*$")
 ROW = re.compile(r"^\| `([A-Za-z0-9_.]+)` \|")
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import difflib
 import json
 import os
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from types import MappingProxyType
@@ -15,6 +16,7 @@ from controller.service.config.schema import (
     _PREFIX_RE,
     _ZENOH_MODES,
     BusConfig,
+    Ros2Config,
     ZenohConfig,
 )
 from controller.service.config.tables import _Table, _tname, _unknown
@@ -192,3 +194,25 @@ def _zenoh_file_problem(path: str) -> str | None:
     except Exception as exc:  # zenoh.ZError, OSError, UnicodeDecodeError...
         return f"not a valid Zenoh configuration: {type(exc).__name__}: {exc}"
     return "; ".join(problems) if problems else None
+
+
+_ROS2_NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+
+
+def _parse_ros2(top: _Table) -> Ros2Config:
+    rt = top.sub("ros2")
+    rt.finish(tuple(Ros2Config.__dataclass_fields__))
+    d = Ros2Config()
+    enabled = rt.boolean("enabled", d.enabled)
+    domain_id = rt.integer("domain_id", d.domain_id, ge=0, le=232)
+    ns = rt.string("namespace", d.namespace) or d.namespace
+    parts = ns.strip("/").split("/") if ns != "/" else []
+    if not ns.startswith("/") or not all(_ROS2_NAME_RE.match(x) for x in parts):
+        rt.fail("namespace", f"must be an absolute ROS namespace like '/cablebot', got {ns!r}")
+    node_name = rt.string("node_name", d.node_name) or d.node_name
+    if not _ROS2_NAME_RE.match(node_name):
+        rt.fail("node_name", f"must be a ROS name (letters, digits, _), got {node_name!r}")
+    frame_id = rt.string("frame_id", d.frame_id) or d.frame_id
+    if not frame_id.isprintable() or len(frame_id) > 256:
+        rt.fail("frame_id", f"must be printable and at most 256 characters, got {frame_id!r}")
+    return Ros2Config(enabled, domain_id, ns.rstrip("/") or "/", node_name, frame_id)

@@ -19,7 +19,7 @@ from controller.core.kinematics import Geometry, KinematicsError, SingularGeomet
 from controller.core.reel import ReelModel, spool_buildup
 from controller.core.statics import TensionCheck
 from controller.core.workspace import Workspace, WorkspaceError
-from controller.service.config.interfaces import _parse_bus, _parse_zenoh
+from controller.service.config.interfaces import _parse_bus, _parse_ros2, _parse_zenoh
 from controller.service.config.schema import (
     _NAME_RE,
     FLOAT32_RESOLUTION_LIMIT_M,
@@ -307,6 +307,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     pup = homing.power_up_position_m
 
     zenoh = _parse_zenoh(top, name)
+    ros2 = _parse_ros2(top)
 
     if family is not None:
         limits_used = limits if limits_ok else None
@@ -331,6 +332,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         drive=drive,
         payload=payload,
         tension=tension,
+        ros2=ros2,
     )
 
 

@@ -524,6 +524,25 @@ class DriveConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class Ros2Config:
+    """`[ros2]`: take part in a ROS 2 graph over the daemon's Zenoh session (rmw_zenoh)."""
+
+    enabled: bool = key(
+        False,
+        "publish the pose, cables and state as ROS 2 topics and take goal poses and twists "
+        "(`docs/ros2.md`)",
+    )
+    domain_id: int = key(0, "ROS 2 domain id, 0..232 (the first part of every key expression)")
+    namespace: str = key(
+        "/cablebot", "absolute ROS namespace of the node and its topics (`/` for none)"
+    )
+    node_name: str = key("cablebot", "ROS node name (letters, digits, `_`)")
+    frame_id: str = key(
+        "world", "the robot's world frame: stamped on published poses, required of goal poses"
+    )
+
+
+@dataclass(frozen=True, slots=True)
 class RobotConfig:
     """A validated robot configuration (build it with `load_config` / `parse_config`)."""
 
@@ -543,6 +562,7 @@ class RobotConfig:
     tension: TensionLimits | None = None
     """Set exactly when `payload` is."""
     drive: DriveConfig = field(default_factory=DriveConfig)
+    ros2: Ros2Config = field(default_factory=lambda: Ros2Config())
 
     @property
     def node_ids(self) -> tuple[int, ...]:
@@ -663,6 +683,7 @@ SECTIONS = (
         tuple(k for k in section_keys(DriveConfig) if k.name != "options"),
     ),
     Section("sim", "", section_keys(SimConfig)),
+    Section("ros2", "optional: the robot as a ROS 2 node over Zenoh", section_keys(Ros2Config)),
     Section("reels", "≥ 3, in cable order: the first is cable 1", REEL_KEYS),
 )
 """Every table of a robot file, in the order the reference shows them; the `[drive]` family
