@@ -70,14 +70,16 @@ class WaitTimeout(RuntimeError):
 # Session and queries
 
 
-def normalize_endpoint(text: str) -> str:
-    """The Zenoh endpoint for a `--connect` value: `HOST:PORT` becomes `tcp/HOST:PORT`.
+def normalize_endpoint(text: str, option: str = "--connect") -> str:
+    """The Zenoh endpoint for an endpoint option's value: `HOST:PORT` becomes `tcp/HOST:PORT`.
 
-    Accepts `PROTO/ADDRESS` for Zenoh's link protocols (`tcp`, `udp`, `tls`, `quic`, `ws` need
-    `HOST:PORT` with a port 1..65535). Raises UsageError (one line) for anything else.
+    The one reading of an endpoint given on the command line (`--connect` of every verb,
+    `replay --listen`). Accepts `PROTO/ADDRESS` for Zenoh's link protocols (`tcp`, `udp`,
+    `tls`, `quic`, `ws` need `HOST:PORT` with a port 1..65535). Raises UsageError (one line,
+    naming `option`) for anything else.
     """
     t = text.strip()
-    bad = UsageError(f"--connect: expected tcp/HOST:PORT or HOST:PORT, got {text!r}")
+    bad = UsageError(f"{option}: expected tcp/HOST:PORT or HOST:PORT, got {text!r}")
     if "/" in t:
         proto, _, address = t.partition("/")
         if proto in _OTHER_PROTOCOLS and address:
@@ -101,7 +103,8 @@ def clean_zenoh_error(text: str) -> str:
 
 @contextmanager
 def open_session(endpoint: str, *, config_file: str | None = None) -> Iterator[Any]:
-    """Open a client-mode Zenoh session connected to `endpoint`; close it on exit.
+    """Open a client-mode Zenoh session connected to `endpoint` (any form `normalize_endpoint`
+    takes, e.g. `HOST:PORT`); close it on exit.
 
     Raises UsageError for an endpoint or `--zenoh-config` file that Zenoh rejects, and
     DaemonAbsent when nothing accepts the connection.
@@ -110,6 +113,7 @@ def open_session(endpoint: str, *, config_file: str | None = None) -> Iterator[A
 
     from controller.service.zenoh_io import client_config
 
+    endpoint = normalize_endpoint(endpoint)
     try:
         conf = client_config([endpoint], config_file=config_file)
     except zenoh.ZError as exc:
