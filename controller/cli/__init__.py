@@ -15,7 +15,7 @@ from collections.abc import Sequence
 _MODULES: tuple[str, ...] = (
     "controller.service.daemon",  # run
     "controller.cli.sim",  # sim
-    "controller.cli.client",  # pose, status, move, path, stop, estop, arm, disarm, reset, home
+    "controller.cli.client",  # list, pose, status, move, path, stop, estop, arm, disarm, ...
     "controller.cli.offline",  # ipk, fpk
     "controller.cli.statics_cmd",  # statics, workspace
     "controller.cli.configs",  # check-config, init-config

@@ -47,7 +47,12 @@ _RUST_LOCATION = re.compile(r" at /\S+\.rs:\d+\.?")
 
 
 class DaemonAbsent(RuntimeError):
-    """No daemon answered: nothing listening on the endpoint, wrong prefix, or no reply in time."""
+    """No daemon answered: nothing listening on the endpoint, wrong prefix, or no reply in time.
+
+    `live` names the prefixes of the daemons that are alive on the same network (filled in by
+    `run_with_session`), for the error message."""
+
+    live: tuple[str, ...] = ()
 
 
 class Refused(RuntimeError):
@@ -160,26 +165,59 @@ def query(session: Any, key: str, payload: dict[str, Any] | None, timeout_s: flo
     raise DaemonAbsent(f"no reply on {key}")
 
 
-def _absent_message(args: argparse.Namespace, detail: str) -> str:
-    return f"no cablebot daemon answered on {args.prefix} via {args.connect} ({detail})"
+LIVELINESS_TIMEOUT_S = 1.0
+"""How long `live_prefixes` waits for the daemons' liveliness tokens."""
+
+
+def live_prefixes(session: Any, timeout_s: float = LIVELINESS_TIMEOUT_S) -> list[str]:
+    """The key prefixes of every daemon alive on the session's network (each daemon declares
+    the liveliness token `<prefix>/alive` while its Zenoh interface is open), sorted.
+
+    Raises nothing: a failed lookup is an empty list."""
+    found: set[str] = set()
+    try:
+        for reply in session.liveliness().get("**/alive", timeout=timeout_s):
+            if reply.ok is not None:
+                key = str(reply.ok.key_expr)
+                if key.endswith("/alive"):
+                    found.add(key.removesuffix("/alive"))
+    except Exception:  # a closing session: nothing to name
+        return []
+    return sorted(found)
+
+
+def _absent_message(args: argparse.Namespace, exc: DaemonAbsent) -> str:
+    text = f"no cablebot daemon answered on {args.prefix} via {args.connect} ({exc})"
+    others = [p for p in exc.live if p != args.prefix.rstrip("/")]
+    if others:
+        text += (
+            f"; live daemons there: {', '.join(others)} (give --prefix {others[0]};"
+            " `cablebot list` shows them)"
+        )
+    return text
 
 
 def run_with_session(args: argparse.Namespace, body: Callable[[Any], int]) -> int:
     """Run `body(session)` with the CLI's error handling; returns the exit code.
 
-    Every failure is one line on stderr: a refusal prints the daemon's reason verbatim.
+    Every failure is one line on stderr: a refusal prints the daemon's reason verbatim; when
+    no daemon answers on `--prefix`, the line names the prefixes of the daemons that are alive.
     """
     try:
         endpoint = normalize_endpoint(args.connect)
         args.connect = endpoint
         with open_session(endpoint, config_file=args.zenoh_config) as session:
-            code: int = body(session)
+            try:
+                code: int = body(session)
+            except DaemonAbsent as exc:
+                exc.live = tuple(live_prefixes(session))
+                raise
             return code
     except UsageError as exc:
         print(f"cablebot: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except DaemonAbsent as exc:
-        print(f"cablebot: {_absent_message(args, str(exc))}", file=sys.stderr)
+        print(f"cablebot: {_absent_message(args, exc)}", file=sys.stderr)
         return EXIT_ABSENT
     except Refused as exc:
         print(f"cablebot: refused: {exc}", file=sys.stderr)
@@ -782,6 +820,61 @@ def _wait_arrival(
         line.clear()
 
 
+def list_daemons(session: Any, timeout_s: float) -> list[dict[str, Any]]:
+    """Every live daemon on the session's network: prefix, robot name, state and the endpoints
+    it listens on (from its status; None where it did not answer within `timeout_s`)."""
+    out: list[dict[str, Any]] = []
+    for prefix in live_prefixes(session):
+        row: dict[str, Any] = {"prefix": prefix, "name": None, "state": None, "listen": None}
+        try:
+            st = query(session, f"{prefix}/status", None, timeout_s)
+        except (DaemonAbsent, Refused, ValueError):
+            st = None
+        if isinstance(st, dict):
+            cfg = st.get("config")
+            z = st.get("zenoh")
+            row["name"] = cfg.get("name") if isinstance(cfg, dict) else None
+            row["state"] = st.get("state")
+            row["listen"] = z.get("listen") if isinstance(z, dict) else None
+        out.append(row)
+    return out
+
+
+def format_daemons(rows: Sequence[dict[str, Any]]) -> str:
+    """The `list` table: one line per daemon (prefix, name, state, endpoints)."""
+    table = [("PREFIX", "NAME", "STATE", "ENDPOINT")]
+    for r in rows:
+        listen = r.get("listen")
+        table.append(
+            (
+                str(r["prefix"]),
+                "-" if r.get("name") is None else str(r["name"]),
+                "-" if r.get("state") is None else str(r["state"]),
+                "-" if not listen else ", ".join(str(e) for e in listen),
+            )
+        )
+    widths = [max(len(row[i]) for row in table) for i in range(3)]
+    return "\n".join(
+        "  ".join(cell.ljust(w) for cell, w in zip(row[:3], widths, strict=True)) + "  " + row[3]
+        for row in table
+    )
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    """list [--json]: every live daemon reachable via `--connect` (prefix, name, state,
+    endpoint); exit 3 when there is none."""
+
+    def body(session: Any) -> int:
+        rows = list_daemons(session, args.timeout)
+        if not rows:
+            print(f"cablebot: no live cablebot daemon via {args.connect}", file=sys.stderr)
+            return EXIT_ABSENT
+        print(json.dumps(rows) if args.json else format_daemons(rows), flush=True)
+        return EXIT_OK
+
+    return _run(args, body)
+
+
 def cmd_status(args: argparse.Namespace) -> int:
     """status [--json]: print the daemon's status."""
 
@@ -915,6 +1008,19 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     )
     p.add_argument("--json", action="store_true", help="print the raw JSON samples")
     p.set_defaults(func=cmd_pose)
+
+    p = sub.add_parser(
+        "list",
+        help="list every live daemon (prefix, name, state, endpoint)",
+        description=(
+            "List the cablebot daemons alive on the Zenoh network reached via --connect (each "
+            "declares the liveliness token <prefix>/alive): their prefix (give it as --prefix "
+            "to the other verbs), robot name, state and listen endpoints."
+        ),
+    )
+    add_connection_arguments(p)
+    p.add_argument("--json", action="store_true", help="print a JSON list")
+    p.set_defaults(func=cmd_list)
 
     p = sub.add_parser("status", help="print the daemon's status")
     add_connection_arguments(p)
