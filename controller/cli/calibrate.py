@@ -429,6 +429,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
     )
     from controller.service import offsets as homing
     from controller.service.config import ConfigError, load_config, parse_config
+    from controller.service.textfile import NotUtf8Error, read_text
 
     def refuse(msg: str) -> int:
         if args.json:
@@ -437,12 +438,19 @@ def cmd_solve(args: argparse.Namespace) -> int:
 
     try:
         cfg = load_config(args.config)
-        config_text = Path(args.config).read_text()
-        samples_text = Path(args.samples).read_text()
+        config_text = read_text(args.config)
     except ConfigError as exc:
         return refuse(str(exc))
     except OSError as exc:
         return refuse(f"cannot read {exc.filename}: {exc.strerror}")
+    except NotUtf8Error as exc:
+        return refuse(f"{args.config}: {exc}")
+    try:
+        samples_text = read_text(args.samples)
+    except OSError as exc:
+        return refuse(f"cannot read {exc.filename}: {exc.strerror}")
+    except NotUtf8Error as exc:
+        return refuse(f"{args.samples}: {exc}")
     try:
         settings = Settings(
             hold_std_m=args.hold_std_m,

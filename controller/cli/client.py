@@ -20,7 +20,6 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
-from pathlib import Path
 from typing import Any, TextIO
 
 from controller.cli import add_xyz_arguments, exitcodes, xyz_from_args
@@ -556,12 +555,17 @@ def load_path_file(path: str) -> dict[str, Any]:
     """Read a path file: JSON (a list of [x, y, z] or {"points_m": ..., "speed_mps": ...}) or
     CSV/whitespace lines `x,y,z` (`#` comments and a header line are skipped).
 
-    Returns the `path` command payload. Raises InputError for an unreadable or invalid file.
+    Returns the `path` command payload. Raises InputError for an unreadable, not UTF-8 or
+    invalid file.
     """
+    from controller.service.textfile import NotUtf8Error, read_text
+
     try:
-        text = Path(path).read_text()
+        text = read_text(path)
     except OSError as exc:
         raise InputError(f"cannot read {path}: {exc.strerror}") from None
+    except NotUtf8Error as exc:
+        raise InputError(f"{path}: {exc}") from None
     stripped = text.lstrip()
     payload: dict[str, Any]
     if stripped.startswith(("[", "{")):
@@ -592,7 +596,15 @@ def load_path_file(path: str) -> dict[str, Any]:
                 raise InputError(f"{path} line {n}: expected x,y,z, got {row}") from None
             points.append(_vec3(values, f"{path} line {n}"))
         payload = {"points_m": points}
-    from controller.core.commands import CommandError, parse_command
+    from controller.core.commands import MAX_PATH_POINTS_SENT, CommandError, parse_command
+
+    pts = payload.get("points_m")
+    if isinstance(pts, list) and len(pts) > MAX_PATH_POINTS_SENT:
+        raise InputError(
+            f"{path}: {len(pts)} points; one path command takes at most {MAX_PATH_POINTS_SENT}"
+            f" points: split it into parts of at most {MAX_PATH_POINTS_SENT} points and send"
+            " each with its own path command"
+        )
 
     try:
         parse_command("path", json.dumps(payload))

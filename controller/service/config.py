@@ -72,6 +72,7 @@ from controller.core.pretension import PretensionSettings
 from controller.core.reel import ReelModel, spool_buildup
 from controller.core.statics import TensionCheck
 from controller.core.workspace import Workspace, WorkspaceError
+from controller.service.textfile import NotUtf8Error, decode_utf8
 from drivers import registry
 
 Vec3 = tuple[float, float, float]
@@ -1533,16 +1534,9 @@ def load_config(path: str | os.PathLike[str] | None) -> RobotConfig:
     except OSError as exc:
         raise ConfigError(source, "", f"cannot read: {exc.strerror or exc}") from exc
     try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
-        raise ConfigError(
-            source,
-            "",
-            f"not UTF-8 text: byte 0x{raw[exc.start]:02x} at line {line}, column {column} "
-            "(TOML files must be UTF-8)",
-        ) from None
+        text = decode_utf8(raw)
+    except NotUtf8Error as exc:
+        raise ConfigError(source, "", f"{exc} (TOML files must be UTF-8)") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
