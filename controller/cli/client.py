@@ -762,11 +762,40 @@ def _motion(
             status = query(session, _key(args, "status"), None, args.timeout)
             moving = isinstance(status, dict) and status.get("state") == "MOVING"
             return _wait_arrival(args, verb, poses, points, seen_moving=not moving)
+        except KeyboardInterrupt:
+            return _interrupted(session, args)
         finally:
             if sub is not None:
                 sub.undeclare()
 
     return _run(args, body)
+
+
+INTERRUPT_STOP_TEXT = "interrupted: braking to a hold"
+DETACH_TEXT = "interrupted: detached; the robot goes on with the motion"
+
+
+def _interrupted(session: Any, args: argparse.Namespace) -> int:
+    """Ctrl-C while a motion command runs: send `stop` (brake to a hold) and say so, unless
+    `--detach` was given (then only say that the motion goes on). Returns the exit code 130;
+    a stop the daemon does not take is printed as such (exit 1 or 3)."""
+    if getattr(args, "detach", False):
+        print(DETACH_TEXT, file=sys.stderr, flush=True)
+        return exitcodes.INTERRUPTED
+    print(INTERRUPT_STOP_TEXT, file=sys.stderr, flush=True)
+    try:
+        reply = query(session, _key(args, "cmd/stop"), None, args.timeout)
+    except Refused as exc:
+        print(f"cablebot: stop refused: {exc}", file=sys.stderr, flush=True)
+        return EXIT_REFUSED
+    except DaemonAbsent as exc:
+        print(f"cablebot: stop not confirmed: {exc}", file=sys.stderr, flush=True)
+        return EXIT_ABSENT
+    if getattr(args, "json", False):
+        print(json.dumps(reply), flush=True)
+    else:
+        print(format_reply("stop", reply), flush=True)
+    return exitcodes.INTERRUPTED
 
 
 def _wait_arrival(
@@ -1040,7 +1069,15 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     p.set_defaults(func=cmd_status)
 
     for verb, what in (("move", "move in a straight line to X Y Z"), ("path", "follow a path")):
-        p = sub.add_parser(verb, help=what)
+        p = sub.add_parser(
+            verb,
+            help=what,
+            description=(
+                f"{what[0].upper()}{what[1:]}. With --wait, Ctrl-C stops the robot: the CLI sends"
+                " stop (it brakes to a hold) and prints 'interrupted: braking to a hold'; with"
+                " --detach, Ctrl-C only stops waiting and the motion goes on."
+            ),
+        )
         add_connection_arguments(p)
         if verb == "move":
             add_xyz_arguments(p)
@@ -1056,7 +1093,19 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
                 " the maximum"
             ),
         )
-        p.add_argument("--wait", action="store_true", help="wait until the end point is reached")
+        p.add_argument(
+            "--wait",
+            action="store_true",
+            help=(
+                "wait until the end point is reached; Ctrl-C while waiting stops the robot "
+                "(sends stop: it brakes to a hold) unless --detach is given"
+            ),
+        )
+        p.add_argument(
+            "--detach",
+            action="store_true",
+            help="with --wait: Ctrl-C only stops waiting and leaves the robot moving",
+        )
         p.add_argument(
             "--wait-timeout",
             type=float,
