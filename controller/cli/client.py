@@ -637,10 +637,34 @@ def _print_reply(verb: str, reply: Any, args: argparse.Namespace) -> None:
         print(format_reply(verb, reply), flush=True)
 
 
+ARMED_STATES = frozenset({"ARMING", "HOLDING", "MOVING", "PRETENSIONING"})
+"""States in which the motors are armed (or arming): `arm` there is already done."""
+
+
 def cmd_simple(args: argparse.Namespace) -> int:
-    """stop, estop, arm, disarm, reset: send the verb, print the reply."""
+    """stop, estop, arm, disarm, reset: send the verb, print the reply. `arm` on a robot that
+    is already armed succeeds, saying so."""
     verb: str = args.command
-    return _command(args, verb, None)
+    if verb != "arm":
+        return _command(args, verb, None)
+
+    def body(session: Any) -> int:
+        try:
+            reply = query(session, _key(args, "cmd/arm"), None, args.timeout)
+        except Refused:
+            st = query(session, _key(args, "status"), None, args.timeout)
+            state = st.get("state") if isinstance(st, dict) else None
+            if state not in ARMED_STATES:
+                raise
+            if getattr(args, "json", False):
+                print(json.dumps({"ok": True, "state": state, "already_armed": True}), flush=True)
+            else:
+                print(f"arm: already armed, state {state}", flush=True)
+            return EXIT_OK
+        _print_reply(verb, reply, args)
+        return EXIT_OK
+
+    return _run(args, body)
 
 
 def cmd_home(args: argparse.Namespace) -> int:
@@ -812,7 +836,9 @@ def _wait_arrival(
     still running when the wait began, and older samples may stand where the path ends).
 
     On a terminal (and without `--json`) one line shows the distance still to travel, rewritten
-    in place. Raises WaitTimeout, Refused (the robot left the motion states) or DaemonAbsent.
+    in place. At the end it prints "arrived: <pose>" (with `--json` a line
+    `{"arrived": true, "pose": <the pose sample>}`). Raises WaitTimeout, Refused (the robot
+    left the motion states) or DaemonAbsent.
     """
     end = points[-1]
     line = StatusLine(sys.stdout, enabled=_isatty(sys.stdout) and not args.json)
@@ -846,7 +872,9 @@ def _wait_arrival(
                 seen_moving = True
             if state == "HOLDING" and seen_moving and math.dist(pos, end) <= ARRIVED_TOL_M:
                 line.clear()
-                if not args.json:
+                if args.json:
+                    print(json.dumps({"arrived": True, "pose": last}), flush=True)
+                else:
                     print(f"arrived: {format_pose(last)}", flush=True)
                 return EXIT_OK
             if legs is None:
