@@ -54,7 +54,6 @@ the defaults of the dataclasses.
 
 from __future__ import annotations
 
-import difflib
 import functools
 import json
 import math
@@ -71,6 +70,7 @@ from controller.core.kinematics import Geometry, KinematicsError, SingularGeomet
 from controller.core.pretension import PretensionSettings
 from controller.core.reel import ReelModel, spool_buildup
 from controller.core.statics import TensionCheck
+from controller.core.suggest import closest
 from controller.core.workspace import Workspace, WorkspaceError
 from controller.service.textfile import NotUtf8Error, decode_utf8
 from drivers import registry
@@ -669,8 +669,8 @@ class _Table:
 
 
 def _unknown(key: str, known: set[str]) -> str:
-    close = difflib.get_close_matches(key, sorted(known), n=1, cutoff=0.6)
-    hint = f"; did you mean {close[0]!r}?" if close else ""
+    close = closest(key, known)
+    hint = f"; did you mean {close!r}?" if close else ""
     if not close:
         stem = key.rsplit("_", 1)[0]
         same_stem = sorted(k for k in known if k.rsplit("_", 1)[0] == stem)
@@ -1341,8 +1341,8 @@ def _interface_problem(interface: str) -> str | None:
     valid = sorted(can.interfaces.VALID_INTERFACES)
     if interface in valid:
         return None
-    close = difflib.get_close_matches(interface, valid, n=1, cutoff=0.6)
-    hint = f"; did you mean {close[0]!r}?" if close else ""
+    close = closest(interface, valid)
+    hint = f"; did you mean {close!r}?" if close else ""
     return f"unknown python-can interface {interface!r}{hint} (known: {', '.join(valid)})"
 
 
