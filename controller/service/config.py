@@ -1188,18 +1188,18 @@ def _parse_reels(
         errs.add("reels", f"need at least 3 reels, got {len(reels_raw)}")
     parsed = [_parse_reel(_Table(r, f"reels[{i}]", errs), family) for i, r in enumerate(reels_raw)]
     seen: dict[int, int] = {}
-    for i, r in enumerate(parsed):
-        if r is None:
+    duplicate = False
+    for i, raw in enumerate(reels_raw):  # raw: a reel with another problem still has its id
+        node = raw.get("node_id") if isinstance(raw, Mapping) else None
+        if not isinstance(node, int) or isinstance(node, bool):
             continue
-        if r.node_id in seen:
-            errs.add(
-                f"reels[{i}].node_id",
-                f"duplicate node id {r.node_id} (also reels[{seen[r.node_id]}])",
-            )
+        if node in seen:
+            errs.add(f"reels[{i}].node_id", f"duplicate node id {node} (also reels[{seen[node]}])")
+            duplicate = True
         else:
-            seen[r.node_id] = i
+            seen[node] = i
     good = [r for r in parsed if r is not None]
-    if len(good) != len(parsed) or len(good) < 3 or len(seen) != len(good):
+    if len(good) != len(parsed) or len(good) < 3 or duplicate:
         return None
     return tuple(good)
 
