@@ -218,7 +218,8 @@ def render(
         # The pose beside the set-point must be from the same instant: the status carries both
         # (one snapshot of the controller); the pose stream runs ahead of a status polled at
         # STATUS_PERIOD_S (0.5 m at 1 m/s). The stream's sample is shown only without a status.
-        shown = st.get("pose") if isinstance(st.get("pose"), dict) else pose
+        status_pose = st.get("pose")
+        shown: dict[str, Any] = status_pose if isinstance(status_pose, dict) else pose
         res = shown.get("residual_m")
         t.add_row(
             "pose",
