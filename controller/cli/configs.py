@@ -264,14 +264,29 @@ def _toml_text(v: Any) -> str:
     return str(v)
 
 
+def invalid_report(file: str, exc: BaseException) -> dict[str, Any]:
+    """`check-config --json` for a file that is not valid: `{"ok": false, "file", "errors":
+    [{"key", "problem", "message"}, ...]}`, one entry per problem found."""
+    from controller.service.config import ConfigError
+
+    if isinstance(exc, ConfigError):
+        errors = [{"key": e.key, "problem": e.problem, "message": str(e)} for e in exc.errors]
+    else:
+        errors = [{"key": "", "problem": str(exc), "message": str(exc)}]
+    return {"ok": False, "file": file, "errors": errors}
+
+
 def cmd_check_config(args: argparse.Namespace) -> int:
-    """`cablebot check-config FILE`: validate and describe; exit 1 with every problem."""
+    """`cablebot check-config FILE`: validate and describe; exit 1 with every problem (with
+    `--json` also as a JSON object on stdout, see `invalid_report`)."""
     from controller.service.config import ConfigError, load_config
 
     try:
         cfg = load_config(args.file)
         lines, notes, data = describe(cfg)
     except (ConfigError, ValueError, OSError) as exc:
+        if args.json:
+            print(json.dumps(invalid_report(args.file, exc), indent=2))
         print(f"{exc}", file=sys.stderr)
         print(f"cablebot: {args.file}: not a valid robot configuration", file=sys.stderr)
         return exitcodes.REFUSED

@@ -103,13 +103,20 @@ COPLANAR_POSES_RATIO = 0.05
 are refused (the height of the anchors above them is then not determined)."""
 
 THIN_POSES_RATIO = 0.2
-"""Below this fraction the poses are accepted with a warning."""
+"""Below this fraction the poses are accepted with a warning, unless they already use the
+height the workspace allows (THIN_POSES_OF_HEIGHT): a wide, low workspace (a stadium) cannot
+hold thicker poses, and a warning to spread them more in height would ask the impossible."""
+
+THIN_POSES_OF_HEIGHT = 0.4
+"""Poses whose RMS distance from their plane is at least this fraction of the most a pose
+height range H allows (H / 2: half at the floor, half at the top) use the height well: no
+warning whatever their width. `cablebot calibrate collect --auto` spreads poses to about 0.6."""
 
 DISTINCT_POSE_M = 1e-3
 """Poses closer than this count as one pose."""
 
 RECOMMENDED_POSES = 20
-"""Fewer poses (or fewer than twice the minimum) give a warning."""
+"""Fewer poses (or fewer than twice the minimum) give a warning; see `recommended_poses`."""
 
 ANCHORS_COPLANAR_RATIO = 1e-3
 """Anchors within this fraction of their spread from one plane count as coplanar (reported)."""
@@ -531,9 +538,18 @@ def minimum_poses(n_cables: int) -> int:
     return math.ceil((4 * n - 6 + n) / (n - 3))
 
 
-def _check_samples(samples: Samples, n: int) -> list[str]:
-    """Refuse degenerate sample sets; return warnings for weak ones."""
+def recommended_poses(n_cables: int) -> int:
+    """How many poses to record for `n_cables` cables: RECOMMENDED_POSES, or twice the
+    minimum when that is more (28 for four cables). Fewer give a warning; `calibrate collect
+    --auto` visits this many by default. Raises CalibrationError for fewer than four cables."""
+    return max(RECOMMENDED_POSES, 2 * minimum_poses(n_cables))
+
+
+def _check_samples(samples: Samples, n: int, pose_height_m: float | None = None) -> list[str]:
+    """Refuse degenerate sample sets; return warnings for weak ones (`pose_height_m`: the
+    height range the workspace allows poses, when known)."""
     k_min = minimum_poses(n)
+    k_rec = recommended_poses(n)
     k = samples.n_poses
     if samples.motor_rev.shape != (k, n) or samples.believed_m.shape != (k, 3):
         raise CalibrationError(
@@ -544,7 +560,7 @@ def _check_samples(samples: Samples, n: int) -> list[str]:
         raise CalibrationError(
             f"{k} poses give {k * n} equations for {unknowns} unknowns ({n} anchors, {n} "
             f"offsets, {k} poses, less the 6 of the frame); {n} cables need at least {k_min} "
-            f"poses (recommended {max(RECOMMENDED_POSES, 2 * k_min)})"
+            f"poses (recommended {k_rec})"
         )
     distinct = np.unique(np.round(samples.believed_m / DISTINCT_POSE_M), axis=0).shape[0]
     if distinct < k_min:
@@ -560,15 +576,15 @@ def _check_samples(samples: Samples, n: int) -> list[str]:
             "record poses at different heights as well as different x and y"
         )
     warnings: list[str] = []
-    if thick < THIN_POSES_RATIO * spread:
+    height_used = pose_height_m is not None and thick >= THIN_POSES_OF_HEIGHT * pose_height_m / 2
+    if thick < THIN_POSES_RATIO * spread and not height_used:
+        room = "" if pose_height_m is None else f" (the workspace allows {pose_height_m:.3g} m)"
         warnings.append(
             f"poses nearly coplanar: RMS {_length(thick)} from one plane against a spread "
-            f"of {spread:.3g} m; spread them more in height"
+            f"of {spread:.3g} m; spread them more in height{room}"
         )
-    if k < max(RECOMMENDED_POSES, 2 * k_min):
-        warnings.append(
-            f"few poses ({k}): {max(RECOMMENDED_POSES, 2 * k_min)} or more give a better check"
-        )
+    if k < k_rec:
+        warnings.append(f"few poses ({k}): {k_rec} or more give a better check")
     return warnings
 
 
@@ -790,8 +806,13 @@ def calibrate(
     reels: Sequence[ReelModel],
     samples: Samples,
     settings: Settings | None = None,
+    *,
+    pose_height_m: float | None = None,
 ) -> Calibration:
     """Estimate the anchors and reel offsets that best explain `samples`.
+
+    `pose_height_m` is the height range the workspace allows poses (floor to top), when
+    known: poses that use it well are not warned about as nearly coplanar however wide.
 
     `anchors_m` (N, 3) and `reels` are the configuration's, in cable order (the reels' own
     offsets are ignored). See the module docstring for the model, the frame convention, the
@@ -805,7 +826,7 @@ def calibrate(
     n = a_cfg.shape[0]
     if a_cfg.shape != (n, 3) or len(reels) != n:
         raise CalibrationError(f"{len(reels)} reels for anchors of shape {a_cfg.shape}")
-    warnings = _check_samples(samples, n)
+    warnings = _check_samples(samples, n, pose_height_m)
     k = samples.n_poses
     reels0 = [replace(r, offset_rev=0.0) for r in reels]
     problem = _Problem(reels0, samples.motor_rev)

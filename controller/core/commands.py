@@ -156,6 +156,24 @@ MAX_PAYLOAD_BYTES: Final[Mapping[str, int]] = MappingProxyType(
 )
 """The largest payload, in bytes, of each verb (and of a `setpoint` or `velocity` sample)."""
 
+_WIDEST_FLOAT: Final = -2.2250738585072014e-308
+"""A finite float whose JSON text is as long as any (24 characters)."""
+
+
+def _max_path_points_sent() -> int:
+    envelope = len(json.dumps({"points_m": [], "speed_mps": _WIDEST_FLOAT}))
+    per_point = len(json.dumps([_WIDEST_FLOAT] * 3)) + len(", ")
+    by_bytes = (MAX_PAYLOAD_BYTES["path"] - envelope) // per_point
+    return min(MAX_PATH_POINTS, by_bytes)
+
+
+MAX_PATH_POINTS_SENT: Final = _max_path_points_sent()
+"""The most points one `path` command surely carries: MAX_PATH_POINTS, or fewer when that many
+of the widest points (every coordinate as long as a float's JSON text gets, with a speed, as
+`json.dumps` writes them) would not fit in `MAX_PAYLOAD_BYTES["path"]`. A longer path is sent
+as several parts of at most this many points."""
+
+
 MAX_JSON_DEPTH: Final = 8
 """The deepest nesting of brackets (`[`, `{`) accepted; a valid command needs 3."""
 

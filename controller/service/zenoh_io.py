@@ -201,6 +201,13 @@ def client_config(
 # Helpers
 
 
+def address_in_use(error: BaseException | str) -> bool:
+    """True when a Zenoh error (from `zenoh.open`) says a listen address is taken by another
+    process."""
+    text = str(error).lower()
+    return "in use" in text or "os error 98" in text
+
+
 def free_tcp_port() -> int:
     """A TCP port on 127.0.0.1 that was free a moment ago, never Zenoh's default 7447 (for a
     private loopback endpoint of a bench, demo or test daemon). Raises OSError if none is."""

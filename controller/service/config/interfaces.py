@@ -3,7 +3,6 @@ and configuration files."""
 
 from __future__ import annotations
 
-import difflib
 import json
 import os
 import re
@@ -12,6 +11,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from controller.core.suggest import closest
 from controller.service.config.schema import (
     _PREFIX_RE,
     _ZENOH_MODES,
@@ -72,8 +72,8 @@ def _interface_problem(interface: str) -> str | None:
     valid = sorted(can.interfaces.VALID_INTERFACES)
     if interface in valid:
         return None
-    close = difflib.get_close_matches(interface, valid, n=1, cutoff=0.6)
-    hint = f"; did you mean {close[0]!r}?" if close else ""
+    close = closest(interface, valid)
+    hint = f"; did you mean {close!r}?" if close else ""
     return f"unknown python-can interface {interface!r}{hint} (known: {', '.join(valid)})"
 
 

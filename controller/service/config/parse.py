@@ -46,6 +46,7 @@ from controller.service.config.schema import (
     key_names,
 )
 from controller.service.config.tables import _Errors, _Table, _tname, _unknown
+from controller.service.textfile import NotUtf8Error, decode_utf8
 from drivers import registry
 
 _REEL_KEYS = key_names(REEL_KEYS)
@@ -559,18 +560,18 @@ def _parse_reels(
         errs.add("reels", f"need at least 3 reels, got {len(reels_raw)}")
     parsed = [_parse_reel(_Table(r, f"reels[{i}]", errs), family) for i, r in enumerate(reels_raw)]
     seen: dict[int, int] = {}
-    for i, r in enumerate(parsed):
-        if r is None:
+    duplicate = False
+    for i, raw in enumerate(reels_raw):  # raw: a reel with another problem still has its id
+        node = raw.get("node_id") if isinstance(raw, Mapping) else None
+        if not isinstance(node, int) or isinstance(node, bool):
             continue
-        if r.node_id in seen:
-            errs.add(
-                f"reels[{i}].node_id",
-                f"duplicate node id {r.node_id} (also reels[{seen[r.node_id]}])",
-            )
+        if node in seen:
+            errs.add(f"reels[{i}].node_id", f"duplicate node id {node} (also reels[{seen[node]}])")
+            duplicate = True
         else:
-            seen[r.node_id] = i
+            seen[node] = i
     good = [r for r in parsed if r is not None]
-    if len(good) != len(parsed) or len(good) < 3 or len(seen) != len(good):
+    if len(good) != len(parsed) or len(good) < 3 or duplicate:
         return None
     return tuple(good)
 
@@ -737,16 +738,9 @@ def load_config(path: str | os.PathLike[str] | None) -> RobotConfig:
     except OSError as exc:
         raise ConfigError(source, "", f"cannot read: {exc.strerror or exc}") from exc
     try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
-        raise ConfigError(
-            source,
-            "",
-            f"not UTF-8 text: byte 0x{raw[exc.start]:02x} at line {line}, column {column} "
-            "(TOML files must be UTF-8)",
-        ) from None
+        text = decode_utf8(raw)
+    except NotUtf8Error as exc:
+        raise ConfigError(source, "", f"{exc} (TOML files must be UTF-8)") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -8,11 +8,11 @@ keys with a did-you-mean hint.
 
 from __future__ import annotations
 
-import difflib
 import math
 from collections.abc import Callable, Mapping
 from typing import Any, overload
 
+from controller.core.suggest import closest
 from controller.service.config.schema import _MAX_ABS, ConfigError, Vec3
 
 _UNIT_WORDS = {
@@ -253,8 +253,8 @@ class _Table:
 
 
 def _unknown(key: str, known: set[str]) -> str:
-    close = difflib.get_close_matches(key, sorted(known), n=1, cutoff=0.6)
-    hint = f"; did you mean {close[0]!r}?" if close else ""
+    close = closest(key, known)
+    hint = f"; did you mean {close!r}?" if close else ""
     if not close:
         stem = key.rsplit("_", 1)[0]
         same_stem = sorted(k for k in known if k.rsplit("_", 1)[0] == stem)
