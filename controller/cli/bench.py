@@ -838,12 +838,7 @@ def loop_once(
         children.append(sub)
         sub.wait_line("FIRST", CHILD_START_TIMEOUT_S)
 
-        controller.submit(Arm())
-        deadline = time.monotonic() + float(cfg.faults.arm_timeout_s) + 3.0
-        while controller.state is not State.HOLDING:
-            if time.monotonic() > deadline or controller.state is State.FAULT:
-                raise BenchError(f"arming failed: {controller.state.value} {controller.reason}")
-            time.sleep(0.01)
+        _arm_and_hold(controller, float(cfg.faults.arm_timeout_s) + 3.0)
 
         loop_stats = controller.loop_stats
         jitter = _RingReader(loop_stats.jitter)
@@ -902,9 +897,7 @@ def loop_once(
     if kind == "odrive" and not e2e["total_us"]:
         raise BenchError(f"no end-to-end sample matched ({e2e['unmatched']} unmatched changes)")
 
-    def pct(values: Sequence[float], q: float) -> float | None:
-        return percentile(values, q) if values else None
-
+    pct = _percentile_or_none
     put = zstats["pose_publish_tick"]
     return {
         "rate_hz": float(rate_hz),
@@ -940,6 +933,24 @@ def loop_once(
         "scheduling": "; ".join(rt_report),
         "sim_scheduling": sim_sched,
     }
+
+
+def _arm_and_hold(controller: Any, timeout_s: float) -> None:
+    """Arm the robot and wait until it holds. Raises BenchError if it faults or `timeout_s`
+    passes first."""
+    from controller.core.commands import Arm
+    from controller.core.states import State
+
+    controller.submit(Arm())
+    deadline = time.monotonic() + timeout_s
+    while controller.state is not State.HOLDING:
+        if time.monotonic() > deadline or controller.state is State.FAULT:
+            raise BenchError(f"arming failed: {controller.state.value} {controller.reason}")
+        time.sleep(0.01)
+
+
+def _percentile_or_none(values: Sequence[float], q: float) -> float | None:
+    return percentile(values, q) if values else None
 
 
 def _state_of(controller: Any) -> Any:
