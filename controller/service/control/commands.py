@@ -247,7 +247,7 @@ class CommandExecution(Homing):
 
     # ----------------------- one handler per verb (called by `_execute` once the state allowed it)
 
-    def _do_motion(
+    def _cmd_motion(
         self,
         cmd: Move | Path,
         readings: Sequence[AxisReading],
@@ -268,7 +268,7 @@ class CommandExecution(Homing):
             reply["speed_limited_to_mps"] = motion.limited_to_mps
         return reply
 
-    def _do_stop(
+    def _cmd_stop(
         self, cmd: Stop, readings: Sequence[AxisReading], now_s: float, motion: _Motion | None
     ) -> Reply:
         """`stop`: end a pre-tension where the reels are, or brake the motion to a hold."""
@@ -278,7 +278,7 @@ class CommandExecution(Homing):
             self.planner.stop()
         return {"ok": True, "state": self.state.value}
 
-    def _do_arm(
+    def _cmd_arm(
         self, cmd: Arm, readings: Sequence[AxisReading], now_s: float, motion: _Motion | None
     ) -> Reply:
         """`arm`: closed loop, holding the motors where they are. Raises CommandRefused when
@@ -301,14 +301,14 @@ class CommandExecution(Homing):
         self._set_state(State.ARMING)
         return {"ok": True, "state": State.ARMING.value}
 
-    def _do_disarm(
+    def _cmd_disarm(
         self, cmd: Disarm, readings: Sequence[AxisReading], now_s: float, motion: _Motion | None
     ) -> Reply:
         """`disarm`: idle the motors. Raises nothing."""
         self._disarm("disarm")
         return {"ok": True, "state": self.state.value}
 
-    def _do_reset(
+    def _cmd_reset(
         self, cmd: Reset, readings: Sequence[AxisReading], now_s: float, motion: _Motion | None
     ) -> Reply:
         """`reset`: from FAULT or ESTOPPED back to DISARMED. Raises nothing."""
@@ -316,13 +316,13 @@ class CommandExecution(Homing):
             self._disarm("reset")
         return {"ok": True, "state": self.state.value}
 
-    def _do_home(
+    def _cmd_home(
         self, cmd: Home, readings: Sequence[AxisReading], now_s: float, motion: _Motion | None
     ) -> Reply:
         """`home`: `_execute_home`. Raises CommandRefused as it does."""
         return self._execute_home(cmd, readings, now_s)
 
-    def _do_pretension(
+    def _cmd_pretension(
         self,
         cmd: Pretension,
         readings: Sequence[AxisReading],
@@ -433,14 +433,14 @@ class CommandExecution(Homing):
 _HANDLERS: Mapping[
     str, Callable[[CommandExecution, Any, Sequence[AxisReading], float, _Motion | None], Reply]
 ] = {
-    "move": CommandExecution._do_motion,
-    "path": CommandExecution._do_motion,
-    "stop": CommandExecution._do_stop,
-    "arm": CommandExecution._do_arm,
-    "disarm": CommandExecution._do_disarm,
-    "reset": CommandExecution._do_reset,
-    "home": CommandExecution._do_home,
-    "pretension": CommandExecution._do_pretension,
+    "move": CommandExecution._cmd_motion,
+    "path": CommandExecution._cmd_motion,
+    "stop": CommandExecution._cmd_stop,
+    "arm": CommandExecution._cmd_arm,
+    "disarm": CommandExecution._cmd_disarm,
+    "reset": CommandExecution._cmd_reset,
+    "home": CommandExecution._cmd_home,
+    "pretension": CommandExecution._cmd_pretension,
 }
 """The handler of each verb of `controller.core.states.COMMAND_VERBS` that goes through the
 command queue (estop, streamed set-points and velocity samples do not)."""
