@@ -75,8 +75,6 @@ redundancy), poses within a few per cent of one plane, or the same pose repeated
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import re
 import tomllib
@@ -87,13 +85,51 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from controller.core.calibration_samples import (
+    POSE_COLUMNS,
+    CalibrationError,
+    Samples,
+    format_sample_row,
+    parse_samples,
+    rev_column,
+    samples_header,
+    samples_preamble,
+)
 from controller.core.reel import ReelModel
+
+__all__ = [
+    "ANCHORS_COPLANAR_RATIO",
+    "COPLANAR_POSES_RATIO",
+    "DISTINCT_POSE_M",
+    "MIN_CABLES",
+    "POSE_COLUMNS",
+    "RECOMMENDED_POSES",
+    "START_BELOW_ANCHORS_RATIO",
+    "THIN_POSES_RATIO",
+    "Calibration",
+    "CalibrationError",
+    "CalibrationUnavailable",
+    "Direction",
+    "Gate",
+    "Samples",
+    "Settings",
+    "calibrate",
+    "format_metres",
+    "format_sample_row",
+    "kabsch",
+    "minimum_poses",
+    "parse_samples",
+    "plane_fit",
+    "replace_anchor_values",
+    "rev_column",
+    "rigid_basis",
+    "samples_header",
+    "samples_preamble",
+    "spread_poses",
+]
 
 FloatArray = NDArray[np.float64]
 Vec3 = tuple[float, float, float]
-
-POSE_COLUMNS = ("x_m", "y_m", "z_m")
-"""The CSV columns of the pose the controller believed."""
 
 MIN_CABLES = 4
 """With three cables every pose fits any anchors: nothing can be calibrated."""
@@ -129,126 +165,8 @@ _UNBOUNDED_STD_M = 1e3
 """Standard deviations above this are reported as unbounded (None in JSON)."""
 
 
-class CalibrationError(ValueError):
-    """Samples or a configuration from which no calibration can be made; the reason says why."""
-
-
 class CalibrationUnavailable(RuntimeError):
     """scipy (needed for the least-squares solve) is not installed."""
-
-
-# --------------------------------------------------------------------------------------------
-# Samples (CSV)
-
-
-def rev_column(node_id: int) -> str:
-    """The CSV column of a reel's motor turns, e.g. ``node_3_rev``."""
-    return f"node_{int(node_id)}_rev"
-
-
-def samples_header(node_ids: Sequence[int]) -> list[str]:
-    """The CSV header: one ``node_<id>_rev`` column per reel (cable order), then x_m, y_m, z_m."""
-    return [rev_column(n) for n in node_ids] + list(POSE_COLUMNS)
-
-
-def samples_preamble(robot: str, node_ids: Sequence[int], when: str) -> str:
-    """The comment lines that open a samples file (each starts with ``#``, ends with newline)."""
-    ids = ", ".join(str(int(n)) for n in node_ids)
-    return (
-        f"# cablebot calibration samples: robot {robot!r}, nodes {ids}, recorded {when}\n"
-        "# one row per pose: each reel's motor position (node_<id>_rev, motor turns as the\n"
-        "# drive reports it) and the pose the controller believed (x_m, y_m, z_m, metres)\n"
-    )
-
-
-def format_sample_row(motor_rev: Sequence[float], position_m: Sequence[float]) -> list[str]:
-    """One CSV row (full float precision). Raises ValueError on a non-finite value."""
-    values = [float(v) for v in motor_rev] + [float(v) for v in position_m]
-    if len(position_m) != 3 or not all(math.isfinite(v) for v in values):
-        raise ValueError(f"a sample needs finite motor turns and 3 finite pose values: {values}")
-    return [repr(v) for v in values]
-
-
-@dataclass(frozen=True, slots=True)
-class Samples:
-    """K recorded poses: motor turns (K, N) in cable order and the believed poses (K, 3)."""
-
-    node_ids: tuple[int, ...]
-    motor_rev: FloatArray
-    believed_m: FloatArray
-
-    @property
-    def n_poses(self) -> int:
-        """Number of recorded poses (K)."""
-        return int(self.motor_rev.shape[0])
-
-
-def parse_samples(text: str, source: str, node_ids: Sequence[int]) -> Samples:
-    """Read samples CSV text (format in the module docstring) for reels `node_ids` (cable order).
-
-    Raises CalibrationError naming `source` and the line for: no header, a missing, unknown or
-    repeated column, a row with the wrong number of cells, a value that is not a finite
-    number, or no rows at all.
-    """
-    ids = tuple(int(n) for n in node_ids)
-    wanted = samples_header(ids)
-    header: list[str] | None = None
-    index: list[int] = []
-    rev_rows: list[list[float]] = []
-    pose_rows: list[list[float]] = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
-        cells = [c.strip() for c in next(csv.reader(io.StringIO(stripped)))]
-        if header is None:
-            header = cells
-            seen: set[str] = set()
-            for name in cells:
-                if name in seen:
-                    raise CalibrationError(f"{source} line {lineno}: column {name!r} repeated")
-                seen.add(name)
-                if name not in wanted:
-                    raise CalibrationError(
-                        f"{source} line {lineno}: unknown column {name!r} "
-                        f"(expected {', '.join(wanted)})"
-                    )
-            missing = [w for w in wanted if w not in seen]
-            if missing:
-                raise CalibrationError(
-                    f"{source} line {lineno}: missing column(s) {', '.join(missing)} "
-                    f"(the configuration's reels are nodes {', '.join(map(str, ids))})"
-                )
-            index = [cells.index(w) for w in wanted]
-            continue
-        if len(cells) != len(header):
-            raise CalibrationError(
-                f"{source} line {lineno}: {len(cells)} values, the header has {len(header)}"
-            )
-        values: list[float] = []
-        for j in index:
-            try:
-                v = float(cells[j])
-            except ValueError:
-                raise CalibrationError(
-                    f"{source} line {lineno}: {header[j]} = {cells[j]!r} is not a number"
-                ) from None
-            if not math.isfinite(v):
-                raise CalibrationError(
-                    f"{source} line {lineno}: {header[j]} = {cells[j]} is not finite"
-                )
-            values.append(v)
-        rev_rows.append(values[: len(ids)])
-        pose_rows.append(values[len(ids) :])
-    if header is None:
-        raise CalibrationError(f"{source}: no header line (expected {', '.join(wanted)})")
-    if not rev_rows:
-        raise CalibrationError(f"{source}: no samples after the header")
-    return Samples(
-        node_ids=ids,
-        motor_rev=np.array(rev_rows, dtype=np.float64),
-        believed_m=np.array(pose_rows, dtype=np.float64),
-    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -801,6 +719,77 @@ def _solve(
     return a, o.copy(), p.copy(), bool(res.status > 0)
 
 
+def _starting_point(
+    a_cfg: FloatArray, reels0: Sequence[ReelModel], samples: Samples, problem: _Problem
+) -> tuple[FloatArray, float, FloatArray]:
+    """The solve's start: the believed poses (lowered where needed), the height every pose
+    stays below, and the offsets that fit them. Raises CalibrationError when every pose is
+    at or above the lowest anchor or a reel cannot reach the believed lengths."""
+    n = a_cfg.shape[0]
+    k = samples.n_poses
+    # Starting point: the configured anchors, the believed poses and the offsets that fit them.
+    # A pose believed near the anchors' height (the controller's FPK of inconsistent lengths
+    # meets the anchor plane there) starts a little lower. During the solve every pose stays
+    # below z_max, halfway between the highest start and the lowest anchor: with the anchors
+    # (nearly) in one plane a pose can otherwise settle in that plane, cables horizontal, the
+    # offsets absorbing the difference: a second solution no suspended robot can be in.
+    p0 = samples.believed_m.copy()
+    a_low = float(a_cfg[:, 2].min())
+    height = a_low - float(p0[:, 2].min())
+    if not height > 0.0:
+        raise CalibrationError(
+            "every believed pose is at or above the lowest anchor: the samples do not belong "
+            "to this configuration"
+        )
+    p0[:, 2] = np.minimum(p0[:, 2], a_low - START_BELOW_ANCHORS_RATIO * height)
+    z_max = a_low - 0.5 * (a_low - float(p0[:, 2].max()))
+    dist0, _ = problem.units(a_cfg, p0)
+    o0 = np.empty(n)
+    for i, reel in enumerate(reels0):
+        try:
+            o0[i] = np.mean(
+                [
+                    reel.with_home(float(samples.motor_rev[kk, i]), float(dist0[kk, i])).offset_rev
+                    for kk in range(k)
+                ]
+            )
+        except ValueError as exc:
+            raise CalibrationError(f"reel of cable {i + 1}: {exc}") from exc
+
+    return p0, z_max, o0
+
+
+def _add_warnings(
+    warnings: list[str],
+    directions: Sequence[Direction],
+    anchor_std: FloatArray,
+    coplanar: bool,
+    st: Settings,
+) -> None:
+    """Append to `warnings` what the solution leaves uncertain: coplanar anchors, held and
+    weak directions, poorly determined anchors. Raises nothing."""
+    n = anchor_std.shape[0]
+    if coplanar:
+        warnings.append(
+            "the anchors lie in one plane: stretches of the layout within that plane change "
+            "the cable lengths little or not at all"
+        )
+    for d in directions:
+        if d.kind == "held":
+            seen = "not at all" if d.std_m is None else f"to ±{d.std_m * 1e3:.2g} mm"
+            warnings.append(
+                f"not seen by the samples ({seen}, worse than the {st.hold_std_m * 1e3:g} mm "
+                f"hold threshold): {d.words}; held near the configured values (moved "
+                f"{(d.change_m or 0.0) * 1e3:+.2g} mm)"
+            )
+    for d in directions:
+        if d.kind == "weak":
+            warnings.append(f"poorly determined (±{(d.std_m or math.inf) * 1e3:.2g} mm): {d.words}")
+    for i in range(n):
+        if anchor_std[i] > st.weak_std_m:
+            warnings.append(f"anchor {i + 1} is poorly determined (±{anchor_std[i] * 1e3:.2g} mm)")
+
+
 def calibrate(
     anchors_m: Any,
     reels: Sequence[ReelModel],
@@ -831,34 +820,7 @@ def calibrate(
     reels0 = [replace(r, offset_rev=0.0) for r in reels]
     problem = _Problem(reels0, samples.motor_rev)
 
-    # Starting point: the configured anchors, the believed poses and the offsets that fit them.
-    # A pose believed near the anchors' height (the controller's FPK of inconsistent lengths
-    # meets the anchor plane there) starts a little lower. During the solve every pose stays
-    # below z_max, halfway between the highest start and the lowest anchor: with the anchors
-    # (nearly) in one plane a pose can otherwise settle in that plane, cables horizontal, the
-    # offsets absorbing the difference: a second solution no suspended robot can be in.
-    p0 = samples.believed_m.copy()
-    a_low = float(a_cfg[:, 2].min())
-    height = a_low - float(p0[:, 2].min())
-    if not height > 0.0:
-        raise CalibrationError(
-            "every believed pose is at or above the lowest anchor: the samples do not belong "
-            "to this configuration"
-        )
-    p0[:, 2] = np.minimum(p0[:, 2], a_low - START_BELOW_ANCHORS_RATIO * height)
-    z_max = a_low - 0.5 * (a_low - float(p0[:, 2].max()))
-    dist0, _ = problem.units(a_cfg, p0)
-    o0 = np.empty(n)
-    for i, reel in enumerate(reels0):
-        try:
-            o0[i] = np.mean(
-                [
-                    reel.with_home(float(samples.motor_rev[kk, i]), float(dist0[kk, i])).offset_rev
-                    for kk in range(k)
-                ]
-            )
-        except ValueError as exc:
-            raise CalibrationError(f"reel of cable {i + 1}: {exc}") from exc
+    p0, z_max, o0 = _starting_point(a_cfg, reels0, samples, problem)
 
     q = _complement(rigid_basis(a_cfg))
     dq = q.shape[1]
@@ -927,25 +889,7 @@ def calibrate(
     _, a_thick, a_spread = plane_fit(a_cfg)
     coplanar = a_thick <= ANCHORS_COPLANAR_RATIO * a_spread
     free_bad = [float(v) for v in free_std if v > st.hold_std_m]
-    if coplanar:
-        warnings.append(
-            "the anchors lie in one plane: stretches of the layout within that plane change "
-            "the cable lengths little or not at all"
-        )
-    for d in directions:
-        if d.kind == "held":
-            seen = "not at all" if d.std_m is None else f"to ±{d.std_m * 1e3:.2g} mm"
-            warnings.append(
-                f"not seen by the samples ({seen}, worse than the {st.hold_std_m * 1e3:g} mm "
-                f"hold threshold): {d.words}; held near the configured values (moved "
-                f"{(d.change_m or 0.0) * 1e3:+.2g} mm)"
-            )
-    for d in directions:
-        if d.kind == "weak":
-            warnings.append(f"poorly determined (±{(d.std_m or math.inf) * 1e3:.2g} mm): {d.words}")
-    for i in range(n):
-        if anchor_std[i] > st.weak_std_m:
-            warnings.append(f"anchor {i + 1} is poorly determined (±{anchor_std[i] * 1e3:.2g} mm)")
+    _add_warnings(warnings, directions, anchor_std, bool(coplanar), st)
 
     high = int(np.sum(p[:, 2] >= float(a[:, 2].min())))
     gates = (

@@ -62,15 +62,15 @@ import can
 import canopen
 from canopen.emcy import EmcyError
 from canopen.nmt import NMT_STATES
-from canopen.objectdictionary import datatypes
-from canopen.pdo import PdoMap
-from canopen.pdo.base import PDO_NOT_VALID
-from canopen.sdo.base import SdoVariable
-from canopen.sdo.exceptions import SdoAbortedError, SdoError
 
-from drivers.base import AxisReading, BusError, BusStats, DriverError
+from drivers.base import AxisReading, BusError, BusStats
 from drivers.cia402 import profile
 from drivers.cia402.profile import DriveState, Goal
+from drivers.cia402.sdo_config import (
+    SYNC_COB_ID,
+    configure_node,
+    pdo_struct,
+)
 from drivers.registry import LoopSettings
 
 EDS_PATH = Path(__file__).with_name("cia402.eds")
@@ -82,24 +82,8 @@ DEFAULT_HEARTBEAT_PERIOD_S = 0.1
 MAX_NODE_ID = 127
 NMT_OPERATIONAL = 5
 NMT_BOOT_UP = 0
-SYNC_COB_ID = 0x80
 INT32_MIN = -(2**31)
 INT32_MAX = 2**31 - 1
-_MODE_DISPLAY_WAIT_S = 0.2
-
-_FORMATS = {
-    datatypes.INTEGER8: "b",
-    datatypes.UNSIGNED8: "B",
-    datatypes.INTEGER16: "h",
-    datatypes.UNSIGNED16: "H",
-    datatypes.INTEGER32: "i",
-    datatypes.UNSIGNED32: "I",
-}
-
-
-class ConfigureError(DriverError):
-    """A drive could not be configured; the message names the node, the step and why
-    (SDO timeout, SDO abort with its code, an object missing from the EDS, a refused mode)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -193,22 +177,6 @@ class _Drive:
         self.rpdo2: struct.Struct | None = None
         self.rpdo2_cob = 0
         self.tpdo1 = struct.Struct("<")
-
-
-def _pdo_struct(pdo: PdoMap) -> struct.Struct:
-    """The little-endian struct of a configured PDO (byte-aligned integer objects only)."""
-    fmt = "<"
-    offset = 0
-    for var in pdo.map:
-        code = _FORMATS.get(var.od.data_type or 0)
-        if code is None or var.length != 8 * struct.calcsize(code) or var.offset != offset:
-            raise ConfigureError(
-                f"0x{var.index:04X} ({var.name}) is not a byte-aligned 8/16/32-bit integer "
-                f"in {pdo.name}"
-            )
-        fmt += code
-        offset += var.length
-    return struct.Struct(fmt)
 
 
 class CiA402Reels:
@@ -355,113 +323,28 @@ class CiA402Reels:
                 self._handle(msg)
 
     def _configure_drive(self, d: _Drive) -> None:
-        node = d.node
-        n = d.node_id
-        step = "NMT PRE-OPERATIONAL"
-        try:
-            d.configured = False
-            self._tpdo_by_cob = {c: x for c, x in self._tpdo_by_cob.items() if x is not d}
-            node.nmt.state = "PRE-OPERATIONAL"
-            step = "0x1005 COB-ID SYNC"
-            self._write(node.sdo[0x1005], SYNC_COB_ID)
-            step = "0x1017 heartbeat producer time"
-            self._write(node.sdo[0x1017], self._heartbeat_ms)
-            step = "0x6060 modes of operation"
-            self._write(node.sdo[0x6060], profile.CYCLIC_SYNCHRONOUS_POSITION)
-            step = "0x60C2 interpolation time period"
-            value, index = self._interp
-            self._write(node.sdo[0x60C2][1], value)
-            self._write(node.sdo[0x60C2][2], index)
-            step = "RPDO1"
-            rpdo1 = self._set_pdo(node.rpdo[1], 0x200 + n, [0x6040, 0x607A], rtr=True)
-            step = "RPDO2"
-            rpdo2 = None
-            if self._velocity_offset:
-                rpdo2 = self._set_pdo(node.rpdo[2], 0x300 + n, [0x60B1], rtr=True)
-            else:
-                self._disable_pdo(node.rpdo[2])
-            for i in (3, 4):
-                step = f"RPDO{i}"
-                self._disable_pdo(node.rpdo[i])
-            step = "TPDO1"
-            tpdo_objects = [0x6041, 0x6064] + ([0x6077] if self._torque else [])
-            tpdo1 = self._set_pdo(node.tpdo[1], 0x180 + n, tpdo_objects, rtr=False)
-            for i in (2, 3, 4):
-                step = f"TPDO{i}"
-                self._disable_pdo(node.tpdo[i])
-            step = "0x6061 modes of operation display"
-            self._check_mode(node)
-            step = "NMT OPERATIONAL"
-            node.nmt.state = "OPERATIONAL"
-        except (SdoError, DriverError, KeyError) as exc:
-            raise ConfigureError(f"node {n}: {step}: {type(exc).__name__}: {exc}") from exc
-        d.rpdo1, d.rpdo1_cob = _pdo_struct(rpdo1), rpdo1.cob_id or 0
+        d.configured = False
+        self._tpdo_by_cob = {c: x for c, x in self._tpdo_by_cob.items() if x is not d}
+        rpdo1, rpdo2, tpdo1 = configure_node(
+            d.node,
+            d.node_id,
+            heartbeat_ms=self._heartbeat_ms,
+            interp=self._interp,
+            velocity_offset=self._velocity_offset,
+            torque=self._torque,
+        )
+        d.rpdo1, d.rpdo1_cob = pdo_struct(rpdo1), rpdo1.cob_id or 0
         if rpdo2 is not None:
-            d.rpdo2, d.rpdo2_cob = _pdo_struct(rpdo2), rpdo2.cob_id or 0
+            d.rpdo2, d.rpdo2_cob = pdo_struct(rpdo2), rpdo2.cob_id or 0
         else:
             d.rpdo2 = None
-        d.tpdo1 = _pdo_struct(tpdo1)
+        d.tpdo1 = pdo_struct(tpdo1)
         self._host_cob_ids.update(c for c in (d.rpdo1_cob, d.rpdo2_cob) if c)
         d.restarted = False
         d.configured = True
         d.nmt_state = None  # until its next heartbeat says OPERATIONAL
         self._tpdo_by_cob = {**self._tpdo_by_cob, tpdo1.cob_id or 0: d}
         self._refresh(d)
-
-    @staticmethod
-    def _write(var: object, value: int) -> None:
-        """SDO-write `value`; an object that refuses but already holds it is accepted."""
-        if not isinstance(var, SdoVariable):
-            raise ConfigureError(f"{var!r} is not a single object in the drive's dictionary")
-        try:
-            var.raw = value
-        except SdoAbortedError:
-            try:
-                held = var.raw
-            except SdoError:
-                held = None
-            if held != value:
-                raise
-
-    def _disable_pdo(self, pdo: PdoMap) -> int:
-        """Mark a PDO invalid (COB-ID bit 31), keeping its COB-ID; return that COB-ID."""
-        cob_var = pdo.com_record[1]
-        cob = int(cob_var.raw)
-        if not cob & PDO_NOT_VALID:
-            self._write(cob_var, cob | PDO_NOT_VALID)
-        return cob & 0x7FF
-
-    def _set_pdo(self, pdo: PdoMap, cob_id: int, objects: Sequence[int], *, rtr: bool) -> PdoMap:
-        """Map `objects` into `pdo`, synchronous (type 1), at `cob_id`, and enable it."""
-        cob_var = pdo.com_record[1]
-        cob = int(cob_var.raw)
-        if not cob & PDO_NOT_VALID and cob & 0x7FF != cob_id:
-            # A valid PDO keeps its COB-ID: disable it under its own before moving it.
-            self._write(cob_var, cob | PDO_NOT_VALID)
-        pdo.clear()
-        for index in objects:
-            if pdo.add_variable(index) is None:
-                raise ConfigureError(f"0x{index:04X} is not in the drive's object dictionary")
-        pdo.cob_id = cob_id
-        pdo.trans_type = 1
-        pdo.rtr_allowed = rtr
-        pdo.enabled = True
-        pdo.save()
-        return pdo
-
-    def _check_mode(self, node: canopen.RemoteNode) -> None:
-        """Wait (bounded) until 0x6061 shows cyclic synchronous position."""
-        deadline = time.monotonic() + _MODE_DISPLAY_WAIT_S
-        while True:
-            shown = int(node.sdo[0x6061].raw)
-            if shown == profile.CYCLIC_SYNCHRONOUS_POSITION:
-                return
-            if time.monotonic() >= deadline:
-                raise ConfigureError(
-                    f"the drive shows mode {shown} after 0x6060 was set to cyclic synchronous "
-                    "position (8): it does not support it"
-                )
-            time.sleep(0.01)
 
     # --- receive ----------------------------------------------------------------------------
 
