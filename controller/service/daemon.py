@@ -75,9 +75,11 @@ class Notifier:
         usec = env.get("WATCHDOG_USEC")
         pid = env.get("WATCHDOG_PID")
         self.watchdog_period_s = 0.0
+        """Seconds between WATCHDOG=1 pings: half the WATCHDOG_USEC systemd asked for (the
+        sd_notify convention), when it is meant for this process; 0 = no watchdog, no pings."""
         if usec and (pid is None or pid == str(os.getpid())):
             try:
-                self.watchdog_period_s = int(usec) / 2e6
+                self.watchdog_period_s = max(int(usec), 0) / 2e6
             except ValueError:
                 log.warning("bad WATCHDOG_USEC %r ignored", usec)
 
@@ -458,7 +460,9 @@ def run_daemon(
         controller.runner(),
         cfg.loop,
         stop_loop,
-        on_watchdog=lambda: notifier.notify("WATCHDOG=1"),
+        on_watchdog=(lambda: notifier.notify("WATCHDOG=1"))
+        if notifier.watchdog_period_s > 0.0
+        else None,
         watchdog_period_s=notifier.watchdog_period_s,
         on_crash=on_crash,
     )
