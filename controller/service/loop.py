@@ -651,7 +651,10 @@ class Controller:
             if r.fault is not None:
                 raise _Fault(f"axis_error: node {r.node_id} {r.fault}")
             if now_s - r.stamp_s > stale:
-                raise _Fault(f"stale_encoder: node {r.node_id} age {now_s - r.stamp_s:.3f} s")
+                raise _Fault(
+                    f"stale_encoder: node {r.node_id} age {now_s - r.stamp_s:.3f} s > {stale:g} "
+                    "s (on a busy machine raise [faults] stale_timeout_s)"
+                )
             if now_s - r.heartbeat_stamp_s > hb:
                 raise _Fault(
                     f"stale_heartbeat: node {r.node_id} age {now_s - r.heartbeat_stamp_s:.3f} s"
