@@ -648,7 +648,8 @@ class Controller:
         hb = self._hb_timeout_s
         all_ready = True
         for r in readings:
-            if r.fault is not None:
+            fresh = r.status_stamp_s >= r.command_stamp_s  # the drive answered the last command
+            if r.fault is not None and fresh:
                 raise _Fault(f"axis_error: node {r.node_id} {r.fault}")
             if now_s - r.stamp_s > stale:
                 raise _Fault(
@@ -659,8 +660,8 @@ class Controller:
                 raise _Fault(
                     f"stale_heartbeat: node {r.node_id} age {now_s - r.heartbeat_stamp_s:.3f} s"
                 )
-            if not r.ready:
-                if ready:
+            if not (r.ready and fresh):
+                if ready and fresh:
                     raise _Fault(f"axis_state: node {r.node_id} left closed loop ({r.state_name})")
                 all_ready = False
         return all_ready
@@ -750,7 +751,10 @@ class Controller:
             # Hold the motors where they were while they enter closed loop.
             self._send(self._arm_rev)
         closed = all(
-            r.ready and r.fault is None and r.heartbeat_stamp_s >= self._arm_start_s
+            r.ready
+            and r.fault is None
+            and r.heartbeat_stamp_s >= self._arm_start_s
+            and r.status_stamp_s >= r.command_stamp_s
             for r in readings
         )
         if closed and fresh and self.pose_valid and self.pose_m is not None:
@@ -762,9 +766,12 @@ class Controller:
             bad = [
                 f"node {r.node_id} ({r.state_name}"
                 f"{'' if r.fault is None else ', ' + r.fault}"
-                f"{', no encoder' if r.stamp_s < self._arm_start_s else ''})"
+                f"{', no encoder' if r.stamp_s < self._arm_start_s else ''}"
+                f"{'' if r.status_fresh() else ', no answer since the arm'})"
                 for r in readings
-                if not r.ready or r.fault is not None or r.stamp_s < self._arm_start_s
+                if not (r.ready and r.status_fresh())
+                or r.fault is not None
+                or r.stamp_s < self._arm_start_s
             ]
             why = ", ".join(bad) if bad else "no valid pose"
             self._fault(f"arm_timeout: {why}")
@@ -1409,10 +1416,11 @@ class Controller:
         assert run is not None
         ready = self._check_axes(readings, now_s, ready=False)
         if not ready and now_s - run.start_s > self._arm_timeout_s:
-            r = next(r for r in readings if not r.ready)
+            r = next(r for r in readings if not (r.ready and r.status_fresh()))
             raise _Fault(
                 f"pretension: node {r.node_id} not in closed loop after "
-                f"{self._arm_timeout_s:g} s ({r.state_name})"
+                f"{self._arm_timeout_s:g} s ({r.state_name}"
+                f"{'' if r.status_fresh() else ', no answer since the command'})"
             )
         if ready:
             reels = self.reels
