@@ -94,3 +94,18 @@ def start_sim_bank(cfg: Any, bus: Any) -> Any:
     channel (python-can virtual buses do not hear their own frames).
     """
     return sim_bank(cfg, bus).start()
+
+
+def schedule_sim_thread(cfg: Any, thread: Any) -> str:
+    """Give the simulated drives' serving `thread` (a started `threading.Thread`) the control
+    loop's real-time scheduling, one SCHED_FIFO step below the loop (`loop.rt_priority` - 1),
+    when `loop.realtime` is on: the simulated drives stand in for hardware, and a sim starved
+    by a busy machine looks like a stale node (`stale_encoder`). Returns what was obtained,
+    for the log. Raises nothing."""
+    from controller.service.runner import set_realtime
+
+    if not cfg.loop.realtime:
+        return "SCHED_OTHER (loop.realtime = false)"
+    if thread is None or thread.native_id is None:
+        return "SCHED_OTHER (no serving thread)"
+    return set_realtime(max(1, int(cfg.loop.rt_priority) - 1), thread.native_id)

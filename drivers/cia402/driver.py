@@ -42,6 +42,14 @@ the raw numbers are kept for diagnostics: `axis_state` 8 while Operation enabled
 before the drive was heard); `axis_error` = the EMCY code while faulted (0x1000 without one),
 else 0.
 
+Freshness after a state-changing command (`arm`, `disarm`, `estop`): a drive answers the SYNCs
+in turn, so after a stall (its process paused, a backlog) its first TPDOs answer SYNCs sent
+before the command, with the statuswords of then. The driver keeps the send times of the
+SYNCs (`SYNC_RING`) and counts each drive's answers against them (a SYNC unanswered after
+`MAX_ANSWER_DELAY_S` is taken as lost); `status_stamp_s` moves only on a TPDO answering the
+first SYNC after the command or a later one, and `command_stamp_s` marks the command, so
+`AxisReading.status_fresh` tells the loop when the status describes the drive since then.
+
 `open_driver` and `check_options` are the registry's entries for the "cia402" family
 (`drivers.registry`): the driver from the `[drive]` options, and the options' checks.
 """
@@ -53,6 +61,7 @@ import math
 import struct
 import threading
 import time
+from array import array
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -84,6 +93,11 @@ NMT_OPERATIONAL = 5
 NMT_BOOT_UP = 0
 INT32_MIN = -(2**31)
 INT32_MAX = 2**31 - 1
+SYNC_RING = 4096
+"""SYNCs whose send times are kept, to tell which SYNC a drive's TPDO answers."""
+MAX_ANSWER_DELAY_S = 1.0
+"""A SYNC not answered this long after it was sent is taken as lost (its frame or its answer):
+the drive's next TPDO answers a later one."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -136,6 +150,7 @@ class _Drive:
         "emcy",
         "fault_reset",
         "ff_units",
+        "next_answer",
         "nmt_state",
         "node",
         "node_id",
@@ -166,6 +181,8 @@ class _Drive:
         self.torque: int | None = None
         self.emcy: EmcyError | None = None
         self.fault_reset = False
+        self.next_answer = 0
+        """Index of the next SYNC whose TPDO this drive owes (its TPDOs answer them in turn)."""
         self.actual_counts: int | None = None
         self.target_counts = 0
         self.ff_units = 0
@@ -279,6 +296,11 @@ class CiA402Reels:
         self._sdo_answer_ids = frozenset(0x580 + n for n in ids)
         self._goal = Goal.DISABLED
         self._last_sync_s = -math.inf
+        self._syncs_sent = 0
+        self._sync_times = array("d", [-math.inf]) * SYNC_RING
+        self._command_sync = 0
+        """Index of the first SYNC after the last state-changing command (`arm`, `disarm`,
+        `estop`): only statuswords answering it or a later one tell the drives' state since."""
         self._cycled_since_poll = False
         self._configuring = False
 
@@ -342,6 +364,7 @@ class CiA402Reels:
         self._host_cob_ids.update(c for c in (d.rpdo1_cob, d.rpdo2_cob) if c)
         d.restarted = False
         d.configured = True
+        d.next_answer = self._syncs_sent  # its TPDOs answer the SYNCs from now on
         d.nmt_state = None  # until its next heartbeat says OPERATIONAL
         self._tpdo_by_cob = {**self._tpdo_by_cob, tpdo1.cob_id or 0: d}
         self._refresh(d)
@@ -431,8 +454,24 @@ class CiA402Reels:
         d.prev_sample_s = t_sample
         d.actual_counts = counts
         r.position_rev = counts / cpr
-        r.stamp_s = self._clock()
+        r.stamp_s = now_s = self._clock()
         r.stamp_ns = self._wall_ns()
+        # Which SYNC does it answer? A drive answers them in turn, late ones too (a paused
+        # drive working through its backlog): its status tells the state since the last
+        # state-changing command only once it answers a SYNC sent after that command.
+        k = d.next_answer
+        sent = self._syncs_sent
+        if k < sent:
+            k = max(k, sent - SYNC_RING)
+            oldest_s = now_s - MAX_ANSWER_DELAY_S
+            times = self._sync_times
+            while k < sent - 1 and times[k % SYNC_RING] < oldest_s:
+                k += 1  # presumed lost: never answered
+            d.next_answer = k + 1
+        else:
+            k = sent - 1  # more answers than SYNCs: it answers the last one
+        if k >= self._command_sync:
+            r.status_stamp_s = now_s
         if len(values) > 2:
             d.torque = values[2]
         if values[0] != d.statusword:
@@ -441,7 +480,9 @@ class CiA402Reels:
 
     def _heartbeat_handler(self, d: _Drive) -> Callable[[int], None]:
         def on_heartbeat(state: int) -> None:
-            d.reading.heartbeat_stamp_s = self._clock()
+            d.reading.heartbeat_stamp_s = now_s = self._clock()
+            if not d.configured:  # no TPDOs: its status is its NMT state (and restart)
+                d.reading.status_stamp_s = now_s
             if state == NMT_BOOT_UP and d.configured:
                 # The drive restarted: its PDO set-up and mode are back to their defaults.
                 d.configured = False
@@ -572,7 +613,11 @@ class CiA402Reels:
             self._network.sync.transmit()
         except BusError as exc:
             failures.append(f"SYNC: {exc}")
-        self._last_sync_s = self._clock()
+            self._last_sync_s = self._clock()
+        else:
+            self._last_sync_s = sent_s = self._clock()
+            self._sync_times[self._syncs_sent % SYNC_RING] = sent_s
+            self._syncs_sent += 1
         self._cycled_since_poll = True
         if failures:
             raise BusError("; ".join(failures))
@@ -624,6 +669,16 @@ class CiA402Reels:
             d.ff_units = f
         self._cycle()
 
+    def _commanded(self) -> None:
+        """A state-changing command goes out with the next cycle: the drives' status is judged
+        again only on statuswords answering that cycle's SYNC or a later one
+        (`AxisReading.status_fresh`); a drive that is not configured is judged on its NMT
+        heartbeats."""
+        self._command_sync = self._syncs_sent
+        now_s = self._clock()
+        for r in self._readings:
+            r.command_stamp_s = now_s
+
     def arm(self) -> None:
         """Bring every drive to Operation enabled, holding where its reel is.
 
@@ -639,6 +694,7 @@ class CiA402Reels:
         for d in self._drives:
             d.fault_reset = d.state in fault_states
         self._goal = Goal.ENABLED
+        self._commanded()
         self._cycle()
 
     def disarm(self) -> None:
@@ -646,6 +702,7 @@ class CiA402Reels:
         self._goal = Goal.DISABLED
         for d in self._drives:
             d.fault_reset = False
+        self._commanded()
         self._cycle()
 
     def estop(self) -> None:
@@ -655,6 +712,7 @@ class CiA402Reels:
         if a send fails (after trying every frame).
         """
         self._goal = Goal.QUICK_STOP
+        self._commanded()
         failures: list[str] = []
         for d in self._drives:
             d.fault_reset = False

@@ -85,16 +85,20 @@ class FaultHandling(ControllerState):
         hb = self._hb_timeout_s
         all_ready = True
         for r in readings:
-            if r.fault is not None:
+            fresh = r.status_stamp_s >= r.command_stamp_s  # the drive answered the last command
+            if r.fault is not None and fresh:
                 raise _Fault(f"axis_error: node {r.node_id} {r.fault}")
             if now_s - r.stamp_s > stale:
-                raise _Fault(f"stale_encoder: node {r.node_id} age {now_s - r.stamp_s:.3f} s")
+                raise _Fault(
+                    f"stale_encoder: node {r.node_id} age {now_s - r.stamp_s:.3f} s > {stale:g} "
+                    "s (on a busy machine raise [faults] stale_timeout_s)"
+                )
             if now_s - r.heartbeat_stamp_s > hb:
                 raise _Fault(
                     f"stale_heartbeat: node {r.node_id} age {now_s - r.heartbeat_stamp_s:.3f} s"
                 )
-            if not r.ready:
-                if ready:
+            if not (r.ready and fresh):
+                if ready and fresh:
                     raise _Fault(f"axis_state: node {r.node_id} left closed loop ({r.state_name})")
                 all_ready = False
         return all_ready

@@ -190,10 +190,11 @@ class Homing(FaultHandling):
         assert run is not None
         ready = self._check_axes(readings, now_s, ready=False)
         if not ready and now_s - run.start_s > self._arm_timeout_s:
-            r = next(r for r in readings if not r.ready)
+            r = next(r for r in readings if not (r.ready and r.status_fresh()))
             raise _Fault(
                 f"pretension: node {r.node_id} not in closed loop after "
-                f"{self._arm_timeout_s:g} s ({r.state_name})"
+                f"{self._arm_timeout_s:g} s ({r.state_name}"
+                f"{'' if r.status_fresh() else ', no answer since the command'})"
             )
         if ready:
             reels = self.reels

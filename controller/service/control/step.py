@@ -173,7 +173,10 @@ class ControlStep(CommandExecution):
             # Hold the motors where they were while they enter closed loop.
             self._send(self._arm_rev)
         closed = all(
-            r.ready and r.fault is None and r.heartbeat_stamp_s >= self._arm_start_s
+            r.ready
+            and r.fault is None
+            and r.heartbeat_stamp_s >= self._arm_start_s
+            and r.status_stamp_s >= r.command_stamp_s
             for r in readings
         )
         if closed and fresh and self.pose_valid and self.pose_m is not None:
@@ -185,9 +188,12 @@ class ControlStep(CommandExecution):
             bad = [
                 f"node {r.node_id} ({r.state_name}"
                 f"{'' if r.fault is None else ', ' + r.fault}"
-                f"{', no encoder' if r.stamp_s < self._arm_start_s else ''})"
+                f"{', no encoder' if r.stamp_s < self._arm_start_s else ''}"
+                f"{'' if r.status_fresh() else ', no answer since the arm'})"
                 for r in readings
-                if not r.ready or r.fault is not None or r.stamp_s < self._arm_start_s
+                if not (r.ready and r.status_fresh())
+                or r.fault is not None
+                or r.stamp_s < self._arm_start_s
             ]
             why = ", ".join(bad) if bad else "no valid pose"
             self._fault(f"arm_timeout: {why}")
