@@ -58,8 +58,8 @@ the defaults of the dataclasses.
 """
 
 from controller.service.config.interfaces import bus_option_names
+from controller.service.config.load import load_config
 from controller.service.config.parse import (
-    load_config,
     parse_config,
     tension_check,
     tension_problem,
