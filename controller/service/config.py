@@ -90,6 +90,7 @@ _PREFIX_RE = re.compile(r"^[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*$")
 _ZENOH_MODES = ("peer", "client", "router")
 SIM_PLANTS = ("kinematic", "physical")
 TORQUE_TELEMETRY = ("off", "cyclic", "rtr")
+STRETCH_TENSIONS = ("planned", "measured")
 
 
 class ConfigError(ValueError):
@@ -136,6 +137,9 @@ class ReelConfig:
     max_torque_nm: float | None = None
     """The motor's torque limit (N m); with it the reel bounds the cable tension (see
     `TensionLimits`). None = no bound from this reel."""
+    cable_ea_n: float | None = None
+    """The cable's axial stiffness EA (N): the kinematics account for its stretch under the
+    planned tensions (`controller.core.stretch`; needs `[payload]`). None = rigid."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,6 +178,9 @@ class LoopConfig:
     drives broadcast Get_Torques) or "rtr" (asked every `torque_rtr_period_s`)."""
     torque_rtr_period_s: float = 0.01
     """With `torque_telemetry = "rtr"`: how often every axis is asked for its torques."""
+    stretch_tensions: str = "planned"
+    """The tensions the pose's cable stretch is computed with (reels with `cable_ea_n`):
+    "planned" (statics at the pose) or "measured" (torque telemetry; needs it on)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -695,6 +702,7 @@ _REEL_KEYS = (
     "turns_per_layer",
     "reference_length_m",
     "max_torque_nm",
+    "cable_ea_n",
 )
 
 
@@ -734,6 +742,7 @@ def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
         buildup = t.number("spool_buildup_m_per_rev2", 0.0, ge=0.0)
     ref = t.number("reference_length_m", 0.0, ge=0.0)
     max_torque = t.number("max_torque_nm", gt=0.0) if t.has("max_torque_nm") else None
+    cable_ea = t.number("cable_ea_n", gt=0.0) if t.has("cable_ea_n") else None
     if not t.errs.clean_since(mark) or node_id is None or anchor is None:
         return None
     try:
@@ -748,7 +757,13 @@ def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
     except (ValueError, ArithmeticError) as exc:
         t.fail_here(f"unusable reel model: {exc}")
         return None
-    return ReelConfig(node_id=node_id, anchor_m=anchor, reel=model, max_torque_nm=max_torque)
+    return ReelConfig(
+        node_id=node_id,
+        anchor_m=anchor,
+        reel=model,
+        max_torque_nm=max_torque,
+        cable_ea_n=cable_ea,
+    )
 
 
 def _check_reel_range(rc: ReelConfig, i: int, lim: LimitsConfig, source: str) -> None:
@@ -817,7 +832,13 @@ def _parse_loop(lt: _Table) -> LoopConfig:
         torque_rtr_period_s=lt.number(
             "torque_rtr_period_s", d_loop.torque_rtr_period_s, gt=0.0, le=10.0
         ),
+        stretch_tensions=lt.string("stretch_tensions", d_loop.stretch_tensions) or "planned",
     )
+    if loop.stretch_tensions not in STRETCH_TENSIONS:
+        lt.fail(
+            "stretch_tensions",
+            f"must be one of {', '.join(STRETCH_TENSIONS)}, got {loop.stretch_tensions!r}",
+        )
     if loop.torque_telemetry not in TORQUE_TELEMETRY:
         lt.fail(
             "torque_telemetry",
@@ -1012,6 +1033,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
                 f"{faults.slack_tension_n:g} N must be below limits.min_tension_n "
                 f"({tension.min_n:g} N): every holding pose would be slack",
             )
+    _check_stretch(top, lt, errs, loop, reels)
     if sim.plant == "physical":
         if drive.kind != "odrive":
             st.fail(
@@ -1045,6 +1067,25 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         payload=payload,
         tension=tension,
     )
+
+
+def _check_stretch(
+    top: _Table, lt: _Table, errs: _Errors, loop: LoopConfig, reels: Sequence[ReelConfig] | None
+) -> None:
+    """Cable stretch (`[[reels]] cable_ea_n`) needs `[payload]` (the tensions it follows);
+    `loop.stretch_tensions = "measured"` needs torque telemetry and a cable that stretches."""
+    stretchy = [i for i, r in enumerate(reels or ()) if r.cable_ea_n is not None]
+    if stretchy and not top.has("payload"):
+        for i in stretchy:
+            errs.add(
+                f"reels[{i}].cable_ea_n",
+                "needs [payload] mass_kg (the stretch follows the tensions that hold it)",
+            )
+    if loop.stretch_tensions == "measured":
+        if loop.torque_telemetry == "off":
+            lt.fail("stretch_tensions", '"measured" needs loop.torque_telemetry on')
+        if reels is not None and not stretchy:
+            lt.fail("stretch_tensions", '"measured" does nothing: no reel has cable_ea_n')
 
 
 def _parse_limits(mt: _Table) -> LimitsConfig:

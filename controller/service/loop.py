@@ -102,6 +102,7 @@ from controller.core.reel import ReelModel
 from controller.core.states import ARMED_STATES, State, check_transition, refusal
 from controller.core.statics import SINGULAR_ROW, StaticsError, TensionCheck
 from controller.core.workspace import Workspace, points_array
+from controller.service.cables import CableModel
 from controller.service.config import RobotConfig, tension_check
 from controller.service.pose import NullPublisher, PoseSample, Publisher
 from controller.service.runner import SPIN_S, LoopStats, Runner
@@ -232,6 +233,8 @@ class Controller:
             if cfg.tension is None or cfg.payload is None
             else tension_check(cfg.payload, cfg.tension, cfg.geometry)
         )
+        self.cables = CableModel.from_config(cfg, self.tension)
+        """Rigid or stretching cables: homing lengths, commanded lengths (IPK), pose (FPK)."""
         span = max(math.dist(a, b) for a in self._anchors for b in self._anchors)
         self._tension_step_m = TENSION_SAMPLE_FRACTION * span
         self.planned_tensions_n: tuple[float, ...] | None = None
@@ -371,7 +374,7 @@ class Controller:
         """Set the reel offsets so that the current readings map to `position_m`; the pose is
         `position_m` from now on (not from the next tick's solve: a status read in between
         must not show the pose of the old offsets under the new home)."""
-        lengths = kinematics.ipk_point(self.geometry, position_m)
+        lengths = self.cables.home_lengths_m(position_m)
         self.reels = [
             base.with_home(r.position_rev, L)
             for base, r, L in zip(self._base_reels, readings, lengths, strict=True)
@@ -703,15 +706,14 @@ class Controller:
             # New encoder data (at 1 kHz with 2 ms broadcasts, every other tick has none):
             # solve; otherwise the pose of the same lengths is the one already solved.
             try:
-                res = kinematics.fpk(self.geometry, lengths)
+                pose, residual = self.cables.pose(
+                    lengths, pose, self.measured_tensions_n if self._measure else None
+                )
             except kinematics.KinematicsError as exc:
                 self.pose_valid = False
                 if self.state is not State.DISARMED and self._pretension is None:
                     raise _Fault(f"fpk_unreachable: {exc}") from None
                 return
-            pos = res.position_m
-            pose = (float(pos[0]), float(pos[1]), float(pos[2]))
-            residual = float(res.residual_m)
             self.pose_m = pose
             self.residual_m = residual
             self._fpk_lengths_m[:] = lengths
@@ -820,13 +822,17 @@ class Controller:
             raise _Fault(f"limit: {reason}")
         if self.tension is not None and sp != self._planned_at:
             self._plan_tensions(sp)
+        try:
+            paid = self.cables.commanded_lengths_m(lengths, self.planned_tensions_n)
+        except kinematics.KinematicsError as exc:
+            raise _Fault(f"ipk: {exc}") from None
         prev = self.setpoint_lengths_m
         if prev is not None:
             reason = self.workspace.check_cable_speeds(prev, lengths, dt)
             if reason is not None:
                 raise _Fault(f"cable_speed: {reason}")
         reels = self.reels
-        rev = [reels[i].position_rev(lengths[i]) for i in range(self.n)]
+        rev = [reels[i].position_rev(paid[i]) for i in range(self.n)]
         ff = self._velocity_ff(sp, self.planner.velocity_mps, lengths, rev)
         self._send(rev, ff)
         self.commanded_rev = rev
