@@ -196,6 +196,7 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
     closers: list[tuple[str, Callable[[], object]]] = []
     b = cfg.bus
     fam = registry.family(cfg.drive.kind)
+    bank: Any = None
     try:
         bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
         closers.append(("bus", bus.shutdown))
@@ -249,6 +250,12 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
                 raise RuntimeError(zenoh_open_problem(cfg.zenoh, exc)) from exc
             closers.append(("zenoh", iface.close))
             controller.publisher = iface
+            if cfg.sim.enabled and getattr(bank, "coupling", None) is not None:
+                from controller.service.simulated import TRUTH_KEY, TruthFeed
+
+                period = max(1, int(cfg.loop.publish_every)) / float(cfg.loop.rate_hz)
+                feed = TruthFeed(bank.coupling, iface.json_publisher(TRUTH_KEY), period).start()
+                closers.append(("sim truth", feed.stop))
     except BaseException:
         _close_all(closers)
         raise
