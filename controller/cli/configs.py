@@ -293,7 +293,7 @@ def _stretch_lines(
             continue
         geo = model.stretched_m(paid, tensions)
         st = [g - q for g, q in zip(geo, paid, strict=True)]
-        parts.append(f"{max(st) * 1e3:.3g} mm at {name} ({_xyz(p)})")
+        parts.append(f"{max(st) * 1e3:.1f} mm at {name} ({_xyz(p)})")
         out.append({"pose": name, "position_m": list(p), "stretch_m": st})
     line = (
         f"stretch    cable EA {ea_text}, pose from {cfg.loop.stretch_tensions} tensions; "
