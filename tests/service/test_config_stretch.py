@@ -59,7 +59,7 @@ def test_stretch_needs_a_payload() -> None:
 def test_tension_source_choice() -> None:
     with pytest.raises(ConfigError, match="stretch_tensions: must be one of planned, measured"):
         parse_config(data_with(2e5, stretch_tensions="guessed"), "t.toml")
-    with pytest.raises(ConfigError, match="stretch_tensions: .measured. needs loop.torque"):
+    with pytest.raises(ConfigError, match=r"stretch_tensions: .measured. needs loop\.torque"):
         parse_config(data_with(2e5, stretch_tensions="measured"), "t.toml")
     d = data_with(None, stretch_tensions="measured", torque_telemetry="cyclic")
     d["sim"] = {**d["sim"], "plant": "physical"}
