@@ -702,6 +702,7 @@ class Controller:
             or residual is None
             or not self.pose_valid
             or lengths != self._fpk_lengths_m
+            or self.cables.measured  # the measured tensions move the pose too
         ):
             # New encoder data (at 1 kHz with 2 ms broadcasts, every other tick has none):
             # solve; otherwise the pose of the same lengths is the one already solved.

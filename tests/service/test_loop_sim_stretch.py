@@ -201,3 +201,25 @@ def test_desk_rig_with_stretch_is_within_a_tenth_of_a_millimetre() -> None:
             assert err_pose < 1e-4, (target, err_pose)
     finally:
         rig.close()
+
+
+def test_pose_from_measured_tensions_is_within_a_millimetre() -> None:
+    """`loop.stretch_tensions = "measured"`: the pose's stretch from the Get_Torques tensions."""
+    cfg = paper_config(
+        2e5,
+        2e5,
+        f"test-stretch-{uuid.uuid4().hex[:8]}",
+        telemetry="cyclic",
+        tensions="measured",
+    )
+    rig = StretchRig(cfg)
+    try:
+        rig.arm()
+        assert rig.ctl.cables.measured
+        err_target, err_pose = rig.move_and_settle((0.0, 0.0, 6.0))
+        assert rig.ctl.state is State.HOLDING, rig.ctl.reason
+        assert None not in rig.ctl.measured_tensions_n
+        assert err_target < 1e-3
+        assert err_pose < 1e-3
+    finally:
+        rig.close()
