@@ -296,24 +296,58 @@ class CableStretch:
             if not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
                 raise KinematicsError(f"guess must be finite, got {tuple(guess_m)!r}")
         total = 0
-        for _ in range(MAX_PASSES):
+        prev_move = math.inf
+        best: tuple[float, tuple[float, float, float], tuple[float, ...]] | None = None
+        for k in range(MAX_PASSES):
             pe, te = self._lin_at, self._lin_t
-            if math.dist(pe, p) > TENSIONS_REUSE_M:
+            if k > 0 or math.dist(pe, p) > TENSIONS_REUSE_M:
                 te = self.tensions_n(p)
                 pe = self._lin_at = p
                 self._lin_t = te
+            if k > 0:
+                ss_p = self._sum_squares(p, te, paid)
+                if best is None or ss_p < best[0]:
+                    best = (ss_p, p, te)
             dt = self._dt
-            if dt is None or math.dist(self._jac_at, pe) > JACOBIAN_REUSE_M:
+            if (
+                dt is None
+                or math.dist(self._jac_at, pe) > JACOBIAN_REUSE_M
+                or (k > 0 and self._jac_at != pe)
+            ):
+                # A later pass is a Newton step on the full equations: its tension derivative
+                # is taken where it linearises.
                 dt = self._dt = self._tension_jacobian(pe, te)
             q, ss, t, its = self._pass(p, pe, te, dt, paid)
             total += its
+            move = math.dist(pe, q)
+            if move <= RELINEARISE_M:
+                return StretchFpk(q, math.sqrt(ss / n), t, total)
+            if move >= prev_move:  # not contracting: half the way
+                q = (0.5 * (p[0] + q[0]), 0.5 * (p[1] + q[1]), 0.5 * (p[2] + q[2]))
+                move = math.dist(p, q)
+            prev_move = move
             p = q
-            if math.dist(pe, q) <= RELINEARISE_M:
-                return StretchFpk(p, math.sqrt(ss / n), t, total)
-        raise StretchError(
-            f"FPK with stretch did not settle in {MAX_PASSES} passes (at {_fmt(p)}, residual "
-            f"{math.sqrt(ss / n):.3g} m)"
-        )
+        # The passes did not settle: the tensions' distribution has a kink there (the cable
+        # that limits it changes) and the lengths disagree (a large residual), so the passes
+        # step across the kink.  The best pose seen, by its exact residual.
+        if best is None:
+            raise StretchError(f"FPK with stretch did not settle at {_fmt(p)}")
+        ss_b, p_b, t_b = best
+        return StretchFpk(p_b, math.sqrt(ss_b / n), tuple(max(0.0, v) for v in t_b), total)
+
+    def _sum_squares(
+        self, p: tuple[float, float, float], t: Sequence[float], paid: Sequence[float]
+    ) -> float:
+        """Sum of squared paid-out length mismatches at `p` with tensions `t` there."""
+        c = self._c
+        x, y, z = p
+        ss = 0.0
+        for i, (ax, ay, az) in enumerate(self._anchors):
+            length = math.sqrt((ax - x) ** 2 + (ay - y) ** 2 + (az - z) ** 2)
+            ti = t[i]
+            ri = (length / (1.0 + c[i] * ti) if ti > 0.0 else length) - paid[i]
+            ss += ri * ri
+        return ss
 
     def _pass(
         self,
