@@ -117,3 +117,36 @@ def test_daemon_publishes_the_truth_and_its_pose_sits_on_it(tmp_path: Path) -> N
             session.close()
         rc = proc.terminate(10.0)
         assert rc == 0, proc.log()
+
+
+def test_cablebot_sim_publishes_the_truth_to_the_daemons_endpoint(tmp_path: Path) -> None:
+    """`cablebot sim` with the physical plant: its peer session connects to the endpoint the
+    daemon would listen on (here a stand-in session) and puts the truth there."""
+    import zenoh
+
+    name = f"s{uuid.uuid4().hex[:8]}"
+    data: dict[str, Any] = paper_robot_data(name)
+    data["bus"] = {"interface": "virtual", "channel": f"simtruth-{name}"}
+    data["sim"] = {"enabled": False, "plant": "physical", "cable_ea_n": 2e5}
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    data["zenoh"] = {"prefix": f"cablebot/{name}", "listen": [endpoint]}
+    path = tmp_path / f"{name}.toml"
+    path.write_text(to_toml(data))
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    truths: queue.Queue[dict[str, Any]] = queue.Queue()
+    session.declare_subscriber(
+        f"cablebot/{name}/{TRUTH_KEY}", lambda s: truths.put(json.loads(s.payload.to_bytes()))
+    )
+    proc = Proc([*CABLEBOT, "sim", "--config", str(path)], "sim")
+    try:
+        truth = truths.get(timeout=30.0)
+        assert math.dist(truth["position_m"], (0.0, 0.0, 2.0)) < 1e-9
+        assert truth["tensions_n"] == pytest.approx([104.4422] * 4, rel=1e-5)
+    finally:
+        session.close()
+        rc = proc.terminate(10.0)
+        assert rc == 0, proc.log()
