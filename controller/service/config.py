@@ -37,7 +37,9 @@ values run only when those values are valid themselves):
   `limits.max_tension_n` unless every reel gives `max_torque_nm` (the smaller maximum wins:
   `TensionLimits`); the range must stay open inside `tension_margin_n`, and the payload must
   be holdable at the power-up position with every tension at least the margin inside the
-  range. Without `[payload]` no tension key may be set (it would do nothing).
+  range. Without `[payload]` no tension key may be set (it would do nothing);
+* cable stretch: a reel's `cable_ea_n` (> 0 N; absent = rigid) needs `[payload]`, and
+  `loop.stretch_tensions = "measured"` needs torque telemetry and a reel with `cable_ea_n`.
 
 Keys and helpers with defaults, so a file that omits them still loads:
 `LoopConfig.rt_priority` (int, 50), `LoopConfig.auto_arm` (bool | None; None = arm at start
