@@ -60,6 +60,7 @@ def stretch_config(
             heartbeat_timeout_s=3.0,
             tracking_max_m=2.0,
             residual_max_m=0.5,
+            slack_time_s=2.0,  # measured tensions: ride out a starved thread's transients
         ),
         sim=replace(
             base.sim,
