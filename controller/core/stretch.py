@@ -31,8 +31,9 @@ and the dynamic loads of a move are not modelled (``docs/cable-stretch.md``).
   gives with the analytic Jacobian; a pass that ends farther than ``RELINEARISE_M`` from P0 is
   followed by one linearised at its result.  The linearisation's error grows with the square
   of the distance to P0 and with the tensions' curvature, largest close under the anchors with
-  soft cables: on the paper robot with EA 2e5 N near (0, 0, 6) m it stays below 5 um while
-  the pose moves 4 mm per call and below 2 um at rest (``tests/core/test_stretch.py``).
+  soft cables: on the paper robot with EA 2e5 N near (0, 0, 6) m it stays below 10 um while
+  the pose moves 8 mm per call (2 m/s at 250 Hz) and below 2 um at rest
+  (``tests/core/test_stretch.py``).
   Warm-started from the last pose a tick earlier, one pass and at most one statics solve.
 * FPK with measured tensions (``fpk_measured``): the geometric lengths follow directly from the
   paid-out ones and the tensions; one rigid FPK, no iteration.
@@ -77,7 +78,7 @@ TENSIONS_REUSE_M = 0.002
 """The statics solve of the last linearisation is reused by later solves whose warm start is
 within this distance of it (the loop's poses a tick apart); farther, the statics is solved at
 the warm start."""
-RELINEARISE_M = 0.005
+RELINEARISE_M = 0.01
 """A pass whose result lies farther than this from its linearisation point is followed by one
 linearised at its result (the tensions' curvature makes the linearisation's error grow with
 the square of the distance)."""

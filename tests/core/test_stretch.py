@@ -160,8 +160,10 @@ def test_bad_inputs_raise_named_errors() -> None:
         m.paid_out_m([1.0, 2.0], [1.0, 2.0])
 
 
-@pytest.mark.parametrize("step_m", [0.0005, 0.004])
-def test_warm_started_along_a_path_the_fpk_stays_within_micrometres(step_m: float) -> None:
+@pytest.mark.parametrize(("step_m", "bound_m"), [(0.0005, 2e-6), (0.004, 5e-6), (0.008, 1e-5)])
+def test_warm_started_along_a_path_the_fpk_stays_within_micrometres(
+    step_m: float, bound_m: float
+) -> None:
     """The loop's use: one call per tick, warm-started from the last pose, statics solves
     reused while close (the linearisation's error is largest close under the anchors, with
     soft cables)."""
@@ -173,7 +175,7 @@ def test_warm_started_along_a_path_the_fpk_stays_within_micrometres(step_m: floa
         res = m.fpk(m.ipk(p)[0], guess_m=last)
         worst = max(worst, math.dist(res.position_m, p))
         last = res.position_m
-    assert worst < 5e-6
+    assert worst < bound_m
     # at rest: repeated solves of the same lengths settle on the pose
     paid = m.ipk(path[-1])[0]
     for _ in range(3):
