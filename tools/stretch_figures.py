@@ -4,7 +4,7 @@ For each case (robot, plant EA, controller EA or rigid, tension source), home at
 pose, move to each pose, settle, and print |truth - target| and |published pose - truth| in
 millimetres. Real time (about a minute per case on the paper robot); run from the repository:
 
-    .venv/bin/python tools/stretch_figures.py [paper|desk|ea20|measured ...]
+    .venv/bin/python tools/stretch_figures.py [paper|rigid|stretch|desk|ea20|measured ...]
 """
 
 from __future__ import annotations
@@ -38,6 +38,12 @@ def main(which: list[str]) -> None:
     if "paper" in which:
         for ea in (1e6, 2e5):
             run(f"paper EA {ea:g} rigid model", paper_config, ea, None, PAPER_POSES)
+            run(f"paper EA {ea:g} stretch model", paper_config, ea, ea, PAPER_POSES)
+    if "rigid" in which:
+        for ea in (1e6, 2e5):
+            run(f"paper EA {ea:g} rigid model", paper_config, ea, None, PAPER_POSES)
+    if "stretch" in which:
+        for ea in (1e6, 2e5):
             run(f"paper EA {ea:g} stretch model", paper_config, ea, ea, PAPER_POSES)
     if "ea20" in which:
         for ea in (1e6, 2e5):

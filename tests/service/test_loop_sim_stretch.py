@@ -107,6 +107,7 @@ class StretchRig:
             torque_rtr=cfg.loop.torque_telemetry == "rtr",
         )
         self.ctl = Controller(cfg, self.driver, RecordingPublisher())
+        self._moving_at = time.monotonic()
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self.ctl.run, args=(self.stop,), daemon=True)
         self.thread.start()
@@ -133,13 +134,19 @@ class StretchRig:
     def truth(self) -> Vec3:
         return tuple(self.plant.position_m)  # type: ignore[return-value]
 
-    def settled(self, speed_mps: float = 2e-5) -> bool:
+    def settled(self, speed_mps: float = 2e-5, still_s: float = 1.0) -> bool:
+        """HOLDING with a valid pose and the effector slower than `speed_mps` for `still_s`
+        (one slow sample is no rest: an oscillation turns round at its extremes)."""
         v = self.plant.plant.velocity_mps
-        return (
+        now = time.monotonic()
+        if not (
             self.ctl.state is State.HOLDING
             and math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2) < speed_mps
             and self.ctl.pose_valid
-        )
+        ):
+            self._moving_at = now
+            return False
+        return now - self._moving_at >= still_s
 
     def move_and_settle(
         self, target: Sequence[float], timeout_s: float = 120.0
