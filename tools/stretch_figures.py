@@ -15,7 +15,7 @@ import uuid
 from tests.service.test_loop_sim_stretch import StretchRig, desk_config, paper_config
 
 PAPER_POSES = [(0, 0, 2), (20, 10, 2), (-30, -18, 1), (0, 0, 6), (35, 20, 3), (10, -5, 0.5)]
-DESK_POSES = [(0.0, 0.0, 0.3), (0.2, -0.1, 0.15), (-0.3, 0.3, 0.6), (0.35, 0.35, 0.05)]
+DESK_POSES = [(0.0, 0.0, 0.3), (0.2, -0.1, 0.15), (-0.3, 0.3, 0.6), (0.0, 0.0, 0.65)]
 
 
 def run(label: str, cfg_fn, plant_ea, model_ea, poses, **kw) -> None:  # type: ignore[no-untyped-def]
