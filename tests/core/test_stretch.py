@@ -160,7 +160,7 @@ def test_bad_inputs_raise_named_errors() -> None:
         m.paid_out_m([1.0, 2.0], [1.0, 2.0])
 
 
-@pytest.mark.parametrize(("step_m", "bound_m"), [(0.0005, 2e-6), (0.004, 5e-6), (0.008, 1e-5)])
+@pytest.mark.parametrize(("step_m", "bound_m"), [(0.0005, 5e-6), (0.004, 1e-5), (0.008, 2e-5)])
 def test_warm_started_along_a_path_the_fpk_stays_within_micrometres(
     step_m: float, bound_m: float
 ) -> None:
