@@ -5,7 +5,9 @@ power-up pose, `[sim]` section). Prints "READY <node ids>" on stdout once servin
 SIGTERM/SIGINT (exit 0), then logs how fast it ran (ticks, late ticks, real-time factor) when the
 bank counts them. The serving thread gets the daemon loop's scheduling (`loop.realtime`: SCHED_FIFO
 one step below `loop.rt_priority`, a 1 us timer slack), as the in-process simulator does: a
-starved simulator looks like a stale drive.
+starved simulator looks like a stale drive. With the physical plant it also publishes the
+plant's ground truth on `<prefix>/sim/truth` (`controller.service.simulated.TRUTH_KEY`) through
+a Zenoh peer session that connects to the daemon's listen endpoints.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import os
 import signal
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -60,6 +63,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         except ValueError as exc:  # the physical plant cannot hold the power-up pose, ...
             log.error("simulated drives: %s", exc)
             return 2
+        closers: list[Callable[[], object]] = []
         try:
             sched = schedule_sim_thread(cfg, bank.thread)
             nodes = ",".join(str(n) for n in cfg.node_ids)
@@ -73,6 +77,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
                 sched,
                 slack,
             )
+            truth = _truth_feed(cfg, bank)
+            if truth is not None:
+                closers = [truth[0].stop, truth[1]]
             print(f"READY {nodes}", flush=True)
             while not stop.wait(0.2):
                 thread = bank.thread
@@ -80,6 +87,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
                     log.error("the simulated drives stopped serving")
                     return 1
         finally:
+            for close in closers:
+                close()
             bank.stop()
             stats = getattr(bank, "stats", None)
             if stats is not None:
@@ -96,6 +105,33 @@ def cmd_sim(args: argparse.Namespace) -> int:
     finally:
         bus.shutdown()
     return 0
+
+
+def _truth_feed(cfg: Any, bank: Any) -> tuple[Any, Callable[[], object]] | None:
+    """With the physical plant: publish its ground truth on `<prefix>/sim/truth` at the pose
+    rate, through a Zenoh peer session that connects to the daemon's listen endpoints and
+    listens nowhere; (the feed, the session's close), or None (no plant, or Zenoh failed: the
+    drives are simulated all the same)."""
+    plant = getattr(bank, "coupling", None)
+    if plant is None:
+        return None
+    import zenoh
+
+    from controller.service import zenoh_io
+    from controller.service.simulated import TRUTH_KEY, TruthFeed
+
+    zc = cfg.zenoh
+    try:
+        conf = zenoh_io.client_config(zc.listen, mode="peer", config_file=zc.config_file)
+        session = zenoh.open(conf)
+    except Exception as exc:
+        log.warning("no ground truth on %s/%s: Zenoh: %s", zc.prefix, TRUTH_KEY, exc)
+        return None
+    pub = session.declare_publisher(f"{zc.prefix}/{TRUTH_KEY}", encoding=zenoh_io.JSON)
+    period = max(1, int(cfg.loop.publish_every)) / float(cfg.loop.rate_hz)
+    feed = TruthFeed(plant, pub.put, period).start()
+    log.info("ground truth on %s/%s every %.4g s", zc.prefix, TRUTH_KEY, period)
+    return feed, session.close
 
 
 def register(sub: argparse._SubParsersAction[Any]) -> None:

@@ -219,6 +219,7 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
     closers: list[tuple[str, Callable[[], object]]] = []
     b = cfg.bus
     fam = registry.family(cfg.drive.kind)
+    bank: Any = None
     try:
         bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
         closers.append(("bus", bus.shutdown))
@@ -277,6 +278,12 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
                 closers.append(("ros2", ros2.close))
                 iface.status_extras["ros2"] = ros2.stats
                 controller.publisher = FanOutPublisher(iface, ros2)
+            if cfg.sim.enabled and getattr(bank, "coupling", None) is not None:
+                from controller.service.simulated import TRUTH_KEY, TruthFeed
+
+                period = max(1, int(cfg.loop.publish_every)) / float(cfg.loop.rate_hz)
+                feed = TruthFeed(bank.coupling, iface.json_publisher(TRUTH_KEY), period).start()
+                closers.append(("sim truth", feed.stop))
     except BaseException:
         _close_all(closers)
         raise

@@ -465,6 +465,20 @@ class ZenohInterface:
             except Exception as exc:
                 log.warning("closing the Zenoh session: %s", exc)
 
+    def json_publisher(self, suffix: str) -> Callable[[bytes], None]:
+        """Declare a JSON publisher on `<prefix>/<suffix>` (undeclared by `close`) and return
+        its put (e.g. the simulator's ground truth, `controller.service.simulated.TRUTH_KEY`).
+        Raises RuntimeError before `open`, zenoh.ZError if the declaration fails."""
+        if self.session is None:
+            raise RuntimeError("the Zenoh session is not open")
+        pub = self.session.declare_publisher(
+            f"{self.prefix}/{suffix}",
+            encoding=JSON,
+            congestion_control=zenoh.CongestionControl.DROP,
+        )
+        self._declared.append(pub)
+        return pub.put
+
     def _endpoints(self) -> list[str]:
         return [str(e) for e in _get(self.zcfg, "listen", [DEFAULT_ENDPOINT])]
 

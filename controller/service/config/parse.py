@@ -24,6 +24,7 @@ from controller.service.config.schema import (
     FLOAT32_RESOLUTION_LIMIT_M,
     REEL_KEYS,
     SIM_PLANTS,
+    STRETCH_TENSIONS,
     TOP_KEYS,
     TOP_KEYS_DOC,
     TORQUE_TELEMETRY,
@@ -91,6 +92,7 @@ def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
         )
     ref = t.number("reference_length_m", _REEL_DEFAULTS["reference_length_m"], ge=0.0)
     max_torque = t.number("max_torque_nm", gt=0.0) if t.has("max_torque_nm") else None
+    cable_ea = t.number("cable_ea_n", gt=0.0) if t.has("cable_ea_n") else None
     if not t.errs.clean_since(mark) or node_id is None or anchor is None:
         return None
     try:
@@ -105,7 +107,13 @@ def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
     except (ValueError, ArithmeticError) as exc:
         t.fail_here(f"unusable reel model: {exc}")
         return None
-    return ReelConfig(node_id=node_id, anchor_m=anchor, reel=model, max_torque_nm=max_torque)
+    return ReelConfig(
+        node_id=node_id,
+        anchor_m=anchor,
+        reel=model,
+        max_torque_nm=max_torque,
+        cable_ea_n=cable_ea,
+    )
 
 
 def _check_reel_range(rc: ReelConfig, i: int, lim: LimitsConfig, source: str) -> None:
@@ -158,7 +166,13 @@ def _parse_loop(lt: _Table) -> LoopConfig:
         torque_rtr_period_s=lt.number(
             "torque_rtr_period_s", d_loop.torque_rtr_period_s, gt=0.0, le=10.0
         ),
+        stretch_tensions=lt.string("stretch_tensions", d_loop.stretch_tensions) or "planned",
     )
+    if loop.stretch_tensions not in STRETCH_TENSIONS:
+        lt.fail(
+            "stretch_tensions",
+            f"must be one of {', '.join(STRETCH_TENSIONS)}, got {loop.stretch_tensions!r}",
+        )
     if loop.torque_telemetry not in TORQUE_TELEMETRY:
         lt.fail(
             "torque_telemetry",
@@ -313,6 +327,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         _check_drive(top, drive, family, drive_ok, loop, faults, limits_used, reels)
     payload, tension = _parse_statics(top, errs, limits, limits_ok, reels, geometry, pup)
     _check_telemetry_and_plant(top, lt, ft, st, ht, loop, faults, sim, drive, payload, tension, pup)
+    _check_stretch(top, lt, errs, loop, reels)
 
     errs.raise_if_any()
     assert reels is not None and geometry is not None  # no problems: both were built
@@ -366,6 +381,25 @@ def _parse_homing(
         )
     }
     return HomingConfig(pup, state_file, **pt)
+
+
+def _check_stretch(
+    top: _Table, lt: _Table, errs: _Errors, loop: LoopConfig, reels: Sequence[ReelConfig] | None
+) -> None:
+    """Cable stretch (`[[reels]] cable_ea_n`) needs `[payload]` (the tensions it follows);
+    `loop.stretch_tensions = "measured"` needs torque telemetry and a cable that stretches."""
+    stretchy = [i for i, r in enumerate(reels or ()) if r.cable_ea_n is not None]
+    if stretchy and not top.has("payload"):
+        for i in stretchy:
+            errs.add(
+                f"reels[{i}].cable_ea_n",
+                "needs [payload] mass_kg (the stretch follows the tensions that hold it)",
+            )
+    if loop.stretch_tensions == "measured":
+        if loop.torque_telemetry == "off":
+            lt.fail("stretch_tensions", '"measured" needs loop.torque_telemetry on')
+        if reels is not None and not stretchy:
+            lt.fail("stretch_tensions", '"measured" does nothing: no reel has cable_ea_n')
 
 
 def _check_telemetry_and_plant(

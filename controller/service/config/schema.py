@@ -48,6 +48,7 @@ _PREFIX_RE = re.compile(r"^[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*$")
 _ZENOH_MODES = ("peer", "client", "router")
 SIM_PLANTS = ("kinematic", "physical")
 TORQUE_TELEMETRY = ("off", "cyclic", "rtr")
+STRETCH_TENSIONS = ("planned", "measured")
 
 
 # ------------------------------------------------------------------------------- the schema
@@ -155,6 +156,12 @@ REEL_KEYS = (
         "`max_torque_nm × 2π / (dL/drev)` at the steepest end of the cable range "
         "(needs `[payload]`)",
     ),
+    Key(
+        "cable_ea_n",
+        "the cable's axial stiffness EA: the kinematics account for its stretch under the "
+        "planned tensions (`docs/cable-stretch.md`; needs `[payload]`); absent = rigid",
+        shown="– (rigid)",
+    ),
 )
 """The keys of one `[[reels]]` table (a reel's model is `controller.core.reel.ReelModel`)."""
 
@@ -219,6 +226,9 @@ class ReelConfig:
     max_torque_nm: float | None = None
     """The motor's torque limit (N m); with it the reel bounds the cable tension (see
     `TensionLimits`). None = no bound from this reel."""
+    cable_ea_n: float | None = None
+    """The cable's axial stiffness EA (N): the kinematics account for its stretch under the
+    planned tensions (`controller.core.stretch`; needs `[payload]`). None = rigid."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -289,6 +299,11 @@ class LoopConfig:
         0.01,
         'with `torque_telemetry = "rtr"`: how often every axis is asked for its torques '
         "(2 frames per axis each time: mind the bus load)",
+    )
+    stretch_tensions: str = key(
+        "planned",
+        'the tensions the cable stretch is computed with (reels with `cable_ea_n`): "planned" '
+        '(statics at the pose) or "measured" (torque telemetry; needs it on)',
     )
 
 
@@ -590,6 +605,7 @@ class RobotConfig:
                     "spool_buildup_m_per_rev2": m.spool_buildup_m_per_rev2,
                     "reference_length_m": m.reference_length_m,
                     "max_torque_nm": r.max_torque_nm,
+                    "cable_ea_n": r.cable_ea_n,
                 }
             )
         return {

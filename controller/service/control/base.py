@@ -17,7 +17,6 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from controller.core import kinematics
 from controller.core.commands import Command, Vec3
 from controller.core.motion import MotionPlanner
 from controller.core.pretension import PretensionRun
@@ -25,6 +24,7 @@ from controller.core.reel import ReelModel
 from controller.core.states import State
 from controller.core.statics import TensionCheck
 from controller.core.workspace import Workspace
+from controller.service.cables import CableModel
 from controller.service.config import RobotConfig, tension_check
 from controller.service.pose import NullPublisher, Publisher
 from controller.service.runner import LoopStats
@@ -135,6 +135,8 @@ class ControllerState:
             if cfg.tension is None or cfg.payload is None
             else tension_check(cfg.payload, cfg.tension, cfg.geometry)
         )
+        self.cables = CableModel.from_config(cfg, self.tension)
+        """Rigid or stretching cables: homing lengths, commanded lengths (IPK), pose (FPK)."""
         span = max(math.dist(a, b) for a in self._anchors for b in self._anchors)
         self._tension_step_m = TENSION_SAMPLE_FRACTION * span
         self.planned_tensions_n: tuple[float, ...] | None = None
@@ -290,7 +292,7 @@ class ControllerState:
         """Set the reel offsets so that the current readings map to `position_m`; the pose is
         `position_m` from now on (not from the next tick's solve: a status read in between
         must not show the pose of the old offsets under the new home)."""
-        lengths = kinematics.ipk_point(self.geometry, position_m)
+        lengths = self.cables.home_lengths_m(position_m)
         self.reels = [
             base.with_home(r.position_rev, L)
             for base, r, L in zip(self._base_reels, readings, lengths, strict=True)

@@ -125,19 +125,19 @@ class ControlStep(CommandExecution):
             or residual is None
             or not self.pose_valid
             or lengths != self._fpk_lengths_m
+            or self.cables.measured  # the measured tensions move the pose too
         ):
             # New encoder data (at 1 kHz with 2 ms broadcasts, every other tick has none):
             # solve; otherwise the pose of the same lengths is the one already solved.
             try:
-                res = kinematics.fpk(self.geometry, lengths)
+                pose, residual = self.cables.pose(
+                    lengths, pose, self.measured_tensions_n if self._measure else None
+                )
             except kinematics.KinematicsError as exc:
                 self.pose_valid = False
                 if self.state is not State.DISARMED and self._pretension is None:
                     raise _Fault(f"fpk_unreachable: {exc}") from None
                 return
-            pos = res.position_m
-            pose = (float(pos[0]), float(pos[1]), float(pos[2]))
-            residual = float(res.residual_m)
             self.pose_m = pose
             self.residual_m = residual
             self._fpk_lengths_m[:] = lengths
@@ -252,13 +252,17 @@ class ControlStep(CommandExecution):
             raise _Fault(f"limit: {reason}")
         if self.tension is not None and sp != self._planned_at:
             self._plan_tensions(sp)
+        try:
+            paid = self.cables.commanded_lengths_m(lengths, self.planned_tensions_n)
+        except kinematics.KinematicsError as exc:
+            raise _Fault(f"ipk: {exc}") from None
         prev = self.setpoint_lengths_m
         if prev is not None:
             reason = self.workspace.check_cable_speeds(prev, lengths, dt)
             if reason is not None:
                 raise _Fault(f"cable_speed: {reason}")
         reels = self.reels
-        rev = [reels[i].position_rev(lengths[i]) for i in range(self.n)]
+        rev = [reels[i].position_rev(paid[i]) for i in range(self.n)]
         ff = self._velocity_ff(sp, self.planner.velocity_mps, lengths, rev)
         self._send(rev, ff)
         self.commanded_rev = rev
