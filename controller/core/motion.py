@@ -1,4 +1,5 @@
-"""Motion: trapezoidal straight-line moves, multi-point paths, stop-to-hold, streamed set-points,
+"""Motion: trapezoidal straight-line moves, paths flown through their points with rounded
+corners and look-ahead, a queue for jobs of any length, stop-to-hold, streamed set-points,
 velocity input.
 
 Everything here is deterministic and clock-free: the control loop calls
@@ -11,18 +12,68 @@ Behaviour:
 * `TrapezoidMove`: rest-to-rest straight line, accelerate at `max_accel_mps2`, cruise at
   `max_speed_mps`, decelerate; a triangular profile when the distance is too short to reach the
   cruise speed. Its duration is the minimum possible under both limits.
-* `MotionPlanner.move_to` / `follow_path`: each leg is one `TrapezoidMove`; the effector stops at
-  every path point (no blending). A new move or path that arrives while the effector is moving
-  first brakes to a stop along the current direction at `max_accel_mps2`, then starts its legs
-  from the stop point, so velocity never jumps and the acceleration limit always holds.
-  Zero-length legs are dropped.
-* Legs are built one at a time, when the set-point reaches them, so starting a path costs the
-  same for 1 or 100,000 points. One `advance` crosses at most `MAX_LEGS_PER_ADVANCE` legs: a
-  path of legs so short that more of them fit in one tick runs slower than planned (every leg
-  ends at rest, so dropping the rest of the tick at a leg's end keeps every limit).
-* `MotionPlanner.stop`: brake along the current velocity direction at `max_accel_mps2` to a hold;
-  the stop point is `position + v^2/(2 a)` along that direction. In a trapezoidal leg the
-  remaining distance is always at least that braking distance, so a stop never leaves the leg.
+* Paths (`MotionPlanner.follow_path`, `append_points`; `move_to` is a one-point path) are flown
+  through their points, not stopped at each (how paths are flown, for users: docs/motion.md):
+
+  - Corners are rounded. Printer firmware (Grbl, Marlin, Klipper) limits a corner's speed by
+    "junction deviation" (Sonny Jeon's method in Grbl's planner: the speed at which a circle
+    tangent to both segments, passing `delta` from the corner, has centripetal acceleration
+    `a`) and then turns the velocity instantly, a jump that makes a hanging effector swing.
+    cablebot flies that circle: each corner is an arc of radius
+    R = delta * sin(theta/2) / (1 - sin(theta/2)), tangent to both segments, with theta the
+    angle between the segments as Grbl defines it (180 degrees = straight on), and delta =
+    `junction_deviation_m` (default `DEFAULT_JUNCTION_DEVIATION_M`). On it the speed is at most
+    v = sqrt(a * R) * sqrt(CORNER_ACCEL_FRACTION): Grbl's junction speed
+    v = sqrt(a * delta * sin(theta/2) / (1 - sin(theta/2))) scaled by sqrt(0.95) = 0.975, so a
+    printer user's settings carry over; the 5 % of centripetal acceleration held back leaves 31 %
+    of `max_accel_mps2` to change speed along the arc (|a| = hypot(v^2 / R, tangential) stays
+    within `max_accel_mps2`), so a path made only of arcs (a finely sampled circle) can still
+    speed up and slow down. `junction_speed_mps` is the formula.
+  - The arc's tangent points lie R * tan(turn/2) from the corner; that length is capped at half
+    of each adjoining segment, so consecutive blends never overlap. Where it is capped, the arc
+    is smaller than delta allows (it passes closer to the corner) and its speed lower. A turn
+    below `STRAIGHT_RAD` is straight on (no arc); a full reversal is a stop.
+  - Speed limits: each straight piece at most its path's speed (clamped to `max_speed_mps`);
+    with `anchors_m` every cable's speed |u . v| (u: the unit vector to the anchor) within
+    `max_cable_speed_mps` along every piece. Along a straight line the angle to a fixed anchor
+    changes monotonically, so the extreme of |u . d| is at an end of the segment; on an arc the
+    tangent is c1 d1 + c2 d2 with c1, c2 >= 0, c1 + c2 <= 1 / cos(turn/2), and every arc point
+    lies within the tangent length L of the corner (which turns u by at most 2 L / D for an
+    anchor D away), so |u . t| <= max(|u . d1|, |u . d2|) / cos(turn/2) + 2 L / D bounds it
+    safely.
+  - Look-ahead over everything queued (a backward pass as in Grbl's and Klipper's planners):
+    each junction's speed is at most what lets the set-point brake, at the pieces' own
+    acceleration limits, to rest at the last queued point. So an empty queue never overshoots:
+    the set-point comes to rest exactly at the last point and continues when more arrives
+    (`append_points`). Each piece's profile is the fastest trapezoid from its entry speed under
+    its cap, ending at the highest speed the pass allows; it is built when the set-point enters
+    the piece (and rebuilt from the current state when an append raises its exit speed), so the
+    velocity is continuous everywhere, corners included, and |acceleration| <= `max_accel_mps2`.
+  - Incremental: appending points plans their pieces and walks back only over the tail whose
+    speeds change (those within braking distance of the old end; Klipper's lookahead queue in
+    `toolhead.py` flushes the same way), amortised O(1) per point. A blend at the previous last
+    point is decided when the next point arrives; if the set-point is already braking for that
+    point too hard to slow to the blend's speed, the corner is flown as a stop instead
+    (counted in `blends_dropped`), so a late append never breaks a limit.
+  - Cost: `advance` samples the head piece (a few arithmetic operations, a sine and a cosine on
+    an arc) and plans at most `PLAN_POINTS_PER_CALL` staged points, only while the planned
+    distance ahead is shorter than twice the braking distance from max speed (further points
+    cannot change the speeds flown now). So neither a path nor an append costs the tick in
+    proportion to its length, and a tick's cost does not depend on how much is queued. One
+    `advance` crosses at most `MAX_LEGS_PER_ADVANCE` pieces: a path of pieces so short that
+    more of them fit in one tick runs slower than planned (the rest of the tick is dropped:
+    the trajectory is sampled late, which keeps every limit).
+  - The queue holds at most `max_queued_points` points (`queued_points`, `queued_s`,
+    `queue_full`); an append beyond it, or with no path in progress, raises `QueueError`.
+  - A new move or path that arrives while the effector is moving first brakes to a stop along
+    the current direction at `max_accel_mps2`, then starts from the stop point (appends made
+    meanwhile join the new path). Zero-length segments are dropped.
+* `MotionPlanner.stop`: brake along the current velocity direction at `max_accel_mps2` to a hold,
+  at any queue depth, and close the path (appends are refused until a new path); the stop point
+  is `position + v^2/(2 a)` along that direction. On a straight piece the remaining distance is
+  always at least that braking distance (the look-ahead), so a stop never leaves the segment; on
+  a corner arc it brakes along the arc's tangent, which leaves the arc by at most the braking
+  distance times the sine of the turn still ahead (toward the corner's outside).
 * `MotionPlanner.stream`: the set-point chases the latest target with speed <= max speed and
   |change of velocity| <= max accel * dt per tick (a vector bang-bang limiter along the error
   direction with a discrete-time braking curve, so it lands on a fixed target without
@@ -54,6 +105,7 @@ Behaviour:
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
@@ -95,9 +147,9 @@ it is a stop."""
 DEFAULT_MAX_QUEUED_POINTS = 100_000
 """The path queue's bound (points) when none is given: appends beyond it are refused."""
 
-PLAN_POINTS_PER_CALL = 32
+PLAN_POINTS_PER_CALL = 8
 """Staged points planned per `advance` (and per path or append call): bounds the tick's cost,
-and plans far faster than a path is flown (at most `MAX_LEGS_PER_ADVANCE` / 2 points a tick)."""
+and plans as fast as a path can be flown (at most `MAX_LEGS_PER_ADVANCE` / 2 points a tick)."""
 
 
 def check_speed(speed_mps: float) -> str | None:
@@ -414,13 +466,19 @@ class MotionPlanner:
         self._q: deque[_Piece] = deque()
         self._staged: deque[tuple[tuple[Vec3, ...], int, float]] = deque()
         self._open = False  # a path in progress takes appends
+        self._stopping = False  # the queue was cut where braking along the path ends
+        # a path that arrived while moving: started once the set-point is at rest
+        self._next_path: list[tuple[tuple[Vec3, ...], float]] = []
+        self._next_points = 0
         self._last: Vec3 = _ZERO  # the last planned point
         self._staged_points = 0
         self._staged_s = 0.0
         self._queued_points = 0  # planned points not yet reached
         self._queued_s = 0.0  # sum of the planned pieces' length / cap
         self._queued_m = 0.0  # sum of the planned pieces' lengths
-        self._horizon_m = 2.0 * self.max_speed_mps**2 / self.max_accel_mps2
+        # plan ahead twice the braking distance from max speed: further points cannot change
+        # the speeds flown now
+        self._horizon_m = self.max_speed_mps**2 / self.max_accel_mps2
         # the head's speed profile (from distance _s0 into the piece): accelerate at _acc to _vp,
         # cruise, decelerate at _dec to _v1; phase durations _ta, _tc, _td; _t is the time in it
         self._t_s = 0.0
@@ -480,6 +538,8 @@ class MotionPlanner:
     @property
     def mode(self) -> str:
         """'hold', 'move', 'stop', 'stream' or 'velocity' (for status output)."""
+        if self._stopping and self._mode == _MOVE:
+            return "stop"
         return _MODE_NAMES[self._mode]
 
     @property
@@ -492,7 +552,7 @@ class MotionPlanner:
         """Path points queued and not yet reached (planned and staged)."""
         if not self._open:
             return 0
-        return self._queued_points + self._staged_points
+        return self._queued_points + self._staged_points + self._next_points
 
     @property
     def queued_s(self) -> float:
@@ -522,6 +582,8 @@ class MotionPlanner:
             return self.rest_point_m
         if self._mode == _STREAM:
             return self._stream_target
+        if self._next_path:
+            return self._next_path[-1][0][-1]
         if self._staged:
             return self._staged[-1][0][-1]
         if self._mode == _MOVE:
@@ -533,12 +595,17 @@ class MotionPlanner:
     @property
     def rest_point_m(self) -> Vec3:
         """Where the set-point would come to rest if `stop()` were called now (the start of
-        the first leg of a move or path that arrives now): position + v^2/(2 a) along v."""
+        the first leg of a move or path that arrives now): on a path, where braking along it
+        ends; otherwise position + v^2/(2 a) along v."""
         if self._mode == _STOP:
             return self._stop_point()
         s = self._speed()
         if s == 0.0:
             return self._p
+        if self._mode == _MOVE and self._q:
+            i, dist = self._path_brake()
+            piece = self._q[i]
+            return _point_at(piece, dist) if dist < piece.length else piece.end
         k = s / (2.0 * self.max_accel_mps2)  # distance / speed
         v = self._v
         p = self._p
@@ -605,17 +672,29 @@ class MotionPlanner:
                 f"{len(points_m)} points: the path queue holds at most "
                 f"{self.max_queued_points} points (send the rest as appends)"
             )
-        moving = self._speed() > 0.0
-        if moving:
-            self._begin_stop()  # clears the queue
-        else:
-            self._clear_path()
+        if self._speed() > 0.0:
+            # brake first (along the path on a path), then start from where it comes to rest
+            if self._mode == _MOVE:
+                self._stop_on_path()
+            else:
+                self._begin_stop()
+            self._next_path = [(points_m, speed)]
+            self._next_points = len(points_m)
+            self._open = True
+            return
+        self._next_path = []
+        self._next_points = 0
+        self._start_path([(points_m, speed)])
+
+    def _start_path(self, chunks: list[tuple[tuple[Vec3, ...], float]]) -> None:
+        """Start a path from the set-point at rest."""
+        self._clear_path()
         self._open = True
-        self._stage(points_m, speed)
-        if moving:
-            return  # planned from the stop point when the stop ends
+        self._v = _ZERO
         self._last = self._p
         self._mode = _MOVE
+        for pts, speed in chunks:
+            self._stage(pts, speed)
         self._plan(PLAN_POINTS_PER_CALL)
         self._after_plan()
 
@@ -651,9 +730,11 @@ class MotionPlanner:
                 f"path queue full: {self.queued_points} + {len(points_m)} points would exceed "
                 f"{self.max_queued_points}"
             )
+        if self._next_path:  # a path waiting for the stop before it to end
+            self._next_path.append((points_m, speed))
+            self._next_points += len(points_m)
+            return
         self._stage(points_m, speed)
-        if self._mode == _STOP:
-            return  # a path waiting for the stop before it to end
         if self._mode == _HOLD:  # ran dry at the last point: continue from rest
             self._mode = _MOVE
         self._plan(PLAN_POINTS_PER_CALL)
@@ -678,16 +759,22 @@ class MotionPlanner:
         return min(float(speed_mps), self.max_speed_mps)
 
     def stop(self) -> None:
-        """Brake along the current direction at max accel to a hold; forget the path queue
-        (appends are refused until a new path)."""
+        """Brake at max accel to a hold (on a path: along the path, at any queue depth; else
+        along the current direction); forget the path queue (appends are refused until a new
+        path)."""
         self._staged.clear()
         self._staged_points = 0
         self._staged_s = 0.0
+        self._next_path = []
+        self._next_points = 0
         self._open = False
         if self._mode == _STOP:
             return
         if self._speed() > 0.0:
-            self._begin_stop()
+            if self._mode == _MOVE:
+                self._stop_on_path()
+            else:
+                self._begin_stop()
         else:
             self._clear_path()
             self._mode = _HOLD
@@ -728,6 +815,9 @@ class MotionPlanner:
         self._q.clear()
         self._staged.clear()
         self._open = False
+        self._stopping = False
+        self._next_path = []
+        self._next_points = 0
         self._staged_points = 0
         self._staged_s = 0.0
         self._queued_points = 0
@@ -1118,10 +1208,62 @@ class MotionPlanner:
         self._sample(q[0])
 
     def _dry(self) -> None:
-        """The queue ran dry: at rest at its last point, the path still takes appends."""
+        """The queue ran dry: at rest at its last point, the path still takes appends (unless
+        it was stopped; a path that arrived meanwhile starts now)."""
         self._v = _ZERO
         self._t_s = 0.0
         self._mode = _HOLD
+        if self._next_path:
+            self._start_next()
+        elif self._stopping:
+            self._clear_path()
+
+    def _start_next(self) -> None:
+        chunks = self._next_path
+        self._next_path = []
+        self._next_points = 0
+        self._start_path(chunks)
+
+    def _path_brake(self) -> tuple[int, float]:
+        """Where braking along the queued pieces, each at its own acceleration limit, ends:
+        (index of the piece, distance into it). Walks only the pieces within braking distance."""
+        s, v = self._head_state()
+        v2 = v * v
+        q = self._q
+        for k, piece in enumerate(q):
+            start = s if k == 0 else 0.0
+            rem = max(0.0, piece.length - start)
+            room = 2.0 * piece.acc * rem
+            if v2 <= room:
+                return k, start + (v2 / (2.0 * piece.acc) if v2 > 0.0 else 0.0)
+            v2 -= room
+        return len(q) - 1, q[-1].length  # only by rounding: the end of the queue
+
+    def _stop_on_path(self) -> None:
+        """Cut the queue where braking along the path ends and brake there (at any depth)."""
+        k, dist = self._path_brake()
+        q = self._q
+        if k + 1 < len(q):
+            self._q = q = deque(itertools.islice(q, k + 1))
+        piece = q[k]
+        if dist < piece.length:
+            piece.end = _point_at(piece, dist)
+            piece.length = dist
+        self._staged.clear()
+        self._staged_points = 0
+        self._staged_s = 0.0
+        self._queued_points = 0
+        self._queued_s = self._queued_m = 0.0
+        for p in q:
+            p.point = False
+            p.tn = p.length / p.cap if p.cap > 0.0 else 0.0
+            self._queued_s += p.tn
+            self._queued_m += p.length
+        self._last = piece.end
+        self._backward(len(q))
+        self._replan_head()
+        self._stopping = True
+        self._open = False
 
     def _sample(self, piece: _Piece) -> None:
         s, v = self._head_state()
@@ -1158,12 +1300,8 @@ class MotionPlanner:
             self._p = self._stop_point()
             self._v = _ZERO
             self._t_s = 0.0
-            if self._staged:  # a path that arrived while moving starts from the stop point
-                self._open = True
-                self._last = self._p
-                self._mode = _MOVE
-                self._plan(PLAN_POINTS_PER_CALL)
-                self._after_plan()
+            if self._next_path:  # a path that arrived while moving starts from the stop point
+                self._start_next()
                 leftover = t - t_end
                 if self._mode == _MOVE and leftover > 0.0:
                     self._advance_move(leftover)
@@ -1255,6 +1393,20 @@ class MotionPlanner:
             return
         self._p = (p[0] + nv[0] * dt_s, p[1] + nv[1] * dt_s, p[2] + nv[2] * dt_s)
         self._v = nv
+
+
+def _point_at(piece: _Piece, s: float) -> Vec3:
+    """The point `s` along `piece` (a line or an arc)."""
+    d = piece.d
+    p = piece.p0
+    if not piece.arc:
+        return (p[0] + d[0] * s, p[1] + d[1] * s, p[2] + d[2] * s)
+    r = piece.r
+    psi = s / r
+    a = r * math.sin(psi)
+    b = 2.0 * r * math.sin(0.5 * psi) ** 2
+    n = piece.n
+    return (p[0] + d[0] * a + n[0] * b, p[1] + d[1] * a + n[1] * b, p[2] + d[2] * a + n[2] * b)
 
 
 def _abs_cos(anchor: Vec3, p: Vec3, d: Vec3) -> float:

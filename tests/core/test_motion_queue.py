@@ -342,3 +342,39 @@ def test_a_corner_appended_while_braking_for_it_becomes_a_stop() -> None:
         pl.advance(0.001)
     pl.append_points([(1.0, 1.0, 1.0)])
     assert pl.blends_dropped == 1
+
+
+def _dist_to_segment(p: Vec3, a: Vec3, b: Vec3) -> float:
+    ab = sub(b, a)
+    ap = sub(p, a)
+    t = max(0.0, min(1.0, sum(x * y for x, y in zip(ap, ab, strict=True)) / norm(ab) ** 2))
+    return math.dist(p, (a[0] + ab[0] * t, a[1] + ab[1] * t, a[2] + ab[2] * t))
+
+
+@pytest.mark.parametrize("before_m", [0.3, 0.05, 0.0, -0.02])
+def test_stop_brakes_along_the_path_through_a_corner(before_m: float) -> None:
+    # A 30 degree corner flown at 0.5 m/s: braking takes 0.125 m, so a stop just before the
+    # corner brakes through its arc (a straight stop would leave the path by centimetres).
+    jd = 0.01
+    pts: list[Vec3] = [(0.0, 0.0, 1.0), (2.0, 0.0, 1.0)]
+    ang = math.radians(30)
+    pts.append((2.0 + 2.0 * math.cos(ang), 2.0 * math.sin(ang), 1.0))
+    pl = MotionPlanner(0.5, 1.0, junction_deviation_m=jd)
+    pl.hold(pts[0])
+    pl.follow_path(pts[1:])
+    chk = Checker(pl, 0.001)
+    while pl.position_m[0] < 2.0 - before_m:
+        chk.tick()
+    assert norm(pl.velocity_mps) == pytest.approx(0.5)
+    rest = pl.rest_point_m
+    pl.stop()
+    assert pl.mode == "stop" and pl.queued_points == 0 and pl.target_m == rest
+    with pytest.raises(QueueError):
+        pl.append_points([(0.0, 0.0, 1.0)])
+    ticks = chk.run_until_still(10_000)
+    assert ticks * 0.001 <= 0.5 / (1.0 * math.sqrt(1 - CORNER_ACCEL_FRACTION**2)) + 0.01
+    assert pl.position_m == rest
+    assert pl.mode == "hold" and not pl.appendable
+    for p, _ in chk.trace:
+        near = min(_dist_to_segment(p, a, b) for a, b in itertools.pairwise(pts))
+        assert near <= jd + 1e-9
