@@ -130,9 +130,9 @@ DEFAULT_JUNCTION_DEVIATION_M = 0.01
 """How far a rounded corner may pass from its path point when none is configured (`[limits]
 junction_deviation_m`). 10 mm: a cable robot's effector hangs on elastic cables and sways by
 millimetres, and its paths (camera moves, large prints) are metres long, so 10 mm keeps a 90
-degree corner at 1 m/s^2 to sqrt(a * 0.024 m) = 0.155 m/s instead of a stop, while a path drawn
-with centimetre detail still passes within a centimetre of every point. (Printer firmware uses
-0.01-0.05 mm on rigid frames a hundred times smaller.)"""
+degree corner at 1 m/s^2 at about sqrt(0.95 * a * 0.024 m) = 0.15 m/s instead of a stop, while
+a path drawn with centimetre detail still passes within a centimetre of every point. (Printer
+firmware uses 0.01-0.05 mm on rigid frames a hundred times smaller.)"""
 
 CORNER_ACCEL_FRACTION = 0.95
 """The share of `max_accel_mps2` a corner arc may use for its centripetal acceleration at its

@@ -38,6 +38,7 @@ def bench_planning(
     points: int = 20_000,
     repeats: int = 3,
     ticks: int = 2_000,
+    queued: int = 100_000,
     clock: Callable[[], float] = time.perf_counter,
 ) -> dict[str, float]:
     """Plan `points` points and time `advance`; medians of `repeats` runs.
@@ -48,8 +49,8 @@ def bench_planning(
     points queued and planned, 5 cm apart, so that both ticks cross the same corners),
     `advance_us_100k_staged` (100,000 queued, planned as the set-point advances) and
     `circle_s` / `circle_ideal_s` (the 1,000-point circle of radius 0.2 m at 0.1 m/s and
-    1 m/s^2: the time it takes and length / speed). Raises ValueError for `points`, `repeats`
-    or `ticks` below 1.
+    1 m/s^2: the time it takes and length / speed). `queued` replaces the 100,000 (the "100k"
+    figures keep their names). Raises ValueError for `points`, `repeats` or `ticks` below 1.
     """
     if points < 1 or repeats < 1 or ticks < 1:
         raise ValueError("points, repeats and ticks must be >= 1")
@@ -57,7 +58,7 @@ def bench_planning(
     pts = _spiral(points)
     # the tick's cost with 10 and 100,000 points queued: the same corners (5 cm segments on a
     # circle of 0.2 m, flown at 0.1 m/s), only the queue's length differs
-    big = _spiral(100_000, 0.05)
+    big = _spiral(max(queued, 10), 0.05)
     few = big[:10]
     plan_us: list[float] = []
     append_us: list[float] = []
@@ -87,7 +88,7 @@ def bench_planning(
         pl.plan(len(few))
         adv10.append(_tick_cost_us(pl, ticks, dt, clock))
 
-        pl = MotionPlanner(1.0, 1.0, max_queued_points=200_000)
+        pl = MotionPlanner(1.0, 1.0, max_queued_points=max(200_000, len(big)))
         pl.hold((0.2, 0.0, 1.0))
         pl.follow_points(big, 0.1)
         adv_staged.append(_tick_cost_us(pl, ticks, dt, clock))

@@ -378,3 +378,21 @@ def test_stop_brakes_along_the_path_through_a_corner(before_m: float) -> None:
     for p, _ in chk.trace:
         near = min(_dist_to_segment(p, a, b) for a, b in itertools.pairwise(pts))
         assert near <= jd + 1e-9
+
+
+def test_bench_planning_returns_its_figures() -> None:
+    from controller.core.motion_bench import bench_planning
+
+    figs = bench_planning(points=300, repeats=1, ticks=20, queued=2_000)
+    for key in (
+        "plan_us_per_point",
+        "append_us_per_point",
+        "advance_us_10",
+        "advance_us_100k",
+        "advance_us_100k_staged",
+    ):
+        assert math.isfinite(figs[key]) and figs[key] > 0.0, key
+    assert figs["circle_ideal_s"] == pytest.approx(2 * math.pi * 0.2 / 0.1, rel=1e-4)
+    assert figs["circle_ideal_s"] <= figs["circle_s"] <= 1.10 * figs["circle_ideal_s"]
+    with pytest.raises(ValueError):
+        bench_planning(points=0)
