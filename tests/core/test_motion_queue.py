@@ -396,3 +396,52 @@ def test_bench_planning_returns_its_figures() -> None:
     assert figs["circle_ideal_s"] <= figs["circle_s"] <= 1.10 * figs["circle_ideal_s"]
     with pytest.raises(ValueError):
         bench_planning(points=0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    point,
+    st.lists(point, min_size=2, max_size=8),
+    st.floats(0.2, 2.0),
+    st.floats(0.5, 5.0),
+    st.floats(0.002, 0.05),
+    st.integers(1, 3000),
+    st.booleans(),
+)
+def test_a_stop_or_a_new_path_at_any_moment_brakes_along_the_path(
+    start: Vec3,
+    pts: list[Vec3],
+    vmax: float,
+    amax: float,
+    jd: float,
+    ticks: int,
+    new_path: bool,
+) -> None:
+    pl = MotionPlanner(vmax, amax, junction_deviation_m=jd)
+    pl.hold(start)
+    pl.follow_path(pts)
+    chk = Checker(pl, 0.002)
+    for _ in range(ticks):
+        if not pl.moving:
+            break
+        chk.tick()
+    rest = pl.rest_point_m
+    was_moving = pl.velocity_mps != (0.0, 0.0, 0.0)
+    if new_path:
+        pl.move_to(start)
+        assert pl.target_m == start
+    else:
+        pl.stop()
+        assert pl.target_m == rest
+    n = len(chk.trace)
+    chk.run_until_still(500_000)
+    assert pl.velocity_mps == (0.0, 0.0, 0.0)
+    assert pl.position_m == (start if new_path else rest)
+    legs = [(a, b) for a, b in itertools.pairwise([start, *pts]) if a != b]
+    # until it first comes to rest after the command, it stays on the path (within delta)
+    end = next((i for i in range(n, len(chk.trace)) if chk.trace[i][1] == (0.0, 0.0, 0.0)), None)
+    if legs and was_moving:
+        assert end is not None
+        assert chk.trace[end][0] == rest  # where `rest_point_m` said
+        for p, _ in chk.trace[: end + 1]:
+            assert min(_dist_to_segment(p, a, b) for a, b in legs) <= jd + 1e-9
