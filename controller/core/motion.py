@@ -866,10 +866,12 @@ class MotionPlanner:
             pts, i, speed = staged[0]
             take = min(len(pts) - i, max_points - taken)
             for j in range(i, i + take):
-                u = self._add_point(pts[j], speed)
-                if first and u is not None:
-                    undo = u
-                first = False
+                if first and pts[j] != self._last:
+                    # the first point added: its blend may trim a line planned before
+                    undo = self._add_point(pts[j], speed)
+                    first = False
+                else:
+                    self._add_point(pts[j], speed)
             taken += take
             seg_s = 0.0  # the staged estimate of what was just planned
             prev = pts[i - 1] if i > 0 else None

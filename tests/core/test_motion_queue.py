@@ -320,7 +320,8 @@ def test_cable_speed_limit_slows_a_path_along_a_cable() -> None:
     assert chk.max_cable == pytest.approx(0.2, rel=1e-6)
 
 
-def test_a_corner_appended_while_braking_for_it_becomes_a_stop() -> None:
+@pytest.mark.parametrize("repeat_end", [False, True])
+def test_a_corner_appended_while_braking_for_it_becomes_a_stop(repeat_end: bool) -> None:
     # Braking toward the end of the queue, the set-point is past the point where it could slow
     # down to the blend's speed: the corner is flown as a stop (every limit still holds).
     pl = MotionPlanner(1.0, 1.0, junction_deviation_m=0.01)
@@ -330,7 +331,8 @@ def test_a_corner_appended_while_braking_for_it_becomes_a_stop() -> None:
     while pl.position_m[0] < 0.98:
         chk.tick()
     assert 0.0 < pl.velocity_mps[0] < 0.25
-    pl.append_points([(1.0, 1.0, 1.0)])
+    # (a chunk may start with the point the queue ends at: the corner is still that point)
+    pl.append_points([(1.0, 0.0, 1.0)] * repeat_end + [(1.0, 1.0, 1.0)])
     assert pl.blends_dropped == 1
     chk.run_until_still(20_000)
     assert pl.position_m == (1.0, 1.0, 1.0)
