@@ -65,15 +65,17 @@ Behaviour:
     the trajectory is sampled late, which keeps every limit).
   - The queue holds at most `max_queued_points` points (`queued_points`, `queued_s`,
     `queue_full`); an append beyond it, or with no path in progress, raises `QueueError`.
-  - A new move or path that arrives while the effector is moving first brakes to a stop along
-    the current direction at `max_accel_mps2`, then starts from the stop point (appends made
-    meanwhile join the new path). Zero-length segments are dropped.
-* `MotionPlanner.stop`: brake along the current velocity direction at `max_accel_mps2` to a hold,
-  at any queue depth, and close the path (appends are refused until a new path); the stop point
-  is `position + v^2/(2 a)` along that direction. On a straight piece the remaining distance is
-  always at least that braking distance (the look-ahead), so a stop never leaves the segment; on
-  a corner arc it brakes along the arc's tangent, which leaves the arc by at most the braking
-  distance times the sine of the turn still ahead (toward the corner's outside).
+  - A new move or path that arrives while the effector is moving first brakes to a stop (along
+    the path on a path, as `stop` does; else along the current direction at `max_accel_mps2`),
+    then starts from the stop point (appends made meanwhile join the new path). Zero-length
+    segments are dropped.
+* `MotionPlanner.stop`: brake to a hold at any queue depth and close the path (appends are
+  refused until a new path). On a path it brakes along the path, through corners: the queue is
+  cut where braking at each piece's own limit ends (`max_accel_mps2` on a straight piece, the
+  tangential share, 31 % of it at the arc's speed limit, on a corner arc: a stop through a
+  corner takes longer), and that point is `rest_point_m`; the look-ahead guarantees it is not
+  beyond the last queued point. Otherwise (stream, velocity input) it brakes along the current
+  velocity direction at `max_accel_mps2`; the stop point is `position + v^2/(2 a)` along it.
 * `MotionPlanner.stream`: the set-point chases the latest target with speed <= max speed and
   |change of velocity| <= max accel * dt per tick (a vector bang-bang limiter along the error
   direction with a discrete-time braking curve, so it lands on a fixed target without
