@@ -613,6 +613,28 @@ class MotionPlanner:
         p = self._p
         return (p[0] + v[0] * k, p[1] + v[1] * k, p[2] + v[2] * k)
 
+    @property
+    def brake_time_s(self) -> float:
+        """Seconds a `stop()` now takes to come to rest (on a path along it, each piece at its
+        own acceleration limit: longer than speed / max accel through a corner arc; else
+        speed / max accel). 0 when still. Raises nothing."""
+        a = self.max_accel_mps2
+        if self._mode == _STOP:
+            return max(0.0, self._stop_speed / a - self._t_s)
+        if self._mode != _MOVE or not self._q:
+            return self._speed() / a
+        s, v = self._head_state()
+        t = 0.0
+        for k, piece in enumerate(self._q):
+            rem = max(0.0, piece.length - (s if k == 0 else 0.0))
+            v2 = v * v - 2.0 * piece.acc * rem
+            if v2 <= 0.0:
+                return t + v / piece.acc
+            w = math.sqrt(v2)
+            t += (v - w) / piece.acc
+            v = w
+        return t
+
     def _speed(self) -> float:
         v = self._v
         return math.hypot(v[0], v[1], v[2])

@@ -374,12 +374,17 @@ def test_stop_brakes_along_the_path_through_a_corner(before_m: float) -> None:
         chk.tick()
     assert norm(pl.velocity_mps) == pytest.approx(0.5)
     rest = pl.rest_point_m
+    brake_s = pl.brake_time_s
     pl.stop()
+    assert pl.brake_time_s == pytest.approx(brake_s, rel=1e-6)
     assert pl.mode == "stop" and pl.queued_points == 0 and pl.target_m == rest
     with pytest.raises(QueueError):
         pl.append_points([(0.0, 0.0, 1.0)])
     ticks = chk.run_until_still(10_000)
     assert ticks * 0.001 <= 0.5 / (1.0 * math.sqrt(1 - CORNER_ACCEL_FRACTION**2)) + 0.01
+    assert ticks * 0.001 == pytest.approx(brake_s, abs=0.0011)
+    if before_m <= 0.05:
+        assert brake_s > 0.5 / 1.0 + 0.01  # part of it on the arc: longer than v / a
     assert pl.position_m == rest
     assert pl.mode == "hold" and not pl.appendable
     for p, _ in chk.trace:
