@@ -57,10 +57,13 @@ class Move:
 
 @dataclass(frozen=True, slots=True)
 class Path:
-    """Multi-point path through `points_m`, each leg a straight line."""
+    """Multi-point path through `points_m`, flown through its points with rounded corners
+    (`controller.core.motion`). `append`: add the points to the path in progress (a job longer
+    than `MAX_PATH_POINTS` is sent as a path and then appended chunks) instead of replacing it."""
 
     points_m: tuple[Vec3, ...]
     speed_mps: float | None = None
+    append: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -299,6 +302,17 @@ def _speed(obj: dict[str, Any]) -> float | None:
     return speed
 
 
+def _flag(obj: dict[str, Any], field: str) -> bool:
+    """Return the optional boolean `field` (absent or null: False) or raise CommandError (only
+    JSON `true` / `false`: a number or a string is not a flag)."""
+    value = obj.get(field)
+    if value is None:
+        return False
+    if not isinstance(value, bool):
+        raise CommandError(f"{field}: expected true or false, got {quote(value)}")
+    return value
+
+
 def _object(data: bytes, allowed: set[str], required: set[str]) -> dict[str, Any]:
     """Decode a JSON object (size already checked), refusing deep nesting, unknown and missing
     keys."""
@@ -336,8 +350,8 @@ def parse_command(verb: str, payload: bytes | str | None) -> Command:
     Raises CommandError (with a reason fit to send back to the client, quoting at most
     QUOTE_CHARS characters of the input) for an unknown verb, a payload larger than
     MAX_PAYLOAD_BYTES[verb] (checked before decoding), nesting deeper than MAX_JSON_DEPTH,
-    malformed JSON, unknown or missing fields, more than MAX_PATH_POINTS points, non-numbers
-    and non-finite numbers.
+    malformed JSON, unknown or missing fields, more than MAX_PATH_POINTS points, non-numbers,
+    non-finite numbers and a path's `append` that is not a JSON boolean.
     """
     if payload is None:
         data = b""
@@ -351,14 +365,14 @@ def parse_command(verb: str, payload: bytes | str | None) -> Command:
         obj = _object(data, {"position_m", "speed_mps"}, {"position_m"})
         return Move(_vec3(obj["position_m"], "position_m"), _speed(obj))
     if verb == "path":
-        obj = _object(data, {"points_m", "speed_mps"}, {"points_m"})
+        obj = _object(data, {"points_m", "speed_mps", "append"}, {"points_m"})
         pts = obj["points_m"]
         if not isinstance(pts, list) or not pts:
             raise CommandError("points_m: expected a non-empty list of [x, y, z]")
         if len(pts) > MAX_PATH_POINTS:
             raise CommandError(f"points_m: at most {MAX_PATH_POINTS} points, got {len(pts)}")
         points = tuple(_vec3(p, f"points_m[{i}]") for i, p in enumerate(pts))
-        return Path(points, _speed(obj))
+        return Path(points, _speed(obj), _flag(obj, "append"))
     if verb == "home":
         obj = _object(data, {"position_m"}, {"position_m"})
         return Home(_vec3(obj["position_m"], "position_m"))
