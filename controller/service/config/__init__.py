@@ -1,7 +1,7 @@
 """Robot configuration: one TOML file per robot -> validated, frozen `RobotConfig`.
 
 One module per concern: `schema` (every key: type, default, description; the dataclasses),
-`tables` (typed getters that collect every problem), `parse` (validation, `load_config`),
+`tables` (typed getters that collect every problem), `parse` (validation), `load` (`load_config`),
 `interfaces` (`[bus]` and `[zenoh]`), `robot` (the built-in robot), `reference` (writes the
 configuration reference, `docs/configuration.md`, from the schema).
 
@@ -58,8 +58,8 @@ the defaults of the dataclasses.
 """
 
 from controller.service.config.interfaces import bus_option_names
+from controller.service.config.load import load_config
 from controller.service.config.parse import (
-    load_config,
     parse_config,
     tension_check,
     tension_problem,

@@ -9,7 +9,6 @@ from __future__ import annotations
 import functools
 import math
 import os
-import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import MappingProxyType
@@ -46,7 +45,6 @@ from controller.service.config.schema import (
     key_names,
 )
 from controller.service.config.tables import _Errors, _Table, _tname, _unknown
-from controller.service.textfile import NotUtf8Error, decode_utf8
 from drivers import registry
 
 _REEL_KEYS = key_names(REEL_KEYS)
@@ -719,30 +717,3 @@ def _point_problem(p: Vec3, workspace: Workspace) -> str | None:
             f"({workspace.min_cable_m:g}..{workspace.max_cable_m:g} m)"
         )
     return v.reason
-
-
-def load_config(path: str | os.PathLike[str] | None) -> RobotConfig:
-    """Read and validate the TOML file at `path`; `None` returns `default_config()`.
-
-    Raises ConfigError (naming the file) if the file cannot be read, is not valid TOML, or
-    fails validation.
-    """
-    if path is None:
-        from controller.service.config.robot import default_config  # it parses with this module
-
-        return default_config()
-    source = os.fspath(path)
-    try:
-        with open(source, "rb") as fh:
-            raw = fh.read()
-    except OSError as exc:
-        raise ConfigError(source, "", f"cannot read: {exc.strerror or exc}") from exc
-    try:
-        text = decode_utf8(raw)
-    except NotUtf8Error as exc:
-        raise ConfigError(source, "", f"{exc} (TOML files must be UTF-8)") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(source, "", f"not valid TOML: {exc}") from exc
-    return parse_config(data, source)
