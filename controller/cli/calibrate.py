@@ -34,17 +34,13 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO, Any
 
-from controller.cli.client import (
-    ARRIVED_TOL_M,
-    EXIT_OK,
-    EXIT_REFUSED,
+from controller.cli.client import ARRIVED_TOL_M, EXIT_OK, EXIT_REFUSED, _key, _run
+from controller.cli.formats import format_pose
+from controller.cli.session import (
     DaemonAbsent,
     InputError,
     Refused,
-    _key,
-    _run,
     add_connection_arguments,
-    format_pose,
     query,
 )
 

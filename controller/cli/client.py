@@ -1,7 +1,9 @@
 """Client CLI verbs that talk to a running daemon over Zenoh.
 
-`cablebot pose|status|move|path|stop|estop|arm|disarm|reset|home`, connecting to
+`cablebot list|pose|status|move|path|stop|estop|arm|disarm|reset|home`, connecting to
 `tcp/127.0.0.1:7447` by default (`--connect ENDPOINT` or `HOST:PORT`, `--prefix PREFIX`).
+The connection (session, queries, errors, options) is `controller.cli.session`; what the verbs
+print is `controller.cli.formats`.
 
 Exit codes: `controller.cli.exitcodes` (0 done; 1 refused or invalid input, the reason printed;
 2 usage; 3 no daemon answered; 4 `--wait` timed out; 130 Ctrl-C).
@@ -15,15 +17,102 @@ import io
 import json
 import math
 import queue
-import re
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager, suppress
-from typing import Any, TextIO
+from collections.abc import Sequence
+from contextlib import suppress
+from typing import Any
 
 from controller.cli import add_xyz_arguments, exitcodes, xyz_from_args
+from controller.cli.formats import (
+    PROGRESS_PERIOD_S,
+    SeqGaps,
+    StatusLine,
+    axis_fault_text,
+    axis_state_text,
+    format_daemons,
+    format_home,
+    format_pose,
+    format_pretension_result,
+    format_reply,
+    format_status,
+    format_xyz,
+    is_tty,
+    path_remaining_m,
+    status_tensions_n,
+)
+from controller.cli.session import (
+    DEFAULT_ENDPOINT,
+    DEFAULT_PREFIX,
+    LIVELINESS_TIMEOUT_S,
+    DaemonAbsent,
+    InputError,
+    Refused,
+    UsageError,
+    WaitTimeout,
+    add_connection_arguments,
+    clean_zenoh_error,
+    live_prefixes,
+    normalize_endpoint,
+    open_session,
+    query,
+    run_with_session,
+)
 from controller.core.motion import MIN_SPEED_MPS, check_speed
+
+# What moved to `session` (the connection) and `formats` (what is printed) is still importable
+# from here.
+__all__ = [
+    "ARMED_STATES",
+    "ARRIVED_TOL_M",
+    "DEFAULT_ENDPOINT",
+    "DEFAULT_POSE_RATE_HZ",
+    "DEFAULT_PREFIX",
+    "DETACH_TEXT",
+    "EXIT_ABSENT",
+    "EXIT_OK",
+    "EXIT_REFUSED",
+    "EXIT_USAGE",
+    "EXIT_WAIT_TIMEOUT",
+    "INTERRUPT_STOP_TEXT",
+    "LIVELINESS_TIMEOUT_S",
+    "PRETENSION_POLL_S",
+    "PROGRESS_PERIOD_S",
+    "DaemonAbsent",
+    "InputError",
+    "Refused",
+    "SeqGaps",
+    "StatusLine",
+    "UsageError",
+    "WaitTimeout",
+    "add_connection_arguments",
+    "axis_fault_text",
+    "axis_state_text",
+    "clean_zenoh_error",
+    "cmd_home",
+    "cmd_list",
+    "cmd_move",
+    "cmd_path",
+    "cmd_pose",
+    "cmd_simple",
+    "cmd_status",
+    "format_daemons",
+    "format_home",
+    "format_pose",
+    "format_pretension_result",
+    "format_reply",
+    "format_status",
+    "list_daemons",
+    "live_prefixes",
+    "load_path_file",
+    "normalize_endpoint",
+    "open_session",
+    "path_remaining_m",
+    "query",
+    "register",
+    "run_with_session",
+    "status_tensions_n",
+]
 
 EXIT_OK = exitcodes.OK
 EXIT_REFUSED = exitcodes.REFUSED
@@ -31,506 +120,10 @@ EXIT_USAGE = exitcodes.USAGE
 EXIT_ABSENT = exitcodes.NO_DAEMON
 EXIT_WAIT_TIMEOUT = exitcodes.WAIT_TIMEOUT
 
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-DEFAULT_PREFIX = "cablebot/default"
 ARRIVED_TOL_M = 1e-3
 DEFAULT_POSE_RATE_HZ = 5.0
-PROGRESS_PERIOD_S = 0.1
-
-# Zenoh link protocols a client may name in an endpoint; those with HOST:PORT addresses are
-# checked here so that a typo gets a one-line answer instead of a connection attempt.
-_PORT_PROTOCOLS = frozenset({"tcp", "udp", "tls", "quic", "ws"})
-_OTHER_PROTOCOLS = frozenset({"unixsock-stream", "unixpipe", "serial", "vsock"})
-_HOST_PORT = re.compile(r"(\[[0-9A-Fa-f:.%a-zA-Z]+\]|[A-Za-z0-9_.-]+):([0-9]{1,5})")
-_RUST_LOCATION = re.compile(r" at /\S+\.rs:\d+\.?")
-
-
-class DaemonAbsent(RuntimeError):
-    """No daemon answered: nothing listening on the endpoint, wrong prefix, or no reply in time.
-
-    `live` names the prefixes of the daemons that are alive on the same network (filled in by
-    `run_with_session`), for the error message."""
-
-    live: tuple[str, ...] = ()
-
-
-class Refused(RuntimeError):
-    """The daemon answered with an error reply; the message is its reason."""
-
-
-class InputError(ValueError):
-    """The user's input (numbers, path file) is invalid; nothing was sent."""
-
-
-class UsageError(ValueError):
-    """A command-line value that cannot be used (e.g. `--connect`); nothing was sent."""
-
-
-class WaitTimeout(RuntimeError):
-    """`--wait`: the robot did not reach the end point in time."""
-
-
-# --------------------------------------------------------------------------------------------
-# Session and queries
-
-
-def normalize_endpoint(text: str, option: str = "--connect") -> str:
-    """The Zenoh endpoint for an endpoint option's value: `HOST:PORT` becomes `tcp/HOST:PORT`.
-
-    The one reading of an endpoint given on the command line (`--connect` of every verb,
-    `replay --listen`). Accepts `PROTO/ADDRESS` for Zenoh's link protocols (`tcp`, `udp`,
-    `tls`, `quic`, `ws` need `HOST:PORT` with a port 1..65535). Raises UsageError (one line,
-    naming `option`) for anything else.
-    """
-    t = text.strip()
-    bad = UsageError(f"{option}: expected tcp/HOST:PORT or HOST:PORT, got {text!r}")
-    if "/" in t:
-        proto, _, address = t.partition("/")
-        if proto in _OTHER_PROTOCOLS and address:
-            return t
-        if proto not in _PORT_PROTOCOLS:
-            raise bad
-        host_port = re.split(r"[?#]", address, maxsplit=1)[0]
-    else:
-        host_port = t
-    m = _HOST_PORT.fullmatch(host_port)
-    if m is None or not 1 <= int(m.group(2)) <= 65535:
-        raise bad
-    return t if "/" in t else f"tcp/{t}"
-
-
-def clean_zenoh_error(text: str) -> str:
-    """A Zenoh error message on one line, without the Rust source locations."""
-    one = " ".join(text.split())
-    return _RUST_LOCATION.sub("", one)
-
-
-@contextmanager
-def open_session(endpoint: str, *, config_file: str | None = None) -> Iterator[Any]:
-    """Open a client-mode Zenoh session connected to `endpoint` (any form `normalize_endpoint`
-    takes, e.g. `HOST:PORT`); close it on exit.
-
-    Raises UsageError for an endpoint or `--zenoh-config` file that Zenoh rejects, and
-    DaemonAbsent when nothing accepts the connection.
-    """
-    import zenoh
-
-    from controller.service.zenoh_io import client_config
-
-    endpoint = normalize_endpoint(endpoint)
-    try:
-        conf = client_config([endpoint], config_file=config_file)
-    except zenoh.ZError as exc:
-        what = f"--zenoh-config {config_file}" if config_file else f"--connect {endpoint}"
-        raise UsageError(f"{what}: {clean_zenoh_error(str(exc))}") from None
-    try:
-        session = zenoh.open(conf)
-    except zenoh.ZError as exc:
-        raise DaemonAbsent(f"cannot connect to {endpoint}: {clean_zenoh_error(str(exc))}") from None
-    try:
-        yield session
-    finally:
-        session.close()  # type: ignore[no-untyped-call]
-
-
-def query(session: Any, key: str, payload: dict[str, Any] | None, timeout_s: float) -> Any:
-    """Send one query to `key` with a JSON `payload`; return the decoded JSON reply.
-
-    Raises Refused with the daemon's reason for an error reply, DaemonAbsent when no reply
-    arrives within `timeout_s` (no queryable on that key, or a Zenoh timeout).
-    """
-    import zenoh
-
-    body = None if payload is None else json.dumps(payload, allow_nan=False).encode()
-    replies = session.get(
-        key,
-        payload=body,
-        encoding=zenoh.Encoding.APPLICATION_JSON if body is not None else None,
-        timeout=timeout_s,
-    )
-    for reply in replies:
-        if reply.ok is not None:
-            return json.loads(reply.ok.payload.to_bytes())
-        err = reply.err.payload.to_bytes().decode(errors="replace")
-        try:
-            decoded = json.loads(err)
-        except ValueError:
-            decoded = None
-        if isinstance(decoded, dict) and "error" in decoded:
-            raise Refused(str(decoded["error"]))
-        if err.strip().lower() == "timeout":
-            raise DaemonAbsent(f"no reply on {key} within {timeout_s:g} s")
-        raise Refused(err)
-    raise DaemonAbsent(f"no reply on {key}")
-
-
-LIVELINESS_TIMEOUT_S = 1.0
-"""How long `live_prefixes` waits for the daemons' liveliness tokens."""
-
-
-def live_prefixes(session: Any, timeout_s: float = LIVELINESS_TIMEOUT_S) -> list[str]:
-    """The key prefixes of every daemon alive on the session's network (each daemon declares
-    the liveliness token `<prefix>/alive` while its Zenoh interface is open), sorted.
-
-    Raises nothing: a failed lookup is an empty list."""
-    found: set[str] = set()
-    try:
-        for reply in session.liveliness().get("**/alive", timeout=timeout_s):
-            if reply.ok is not None:
-                key = str(reply.ok.key_expr)
-                if key.endswith("/alive"):
-                    found.add(key.removesuffix("/alive"))
-    except Exception:  # a closing session: nothing to name
-        return []
-    return sorted(found)
-
-
-def _absent_message(args: argparse.Namespace, exc: DaemonAbsent) -> str:
-    text = f"no cablebot daemon answered on {args.prefix} via {args.connect} ({exc})"
-    others = [p for p in exc.live if p != args.prefix.rstrip("/")]
-    if others:
-        text += (
-            f"; live daemons there: {', '.join(others)} (give --prefix {others[0]};"
-            " `cablebot list` shows them)"
-        )
-    return text
-
-
-def run_with_session(args: argparse.Namespace, body: Callable[[Any], int]) -> int:
-    """Run `body(session)` with the CLI's error handling; returns the exit code.
-
-    Every failure is one line on stderr: a refusal prints the daemon's reason verbatim; when
-    no daemon answers on `--prefix`, the line names the prefixes of the daemons that are alive.
-    """
-    try:
-        endpoint = normalize_endpoint(args.connect)
-        args.connect = endpoint
-        with open_session(endpoint, config_file=args.zenoh_config) as session:
-            try:
-                code: int = body(session)
-            except DaemonAbsent as exc:
-                exc.live = tuple(live_prefixes(session))
-                raise
-            return code
-    except UsageError as exc:
-        print(f"cablebot: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except DaemonAbsent as exc:
-        print(f"cablebot: {_absent_message(args, exc)}", file=sys.stderr)
-        return EXIT_ABSENT
-    except Refused as exc:
-        print(f"cablebot: refused: {exc}", file=sys.stderr)
-        return EXIT_REFUSED
-    except InputError as exc:
-        print(f"cablebot: {exc}", file=sys.stderr)
-        return EXIT_REFUSED
-    except WaitTimeout as exc:
-        print(f"cablebot: {exc}", file=sys.stderr)
-        return EXIT_WAIT_TIMEOUT
-    except KeyboardInterrupt:
-        return exitcodes.INTERRUPTED
-
 
 _run = run_with_session
-
-
-# --------------------------------------------------------------------------------------------
-# Formatting
-
-
-def format_pose(sample: dict[str, Any]) -> str:
-    """One human-readable line for a pose sample."""
-    pos = sample.get("position_m")
-    if pos is None:
-        where = "x=   ---  y=   ---  z=   ---  m (pose not valid)"
-    else:
-        where = f"x={pos[0]:+.3f} y={pos[1]:+.3f} z={pos[2]:+.3f} m"
-    res = sample.get("residual_m")
-    resid = "" if res is None else f"  resid {res * 1e3:.1f} mm"
-    return f"seq {sample.get('seq')}  state {sample.get('state')}  {where}{resid}"
-
-
-def axis_state_text(ax: dict[str, Any]) -> str:
-    """An axis's state as its drive names it (the status entry's "state", e.g.
-    "CLOSED_LOOP_CONTROL" or "Operation enabled"); "state N" from the raw number when the
-    entry has no name."""
-    name = ax.get("state")
-    if isinstance(name, str) and name:
-        return name
-    return f"state {ax.get('axis_state')}"
-
-
-def axis_fault_text(ax: dict[str, Any]) -> str:
-    """An axis's fault as its drive names it (the status entry's "fault", e.g.
-    "ESTOP_REQUESTED (0x2000000)"), "none" without one; the raw error number when the entry
-    has no name."""
-    if "fault" in ax:
-        fault = ax["fault"]
-        return "none" if fault is None else str(fault)
-    err = ax.get("axis_error")
-    if isinstance(err, int) and not isinstance(err, bool):
-        return "none" if err == 0 else f"0x{err:x}"
-    return str(err)
-
-
-def status_tensions_n(st: dict[str, Any]) -> list[float | None] | None:
-    """The cable tensions (N, cable order) a status carries, or None when it has none."""
-    for holder in (st, st.get("statics"), st.get("pose")):
-        if isinstance(holder, dict) and isinstance(holder.get("tensions_n"), list):
-            return [v if isinstance(v, int | float) else None for v in holder["tensions_n"]]
-    return None
-
-
-def format_status(st: dict[str, Any]) -> str:
-    """A short multi-line summary of a status reply (axis states and faults by the drives'
-    names)."""
-    lines = [f"state      {st.get('state')}" + (f" ({st['reason']})" if st.get("reason") else "")]
-    pose = st.get("pose") or {}
-    if pose.get("position_m") is not None:
-        x, y, z = pose["position_m"]
-        lines.append(f"position   x={x:+.4f} y={y:+.4f} z={z:+.4f} m")
-    else:
-        lines.append("position   not valid")
-    sp = st.get("setpoint_m")
-    if isinstance(sp, list) and len(sp) == 3:
-        lines.append(f"set-point  x={sp[0]:+.4f} y={sp[1]:+.4f} z={sp[2]:+.4f} m")
-    if "homed" in st:
-        lines.append(f"homed      {st.get('homed')} ({st.get('home_source')})")
-    pt = st.get("pretension")
-    if isinstance(pt, dict):
-        res = pt.get("result")
-        if pt.get("active"):
-            fastest = pt.get("fastest_cable_mps")
-            speed = "" if fastest is None else f", fastest cable {fastest * 1e3:.1f} mm/s"
-            lines.append(
-                f"pretension running {float(pt.get('elapsed_s') or 0.0):.1f} s{speed}, home at "
-                f"{_xyz(pt.get('position_m') or [])}"
-            )
-        elif isinstance(res, dict):
-            lines.append(
-                f"pretension still after {float(res.get('still_after_s', 0.0)):.2f} s, homed"
-                if res.get("ok")
-                else f"pretension ended without homing: {res.get('reason')}"
-            )
-    tensions = status_tensions_n(st)
-    for i, ax in enumerate(st.get("axes", [])):
-        age = ax.get("age_s")
-        age_s = "never" if age is None else f"{age * 1e3:.1f} ms ago"
-        tension = ""
-        if tensions is not None and i < len(tensions) and tensions[i] is not None:
-            tension = f"  tension {tensions[i]:.1f} N"
-        lines.append(
-            f"axis {ax.get('node_id')!s:<5} {axis_state_text(ax)}, error"
-            f" {axis_fault_text(ax)}, reading {age_s}{tension}"
-        )
-    lp = st.get("loop")
-    if lp:
-        lines.append(
-            f"loop       {lp.get('rate_hz')} Hz, ticks {lp.get('ticks')}, overruns"
-            f" {lp.get('overruns')}, jitter p99 {_ms(lp.get('jitter_p99_s'))},"
-            f" compute p99 {_ms(lp.get('compute_p99_s'))}"
-        )
-    bus = st.get("bus")
-    if bus:
-        lines.append(
-            f"bus        rx {bus.get('frames_rx')} tx {bus.get('frames_tx')} errors"
-            f" {bus.get('bus_errors')} decode errors {bus.get('decode_errors')}"
-            f" dropped {bus.get('dropped')}"
-            f"  commands heard {bus.get('commands_heard', 0)} (own echoes or another master)"
-        )
-    z = st.get("zenoh")
-    if z:
-        put = z.get("pose_put") or {}
-        tick = z.get("pose_publish_tick") or {}
-        cmds = z.get("commands") or {}
-        lines.append(
-            f"zenoh      {z.get('mode')} {', '.join(z.get('listen') or [])}, prefix"
-            f" {z.get('prefix')}; poses {z.get('poses_published')}, put p50/p99"
-            f" {_us(put.get('p50_us'))}/{_us(put.get('p99_us'))}, tick cost p50/p99"
-            f" {_us(tick.get('p50_us'))}/{_us(tick.get('p99_us'))}"
-        )
-        lines.append(
-            "commands   "
-            + ", ".join(f"{k} {v}" for k, v in cmds.items())
-            + f"; set-points ok {(z.get('setpoints') or {}).get('ok')}"
-            f" bad {(z.get('setpoints') or {}).get('bad')}"
-        )
-    cfg = st.get("config")
-    if isinstance(cfg, dict) and "name" in cfg:
-        loop_cfg = cfg.get("loop") or {}
-        lines.append(
-            f"config     robot {cfg.get('name')!r} from {cfg.get('source')},"
-            f" {len(cfg.get('reels') or [])} reels, loop {loop_cfg.get('rate_hz')} Hz"
-        )
-    return "\n".join(lines)
-
-
-def _xyz(p: Sequence[Any], digits: int = 3) -> str:
-    return " ".join(f"{a}={float(v):+.{digits}f}" for a, v in zip("xyz", p, strict=False)) + " m"
-
-
-def format_reply(verb: str, reply: Any) -> str:
-    """One readable line for a command's reply (what the robot does now)."""
-    if not isinstance(reply, dict):
-        return f"{verb}: ok"
-    state = reply.get("state")
-    if verb == "stop":
-        if state == "MOVING":
-            return "stop: braking to a hold"
-        if state == "HOLDING":
-            return "stop: holding (nothing was moving)"
-        return f"stop: nothing to stop (state {state})"
-    if verb == "home":
-        return format_home(reply)
-    if verb == "pretension":
-        tensions = reply.get("tensions_n")
-        text = "pretension: the reels pull in torque control"
-        if isinstance(tensions, list) and tensions:
-            text += " with " + ", ".join(f"{float(t):.1f}" for t in tensions) + " N"
-        if reply.get("speed_limited") is False:
-            text += " (the drives' own velocity limit caps their speed)"
-        return text + "; waiting until they are still"
-    known = {"ok", "state"}
-    if verb in ("move", "path"):
-        known |= {"target_m", "points", "speed_mps", "speed_limited_to_mps"}
-        speed = reply.get("speed_mps")
-        at = "" if not isinstance(speed, int | float) else f" at {speed:.3f} m/s"
-        limited = reply.get("speed_limited_to_mps")
-        if isinstance(limited, int | float):
-            at += f" (speed limited to the robot's maximum, {limited:.3f} m/s)"
-        target = reply.get("target_m")
-        if verb == "move" and isinstance(target, list):
-            text = f"move: to {_xyz(target)}{at}"
-        elif verb == "path" and isinstance(reply.get("points"), int):
-            text = f"path: {reply['points']} points{at}"
-        else:
-            text = f"{verb}: ok{at}"
-    else:
-        text = f"{verb}: ok" + (f", state {state}" if state is not None else "")
-    extra = " ".join(f"{k}={v}" for k, v in reply.items() if k not in known)
-    return f"{text} {extra}".rstrip()
-
-
-def format_home(reply: dict[str, Any]) -> str:
-    """The `home` reply: the declared position, the offsets (4 decimals of a turn), saved where."""
-    parts = ["home:"]
-    pos = reply.get("position_m")
-    if isinstance(pos, list):
-        parts.append(f"at {_xyz(pos, 4)};")
-    offsets = reply.get("offsets_rev")
-    if isinstance(offsets, dict) and offsets:
-        parts.append(
-            "offsets (turns) "
-            + ", ".join(f"node {k} {float(v):+.4f}" for k, v in offsets.items())
-            + ";"
-        )
-    if reply.get("saved"):
-        parts.append(f"saved to {reply.get('state_file')}")
-    elif reply.get("error"):
-        parts.append(f"NOT SAVED: {reply['error']}")
-    else:
-        parts.append("not saved (no [homing] state_file)")
-    return " ".join(parts)
-
-
-def _ms(v: Any) -> str:
-    return "-" if v is None else f"{float(v) * 1e3:.2f} ms"
-
-
-def _us(v: Any) -> str:
-    return "-" if v is None else f"{float(v):.0f} us"
-
-
-# --------------------------------------------------------------------------------------------
-# Following a stream: sequence gaps, rate limiting, progress
-
-
-class SeqGaps:
-    """Counts samples missed from a stream numbered by `seq` (one per published sample).
-
-    `update(seq)` returns how many samples were missed just before this one (0 when in
-    order). A `seq` that goes backwards means the daemon restarted: counting starts again.
-    """
-
-    def __init__(self) -> None:
-        self.last: int | None = None
-        self.received = 0
-        self.missed = 0
-        self.restarts = 0
-
-    def update(self, seq: Any) -> int:
-        """Record one received `seq`; returns the samples missed before it."""
-        self.received += 1
-        if not isinstance(seq, int):
-            return 0
-        gap = 0
-        if self.last is not None:
-            if seq <= self.last:
-                self.restarts += 1
-            else:
-                gap = seq - self.last - 1
-        self.last = seq
-        self.missed += gap
-        return gap
-
-
-def path_remaining_m(
-    legs: Sequence[tuple[Sequence[float], Sequence[float]]], pos: Sequence[float], leg: int
-) -> tuple[int, float]:
-    """Distance (m) still to travel along `legs` from `pos`, and the leg it is on now.
-
-    `leg` is the leg the effector was on before; it only moves forward (to the nearest of this
-    leg and the next two), so a path that crosses itself is followed in order. The distance is
-    from `pos` to the end of its leg plus the lengths of the legs after it.
-    """
-    best, best_d = leg, math.inf
-    for k in range(leg, min(leg + 3, len(legs))):
-        d = _point_segment_m(pos, legs[k][0], legs[k][1])
-        if d < best_d - 1e-9:
-            best, best_d = k, d
-    rest = sum(math.dist(a, b) for a, b in legs[best + 1 :])
-    return best, math.dist(pos, legs[best][1]) + rest
-
-
-def _point_segment_m(p: Sequence[float], a: Sequence[float], b: Sequence[float]) -> float:
-    ab = [b[i] - a[i] for i in range(3)]
-    ap = [p[i] - a[i] for i in range(3)]
-    den = sum(v * v for v in ab)
-    t = 0.0 if den <= 0.0 else max(0.0, min(1.0, sum(ab[i] * ap[i] for i in range(3)) / den))
-    return math.dist(p, [a[i] + t * ab[i] for i in range(3)])
-
-
-class StatusLine:
-    """One line of progress rewritten in place on a terminal; does nothing elsewhere."""
-
-    def __init__(self, stream: TextIO, *, enabled: bool) -> None:
-        self.stream = stream
-        self.enabled = enabled
-        self._shown = False
-        self._next_s = 0.0
-
-    def show(self, text: str, now_s: float) -> None:
-        """Replace the line with `text` (at most every PROGRESS_PERIOD_S)."""
-        if not self.enabled or now_s < self._next_s:
-            return
-        self._next_s = now_s + PROGRESS_PERIOD_S
-        self.stream.write("\r\x1b[K" + text)
-        self.stream.flush()
-        self._shown = True
-
-    def clear(self) -> None:
-        """Erase the line (before printing a normal line)."""
-        if self._shown:
-            self.stream.write("\r\x1b[K")
-            self.stream.flush()
-            self._shown = False
-
-
-def _isatty(stream: Any) -> bool:
-    try:
-        return bool(stream.isatty())
-    except (AttributeError, ValueError):
-        return False
 
 
 # --------------------------------------------------------------------------------------------
@@ -691,7 +284,7 @@ def _pretension(args: argparse.Namespace, payload: dict[str, Any]) -> int:
     def body(session: Any) -> int:
         reply = query(session, _key(args, "cmd/pretension"), payload, args.timeout)
         _print_reply("pretension", reply, args)
-        line = StatusLine(sys.stdout, enabled=_isatty(sys.stdout) and not args.json)
+        line = StatusLine(sys.stdout, enabled=is_tty(sys.stdout) and not args.json)
         t0 = time.monotonic()
         try:
             while True:
@@ -723,18 +316,6 @@ def _pretension(args: argparse.Namespace, payload: dict[str, Any]) -> int:
             line.clear()
 
     return _run(args, body)
-
-
-def format_pretension_result(result: dict[str, Any]) -> str:
-    """The end of a pre-tension: how long until still, where homed, the tensions."""
-    parts = [
-        f"pretension: still after {float(result.get('still_after_s', 0.0)):.2f} s",
-        "homed " + format_home(result).removeprefix("home: "),
-    ]
-    measured = result.get("measured_tensions_n")
-    if isinstance(measured, list) and measured and None not in measured:
-        parts.append("measured tensions " + ", ".join(f"{t:.1f}" for t in measured) + " N")
-    return "; ".join(parts)
 
 
 def cmd_move(args: argparse.Namespace) -> int:
@@ -841,7 +422,7 @@ def _wait_arrival(
     left the motion states) or DaemonAbsent.
     """
     end = points[-1]
-    line = StatusLine(sys.stdout, enabled=_isatty(sys.stdout) and not args.json)
+    line = StatusLine(sys.stdout, enabled=is_tty(sys.stdout) and not args.json)
     t0 = time.monotonic()
     deadline = t0 + args.wait_timeout
     last_rx = t0
@@ -882,7 +463,8 @@ def _wait_arrival(
                 legs = list(zip(starts, points, strict=True))
             leg, remaining = path_remaining_m(legs, pos, leg)
             line.show(
-                f"{verb}: {remaining:.3f} m to go  {state}  {_xyz(pos)}  {last_rx - t0:.1f} s",
+                f"{verb}: {remaining:.3f} m to go  {state}  {format_xyz(pos)}"
+                f"  {last_rx - t0:.1f} s",
                 last_rx,
             )
     finally:
@@ -907,26 +489,6 @@ def list_daemons(session: Any, timeout_s: float) -> list[dict[str, Any]]:
             row["listen"] = z.get("listen") if isinstance(z, dict) else None
         out.append(row)
     return out
-
-
-def format_daemons(rows: Sequence[dict[str, Any]]) -> str:
-    """The `list` table: one line per daemon (prefix, name, state, endpoints)."""
-    table = [("PREFIX", "NAME", "STATE", "ENDPOINT")]
-    for r in rows:
-        listen = r.get("listen")
-        table.append(
-            (
-                str(r["prefix"]),
-                "-" if r.get("name") is None else str(r["name"]),
-                "-" if r.get("state") is None else str(r["state"]),
-                "-" if not listen else ", ".join(str(e) for e in listen),
-            )
-        )
-    widths = [max(len(row[i]) for row in table) for i in range(3)]
-    return "\n".join(
-        "  ".join(cell.ljust(w) for cell, w in zip(row[:3], widths, strict=True)) + "  " + row[3]
-        for row in table
-    )
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -1030,34 +592,6 @@ def cmd_pose(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------------------------
 # Registration
-
-
-def add_connection_arguments(p: argparse.ArgumentParser) -> None:
-    """Add `--connect`, `--prefix`, `--zenoh-config` and `--timeout` to a verb's parser."""
-    p.add_argument(
-        "--connect",
-        default=DEFAULT_ENDPOINT,
-        metavar="ENDPOINT",
-        help=f"the daemon's endpoint, PROTO/HOST:PORT or HOST:PORT (default {DEFAULT_ENDPOINT})",
-    )
-    p.add_argument(
-        "--prefix",
-        default=DEFAULT_PREFIX,
-        help=f"key prefix of the robot (default {DEFAULT_PREFIX})",
-    )
-    p.add_argument(
-        "--zenoh-config",
-        default=None,
-        metavar="FILE",
-        help="Zenoh JSON5 configuration for this client (e.g. TLS certificates)",
-    )
-    p.add_argument(
-        "--timeout",
-        type=float,
-        default=5.0,
-        metavar="S",
-        help="seconds to wait for a reply or a sample (default 5)",
-    )
 
 
 def register(sub: argparse._SubParsersAction[Any]) -> None:

@@ -253,7 +253,7 @@ class _Pose:
 
 def cmd_jog(args: argparse.Namespace) -> int:
     """`cablebot jog`: fly the robot from the keyboard until `q`."""
-    from controller.cli.client import run_with_session
+    from controller.cli.session import run_with_session
     from controller.core.motion import check_speed
 
     for name in ("rate", "release", "first_hold"):
@@ -277,7 +277,7 @@ def cmd_jog(args: argparse.Namespace) -> int:
     def body(session: Any) -> int:
         import zenoh
 
-        from controller.cli.client import query
+        from controller.cli.session import query
 
         status = query(session, f"{prefix}/status", None, args.timeout)  # the daemon is there
         limits = ((status or {}).get("config") or {}).get("limits") or {}
@@ -373,7 +373,7 @@ def _width() -> int:
 
 def register(sub: argparse._SubParsersAction[Any]) -> None:
     """Register `jog`."""
-    from controller.cli.client import add_connection_arguments
+    from controller.cli.session import add_connection_arguments
 
     p = sub.add_parser(
         "jog",

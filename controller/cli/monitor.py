@@ -63,7 +63,7 @@ class MonitorData:
     """The latest pose, status and state changes, written by Zenoh's threads (thread-safe)."""
 
     def __init__(self) -> None:
-        from controller.cli.client import SeqGaps
+        from controller.cli.formats import SeqGaps
 
         self._lock = threading.Lock()
         self._pose: dict[str, Any] | None = None
@@ -158,7 +158,7 @@ def render(
     from rich.table import Table
     from rich.text import Text
 
-    from controller.cli.client import axis_fault_text, axis_state_text, status_tensions_n
+    from controller.cli.formats import axis_fault_text, axis_state_text, status_tensions_n
 
     st = snap.status or {}
     pose = snap.pose or {}
@@ -321,7 +321,8 @@ def _keys(fd: int | None) -> Iterator[None]:
 
 def _send(session: Any, prefix: str, verb: str, data: MonitorData, timeout_s: float) -> None:
     """Send `verb` and show the outcome (runs in its own thread)."""
-    from controller.cli.client import DaemonAbsent, Refused, format_reply, query
+    from controller.cli.formats import format_reply
+    from controller.cli.session import DaemonAbsent, Refused, query
 
     try:
         reply = query(session, f"{prefix}/cmd/{verb}", None, timeout_s)
@@ -339,7 +340,7 @@ def _send(session: Any, prefix: str, verb: str, data: MonitorData, timeout_s: fl
 def _poll_status(
     session: Any, prefix: str, data: MonitorData, stop: threading.Event, timeout_s: float
 ) -> None:
-    from controller.cli.client import DaemonAbsent, Refused, query
+    from controller.cli.session import DaemonAbsent, Refused, query
 
     while not stop.is_set():
         try:
@@ -364,7 +365,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return exitcodes.REFUSED
-    from controller.cli.client import run_with_session
+    from controller.cli.session import run_with_session
 
     if not args.refresh > 0.0:
         print(f"cablebot: --refresh must be > 0, got {args.refresh}", file=sys.stderr)
@@ -450,7 +451,7 @@ def _read_key(fd: int | None, timeout_s: float) -> str | None:
 
 def register(sub: argparse._SubParsersAction[Any]) -> None:
     """Register `monitor`."""
-    from controller.cli.client import add_connection_arguments
+    from controller.cli.session import add_connection_arguments
 
     p = sub.add_parser(
         "monitor",

@@ -378,16 +378,8 @@ def positive_number(text: str) -> float:
 def cmd_record(args: argparse.Namespace) -> int:
     """Entry point of `cablebot record`: 0 when the file was written, 1 bad input, 2 a bad
     `--connect`, 3 no daemon."""
-    from controller.cli.client import (
-        EXIT_ABSENT,
-        EXIT_OK,
-        EXIT_REFUSED,
-        EXIT_USAGE,
-        DaemonAbsent,
-        UsageError,
-        normalize_endpoint,
-        open_session,
-    )
+    from controller.cli.client import EXIT_ABSENT, EXIT_OK, EXIT_REFUSED, EXIT_USAGE
+    from controller.cli.session import DaemonAbsent, UsageError, normalize_endpoint, open_session
 
     try:
         args.connect = normalize_endpoint(args.connect)
@@ -536,7 +528,7 @@ def _record(
 
 def register(sub: argparse._SubParsersAction[Any]) -> None:
     """Register `cablebot record`."""
-    from controller.cli.client import add_connection_arguments
+    from controller.cli.session import add_connection_arguments
 
     p = sub.add_parser(
         "record",

@@ -163,7 +163,7 @@ def live_daemon(session: Any, prefix: str, timeout_s: float = 1.0) -> bool:
 def replay_open_problem(listen: list[str], connect: list[str], exc: BaseException) -> str:
     """What to tell the user when replay's Zenoh session did not open: Zenoh's reason on one
     line and, when a listen address is taken, what to do about it."""
-    from controller.cli.client import clean_zenoh_error
+    from controller.cli.session import clean_zenoh_error
     from controller.service.zenoh_io import address_in_use
 
     text = clean_zenoh_error(str(exc))
@@ -182,7 +182,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     endpoint, 1 otherwise."""
     import zenoh
 
-    from controller.cli.client import EXIT_USAGE, UsageError, normalize_endpoint
+    from controller.cli.client import EXIT_USAGE
+    from controller.cli.session import UsageError, normalize_endpoint
     from controller.service.zenoh_io import DEFAULT_ENDPOINT, session_config
 
     path = Path(args.file)

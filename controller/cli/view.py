@@ -711,16 +711,8 @@ def layout_json() -> str:
 def cmd_view(args: argparse.Namespace) -> int:
     """Entry point of `cablebot view`: runs until Ctrl-C / SIGTERM (exit 0); 1 bad input or the
     WebSocket port is taken; 2 a bad `--connect`; 3 no daemon answered."""
-    from controller.cli.client import (
-        EXIT_ABSENT,
-        EXIT_OK,
-        EXIT_REFUSED,
-        EXIT_USAGE,
-        DaemonAbsent,
-        UsageError,
-        normalize_endpoint,
-        open_session,
-    )
+    from controller.cli.client import EXIT_ABSENT, EXIT_OK, EXIT_REFUSED, EXIT_USAGE
+    from controller.cli.session import DaemonAbsent, UsageError, normalize_endpoint, open_session
 
     try:
         args.connect = normalize_endpoint(args.connect)
@@ -857,7 +849,7 @@ def _serve(
 
 def register(sub: argparse._SubParsersAction[Any]) -> None:
     """Register `cablebot view`."""
-    from controller.cli.client import add_connection_arguments
+    from controller.cli.session import add_connection_arguments
 
     p = sub.add_parser(
         "view",

@@ -76,15 +76,20 @@ redundancy), poses within a few per cent of one plane, or the same pose repeated
 from __future__ import annotations
 
 import math
-import re
-import tomllib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from controller.core.calibration_geometry import (
+    kabsch,
+    orthogonal_complement,
+    plane_fit,
+    rigid_basis,
+    spread_poses,
+)
 from controller.core.calibration_samples import (
     POSE_COLUMNS,
     CalibrationError,
@@ -95,6 +100,7 @@ from controller.core.calibration_samples import (
     samples_header,
     samples_preamble,
 )
+from controller.core.calibration_toml import format_metres, replace_anchor_values
 from controller.core.reel import ReelModel
 
 __all__ = [
@@ -167,129 +173,6 @@ _UNBOUNDED_STD_M = 1e3
 
 class CalibrationUnavailable(RuntimeError):
     """scipy (needed for the least-squares solve) is not installed."""
-
-
-# --------------------------------------------------------------------------------------------
-# Geometry helpers
-
-
-def kabsch(src: Any, dst: Any) -> tuple[FloatArray, FloatArray]:
-    """The rigid motion (R, t) minimising sum |R src_i + t - dst_i|^2 (proper rotation).
-
-    Raises CalibrationError if the point sets differ in shape or hold fewer than 3 points.
-    """
-    a = np.asarray(src, dtype=np.float64)
-    b = np.asarray(dst, dtype=np.float64)
-    if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 3 or a.shape[0] < 3:
-        raise CalibrationError(f"kabsch needs two (N >= 3, 3) point sets, got {a.shape}, {b.shape}")
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    h = (a - ca).T @ (b - cb)
-    u, _, vt = np.linalg.svd(h)
-    d = 1.0 if np.linalg.det(vt.T @ u.T) >= 0.0 else -1.0
-    rot = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    return rot, cb - rot @ ca
-
-
-def plane_fit(points: Any) -> tuple[FloatArray, float, float]:
-    """Best plane through `points` (M, 3): (unit normal, RMS distance from it, RMS spread).
-
-    The spread is the RMS distance from the centroid along the widest direction. Raises
-    nothing for M >= 1 (one point: normal z, zeros).
-    """
-    p = np.asarray(points, dtype=np.float64)
-    c = p - p.mean(axis=0)
-    _, s, vt = np.linalg.svd(c, full_matrices=True)
-    m = max(1, p.shape[0])
-    s_full = np.zeros(3)
-    s_full[: len(s)] = s
-    return vt[2], float(s_full[2] / math.sqrt(m)), float(s_full[0] / math.sqrt(m))
-
-
-def rigid_basis(anchors_m: Any) -> FloatArray:
-    """Orthonormal basis (3N, 6) of the infinitesimal rigid motions of the anchor set."""
-    a = np.asarray(anchors_m, dtype=np.float64)
-    n = a.shape[0]
-    c = a - a.mean(axis=0)
-    cols = [np.tile(t, n) for t in np.eye(3)]
-    cols += [np.cross(np.broadcast_to(w, c.shape), c).ravel() for w in np.eye(3)]
-    q, _ = np.linalg.qr(np.array(cols).T)
-    return np.asarray(q[:, :6], dtype=np.float64)
-
-
-def _complement(basis: FloatArray) -> FloatArray:
-    """Orthonormal basis of the orthogonal complement of the columns of `basis`."""
-    q, _ = np.linalg.qr(basis, mode="complete")
-    return np.asarray(q[:, basis.shape[1] :], dtype=np.float64)
-
-
-# --------------------------------------------------------------------------------------------
-# Poses for collecting samples
-
-
-def _radical_inverse(i: int, base: int) -> float:
-    f, r = 1.0, 0.0
-    while i > 0:
-        f /= base
-        r += f * (i % base)
-        i //= base
-    return r
-
-
-def spread_poses(
-    n: int,
-    lo_m: Sequence[float],
-    hi_m: Sequence[float],
-    inside: Callable[[Vec3], bool],
-    *,
-    start_m: Sequence[float] | None = None,
-    candidates: int = 4096,
-) -> list[Vec3]:
-    """`n` poses spread over the region {p in the box lo..hi : inside(p)}, in visiting order.
-
-    Candidates are a Halton sequence in the box; farthest-point sampling picks `n` of them
-    (extremes first, which is what calibration needs), then they are ordered as a
-    nearest-neighbour tour from `start_m` (or from the first). Deterministic. Raises
-    CalibrationError for n < 1, an empty or inverted box, or fewer than n candidates inside.
-    """
-    if n < 1:
-        raise CalibrationError(f"need at least one pose, got {n}")
-    lo = np.asarray(lo_m, dtype=np.float64)
-    hi = np.asarray(hi_m, dtype=np.float64)
-    if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite(lo) & np.isfinite(hi)):
-        raise CalibrationError("the pose box needs finite 3-vectors")
-    if not np.all(hi > lo):
-        raise CalibrationError(f"empty pose box {lo.tolist()} .. {hi.tolist()}")
-    pts: list[Vec3] = []
-    for i in range(1, candidates + 1):
-        u = (_radical_inverse(i, 2), _radical_inverse(i, 3), _radical_inverse(i, 5))
-        p = (
-            float(lo[0] + (hi[0] - lo[0]) * u[0]),
-            float(lo[1] + (hi[1] - lo[1]) * u[1]),
-            float(lo[2] + (hi[2] - lo[2]) * u[2]),
-        )
-        if inside(p):
-            pts.append(p)
-    if len(pts) < n:
-        raise CalibrationError(
-            f"only {len(pts)} of {candidates} candidate poses lie inside the region; "
-            f"cannot spread {n} (use a smaller margin or fewer poses)"
-        )
-    cand = np.array(pts)
-    centre = cand.mean(axis=0)
-    chosen = [int(np.argmax(np.linalg.norm(cand - centre, axis=1)))]
-    dmin = np.linalg.norm(cand - cand[chosen[0]], axis=1)
-    while len(chosen) < n:
-        j = int(np.argmax(dmin))
-        chosen.append(j)
-        dmin = np.minimum(dmin, np.linalg.norm(cand - cand[j], axis=1))
-    left = [pts[j] for j in chosen]
-    here: Sequence[float] = left[0] if start_m is None else start_m
-    order: list[Vec3] = []
-    while left:
-        k = min(range(len(left)), key=lambda m: math.dist(here, left[m]))
-        here = left.pop(k)
-        order.append(here)
-    return order
 
 
 # --------------------------------------------------------------------------------------------
@@ -822,7 +705,7 @@ def calibrate(
 
     p0, z_max, o0 = _starting_point(a_cfg, reels0, samples, problem)
 
-    q = _complement(rigid_basis(a_cfg))
+    q = orthogonal_complement(rigid_basis(a_cfg))
     dq = q.shape[1]
     # Rounds: find the directions the samples see worse than hold_std_m (linearised, at the
     # current estimate, with the current noise estimate), fit with a prior holding them near
@@ -850,7 +733,7 @@ def calibrate(
         r_now = problem.residuals(a, o, p)
         dof = k * n - (dq - held_c.shape[1] + n + 3 * k)
         sigma = max(st.noise_floor_m, math.sqrt(float((r_now**2).sum()) / max(dof, 1)))
-    free = q @ _complement(held_c) if held_c.shape[1] else q
+    free = q @ orthogonal_complement(held_c) if held_c.shape[1] else q
     solved_free = free.shape[1]
     spec = _spectrum(problem.information(a, o, p), q)
 
@@ -939,80 +822,3 @@ def calibrate(
         converged=converged,
         anchors_coplanar=bool(coplanar),
     )
-
-
-# --------------------------------------------------------------------------------------------
-# Writing the anchors into a configuration's text
-
-_HEADER_RE = re.compile(r"^\s*\[")
-_REELS_RE = re.compile(r"^\s*\[\[\s*reels\s*\]\]")
-_ANCHOR_RE = re.compile(r"^(\s*anchor_m\s*=\s*)\[([^\]\n]*)\](.*)$", re.DOTALL)
-_ANCHOR_KEY_RE = re.compile(r"^\s*anchor_m\s*=")
-
-
-def format_metres(v: float) -> str:
-    """A coordinate for the TOML file: micrometre resolution, no trailing zeros (``-0.5``)."""
-    s = f"{round(float(v), 6):.6f}".rstrip("0")
-    s = s + "0" if s.endswith(".") else s
-    return "0.0" if s in ("-0.0", "0.0") else s
-
-
-def replace_anchor_values(text: str, anchors_m: Any, source: str) -> str:
-    """The TOML `text` with each ``[[reels]]`` table's ``anchor_m = [x, y, z]`` values replaced.
-
-    Everything else (comments, order, the rest of each line) is kept byte for byte. Raises
-    CalibrationError when `text` is not valid TOML, a reel's ``anchor_m`` is not one line of
-    a ``[[reels]]`` table, the number of reels differs, or the edited text would parse to
-    anything but the original with the new anchors.
-    """
-    new = np.asarray(anchors_m, dtype=np.float64)
-    try:
-        before = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise CalibrationError(f"{source}: not valid TOML: {exc}") from exc
-    lines = text.splitlines(keepends=True)
-    reel = -1
-    in_reels = False
-    found: list[int] = []
-    for idx, line in enumerate(lines):
-        if _HEADER_RE.match(line):
-            in_reels = bool(_REELS_RE.match(line))
-            if in_reels:
-                reel += 1
-            continue
-        if not (in_reels and _ANCHOR_KEY_RE.match(line)):
-            continue
-        m = _ANCHOR_RE.match(line)
-        if m is None:
-            raise CalibrationError(
-                f"{source} line {idx + 1}: reels[{reel}].anchor_m must be written on one line "
-                "as anchor_m = [x, y, z] to be replaced"
-            )
-        if reel >= new.shape[0]:
-            raise CalibrationError(f"{source}: more [[reels]] tables than {new.shape[0]} anchors")
-        values = ", ".join(format_metres(v) for v in new[reel])
-        lines[idx] = f"{m.group(1)}[{values}]{m.group(3)}"
-        found.append(reel)
-    if found != list(range(new.shape[0])):
-        raise CalibrationError(
-            f"{source}: found anchor_m lines for reels {found}, expected one in each of "
-            f"{new.shape[0]} [[reels]] tables"
-        )
-    out = "".join(lines)
-    try:
-        after = tomllib.loads(out)
-    except tomllib.TOMLDecodeError as exc:  # pragma: no cover - the regex keeps it valid
-        raise CalibrationError(f"{source}: the edited text is not valid TOML: {exc}") from exc
-    expected = _with_anchors(before, [[float(format_metres(v)) for v in row] for row in new])
-    if after != expected:
-        raise CalibrationError(f"{source}: editing the anchor lines changed more than the anchors")
-    return out
-
-
-def _with_anchors(data: Mapping[str, Any], anchors: list[list[float]]) -> dict[str, Any]:
-    out = dict(data)
-    reels = data.get("reels")
-    if not isinstance(reels, list) or len(reels) != len(anchors):
-        raise CalibrationError(f"the configuration has no {len(anchors)} [[reels]] tables")
-    out["reels"] = [{**r, "anchor_m": a} for r, a in zip(reels, anchors, strict=True)]
-    return out

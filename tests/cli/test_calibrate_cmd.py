@@ -213,7 +213,8 @@ def desk_daemon_config(tmp_path: Path) -> tuple[Path, str, str]:
         "options": {"port": random.randint(40000, 49000), "hop_limit": 0},
     }
     data["loop"] = {"rate_hz": 250.0, "realtime": False, "publish_every": 5}
-    data["sim"] = {"enabled": True}
+    # The simulated drives' watchdog too: a stalled loop on a loaded host must not idle them.
+    data["sim"] = {"enabled": True, "watchdog_timeout_s": 2.0}
     data["limits"].update(
         {
             "max_speed_mps": 1.0,

@@ -1,4 +1,4 @@
-"""Every verb that talks Zenoh reads an endpoint the same way (`client.normalize_endpoint`):
+"""Every verb that talks Zenoh reads an endpoint the same way (`session.normalize_endpoint`):
 `HOST:PORT` works for view, record and replay as for status; a bad one is one line, exit 2;
 replay on a taken port says what to do."""
 

@@ -1,7 +1,7 @@
 """Robot configuration: one TOML file per robot -> validated, frozen `RobotConfig`.
 
 One module per concern: `schema` (every key: type, default, description; the dataclasses),
-`tables` (typed getters that collect every problem), `parse` (validation, `load_config`),
+`tables` (typed getters that collect every problem), `parse` (validation), `load` (`load_config`),
 `interfaces` (`[bus]` and `[zenoh]`), `robot` (the built-in robot), `reference` (writes the
 configuration reference, `docs/configuration.md`, from the schema).
 
