@@ -164,9 +164,12 @@ ESTOP_KEYS = ("reply_p50", "reply_p99", "frame_p50", "frame_p99")
 
 TARGET_ADVANCE_100K_OVER_10 = 2.0
 """The tick's cost must not depend on the queue: `advance` with 100,000 points queued over
-`advance` with 10, per run (both timed back to back by thread CPU time, GC off). An O(queue)
-tick would be thousands of times dearer; run-to-run noise of one side on a loaded 2-vCPU
-machine is well under 50 %, so 2 separates the two without false alarms."""
+`advance` with 10, the median of per-run ratios (both sides timed back to back by thread CPU
+time, GC off). A tick linear in the queue would be about 10,000 times dearer; measured runs
+give 0.9-1.1 on a 2-vCPU machine at load 6-7, so 2 leaves room for a loaded machine's noise
+(cache misses after pre-emption count in CPU time) and still catches a tick that grows with
+the queue by more than that.
+"""
 
 
 PLANNING_KEYS = (
