@@ -35,6 +35,33 @@ TOP_KEYS = {
     "e2e_p50_us",
     "e2e_p99_us",
     "estop_latency_flood_ms",
+    "planning",
+    "stretch_us",
+    "ros2_publish_us",
+    "compute_per_tick",
+}
+NEW_SECTION_KEYS = {
+    "planning": {
+        "plan_us_per_point",
+        "append_us_per_point",
+        "advance_us_10",
+        "advance_us_100k",
+        "advance_100k_over_10",
+        "circle_s",
+        "circle_ideal_s",
+    },
+    "stretch_us": {
+        "ipk_rigid",
+        "ipk_stretch",
+        "fpk_rigid",
+        "fpk_stretch_rest",
+        "fpk_stretch_moving",
+        "fpk_stretch_fast",
+        "fpk_stretch_measured",
+        "statics",
+    },
+    "ros2_publish_us": {"json_encode_us", "ros2_encode_us", "tick_handoff_us", "ros2_vs_json"},
+    "compute_per_tick": {"ticks", "p50_us", "p99_us", "p99_frac"},
 }
 ESTOP_KEYS = {"reply_p50", "reply_p99", "frame_p50", "frame_p99"}
 LOOP_KEYS = {
@@ -93,7 +120,8 @@ def test_bench_quick_json(tmp_path: Path) -> None:
     assert 0.0 < es["reply_p50"] <= es["reply_p99"] and 0.0 < es["frame_p50"] <= es["frame_p99"]
     rtf = data["sim_plant_rtf"]
     assert set(rtf) == {"position", "torque"} and all(_number(v) and v > 0.0 for v in rtf.values())
-    for key in TOP_KEYS - {"loop", "estop_latency_flood_ms", "sim_plant_rtf"}:
+    _check_new_sections(data)
+    for key in TOP_KEYS - {"loop", "estop_latency_flood_ms", "sim_plant_rtf", *NEW_SECTION_KEYS}:
         assert _number(data[key]), (key, data[key])
         assert data[key] > 0.0, (key, data[key])
     assert data["fpk_simplified_us"] < 1e3 and data["fpk_general_us"] < 1e3
@@ -113,10 +141,116 @@ def test_bench_quick_json(tmp_path: Path) -> None:
         "loop.1000.jitter_p99_frac",
         "e2e_p50_us",
         "estop_latency_flood_ms.reply_p99",
+        "planning.advance_100k_over_10",
+        "stretch_us.fpk_stretch_moving",
+        "ros2_publish_us.tick_handoff_us",
+        "compute_per_tick.p99_us",
         "repeats",
     ):
         assert name in table
     assert ("MISSED" in table) or ("all targets met" in table)
+
+
+def _check_new_sections(data: dict[str, Any]) -> None:
+    """The sections of the planner, cable stretch, ROS 2 and the no-transport compute: exactly
+    their keys, finite positive numbers, consistent with each other."""
+    for section, keys in NEW_SECTION_KEYS.items():
+        assert set(data[section]) == keys, section
+        assert all(_number(v) and v > 0.0 for v in data[section].values()), data[section]
+    pl = data["planning"]
+    assert pl["circle_s"] >= pl["circle_ideal_s"]  # nothing flies faster than length / speed
+    ct = data["compute_per_tick"]
+    assert isinstance(ct["ticks"], int) and ct["ticks"] > 0
+    assert ct["p50_us"] <= ct["p99_us"]
+    assert ct["p99_frac"] == pytest.approx(ct["p99_us"] / 1e3)  # of the 1 ms period
+
+
+@pytest.mark.timeout(120)
+def test_bench_only_new_sections_json(tmp_path: Path) -> None:
+    out = tmp_path / "bench.json"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "controller.cli",
+            "bench",
+            "--quick",
+            "--only",
+            "planning",
+            "stretch",
+            "ros2",
+            "compute",
+            "--json",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=110,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    data = json.loads(out.read_text())
+    assert list(data) == list(NEW_SECTION_KEYS)  # only these sections, in the documented order
+    _check_new_sections(data)
+    for name in (
+        "planning.advance_100k_over_10",
+        "stretch_us.ipk_stretch",
+        "ros2_publish_us.tick_handoff_us",
+        "compute_per_tick.p50_us",
+    ):
+        assert name in proc.stdout
+    assert "loop.1000" not in proc.stdout and "fpk_simplified_us" not in proc.stdout
+
+
+def test_bench_unknown_section_refused() -> None:
+    with pytest.raises(ValueError, match="unknown bench sections"):
+        bench.measure(bench.QUICK, lambda msg: None, ["planning", "nope"])
+
+
+def test_bench_compute_piece() -> None:
+    figures = bench.bench_compute(300)
+    assert set(figures) == {"ticks", "p50_us", "p99_us", "max_us", "p99_frac", "moving_frac"}
+    assert all(_number(v) and v > 0.0 for v in figures.values()), figures
+    assert figures["ticks"] == 300
+    assert figures["moving_frac"] == 1.0  # armed and flying the path on every measured tick
+    assert figures["p50_us"] <= figures["p99_us"] <= figures["max_us"]
+    stretched = bench.bench_compute(100, stretch=True)
+    assert stretched["moving_frac"] == 1.0 and _number(stretched["p50_us"])
+
+
+def test_echo_driver_hands_in_commanded_positions() -> None:
+    from controller.cli.bench.compute import _Clock
+
+    clock = _Clock()
+    drv = bench.EchoDriver((0, 1), (1.0, 2.0), clock)
+    drv.command([5.0, 6.0])
+    clock.now_s += 0.001
+    drv.poll()
+    assert [r.position_rev for r in drv.read()] == [1.0, 2.0]  # not armed: the axes stay
+    assert all(r.stamp_s == clock.now_s for r in drv.read())
+    drv.arm()
+    drv.poll()
+    assert [r.position_rev for r in drv.read()] == [5.0, 6.0]
+    assert all(r.ready and r.fault is None for r in drv.read())
+    with pytest.raises(ValueError):
+        drv.command([float("nan"), 0.0])
+    with pytest.raises(ValueError):
+        drv.command([0.0])
+
+
+def test_bench_planning_stretch_ros2_pieces() -> None:
+    pl = bench.bench_planning_figures(1)
+    assert set(bench.PLANNING_KEYS) <= set(pl)
+    assert all(_number(v) and v > 0.0 for v in pl.values()), pl
+    assert pl["advance_100k_over_10"] == pytest.approx(
+        pl["advance_us_100k"] / pl["advance_us_10"]
+    )  # one run: the ratio is its own sides'
+    st = bench.bench_stretch(1)
+    assert set(st) == set(bench.STRETCH_KEYS)
+    assert all(_number(v) and v > 0.0 for v in st.values()), st
+    ros = bench.bench_ros2(100)
+    assert set(bench.ROS2_KEYS) <= set(ros)
+    assert all(_number(ros[k]) and ros[k] > 0.0 for k in bench.ROS2_KEYS), ros  # type: ignore[operator]
 
 
 def test_bench_statics_piece() -> None:

@@ -99,8 +99,36 @@ Method
   tries: of 100, p99 is the second worst; of 50 (`--quick`), the worst. The table also shows
   the flood's rate and any fault of the robot (leaving HOLDING by itself).
 
+* `planning` (`planning.*`): `controller.core.motion_bench.bench_planning` run 3 times (1 with
+  `--quick`), timed by the thread's CPU time with the GC off: microseconds per point planned at
+  once and appended in chunks, one `advance` (the tick's planner step) with 10 and with 100,000
+  points queued, and the 1,000-point circle's time against its length / speed. Target: the
+  tick does not depend on the queue, `advance_100k_over_10` (the median of the per-run ratios,
+  both sides timed back to back) at most `TARGET_ADVANCE_100K_OVER_10`.
+* `stretch_us` (`stretch_us.*`): `controller.cli.stretch_bench.stretch_cost_us`, microseconds
+  per call (best of 5 x 500 calls, wall clock) of the loop's IPK and FPK with rigid cables and
+  with every cable of the built-in robot at EA 2e5 N; target: each call with stretch under
+  `TARGET_STRETCH_US`.
+* `ros2_publish_us` (`ros2_publish_us.*`): `controller.service.ros2.bench.measure_publish_cost`,
+  the median per sample of the JSON encoding (`json_encode_us`, the JSON publisher's thread),
+  the ROS 2 encoding (`ros2_encode_us`, the ROS 2 node's thread) and the tick's added cost of
+  ROS 2 beside JSON (`tick_handoff_us`: the fan-out and the node's one-slot hand-off); the
+  table also shows rosbags' encoding of the same messages when it is installed.
+* `compute_per_tick` (`compute_per_tick.*`): the controller's own compute without any
+  transport (`compute.bench_compute`): a `Controller` at 1 kHz on an `EchoDriver`, whose `poll`
+  hands in fresh readings from memory (each axis where the last command put it) and whose
+  `command` sends nothing, armed and flying a 4 m loop at 1 m/s, publishing every tick to a
+  publisher that drops the sample; the thread's CPU time of each `tick` over 5,000 ticks (2,000
+  with `--quick`) after a warm-up, GC frozen as in the daemon; p50, p99 and p99 over the
+  period. The table also shows the same with cable stretch. No bus and no other process, so
+  the figure carries over between machines.
+
+`--only SECTION ...` runs only those sections (`SECTIONS`: kinematics, statics, sim, decode,
+loops, estop, planning, stretch, ros2, compute); the JSON then holds their keys only.
+
 Layout: `settings` (plans, targets, JSON keys), `timing` (percentiles, interleaved timing),
-`figures` (the micro-benchmarks: FPK, batch, statics, simulator, decode), `helpers` (the helper
+`figures` (the micro-benchmarks: FPK, batch, statics, simulator, decode), `planning`,
+`stretch`, `ros2`, `compute` (one section each: its figures and rows), `helpers` (the helper
 processes: simulated drives, pose subscriber), `loop` (the daemon-like loop run, end-to-end
 matching), `estop` (the e-stop flood), `table` (rows and the table), `measure` (each section's
 figures and rows), `command` (`cablebot bench`), `__main__` (the helper processes' entry).
@@ -109,6 +137,7 @@ figures and rows), `command` (`cablebot bench`), `__main__` (the helper processe
 from __future__ import annotations
 
 from controller.cli.bench.command import cmd_bench, register
+from controller.cli.bench.compute import EchoDriver, bench_compute
 from controller.cli.bench.estop import (
     bench_estop_flood,
     estop_config_data,
@@ -135,9 +164,13 @@ from controller.cli.bench.loop import (
     role_loop,
 )
 from controller.cli.bench.measure import measure
+from controller.cli.bench.planning import bench_planning_figures
+from controller.cli.bench.ros2 import bench_ros2
 from controller.cli.bench.settings import (
     CHILD_START_TIMEOUT_S,
     CIA402_RATE_HZ,
+    COMPUTE_KEYS,
+    COMPUTE_RATE_HZ,
     DRAIN_PERIOD_S,
     E2E_MARGIN_US,
     E2E_RATE_HZ,
@@ -150,9 +183,14 @@ from controller.cli.bench.settings import (
     LOOP_RATES_HZ,
     MOVE_POINTS_M,
     MOVE_SPEED_MPS,
+    PLANNING_KEYS,
     QUICK,
+    ROS2_KEYS,
+    SECTIONS,
     SEED,
     SIM_TICK_S,
+    STRETCH_KEYS,
+    TARGET_ADVANCE_100K_OVER_10,
     TARGET_BATCH_OVER_COPY,
     TARGET_COMPUTE_P99_FRAC,
     TARGET_DECODE_FRAMES_PER_S,
@@ -163,9 +201,11 @@ from controller.cli.bench.settings import (
     TARGET_SIM_RTF,
     TARGET_SIMPLIFIED_OVER_GENERAL,
     TARGET_SIMPLIFIED_US,
+    TARGET_STRETCH_US,
     BenchError,
     Plan,
 )
+from controller.cli.bench.stretch import bench_stretch
 from controller.cli.bench.table import Row, format_table, machine_line
 from controller.cli.bench.timing import Timed, interleaved, percentile
 
@@ -173,6 +213,8 @@ __all__ = [
     "CHILD_START_TIMEOUT_S",
     "CIA402_COUNTS_PER_REV",
     "CIA402_RATE_HZ",
+    "COMPUTE_KEYS",
+    "COMPUTE_RATE_HZ",
     "DRAIN_PERIOD_S",
     "E2E_MARGIN_US",
     "E2E_RATE_HZ",
@@ -185,9 +227,14 @@ __all__ = [
     "LOOP_RATES_HZ",
     "MOVE_POINTS_M",
     "MOVE_SPEED_MPS",
+    "PLANNING_KEYS",
     "QUICK",
+    "ROS2_KEYS",
+    "SECTIONS",
     "SEED",
     "SIM_TICK_S",
+    "STRETCH_KEYS",
+    "TARGET_ADVANCE_100K_OVER_10",
     "TARGET_BATCH_OVER_COPY",
     "TARGET_COMPUTE_P99_FRAC",
     "TARGET_DECODE_FRAMES_PER_S",
@@ -198,17 +245,23 @@ __all__ = [
     "TARGET_SIMPLIFIED_OVER_GENERAL",
     "TARGET_SIMPLIFIED_US",
     "TARGET_SIM_RTF",
+    "TARGET_STRETCH_US",
     "BenchError",
+    "EchoDriver",
     "Plan",
     "Row",
     "Timed",
     "bench_batch",
+    "bench_compute",
     "bench_decode",
     "bench_estop_flood",
     "bench_fpk4",
     "bench_loop",
+    "bench_planning_figures",
+    "bench_ros2",
     "bench_sim_plant",
     "bench_statics",
+    "bench_stretch",
     "bench_three_spheres",
     "cmd_bench",
     "estop_config_data",

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
+from controller.cli.bench.compute import measure_compute
 from controller.cli.bench.estop import bench_estop_flood
 from controller.cli.bench.figures import (
     bench_batch,
@@ -15,14 +16,18 @@ from controller.cli.bench.figures import (
     bench_three_spheres,
 )
 from controller.cli.bench.loop import bench_loop, merge_runs
+from controller.cli.bench.planning import measure_planning
+from controller.cli.bench.ros2 import measure_ros2
 from controller.cli.bench.settings import (
     CIA402_RATE_HZ,
     E2E_MARGIN_US,
     E2E_RATE_HZ,
     ESTOP_FLOOD_THREADS,
     ESTOP_KEYS,
+    JSON_KEYS,
     LOOP_KEYS,
     LOOP_RATES_HZ,
+    SECTIONS,
     TARGET_BATCH_OVER_COPY,
     TARGET_COMPUTE_P99_FRAC,
     TARGET_DECODE_FRAMES_PER_S,
@@ -35,6 +40,7 @@ from controller.cli.bench.settings import (
     TARGET_SIMPLIFIED_US,
     Plan,
 )
+from controller.cli.bench.stretch import measure_stretch
 from controller.cli.bench.table import Row, _frames_row
 
 
@@ -390,45 +396,72 @@ def _measure_estop(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any],
 
 
 def measure(
-    plan: Plan, log: Callable[[str], None]
+    plan: Plan, log: Callable[[str], None], sections: Sequence[str] = SECTIONS
 ) -> tuple[dict[str, Any], list[Row], dict[str, Any]]:
-    """Run every benchmark of `plan`; returns the JSON mapping of figures, the table rows and the
-    loop runs' full results (`{"loops": {rate: {...}}}`).
+    """Run the benchmarks of `sections` (default: all of `SECTIONS`) with `plan`; returns the
+    JSON mapping of their figures (all of `JSON_KEYS` when every section runs), the table rows
+    and the loop runs' full results (`{"loops": {rate: {...}}, "cia402": ..., "estop": ...}`,
+    for the sections that ran).
 
-    Raises BenchError when a figure cannot be measured.
+    Raises BenchError when a figure cannot be measured, ValueError for an unknown section.
     """
+    unknown = [s for s in sections if s not in SECTIONS]
+    if unknown:
+        raise ValueError(f"unknown bench sections {unknown}; known: {', '.join(SECTIONS)}")
     rows: list[Row] = []
+    result: dict[str, Any] = {}
+    extra: dict[str, Any] = {}
     p = plan
-    ts, f4, bt, part = _measure_kinematics(p, log)
-    rows += part
-    sx, part = _measure_statics(p, log)
-    rows += part
-    sp, part = _measure_sim(p, log)
-    rows += part
-    dc, part = _measure_decode(p, log)
-    rows += part
-    loops, ci, k1, part = _measure_loops(p, log)
-    rows += part
-    es, part = _measure_estop(p, log)
-    rows += part
-
-    result: dict[str, Any] = {
-        "fpk_simplified_us": ts["fpk_simplified_us"],
-        "fpk_general_us": ts["fpk_general_us"],
-        "fpk_simplified_over_general": ts["fpk_simplified_over_general"],
-        "fpk4_us": f4["fpk4_us"],
-        "scipy_over_fpk4": f4["scipy_over_fpk4"],
-        "batch_over_copy": bt["batch_over_copy"],
-        "statics_us": sx["statics_us"],
-        "statics_batch_us": sx["statics_batch_us"],
-        "sim_plant_rtf": {"position": sp["position"], "torque": sp["torque"]},
-        "decode_frames_per_s": dc["decode_frames_per_s"],
-        "zenoh_put_us": float(k1["zenoh_put_us"]),
-        "loop": {
+    if "kinematics" in sections:
+        ts, f4, bt, part = _measure_kinematics(p, log)
+        rows += part
+        result["fpk_simplified_us"] = ts["fpk_simplified_us"]
+        result["fpk_general_us"] = ts["fpk_general_us"]
+        result["fpk_simplified_over_general"] = ts["fpk_simplified_over_general"]
+        result["fpk4_us"] = f4["fpk4_us"]
+        result["scipy_over_fpk4"] = f4["scipy_over_fpk4"]
+        result["batch_over_copy"] = bt["batch_over_copy"]
+    if "statics" in sections:
+        sx, part = _measure_statics(p, log)
+        rows += part
+        result["statics_us"] = sx["statics_us"]
+        result["statics_batch_us"] = sx["statics_batch_us"]
+    if "sim" in sections:
+        sp, part = _measure_sim(p, log)
+        rows += part
+        result["sim_plant_rtf"] = {"position": sp["position"], "torque": sp["torque"]}
+    if "decode" in sections:
+        dc, part = _measure_decode(p, log)
+        rows += part
+        result["decode_frames_per_s"] = dc["decode_frames_per_s"]
+    if "loops" in sections:
+        loops, ci, k1, part = _measure_loops(p, log)
+        rows += part
+        result["zenoh_put_us"] = float(k1["zenoh_put_us"])
+        result["loop"] = {
             str(rate): {key: loops[str(rate)][key] for key in LOOP_KEYS} for rate in LOOP_RATES_HZ
-        },
-        "e2e_p50_us": k1["e2e_p50_us"],
-        "e2e_p99_us": k1["e2e_p99_us"],
-        "estop_latency_flood_ms": {key: es[key] for key in ESTOP_KEYS},
-    }
-    return result, rows, {"loops": loops, "cia402": ci, "estop": es}
+        }
+        result["e2e_p50_us"] = k1["e2e_p50_us"]
+        result["e2e_p99_us"] = k1["e2e_p99_us"]
+        extra["loops"] = loops
+        extra["cia402"] = ci
+    if "estop" in sections:
+        es, part = _measure_estop(p, log)
+        rows += part
+        result["estop_latency_flood_ms"] = {key: es[key] for key in ESTOP_KEYS}
+        extra["estop"] = es
+    if "planning" in sections:
+        result["planning"], part = measure_planning(p, log)
+        rows += part
+    if "stretch" in sections:
+        result["stretch_us"], part = measure_stretch(p, log)
+        rows += part
+    if "ros2" in sections:
+        result["ros2_publish_us"], part = measure_ros2(p, log)
+        rows += part
+    if "compute" in sections:
+        result["compute_per_tick"], part = measure_compute(p, log)
+        rows += part
+    # The JSON keeps the documented order whatever ran.
+    result = {key: result[key] for key in JSON_KEYS if key in result}
+    return result, rows, extra

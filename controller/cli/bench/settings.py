@@ -24,12 +24,20 @@ class Plan:
     loop_seconds: float
     loop_runs: int
     estop_tries: int
+    planning_repeats: int
+    stretch_repeats: int
+    ros2_samples: int
+    compute_ticks: int
 
 
-FULL = Plan(501, 400, 15, 32, 5, 1_000_000, 51, 200, 100_000, 5.0, 5, 50_000, 10.0, 3, 100)
+FULL = Plan(
+    501, 400, 15, 32, 5, 1_000_000, 51, 200, 100_000, 5.0, 5, 50_000, 10.0, 3, 100, 3, 5, 5000, 5000
+)
 
 
-QUICK = Plan(101, 400, 5, 16, 3, 1_000_000, 11, 100, 100_000, 1.0, 3, 20_000, 2.0, 1, 50)
+QUICK = Plan(
+    101, 400, 5, 16, 3, 1_000_000, 11, 100, 100_000, 1.0, 3, 20_000, 2.0, 1, 50, 1, 3, 2000, 2000
+)
 
 
 LENGTH_NOISE_M = 1e-3
@@ -129,10 +137,80 @@ JSON_KEYS = (
     "e2e_p50_us",
     "e2e_p99_us",
     "estop_latency_flood_ms",
+    "planning",
+    "stretch_us",
+    "ros2_publish_us",
+    "compute_per_tick",
 )
 
 
+SECTIONS = (
+    "kinematics",
+    "statics",
+    "sim",
+    "decode",
+    "loops",
+    "estop",
+    "planning",
+    "stretch",
+    "ros2",
+    "compute",
+)
+"""The benchmark's sections, in the order they run (`cablebot bench --only NAME ...`)."""
+
+
 ESTOP_KEYS = ("reply_p50", "reply_p99", "frame_p50", "frame_p99")
+
+
+TARGET_ADVANCE_100K_OVER_10 = 2.0
+"""The tick's cost must not depend on the queue: `advance` with 100,000 points queued over
+`advance` with 10, the median of per-run ratios (both sides timed back to back by thread CPU
+time, GC off). A tick linear in the queue would be about 10,000 times dearer; measured runs
+give 0.9-1.1 on a 2-vCPU machine at load 6-7, so 2 leaves room for a loaded machine's noise
+(cache misses after pre-emption count in CPU time) and still catches a tick that grows with
+the queue by more than that.
+"""
+
+
+PLANNING_KEYS = (
+    "plan_us_per_point",
+    "append_us_per_point",
+    "advance_us_10",
+    "advance_us_100k",
+    "advance_100k_over_10",
+    "circle_s",
+    "circle_ideal_s",
+)
+
+
+TARGET_STRETCH_US = 50.0
+"""IPK and FPK with cable stretch, four cables, per call."""
+
+
+STRETCH_KEYS = (
+    "ipk_rigid",
+    "ipk_stretch",
+    "fpk_rigid",
+    "fpk_stretch_rest",
+    "fpk_stretch_moving",
+    "fpk_stretch_fast",
+    "fpk_stretch_measured",
+    "statics",
+)
+
+
+ROS2_KEYS = (
+    "json_encode_us",
+    "ros2_encode_us",
+    "tick_handoff_us",
+    "ros2_vs_json",
+)
+
+
+COMPUTE_RATE_HZ = 1000
+
+
+COMPUTE_KEYS = ("ticks", "p50_us", "p99_us", "p99_frac")
 
 
 class BenchError(RuntimeError):
