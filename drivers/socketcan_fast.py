@@ -24,6 +24,7 @@ caller simply keeps python-can's path there.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import errno
@@ -152,6 +153,18 @@ def can_filters_for(ids_and_masks: Sequence[tuple[int, int]]) -> bytes:
     return bytes(out)
 
 
+def configure_can_socket(sock: socket.socket, filters: Sequence[tuple[int, int]] | None) -> None:
+    """Set the kernel receive filters of a SocketCAN raw socket: `filters` are (id, mask) pairs
+    of the standard data frames to receive (None = every frame; empty = no data frame at all);
+    error frames of every class pass; own frames are never echoed back. Raises ValueError on a
+    bad filter, OSError if the socket refuses an option."""
+    packed = None if filters is None else can_filters_for(filters)
+    sock.setsockopt(_SOL_CAN_RAW, _CAN_RAW_RECV_OWN_MSGS, 0)
+    sock.setsockopt(_SOL_CAN_RAW, _CAN_RAW_ERR_FILTER, struct.pack("=I", CAN_ERR_MASK))
+    if packed is not None:
+        sock.setsockopt(_SOL_CAN_RAW, _CAN_RAW_FILTER, packed)
+
+
 class FastSocketCan:
     """Direct receive and send on a python-can SocketCAN bus's kernel socket.
 
@@ -162,18 +175,16 @@ class FastSocketCan:
     def __init__(
         self,
         sock: socket.socket,
-        filters: Sequence[tuple[int, int]] | None,
         *,
         batch: int = DEFAULT_BATCH,
         send_timeout_s: float = 0.005,
     ) -> None:
-        """Configure `sock` (an AF_CAN raw socket) and allocate the buffers.
+        """Switch on `sock`'s receive timestamps and drop counter and allocate the buffers.
 
-        `filters`: (id, mask) pairs of the standard data frames to receive (None = every frame;
-        an empty sequence = no data frame at all). Error frames of every class and the kernel's
-        receive timestamps and drop counter are switched on; own frames are not echoed.
-        Raises FastPathUnavailable if the C library lacks recvmmsg/sendmmsg, ValueError on a bad
-        filter or batch, OSError if the socket refuses an option.
+        `sock` is a datagram socket carrying one `can_frame` per datagram: a SocketCAN raw
+        socket configured by `configure_can_socket` (any other, e.g. an AF_UNIX socket pair,
+        serves tests). Raises FastPathUnavailable if the C library lacks recvmmsg/sendmmsg,
+        ValueError on a bad batch, OSError if the socket refuses an option.
         """
         if batch <= 0:
             raise ValueError("batch must be > 0")
@@ -183,12 +194,9 @@ class FastSocketCan:
         self._sock = sock
         self._fd = sock.fileno()
         self._send_timeout_s = send_timeout_s
-        sock.setsockopt(_SOL_CAN_RAW, _CAN_RAW_RECV_OWN_MSGS, 0)
-        sock.setsockopt(_SOL_CAN_RAW, _CAN_RAW_ERR_FILTER, struct.pack("=I", CAN_ERR_MASK))
-        if filters is not None:
-            sock.setsockopt(_SOL_CAN_RAW, _CAN_RAW_FILTER, can_filters_for(filters))
         sock.setsockopt(_SOL_SOCKET, _SO_TIMESTAMPNS, 1)
-        sock.setsockopt(_SOL_SOCKET, _SO_RXQ_OVFL, 1)
+        with contextlib.suppress(OSError):  # not every socket family counts drops
+            sock.setsockopt(_SOL_SOCKET, _SO_RXQ_OVFL, 1)
         self.batch = batch
         self._rx = _MsgArray(batch, _CTRL_SIZE)
         self._tx = _MsgArray(batch, 0)
@@ -322,6 +330,8 @@ def open_fast_path(
     if sock is None:
         return None
     try:
-        return FastSocketCan(sock, filters, send_timeout_s=send_timeout_s)
+        fast = FastSocketCan(sock, send_timeout_s=send_timeout_s)
     except FastPathUnavailable:
         return None
+    configure_can_socket(sock, filters)
+    return fast

@@ -126,14 +126,15 @@ class ODriveReels:
         wall_clock_ns: Callable[[], int] = time.time_ns,
         velocity_limit_rps: float | None = None,
         current_limit_a: float | None = None,
-        fast_path: bool = True,
+        fast_path: bool | FastSocketCan = True,
     ) -> None:
         """Set up readings for `node_ids` (0..63, unique, at least one).
 
         `fast_path`: on a python-can SocketCAN bus, receive and send through the bus's kernel
         socket directly (`drivers.socketcan_fast`: batched system calls, no Message objects,
         kernel filters passing only these nodes' data frames and error frames); False keeps
-        python-can's path (every other interface always does).
+        python-can's path (every other interface always does); a `FastSocketCan` is used as
+        given (tests, the benchmark).
 
         `encoder_rtr`: also request encoder estimates by RTR at the end of every `poll()`
         (answers arrive by the next poll), for ODrives whose cyclic broadcast is off, at most
@@ -203,7 +204,9 @@ class ODriveReels:
         self._last_get_error: dict[int, cs.GetError] = {}
         # Kernel filter: every CANSimple message of our nodes (id = node << 5 | command).
         self._fast: FastSocketCan | None = (
-            open_fast_path(bus, [(n << 5, 0x7E0) for n in ids], send_timeout_s=send_timeout_s)
+            fast_path
+            if isinstance(fast_path, FastSocketCan)
+            else open_fast_path(bus, [(n << 5, 0x7E0) for n in ids], send_timeout_s=send_timeout_s)
             if fast_path
             else None
         )
