@@ -52,7 +52,10 @@ def test_daemon_sim_observer_over_vcan(
         sim=sim,
         faults=faults,
     )
-    run_three_processes(cfg, info, slow=slow_factor)
+    # The ODrive driver reads and writes vcan0 through the SocketCAN fast path.
+    run_three_processes(
+        cfg, info, slow=slow_factor, daemon_says=f"SocketCAN fast path on {vcan_channel}"
+    )
 
 
 @pytest.mark.vcan
