@@ -135,7 +135,7 @@ def tx_round(channel: str, mode: str, ticks: int) -> tuple[float, int]:
         bus.shutdown()
 
 
-def io_figures(channel: str, rounds: int, frames: int, ticks: int) -> dict[str, dict[str, float]]:
+def io_figures(channel: str, rounds: int, frames: int, ticks: int) -> dict[str, dict[str, Any]]:
     """Per-frame CPU of the receive and send paths, stock and fast interleaved round by round
     (after one warm-up round each). Raises RuntimeError as `rx_round` / `tx_round`."""
     send_bus = open_bus("socketcan", channel)
@@ -386,12 +386,16 @@ def run_io_bench(
     """All SocketCAN figures, stock and fast; written as JSON to `out` when given."""
     figures = io_figures(channel, rounds, frames, ticks)
     with tempfile.TemporaryDirectory(prefix="cablebot-bench-vcan-") as tmp:
-        for r, mode in enumerate(("stock", "fast", "fast", "stock")):
-            lp = loop_compute(channel, mode, 500.0, seconds, Path(tmp))
+        for mode in ("stock", "fast", "fast", "stock"):
+            try:
+                lp = loop_compute(channel, mode, 500.0, seconds, Path(tmp))
+            except Exception as exc:  # the I/O figures are still worth writing
+                figures[mode]["loop_error"] = f"{type(exc).__name__}: {exc}"[:2000]
+                continue
             key = figures[mode]
-            if r < 2:
+            if "loop_compute_p50_s" not in key:
                 key.update(lp)
-            else:  # the second run of each: the median of two, the order swapped
+            else:  # the second run of each (the order swapped): the mean of the two medians
                 key["loop_compute_p50_s"] = (
                     key["loop_compute_p50_s"] + lp["loop_compute_p50_s"]
                 ) / 2
@@ -403,6 +407,7 @@ def run_io_bench(
         "ratio_stock_over_fast": {
             k: figures["stock"][k] / figures["fast"][k]
             for k in ("rx_us_per_frame", "tx_us_per_frame", "loop_compute_p50_s")
+            if k in figures["stock"] and k in figures["fast"]
         },
     }
     if out is not None:

@@ -72,7 +72,7 @@ from controller.core.pretension import PretensionSettings
 from controller.core.reel import ReelModel, spool_buildup
 from controller.core.statics import TensionCheck
 from controller.core.workspace import Workspace, WorkspaceError
-from drivers import registry
+from drivers import busload, registry
 
 Vec3 = tuple[float, float, float]
 
@@ -994,6 +994,10 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     if family is not None:
         limits_used = limits if limits_ok else None
         _check_drive(top, drive, family, drive_ok, loop, faults, limits_used, reels)
+        if drive_ok and reels:  # the bus must carry the tick's frames (drivers.busload)
+            refusal = busload.for_config(drive, len(reels), loop, bus).refusal()
+            if refusal is not None:
+                errs.add("loop.rate_hz", refusal)
     payload, tension = _parse_statics(top, errs, limits, limits_ok, reels, geometry, pup)
     if loop.torque_telemetry != "off" and sim.enabled and sim.plant == "kinematic":
         lt.fail(
