@@ -208,11 +208,13 @@ def floor_round(channel: str, sender: FastSocketCan | None, frames: int, ticks: 
 
 def io_figures(channel: str, rounds: int, frames: int, ticks: int) -> dict[str, dict[str, Any]]:
     """Per-frame CPU of the receive and send paths, stock and fast interleaved round by round
-    (after one warm-up round each), and the kernel's share (`floor_round`). The send rounds run
-    with no other socket open, as a real interface's local echo does not run on the sender's
-    time. Raises RuntimeError as `rx_round` / `tx_round`."""
-    rx: dict[str, list[float]] = {m: [0.0, 0.0] for m in MODES}
-    tx: dict[str, list[float]] = {m: [0.0, 0.0] for m in MODES}
+    (after one warm-up round each; the median round), and the kernel's share (`floor_round`).
+    The send rounds run with no other socket open, as a real interface's local echo does not
+    run on the sender's time. Raises RuntimeError as `rx_round` / `tx_round`."""
+    # CPU seconds per frame of each round; the figures are the medians over the rounds (the
+    # guest's CPU time also counts the moments its host ran something else).
+    rx: dict[str, list[float]] = {m: [] for m in MODES}
+    tx: dict[str, list[float]] = {m: [] for m in MODES}
     floors: dict[str, list[float]] = {"rx": [], "tx": []}
     send_bus = open_bus("socketcan", channel)
     try:
@@ -224,8 +226,7 @@ def io_figures(channel: str, rounds: int, frames: int, ticks: int) -> dict[str, 
             for mode in MODES if r % 2 else tuple(reversed(MODES)):
                 cpu, n = rx_round(channel, sender, mode, frames)
                 if r:  # round 0 warms up both paths
-                    rx[mode][0] += cpu
-                    rx[mode][1] += n
+                    rx[mode].append(cpu / n)
             if r:
                 floors["rx"].append(floor_round(channel, sender, frames, ticks))
     finally:
@@ -234,16 +235,17 @@ def io_figures(channel: str, rounds: int, frames: int, ticks: int) -> dict[str, 
         for mode in MODES if r % 2 else tuple(reversed(MODES)):
             cpu_t, n_t = tx_round(channel, mode, ticks)
             if r:
-                tx[mode][0] += cpu_t
-                tx[mode][1] += n_t
+                tx[mode].append(cpu_t / n_t)
         if r:
             floors["tx"].append(floor_round(channel, None, frames, ticks))
     out: dict[str, dict[str, Any]] = {
         m: {
-            "rx_us_per_frame": rx[m][0] / rx[m][1] * 1e6,
-            "tx_us_per_frame": tx[m][0] / tx[m][1] * 1e6,
-            "rx_frames": rx[m][1],
-            "tx_frames": tx[m][1],
+            "rx_us_per_frame": statistics.median(rx[m]) * 1e6,
+            "tx_us_per_frame": statistics.median(tx[m]) * 1e6,
+            "rx_rounds_us_per_frame": [round(v * 1e6, 2) for v in rx[m]],
+            "tx_rounds_us_per_frame": [round(v * 1e6, 2) for v in tx[m]],
+            "rx_frames_per_round": frames,
+            "tx_frames_per_round": 4 * ticks,
         }
         for m in MODES
     }
