@@ -7,6 +7,7 @@ an interface that is down counted rather than raised.
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import time
 import uuid
@@ -15,6 +16,7 @@ from collections.abc import Callable, Iterator
 import can
 import pytest
 
+from drivers import socketcan_fast as sf
 from drivers.base import BusError
 from drivers.bus import open_bus
 from drivers.odrive import cansimple as cs
@@ -157,3 +159,31 @@ def test_interface_down_is_counted_not_raised(slow_factor: float) -> None:
             bus.shutdown()
     finally:
         subprocess.run(["ip", "link", "del", "dev", name], check=False)
+
+
+def test_receive_queue_overrun_is_counted(
+    driver_bus: can.BusABC,
+    vcan_bus_factory: Callable[..., can.BusABC],
+    slow_factor: float,
+) -> None:
+    """Frames the kernel drops while the loop does not poll (a full receive queue) are counted
+    as dropped, kind "rx_overrun", from the socket's drop counter; the frames kept still read."""
+    sock = sf.socket_of(driver_bus)
+    assert sock is not None
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # the kernel's minimum
+    driver = ODriveReels(driver_bus, NODES, max_frames_per_poll=10_000)
+    tx = vcan_bus_factory()
+    for i in range(500):
+        f = cs.encode_encoder_estimates(NODES[0], float(i), 0.0)
+        tx.send(can.Message(arbitration_id=f[0], data=f[1], is_extended_id=False), timeout=1.0)
+    taken = driver.poll()
+    assert 0 < taken < 500
+    # The kernel reports the count with the next frame it queues.
+    f = cs.encode_encoder_estimates(NODES[0], 500.0, 0.0)
+    tx.send(can.Message(arbitration_id=f[0], data=f[1], is_extended_id=False), timeout=1.0)
+    taken += _poll_until(
+        driver, lambda: driver.reading(NODES[0]).position_rev == 500.0, 10.0 * slow_factor
+    )
+    s = driver.stats
+    assert s.errors_by_kind.get("rx_overrun", 0) == 501 - taken == s.dropped > 0
+    assert s.bus_errors == 0
