@@ -31,6 +31,11 @@ def _vm_settings(slow_factor: float) -> tuple[float, dict[str, Any] | None, dict
         "heartbeat_timeout_s": 1.0 * slow_factor,
         "arm_timeout_s": 5.0 * slow_factor,
         "tracking_max_m": 1.0,
+        # The simulated drives' process stalls for hundreds of ms between the four axes'
+        # encoder frames of one broadcast: a tick can read two axes a stall apart, whose cable
+        # lengths disagree by more than 20 mm at 1 m/s (the fast path reads whatever has
+        # arrived at once, python-can's slower reads happened to wait for the rest).
+        "residual_max_m": 0.1,
     }
     return 25.0, sim, faults
 
