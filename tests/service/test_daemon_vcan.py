@@ -33,8 +33,8 @@ def _vm_settings(slow_factor: float) -> tuple[float, dict[str, Any] | None, dict
         "tracking_max_m": 1.0,
         # The simulated drives' process stalls for hundreds of ms between the four axes'
         # encoder frames of one broadcast: a tick can read two axes a stall apart, whose cable
-        # lengths disagree by more than 20 mm at 1 m/s (the fast path reads whatever has
-        # arrived at once, python-can's slower reads happened to wait for the rest).
+        # lengths disagree by more than 20 mm at 1 m/s. The SocketCAN fast path takes what has
+        # arrived at once, which makes such a tick likelier than python-can's slower reads.
         "residual_max_m": 0.1,
     }
     return 25.0, sim, faults
