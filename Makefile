@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-unit test-vcan vcan-tools bench lint venv clean docs docs-images
+.PHONY: run test test-unit test-vcan vcan-tools bench bench-vcan lint venv clean docs docs-images
 
 venv: $(STAMP)
 
@@ -45,6 +45,11 @@ vcan-tools:
 
 bench: $(STAMP)
 	$(GUARD) $(VENV)/bin/cablebot bench
+
+# The SocketCAN I/O benchmark (fast path vs python-can's stock path) on vcan0, natively or in the
+# virtme-ng VM as test-vcan; writes bench-vcan.json at the top of the checkout.
+bench-vcan: $(STAMP)
+	$(GUARD) $(PY) tools/vcan_vm.py bench
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check controller drivers tests

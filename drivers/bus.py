@@ -4,6 +4,8 @@
 `open_bus("udp_multicast", "239.74.0.1", port=43113)`, `open_bus({"interface": "pcan",
 "channel": "PCAN_USBBUS1", "bitrate": 500000})`: every further keyword goes to the interface
 unchanged, so new interfaces need no code here. One bus per robot, passed into the drivers.
+On a SocketCAN bus the ODrive driver then reads and writes the bus's kernel socket directly
+(`drivers.socketcan_fast`: batched system calls, kernel filters, no Message objects).
 
 udp_multicast stays on this host unless told otherwise: python-can's own default multicast TTL
 (`hop_limit`) is 1, which sends every CAN frame out of the default network interface onto the

@@ -14,6 +14,10 @@ Sub-commands (stdlib only; run it with any Python >= 3.9):
     3. Else print a loud SKIPPED banner saying how to get the tools; exit 1 under ``CI=true``
        (CI must prove the vcan tests ran), else 0.
 
+``bench [ARGS...]``  (what ``make bench-vcan`` runs)
+    The SocketCAN I/O benchmark (``python -m controller.cli.bench_vcan``) natively or in the
+    same VM; writes ``bench-vcan.json`` at the top of the checkout.
+
 ``tools [--apt]``  (what ``make vcan-tools`` runs; idempotent)
     With ``--apt`` and root: ``apt-get install`` the missing qemu-system-x86 kmod busybox-static
     iproute2. Always: the virtme-ng tool venv and the current Debian ``linux-image-*-amd64``
@@ -383,8 +387,9 @@ def vcan_test_files() -> list[str]:
     return files
 
 
-def guest_script(outdir: Path, pytest_args: list[str]) -> str:
-    """The bash script the guest runs: vcan0 up, caching mounts, pytest, exit code to a file."""
+def guest_script(outdir: Path, pytest_args: list[str], command: str | None = None) -> str:
+    """The bash script the guest runs: vcan0 up, caching mounts, pytest (or `command`, with
+    ``$CABLEBOT_VM_OUT`` the host-shared output folder), exit code to a file."""
     env_lines = []
     for key, value in sorted(os.environ.items()):
         if key in ("CI", "PYTEST_ADDOPTS") or key.startswith(("CABLEBOT_", "HYPOTHESIS_")):
@@ -405,7 +410,9 @@ def guest_script(outdir: Path, pytest_args: list[str]) -> str:
             *(shlex.quote(a) for a in pytest_args),
         ]
     )
-    if not any(a.endswith(".py") or "::" in a or os.path.isdir(a) for a in pytest_args):
+    if command is not None:
+        pytest_cmd = command
+    elif not any(a.endswith(".py") or "::" in a or os.path.isdir(a) for a in pytest_args):
         files = vcan_test_files()
         log(f"vcan test files: {' '.join(files) if files else '(none found: all of tests/)'}")
         pytest_cmd += "".join(f" {shlex.quote(f)}" for f in files)
@@ -416,6 +423,7 @@ set -u
 export PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin
 {chr(10).join(env_lines)}
 export CABLEBOT_UNDER_VM=1
+export CABLEBOT_VM_OUT={out}
 echo "guest: kernel $(uname -r), $(nproc) CPU(s)"
 if ! modprobe -a {" ".join(CAN_MODULES)}; then
     echo "guest: modprobe failed"
@@ -437,7 +445,7 @@ else
     echo "guest: no caching mount; Python will be slower"
 fi
 cd {shlex.quote(str(REPO))}
-echo "guest: booted; running pytest -m vcan"
+echo "guest: booted; running {"the command" if command is not None else "pytest -m vcan"}"
 {pytest_cmd}
 echo $? > {out}/rc.tmp && mv {out}/rc.tmp {out}/rc
 """
@@ -478,8 +486,12 @@ def _exit_on_signal(signum: int, _frame: object) -> None:
     sys.exit(128 + signum)
 
 
-def run_in_vm(pytest_args: list[str]) -> int:
-    """Boot the VM, run the vcan suite in it, stream its output; returns pytest's exit code."""
+def run_in_vm(
+    pytest_args: list[str], command: str | None = None, keep: tuple[str, ...] = ()
+) -> int:
+    """Boot the VM, run the vcan suite (or the shell `command`) in it, stream its output;
+    returns pytest's (the command's) exit code. Files named in `keep` that the guest wrote
+    into ``$CABLEBOT_VM_OUT`` are copied to the top of the checkout."""
     vng = vng_path()
     kdir = cached_kernels()[0]
     cpus = os.environ.get("CABLEBOT_VCAN_CPUS", "2")
@@ -489,7 +501,7 @@ def run_in_vm(pytest_args: list[str]) -> int:
     assert vng is not None
     outdir = Path(tempfile.mkdtemp(prefix="cablebot-vcan-"))
     script = outdir / "guest.sh"
-    script.write_text(guest_script(outdir, pytest_args))
+    script.write_text(guest_script(outdir, pytest_args, command))
     print(
         f"vcan suite: running inside virtme-ng VM (kernel {kdir.name}, {cpus} CPUs, {memory}, "
         f"{'KVM' if kvm else 'TCG emulation, no KVM'})",
@@ -556,6 +568,10 @@ def run_in_vm(pytest_args: list[str]) -> int:
         sys.stdout.write((outdir / "vng.log").read_text(errors="replace")[-4000:])
         return 1
     rc = int(rc_file.read_text().strip() or "1")
+    for name in keep:
+        if (outdir / name).exists():
+            shutil.copyfile(outdir / name, REPO / name)
+            log(f"wrote {REPO / name}")
     log(f"VM: boot {boot_s:.1f} s, whole run {elapsed_s:.1f} s, guest pytest exit {rc}")
     if rc == 0:
         shutil.rmtree(outdir, ignore_errors=True)
@@ -613,6 +629,37 @@ def cmd_test(pytest_args: list[str]) -> int:
     return run_in_vm(pytest_args)
 
 
+BENCH_OUT = "bench-vcan.json"
+
+
+def cmd_bench(bench_args: list[str]) -> int:
+    """``bench``: the SocketCAN I/O benchmark (`controller.cli.bench_vcan`) natively or in the
+    VM; writes ``bench-vcan.json`` at the top of the checkout. Returns its exit code."""
+    py = str(REPO / ".venv" / "bin" / "python")
+    mode = os.environ.get("CABLEBOT_VCAN_MODE", "auto")
+    if mode in ("auto", "native"):
+        ok, reason = try_create_native_vcan()
+        if ok:
+            cmd = [py, "-m", "controller.cli.bench_vcan", "--out", str(REPO / BENCH_OUT)]
+            return subprocess.call([*cmd, *bench_args], cwd=REPO)
+        log(f"native vcan unavailable: {reason}; trying the VM")
+    ready, why = ensure_vm_tools(apt=is_ci())
+    if not ready:
+        log(f"bench-vcan cannot run: no native vcan, and no VM: {why}")
+        return 1
+    command = " ".join(
+        [
+            shlex.quote(py),
+            "-m",
+            "controller.cli.bench_vcan",
+            "--out",
+            f'"$CABLEBOT_VM_OUT"/{BENCH_OUT}',
+            *(shlex.quote(a) for a in bench_args),
+        ]
+    )
+    return run_in_vm([], command=command, keep=(BENCH_OUT,))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Parse the command line and run a sub-command; returns the process exit status."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -621,7 +668,11 @@ def main(argv: list[str] | None = None) -> int:
     p_tools.add_argument("--apt", action="store_true", help="also apt-get install (as root)")
     p_test = sub.add_parser("test", help="run pytest -m vcan natively or in the VM")
     p_test.add_argument("pytest_args", nargs=argparse.REMAINDER)
+    p_bench = sub.add_parser("bench", help="the SocketCAN I/O benchmark, natively or in the VM")
+    p_bench.add_argument("bench_args", nargs=argparse.REMAINDER)
     args = parser.parse_args(argv)
+    if args.command == "bench":
+        return cmd_bench(list(args.bench_args))
     if args.command == "tools":
         return cmd_tools(apt=args.apt)
     return cmd_test(list(args.pytest_args))

@@ -248,6 +248,17 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
     )
     sim = f", simulated {fam.title}s in the daemon" if cfg.sim.enabled else ""
     lines.append(f"bus        {b.interface} {b.channel}{rate}{opts}{sim}")
+    from drivers import busload
+
+    load = busload.for_config(cfg.drive, len(cfg.reels), cfg.loop, cfg.bus)
+    lines.append(f"bus load   {load.describe()}")
+    data["bus_load"] = load.as_dict()
+    if load.enforced and load.percent > 80.0:
+        notes.append(
+            f"the bus load is {load.percent:.0f} % (worst case {load.worst_percent:.0f} %): "
+            "little headroom, frames wait for each other and readings arrive late; a lower "
+            "loop rate or a second bus gives room"
+        )
     zc = cfg.zenoh
     lines.append(
         f"zenoh      {zc.mode}, listen {', '.join(zc.listen) or 'nowhere'}"

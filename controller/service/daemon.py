@@ -244,6 +244,12 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
             torque_rtr_period_s=float(cfg.loop.torque_rtr_period_s),
         )
         driver = fam.open_driver(bus, cfg.node_ids, cfg.drive.options, loop_settings)
+        if getattr(driver, "fast_path", False):
+            log.info(
+                "SocketCAN fast path on %s: batched kernel I/O, kernel filters for nodes %s",
+                b.channel,
+                list(cfg.node_ids),
+            )
         if isinstance(driver, ConfigurableDriver):
             t0 = time.monotonic()
             try:

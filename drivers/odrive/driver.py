@@ -48,6 +48,7 @@ because the feed-forward only shapes tracking; the position set-point itself is 
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import math
 import time
@@ -60,6 +61,12 @@ import can
 from drivers.base import NEVER_S, AxisReading, BusError, BusStats
 from drivers.odrive import cansimple as cs
 from drivers.registry import LoopSettings
+from drivers.socketcan_fast import CAN_EFF_FLAG as _EFF_FLAG
+from drivers.socketcan_fast import CAN_EFF_MASK as _EFF_MASK
+from drivers.socketcan_fast import CAN_ERR_FLAG as _ERR_FLAG
+from drivers.socketcan_fast import CAN_RTR_FLAG as _RTR_FLAG
+from drivers.socketcan_fast import CAN_SFF_MASK as _SFF_MASK
+from drivers.socketcan_fast import FastSocketCan, open_fast_path
 
 DEFAULT_SEND_TIMEOUT_S = 0.005
 TIMESTAMP_FUTURE_TOLERANCE_S = 1.0
@@ -69,6 +76,8 @@ TIMESTAMP_MAX_AGE_S = 3600.0
 CATCH_UP_FACTOR = 8
 """A poll that catches up with a backlog takes at most this many times `max_frames_per_poll`."""
 _F32_MAX = 3.4028234663852886e38
+_ENCODER = cs.EncoderEstimates
+_HEARTBEAT = cs.Heartbeat
 
 
 def _as_float(value: object) -> float | None:
@@ -124,8 +133,15 @@ class ODriveReels:
         wall_clock_ns: Callable[[], int] = time.time_ns,
         velocity_limit_rps: float | None = None,
         current_limit_a: float | None = None,
+        fast_path: bool | FastSocketCan = True,
     ) -> None:
         """Set up readings for `node_ids` (0..63, unique, at least one).
+
+        `fast_path`: on a python-can SocketCAN bus, receive and send through the bus's kernel
+        socket directly (`drivers.socketcan_fast`: batched system calls, no Message objects,
+        kernel filters passing only these nodes' data frames and error frames); False keeps
+        python-can's path (every other interface always does); a `FastSocketCan` is used as
+        given (tests, the benchmark).
 
         `encoder_rtr`: also request encoder estimates by RTR at the end of every `poll()`
         (answers arrive by the next poll), for ODrives whose cyclic broadcast is off, at most
@@ -142,7 +158,7 @@ class ODriveReels:
         and restores these after (module docstring).
         Raises ValueError on bad node ids, a non-positive `max_frames_per_poll` or
         `catch_up_age_s`, a negative `encoder_rtr_period_s`, or a limit that is not a finite
-        float32 > 0.
+        float32 > 0; OSError if a SocketCAN socket refuses the fast path's options.
         """
         ids = tuple(int(n) for n in node_ids)
         if not ids:
@@ -193,6 +209,19 @@ class ODriveReels:
         self._bad_frames_by_node: dict[int, int] = {}
         self._last_decode_error: dict[int, cs.DecodeError] = {}
         self._last_get_error: dict[int, cs.GetError] = {}
+        # Kernel filter: every CANSimple message of our nodes (id = node << 5 | command).
+        self._fast: FastSocketCan | None = (
+            fast_path
+            if isinstance(fast_path, FastSocketCan)
+            else open_fast_path(bus, [(n << 5, 0x7E0) for n in ids], send_timeout_s=send_timeout_s)
+            if fast_path
+            else None
+        )
+
+    @property
+    def fast_path(self) -> bool:
+        """True when this driver uses the SocketCAN fast path (`drivers.socketcan_fast`)."""
+        return self._fast is not None
 
     # --- receive ----------------------------------------------------------------------------
 
@@ -203,85 +232,16 @@ class ODriveReels:
         Returns the number of frames taken off the bus. Never raises: bad frames, unknown nodes
         and receive errors are counted in `stats`.
         """
-        recv = self._bus.recv
-        by_node = self._by_node
         clock = self._clock
-        decode = cs.decode
-        encoder_type = cs.EncoderEstimates
-        heartbeat_type = cs.Heartbeat
-        handled = 0
         # One clock pair per poll: a frame's age against the wall clock now, subtracted from the
         # loop's clock now, is its arrival on the loop's clock (module docstring).
         now_s = clock()
         now_ns = self._wall_ns()
         wall_s = now_ns * 1e-9
-        future_tol = TIMESTAMP_FUTURE_TOLERANCE_S
-        max_age = TIMESTAMP_MAX_AGE_S
-        limit = self._max_frames
-        while handled < limit:
-            try:
-                msg = recv(0.0)
-            except Exception as exc:  # a receive error must never escape into the loop
-                self._stats.count_bus_error(f"receive: {type(exc).__name__}: {exc}")
-                break
-            if msg is None:
-                break
-            handled += 1
-            if (
-                handled == limit == self._max_frames
-                and self._catch_up_age_s < wall_s - msg.timestamp < max_age
-            ):
-                limit *= CATCH_UP_FACTOR  # a backlog from a stall: read on to the newest
-                self._stats.catch_up_polls += 1
-            if msg.is_error_frame:
-                # SocketCAN error frame: bus-off, controller or protocol trouble. A bus error
-                # for the loop (which faults when they persist), not a dropped data frame.
-                self._stats.count_bus_error(f"CAN error frame 0x{msg.arbitration_id:x}")
-                errs = self._stats.errors_by_kind
-                errs["error_frame"] = errs.get("error_frame", 0) + 1
-                continue
-            m = decode(msg.arbitration_id, msg.data, msg.is_remote_frame, msg.is_extended_id)
-            mtype = type(m)
-            if mtype is encoder_type or mtype is heartbeat_type:
-                rec = by_node[m.node_id]
-                if rec is None:
-                    self._stats.count("unknown_node")
-                    continue
-                age = wall_s - msg.timestamp
-                if age < 0.0:
-                    if age < -future_tol:
-                        self._stats.untimed_frames += 1
-                    age = 0.0
-                elif age > max_age:
-                    self._stats.untimed_frames += 1
-                    age = 0.0
-                if mtype is encoder_type:
-                    rec.position_rev = m.pos_estimate_rev  # type: ignore[union-attr]
-                    rec.velocity_rps = m.vel_estimate_rps  # type: ignore[union-attr]
-                    rec.stamp_s = now_s - age
-                    rec.stamp_ns = now_ns - int(age * 1e9)
-                else:
-                    state = m.axis_state  # type: ignore[union-attr]
-                    error = m.axis_error  # type: ignore[union-attr]
-                    if (
-                        state != rec.axis_state
-                        or error != rec.axis_error
-                        or rec.heartbeat_stamp_s == NEVER_S
-                    ):
-                        rec.axis_state = state
-                        rec.axis_error = error
-                        _derive_status(rec)
-                    rec.heartbeat_stamp_s = rec.status_stamp_s = now_s - age
-            elif mtype is cs.Torques:
-                rec = by_node[m.node_id]
-                if rec is None:
-                    self._stats.count("unknown_node")
-                    continue
-                age = wall_s - msg.timestamp
-                rec.torque_nm = m.torque_estimate_nm  # type: ignore[union-attr]
-                rec.torque_stamp_s = now_s - (age if 0.0 <= age <= max_age else 0.0)
-            else:
-                self._handle_other(m)
+        if self._fast is not None:
+            handled = self._drain_fast(self._fast, now_s, now_ns, wall_s)
+        else:
+            handled = self._drain_bus(now_s, now_ns, wall_s)
         self._stats.frames_rx += handled
         if self._encoder_rtr:
             now = now_s
@@ -294,6 +254,154 @@ class ODriveReels:
             with contextlib.suppress(BusError):
                 self.request_torques()
         return handled
+
+    def _catch_up(self, handled: int, limit: int, stamp: float, wall_s: float) -> int:
+        """The poll's frame limit after `handled` frames, the last received at `stamp`: raised
+        to read through a backlog (a loop stall, see `catch_up_age_s`), else unchanged."""
+        if (
+            handled == limit == self._max_frames
+            and self._catch_up_age_s < wall_s - stamp < TIMESTAMP_MAX_AGE_S
+        ):
+            self._stats.catch_up_polls += 1
+            return limit * CATCH_UP_FACTOR
+        return limit
+
+    def _drain_bus(self, now_s: float, now_ns: int, wall_s: float) -> int:
+        """python-can's receive path (every interface but SocketCAN): one Message per frame."""
+        recv = self._bus.recv
+        take = self._take
+        handled = 0
+        limit = self._max_frames
+        while handled < limit:
+            try:
+                msg = recv(0.0)
+            except Exception as exc:  # a receive error must never escape into the loop
+                self._stats.count_bus_error(f"receive: {type(exc).__name__}: {exc}")
+                break
+            if msg is None:
+                break
+            handled += 1
+            if handled == limit:
+                limit = self._catch_up(handled, limit, msg.timestamp, wall_s)
+            if msg.is_error_frame:
+                self._error_frame(msg.arbitration_id)
+                continue
+            take(
+                msg.arbitration_id,
+                msg.data,
+                msg.is_remote_frame,
+                msg.is_extended_id,
+                msg.timestamp,
+                now_s,
+                now_ns,
+                wall_s,
+            )
+        return handled
+
+    def _drain_fast(self, fast: FastSocketCan, now_s: float, now_ns: int, wall_s: float) -> int:
+        """The SocketCAN fast path: batches straight off the kernel socket, no Message objects,
+        until the kernel has no more (`drivers.socketcan_fast`)."""
+        take = self._take
+        frame = fast.frame
+        handled = 0
+        limit = self._max_frames
+        drops = fast.kernel_drops
+        while handled < limit:
+            try:
+                n = fast.recv_batch(limit - handled)
+            except Exception as exc:  # a receive error must never escape into the loop
+                self._stats.count_bus_error(f"receive: {type(exc).__name__}: {exc}")
+                break
+            if n == 0:
+                break
+            for i in range(n):
+                can_id, length, data, stamp = frame(i)
+                handled += 1
+                if handled == limit:
+                    limit = self._catch_up(handled, limit, stamp, wall_s)
+                if can_id & _ERR_FLAG:
+                    self._error_frame(can_id & _EFF_MASK)
+                    continue
+                if can_id & _EFF_FLAG:
+                    take(
+                        can_id & _EFF_MASK, data[:length], False, True, stamp, now_s, now_ns, wall_s
+                    )
+                elif can_id & _RTR_FLAG:
+                    take(can_id & _SFF_MASK, b"", True, False, stamp, now_s, now_ns, wall_s)
+                else:
+                    take(can_id, data[:length], False, False, stamp, now_s, now_ns, wall_s)
+        if fast.kernel_drops != drops:
+            # The socket's receive queue overflowed while the loop did not poll (a stall): the
+            # oldest frames are lost, the newest still arrive. Counted as dropped frames of
+            # kind "rx_overrun", not as a bus error: the stale-reading rules judge the stall.
+            lost = fast.kernel_drops - drops
+            self._stats.dropped += lost
+            errs = self._stats.errors_by_kind
+            errs["rx_overrun"] = errs.get("rx_overrun", 0) + lost
+        return handled
+
+    def _error_frame(self, error_id: int) -> None:
+        # SocketCAN error frame: bus-off, controller or protocol trouble. A bus error for the
+        # loop (which faults when they persist), not a dropped data frame.
+        self._stats.count_bus_error(f"CAN error frame 0x{error_id:x}")
+        errs = self._stats.errors_by_kind
+        errs["error_frame"] = errs.get("error_frame", 0) + 1
+
+    def _take(
+        self,
+        arb_id: int,
+        data: bytes | bytearray,
+        is_remote: bool,
+        is_extended: bool,
+        stamp: float,
+        now_s: float,
+        now_ns: int,
+        wall_s: float,
+    ) -> None:
+        """Decode one received data or remote frame (arrived at wall-clock `stamp`) and update
+        the readings or the counters."""
+        m = cs.decode(arb_id, data, is_remote, is_extended)
+        mtype = type(m)
+        if mtype is _ENCODER or mtype is _HEARTBEAT:
+            rec = self._by_node[m.node_id]
+            if rec is None:
+                self._stats.count("unknown_node")
+                return
+            age = wall_s - stamp
+            if age < 0.0:
+                if age < -TIMESTAMP_FUTURE_TOLERANCE_S:
+                    self._stats.untimed_frames += 1
+                age = 0.0
+            elif age > TIMESTAMP_MAX_AGE_S:
+                self._stats.untimed_frames += 1
+                age = 0.0
+            if mtype is _ENCODER:
+                rec.position_rev = m.pos_estimate_rev  # type: ignore[union-attr]
+                rec.velocity_rps = m.vel_estimate_rps  # type: ignore[union-attr]
+                rec.stamp_s = now_s - age
+                rec.stamp_ns = now_ns - int(age * 1e9)
+            else:
+                state = m.axis_state  # type: ignore[union-attr]
+                error = m.axis_error  # type: ignore[union-attr]
+                if (
+                    state != rec.axis_state
+                    or error != rec.axis_error
+                    or rec.heartbeat_stamp_s == NEVER_S
+                ):
+                    rec.axis_state = state
+                    rec.axis_error = error
+                    _derive_status(rec)
+                rec.heartbeat_stamp_s = rec.status_stamp_s = now_s - age
+        elif mtype is cs.Torques:
+            rec = self._by_node[m.node_id]
+            if rec is None:
+                self._stats.count("unknown_node")
+                return
+            age = wall_s - stamp
+            rec.torque_nm = m.torque_estimate_nm  # type: ignore[union-attr]
+            rec.torque_stamp_s = now_s - (age if 0.0 <= age <= TIMESTAMP_MAX_AGE_S else 0.0)
+        else:
+            self._handle_other(m)
 
     def _handle_other(self, m: cs.Message | cs.DecodeError) -> None:
         if isinstance(m, cs.DecodeError):
@@ -379,6 +487,9 @@ class ODriveReels:
     # --- transmit ---------------------------------------------------------------------------
 
     def _send_all(self, frames: Sequence[cs.Frame], what: str) -> None:
+        if self._fast is not None:
+            self._send_fast(self._fast, frames, what)
+            return
         failures: list[str] = []
         bus = self._bus
         timeout = self._send_timeout_s
@@ -400,6 +511,21 @@ class ODriveReels:
                 self._stats.frames_tx += 1
         if failures:
             raise BusError("; ".join(failures))
+
+    def _send_fast(self, fast: FastSocketCan, frames: Sequence[cs.Frame], what: str) -> None:
+        """`_send_all` on the SocketCAN fast path: the frames in one system call."""
+        failed = fast.send_frames(frames)
+        if failed is None:
+            self._stats.frames_tx += len(frames)
+            return
+        texts: list[str] = []
+        for i, exc in failed:
+            name = errno.errorcode.get(exc.errno or 0, "OSError")
+            text = f"send {what} to node {frames[i][0] >> 5}: {name}: {exc.strerror}"
+            self._stats.count_bus_error(text)
+            texts.append(text)
+        self._stats.frames_tx += len(frames) - len(failed)
+        raise BusError("; ".join(texts))
 
     def command(
         self, positions_rev: Sequence[float], velocity_ff_rps: Sequence[float] | None = None

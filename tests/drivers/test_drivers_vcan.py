@@ -55,6 +55,7 @@ def test_vcan_arm_command_read_back(
     proc = start_sim(sim_args(vcan_channel), 30.0 * slow_factor)
     try:
         driver = ODriveReels(vcan_driver_bus, NODES)
+        assert driver.fast_path  # SocketCAN: the kernel socket directly
         r = driver.read()
         wait_s = 10.0 * slow_factor
         assert poll_until(

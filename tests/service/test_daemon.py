@@ -49,10 +49,12 @@ def run_three_processes(
     move_m: float = 1.0,
     speed_mps: float = 1.0,
     estop: bool = False,
+    daemon_says: str | None = None,
 ) -> None:
     """Start sim and daemon, run the observer to completion (a move of `move_m` in x at
     `speed_mps`, then with `estop` an e-stop confirmed by every drive), SIGTERM the daemon
-    (asserted). `kind`: the config's drive family, for the axis states expected."""
+    (asserted). `kind`: the config's drive family, for the axis states expected;
+    `daemon_says`: a text the daemon must log by the time it is ready."""
     sim = Proc([*CABLEBOT, "sim", "--config", str(cfg)], "sim")
     daemon: Proc | None = None
     obs: Proc | None = None
@@ -60,6 +62,8 @@ def run_three_processes(
         sim.wait_line("READY", 20 * slow)
         daemon = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "1"], "daemon")
         daemon.wait_line("ready:", 20 * slow, stderr=True)
+        if daemon_says is not None:
+            daemon.wait_line(daemon_says, 1.0, stderr=True)
         obs = Proc(
             [
                 sys.executable,

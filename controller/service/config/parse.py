@@ -46,7 +46,7 @@ from controller.service.config.schema import (
     key_names,
 )
 from controller.service.config.tables import _Errors, _Table, _tname, _unknown
-from drivers import registry
+from drivers import busload, registry
 
 _REEL_KEYS = key_names(REEL_KEYS)
 _REEL_DEFAULTS = defaults(REEL_KEYS)
@@ -325,6 +325,10 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     if family is not None:
         limits_used = limits if limits_ok else None
         _check_drive(top, drive, family, drive_ok, loop, faults, limits_used, reels)
+        if drive_ok and reels:  # the bus must carry the tick's frames (drivers.busload)
+            refusal = busload.for_config(drive, len(reels), loop, bus).refusal()
+            if refusal is not None:
+                errs.add("loop.rate_hz", refusal)
     payload, tension = _parse_statics(top, errs, limits, limits_ok, reels, geometry, pup)
     _check_telemetry_and_plant(top, lt, ft, st, ht, loop, faults, sim, drive, payload, tension, pup)
     _check_stretch(top, lt, errs, loop, reels)
