@@ -119,6 +119,10 @@ class ControllerState:
             self._default_speed_mps,
             velocity_timeout_s=cfg.limits.velocity_timeout_s,
             check_segment=self._check_segment,
+            junction_deviation_m=cfg.limits.junction_deviation_m,
+            anchors_m=self._anchors,
+            max_cable_speed_mps=cfg.limits.max_cable_speed_mps,
+            max_queued_points=cfg.limits.max_queued_points,
         )
         f = cfg.faults
         self._stale_s = float(f.stale_timeout_s)
