@@ -110,7 +110,7 @@ from __future__ import annotations
 from .circle import circle_path
 from .corners import junction_speed_mps
 from .planner import MotionPlanner
-from .queue import QueueError
+from .queue import QUEUE_FULL, QueueError
 from .speeds import (
     BRAKE_ACCEL_SHARE,
     CORNER_ACCEL_FRACTION,
@@ -138,6 +138,7 @@ __all__ = [
     "MAX_LEGS_PER_ADVANCE",
     "MIN_SPEED_MPS",
     "PLAN_POINTS_PER_CALL",
+    "QUEUE_FULL",
     "STRAIGHT_RAD",
     "MotionPlanner",
     "QueueError",

@@ -9,7 +9,7 @@ from collections.abc import Iterable, Sequence
 
 from .corners import _Piece, _point_at
 from .modes import _Modes
-from .queue import QueueError
+from .queue import QUEUE_FULL, QueueError
 from .speeds import (
     _HOLD,
     _MODE_NAMES,
@@ -347,7 +347,7 @@ class MotionPlanner(_Modes):
         total = self.queued_points + len(points_m)
         if total > self.max_queued_points:
             raise QueueError(
-                f"path queue full: {self.queued_points} + {len(points_m)} points would exceed "
+                f"{QUEUE_FULL}: {self.queued_points} + {len(points_m)} points would exceed "
                 f"{self.max_queued_points}"
             )
         if self._next_path:  # a path waiting for the stop before it to end

@@ -11,6 +11,9 @@ from collections import deque
 from .corners import _Piece, _point_at, _State
 from .speeds import _HOLD, _MOVE, _STOP, _ZERO, MAX_LEGS_PER_ADVANCE, PLAN_POINTS_PER_CALL, Vec3
 
+QUEUE_FULL = "path queue full"
+"""How a `QueueError` for a full queue begins (a client that streams a job waits and retries)."""
+
 
 class QueueError(ValueError):
     """An append the path queue refuses: no path in progress to append to, or the queue would
