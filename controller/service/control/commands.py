@@ -358,6 +358,7 @@ class CommandExecution(Homing):
             self.planner.follow_points(motion.points_m, motion.speed_mps)
         except QueueError as exc:  # more points than the queue holds: nothing changed
             raise CommandRefused(str(exc)) from None
+        self.path_speed_mps = motion.speed_mps
         if self.state is State.HOLDING:
             self._set_state(State.MOVING, "move" if isinstance(cmd, Move) else "path")
 
@@ -387,6 +388,7 @@ class CommandExecution(Homing):
                 f"{exc}: {planner.queued_points} points ({planner.queued_s:.1f} s of motion) "
                 f"queued; retry when fewer are queued"
             ) from None
+        self.path_speed_mps = motion.speed_mps
         if self.state is State.HOLDING and planner.moving:
             self._set_state(State.MOVING, "path")
 

@@ -70,6 +70,7 @@ class StatusReport(ControllerState):
                 "queue_full": self.planner.queue_full,
                 "appendable": self.planner.appendable,
                 "blends_dropped": self.planner.blends_dropped,
+                "speed_mps": self.path_speed_mps if self.planner.mode == "move" else None,
             },
             "velocity": {
                 "command_mps": list(self.planner.velocity_command_mps),
