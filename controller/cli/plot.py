@@ -45,6 +45,9 @@ SPEED_FIGURE = "speed"
 """The figure `plot_speed` writes for a recording, as `<name>-speed.png`."""
 SPEED_WINDOW_S = 0.05
 """Speeds are differences of positions at least this far apart in time (less noise)."""
+SETPOINT_SPEED_WINDOW_S = 0.15
+"""The same for the set-point, from status samples: they are stamped when the reply arrives,
+with the jitter of a query, so over a longer window."""
 MAX_POINTS = 20000
 """Lines are thinned to about this many points (a long run stays quick to draw)."""
 MAX_MARKERS = 400
@@ -655,7 +658,7 @@ def plot_speed(tr: Trace, out_dir: Path, name: str) -> Path:
         if len(t):
             sl = _thin(len(t))
             ax.plot(t[sl], v[sl], color="#1f77b4", lw=0.9, label="measured (FPK poses)")
-        t, v = speed_mps(tr.status_t_s, tr.setpoint_m)
+        t, v = speed_mps(tr.status_t_s, tr.setpoint_m, SETPOINT_SPEED_WINDOW_S)
         if len(t):
             style: dict[str, Any] = {"marker": "o", "ms": 3} if len(t) <= MAX_MARKERS else {}
             sl = _thin(len(t))
