@@ -151,8 +151,9 @@ def test_circle_on_the_desk_rig() -> None:
     _assert_circle(tr, length, ticks, 0.1)
 
 
-def test_square_corners_are_flown_at_the_junction_deviation_speed() -> None:
-    rig = _rig(max_accel_mps2=ACCEL_MPS2)
+@pytest.mark.parametrize("delta_m", [DEFAULT_JUNCTION_DEVIATION_M, 0.03])
+def test_square_corners_are_flown_at_the_junction_deviation_speed(delta_m: float) -> None:
+    rig = _rig(max_accel_mps2=ACCEL_MPS2, junction_deviation_m=delta_m)
     s = rig.start
     side = 0.6
     corners = [
@@ -164,7 +165,7 @@ def test_square_corners_are_flown_at_the_junction_deviation_speed() -> None:
     tr = Track(rig)
     tr.do(Path(pts, 0.5))
     tr.until_holding(int(20 * RATE_HZ))
-    want = junction_speed_mps(math.pi / 2, DEFAULT_JUNCTION_DEVIATION_M, ACCEL_MPS2)
+    want = junction_speed_mps(math.pi / 2, delta_m, ACCEL_MPS2)
     flown = []
     for c in corners:
         near = [v for p, v in zip(tr.points, tr.speeds, strict=True) if math.dist(p, c) < 0.05]
