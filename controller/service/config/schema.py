@@ -349,7 +349,8 @@ class LimitsConfig:
     max_queued_points: int = key(
         DEFAULT_MAX_QUEUED_POINTS,
         "most path points queued ahead of the effector (a path and its appends); an append "
-        "beyond it is refused with the queue's depth (the client retries)",
+        "beyond it is refused with the queue's depth (the client retries); 1000 (one path "
+        "command) to 10000000",
     )
     min_tension_n: float | None = key(
         None,
