@@ -222,3 +222,33 @@ def test_a_long_file_streams_through_the_daemon_without_a_stop(tmp_path: Path) -
         if session is not None:
             session.close()
         assert proc.terminate(10.0) == 0, proc.log()
+
+
+def _at(d: Daemon) -> list[str]:
+    return ["--connect", d.endpoint, "--prefix", d.prefix]
+
+
+@pytest.mark.slow
+def test_ctrl_c_while_streaming_brakes_to_a_hold(tmp_path: Path) -> None:
+    import signal
+
+    from controller.cli import exitcodes
+    from tests.live_daemon import live_daemon, wait_holding_at_rest
+
+    f = tmp_path / "line.csv"
+    f.write_text("".join(f"{0.001 * k!r},0,2\n" for k in range(1, 5001)))  # 5 m, 1 mm apart
+    with live_daemon(tmp_path) as (d, _cfg):
+        cli = Proc(
+            [*CABLEBOT, "path", str(f), "--speed", "0.5", "--wait", *_at(d)],
+            "path",
+        )
+        deadline = time.monotonic() + 60.0
+        while d.status()["state"] != "MOVING":
+            assert time.monotonic() < deadline, cli.log()
+            time.sleep(0.05)
+        cli.p.send_signal(signal.SIGINT)
+        assert cli.p.wait(60.0) == exitcodes.INTERRUPTED, cli.log()
+        cli.wait_line("interrupted: braking to a hold", 10.0, stderr=True)
+        held = wait_holding_at_rest(d, 30.0)
+        assert 0.0 < held["pose"]["position_m"][0] < 4.5, held
+        assert held["path"]["queued_points"] == 0 and held["path"]["appendable"] is False
