@@ -58,6 +58,7 @@ from controller.cli.session import (
     query,
     run_with_session,
 )
+from controller.core.commands import MAX_PATH_POINTS_SENT
 from controller.core.motion import MIN_SPEED_MPS, check_speed
 
 # What moved to `session` (the connection) and `formats` (what is printed) is still importable
@@ -144,12 +145,14 @@ def _speed(v: float | None) -> float | None:
     return v
 
 
-def load_path_file(path: str) -> dict[str, Any]:
+def load_path_file(path: str, *, stream: bool = False) -> dict[str, Any]:
     """Read a path file: JSON (a list of [x, y, z] or {"points_m": ..., "speed_mps": ...}) or
     CSV/whitespace lines `x,y,z` (`#` comments and a header line are skipped).
 
-    Returns the `path` command payload. Raises InputError for an unreadable, not UTF-8 or
-    invalid file.
+    Returns the `path` command payload. With `stream`, a file of any length (sent as a path
+    and appended chunks: every chunk is checked as the command it becomes); without, at most
+    the points one command carries. Raises InputError for an unreadable, not UTF-8 or invalid
+    file.
     """
     from controller.service.textfile import NotUtf8Error, read_text
 
@@ -189,20 +192,28 @@ def load_path_file(path: str) -> dict[str, Any]:
                 raise InputError(f"{path} line {n}: expected x,y,z, got {row}") from None
             points.append(_vec3(values, f"{path} line {n}"))
         payload = {"points_m": points}
-    from controller.core.commands import MAX_PATH_POINTS_SENT, CommandError, parse_command
+    from controller.core.commands import CommandError, parse_command
 
     pts = payload.get("points_m")
-    if isinstance(pts, list) and len(pts) > MAX_PATH_POINTS_SENT:
+    if isinstance(pts, list) and len(pts) > MAX_PATH_POINTS_SENT and not stream:
         raise InputError(
             f"{path}: {len(pts)} points; one path command takes at most {MAX_PATH_POINTS_SENT}"
             f" points: split it into parts of at most {MAX_PATH_POINTS_SENT} points and send"
             " each with its own path command"
         )
-
-    try:
-        parse_command("path", json.dumps(payload))
-    except (CommandError, ValueError) as exc:
-        raise InputError(f"{path}: {exc}") from None
+    parts = [payload]
+    if isinstance(pts, list) and len(pts) > MAX_PATH_POINTS_SENT:
+        rest = {k: v for k, v in payload.items() if k != "points_m"}
+        parts = [
+            {**rest, "points_m": pts[i : i + MAX_PATH_POINTS_SENT]}
+            for i in range(0, len(pts), MAX_PATH_POINTS_SENT)
+        ]
+    for i, part in enumerate(parts):
+        try:
+            parse_command("path", json.dumps(part))
+        except (CommandError, ValueError) as exc:
+            where = f" (points {i * MAX_PATH_POINTS_SENT} on)" if i else ""
+            raise InputError(f"{path}{where}: {exc}") from None
     return payload
 
 
@@ -333,9 +344,10 @@ def cmd_move(args: argparse.Namespace) -> int:
 
 
 def cmd_path(args: argparse.Namespace) -> int:
-    """path FILE [--speed V] [--wait]: command a multi-point path."""
+    """path FILE [--speed V] [--wait]: command a multi-point path; a file longer than one
+    command carries is streamed (`controller.cli.pathstream`)."""
     try:
-        payload = load_path_file(args.file)
+        payload = load_path_file(args.file, stream=True)
         speed = _speed(args.speed)
         if speed is not None:
             payload["speed_mps"] = speed
@@ -343,7 +355,80 @@ def cmd_path(args: argparse.Namespace) -> int:
         print(f"cablebot: {exc}", file=sys.stderr)
         return EXIT_REFUSED
     points = [[float(v) for v in p] for p in payload["points_m"]]
+    if len(points) > MAX_PATH_POINTS_SENT:
+        return _stream_path(args, payload.get("speed_mps"), points)
     return _motion(args, "path", payload, points)
+
+
+def _stream_path(args: argparse.Namespace, speed: float | None, points: list[list[float]]) -> int:
+    """Stream a long path (`pathstream.stream_points`), then with --wait follow it to its end
+    as `_motion` does; Ctrl-C brakes to a hold (`_interrupted`)."""
+    from controller.cli.pathstream import StreamRefused, stream_points
+
+    def body(session: Any) -> int:
+        poses: queue.Queue[bytes] = queue.Queue()
+        sub = None
+        if args.wait:
+            sub = session.declare_subscriber(
+                _key(args, "pose"), lambda s: poses.put(s.payload.to_bytes())
+            )
+        line = StatusLine(sys.stdout, enabled=is_tty(sys.stdout) and not args.json)
+
+        def send(pts: list[list[float]], append: bool) -> dict[str, Any]:
+            payload: dict[str, Any] = {"points_m": pts, "append": append}
+            if speed is not None:
+                payload["speed_mps"] = speed
+            reply: dict[str, Any] = query(session, _key(args, "cmd/path"), payload, args.timeout)
+            return reply
+
+        def status() -> dict[str, Any]:
+            st = query(session, _key(args, "status"), None, args.timeout)
+            return st if isinstance(st, dict) else {}
+
+        def drain() -> None:  # poses from before the last chunk never count as arrival
+            with suppress(queue.Empty):
+                while True:
+                    poses.get_nowait()
+
+        t0 = time.monotonic()
+        try:
+            try:
+                prog = stream_points(
+                    points, send, status, line.show, refused=Refused, before_last=drain
+                )
+            except StreamRefused as exc:
+                line.clear()
+                raise Refused(str(exc)) from None
+            line.clear()
+            summary = {
+                "points": prog.sent,
+                "commands": prog.commands,
+                "retries": prog.retries,
+                "queued_points": prog.queued_points,
+                "queued_s": prog.queued_s,
+                "elapsed_s": time.monotonic() - t0,
+            }
+            if args.json:
+                print(json.dumps({"ok": True, "streamed": summary}), flush=True)
+            else:
+                print(
+                    f"path: {prog.sent} points sent in {prog.commands} commands "
+                    f"({summary['elapsed_s']:.1f} s); {prog.queued_points} queued",
+                    flush=True,
+                )
+            if not args.wait:
+                return EXIT_OK
+            moving = status().get("state") == "MOVING"
+            tail = points[-MAX_PATH_POINTS_SENT:]
+            return _wait_arrival(args, "path", poses, tail, seen_moving=not moving)
+        except KeyboardInterrupt:
+            line.clear()
+            return _interrupted(session, args)
+        finally:
+            if sub is not None:
+                sub.undeclare()
+
+    return _run(args, body)
 
 
 def _motion(
@@ -644,7 +729,15 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         if verb == "move":
             add_xyz_arguments(p)
         else:
-            p.add_argument("file", metavar="FILE", help="JSON points or CSV x,y,z lines")
+            p.add_argument(
+                "file",
+                metavar="FILE",
+                help=(
+                    "JSON points or CSV x,y,z lines, any number: beyond one command's "
+                    f"{MAX_PATH_POINTS_SENT} points the rest is streamed as appends while the "
+                    "robot flies"
+                ),
+            )
         p.add_argument(
             "--speed",
             type=float,

@@ -171,7 +171,8 @@ def format_reply(verb: str, reply: Any) -> str:
         return text + "; waiting until they are still"
     known = {"ok", "state"}
     if verb in ("move", "path"):
-        known |= {"target_m", "points", "speed_mps", "speed_limited_to_mps"}
+        known |= {"target_m", "points", "speed_mps", "speed_limited_to_mps", "append"}
+        known |= {"queued_points", "queued_s", "queue_full"}
         speed = reply.get("speed_mps")
         at = "" if not isinstance(speed, int | float) else f" at {speed:.3f} m/s"
         limited = reply.get("speed_limited_to_mps")
@@ -181,7 +182,12 @@ def format_reply(verb: str, reply: Any) -> str:
         if verb == "move" and isinstance(target, list):
             text = f"move: to {format_xyz(target)}{at}"
         elif verb == "path" and isinstance(reply.get("points"), int):
-            text = f"path: {reply['points']} points{at}"
+            added = "appended" if reply.get("append") is True else "points"
+            text = f"path: {reply['points']} {added}{at}"
+            queued, queued_s = reply.get("queued_points"), reply.get("queued_s")
+            if isinstance(queued, int) and isinstance(queued_s, int | float):
+                full = ", full" if reply.get("queue_full") is True else ""
+                text += f"; {queued} queued ({queued_s:.1f} s{full})"
         else:
             text = f"{verb}: ok{at}"
     else:

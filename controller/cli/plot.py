@@ -6,7 +6,10 @@ Four PNG figures (matplotlib, the `plot` extra), named after the recording's fil
   pose, the measured (FPK) path and the set-points;
 - `<name>-cable-lengths.png`: each cable's length against time;
 - `<name>-fpk-xyz.png`: the FPK x, y and z against time with the set-point;
-- `<name>-errors.png`: the tracking error |FPK - set-point| and the FPK residual against time.
+- `<name>-errors.png`: the tracking error |FPK - set-point| and the FPK residual against time;
+- `<name>-speed.png` (recordings only, `SPEED_FIGURE`): the speed against time, set-point and
+  measured, with the speed the path asked for, so a user sees where the planner slowed down
+  (corners, cable speeds, braking at the end of the queue).
 
 Where the numbers come from: the pose samples (every published tick: position, cable lengths,
 residual, state) and the status samples (`--status-hz` of the recorder: the set-point, with the
@@ -38,6 +41,13 @@ FloatArray = npt.NDArray[np.float64]
 
 FIGURES: tuple[str, ...] = ("3d", "cable-lengths", "fpk-xyz", "errors")
 """The figures `plot_trace` writes, as `<name>-<figure>.png`, in this order."""
+SPEED_FIGURE = "speed"
+"""The figure `plot_speed` writes for a recording, as `<name>-speed.png`."""
+SPEED_WINDOW_S = 0.05
+"""Speeds are differences of positions at least this far apart in time (less noise)."""
+SETPOINT_SPEED_WINDOW_S = 0.15
+"""The same for the set-point, from status samples: they are stamped when the reply arrives,
+with the jitter of a query, so over a longer window."""
 MAX_POINTS = 20000
 """Lines are thinned to about this many points (a long run stays quick to draw)."""
 MAX_MARKERS = 400
@@ -89,7 +99,8 @@ class Trace:
     Pose rows (N): `t_s`, `position_m` (N, 3, NaN while not valid), `lengths_m` (N, n),
     `residual_m` (NaN while not valid), `state`. Status rows (M): `status_t_s`,
     `setpoint_m` (M, 3, NaN without a set-point), `status_position_m` (M, 3): the daemon's pose
-    in the same status reply; `setpoint_source` says how often they were taken. `shape`: the
+    in the same status reply; `setpoint_source` says how often they were taken;
+    `requested_speed_mps` (M, NaN off a path): the speed the path asked for. `shape`: the
     robot, if known. `waypoints`: the points the run stopped at, if it did.
     """
 
@@ -103,6 +114,7 @@ class Trace:
     setpoint_m: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     status_position_m: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     setpoint_source: str = "status samples"
+    requested_speed_mps: FloatArray = field(default_factory=lambda: np.zeros(0))
     shape: RobotShape | None = None
     waypoints: Waypoints | None = None
     notes: list[str] = field(default_factory=list)
@@ -146,6 +158,7 @@ def trace_from_recording(path: Path, prefix: str | None = None) -> Trace:
     st_t: list[int] = []
     st_sp: list[tuple[float, float, float]] = []
     st_pos: list[tuple[float, float, float]] = []
+    st_speed: list[float] = []
     try:
         for m in rec.messages():
             if prefix is None:
@@ -163,6 +176,8 @@ def trace_from_recording(path: Path, prefix: str | None = None) -> Trace:
                 st_t.append(m.log_time_ns)
                 st_sp.append(_xyz(s.get("setpoint_m")))
                 st_pos.append(_xyz((s.get("pose") or {}).get("position_m")))
+                want = (s.get("path") or {}).get("speed_mps")
+                st_speed.append(float(want) if isinstance(want, int | float) else math.nan)
     except (OSError, ValueError, KeyError, TypeError, McapError) as exc:
         raise PlotError(f"cannot read {path}: {exc}") from exc
     if not pose_t:
@@ -192,6 +207,7 @@ def trace_from_recording(path: Path, prefix: str | None = None) -> Trace:
         status_t_s=(np.asarray(st_t, dtype=np.float64) - t0) * 1e-9,
         setpoint_m=np.asarray(st_sp, dtype=np.float64).reshape(-1, 3),
         status_position_m=np.asarray(st_pos, dtype=np.float64).reshape(-1, 3),
+        requested_speed_mps=np.asarray(st_speed, dtype=np.float64),
         shape=shape,
         notes=notes,
     )
@@ -604,12 +620,80 @@ def _figure_errors(plt: Any, tr: Trace) -> Any:
     return fig
 
 
+def speed_mps(
+    t_s: FloatArray, position_m: FloatArray, window_s: float = SPEED_WINDOW_S
+) -> tuple[FloatArray, FloatArray]:
+    """The speed along `position_m` (N, 3) sampled at `t_s` (N,): |p[j] - p[i]| / (t[j] - t[i])
+    with j the first sample at least `window_s` after i, at the midpoint time; NaN across a
+    missing position. Returns (times, speeds). Raises nothing."""
+    n = len(t_s)
+    if n < 2:
+        return np.zeros(0), np.zeros(0)
+    j = np.searchsorted(t_s, t_s + window_s)
+    i = np.flatnonzero(j < n)
+    j = j[i]
+    dt = t_s[j] - t_s[i]
+    dist = np.linalg.norm(position_m[j] - position_m[i], axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v = np.where(dt > 0, dist / np.where(dt > 0, dt, 1.0), np.nan)
+    return 0.5 * (t_s[i] + t_s[j]), np.asarray(v, dtype=np.float64)
+
+
+def plot_speed(tr: Trace, out_dir: Path, name: str) -> Path:
+    """Write the speed figure (`SPEED_FIGURE`) as `out_dir/<name>-speed.png`; return its path.
+
+    Raises ImportError without matplotlib, OSError if the file cannot be written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"{name}-{SPEED_FIGURE}.png"
+    fig, ax = plt.subplots(figsize=(11, 4.8))
+    try:
+        _shade_states(ax, tr, tr.t_s)
+        t, v = speed_mps(tr.t_s, tr.position_m)
+        if len(t):
+            sl = _thin(len(t))
+            ax.plot(t[sl], v[sl], color="#1f77b4", lw=0.9, label="measured (FPK poses)")
+        t, v = speed_mps(tr.status_t_s, tr.setpoint_m, SETPOINT_SPEED_WINDOW_S)
+        if len(t):
+            style: dict[str, Any] = {"marker": "o", "ms": 3} if len(t) <= MAX_MARKERS else {}
+            sl = _thin(len(t))
+            ax.plot(t[sl], v[sl], color="k", lw=0.9, ls="--", label="set-point", **style)
+        want = tr.requested_speed_mps
+        if len(want) == len(tr.status_t_s) and np.any(np.isfinite(want)):
+            ax.step(tr.status_t_s, want, where="post", color="#d62728", lw=1.2, label="requested")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("speed (m/s)")
+        top = ax.get_ylim()[1]
+        ax.set_ylim(0.0, 1.25 * top)  # room for the legend above the lines
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize=9, ncol=3)
+        ax.set_title(f"Speed along the path: {tr.title}")
+        fig.text(
+            0.5,
+            0.012,
+            "Below the requested speed: corners, cable speed limits, speeding up and braking "
+            f"(set-point from the status samples). {_shade_note(tr)}",
+            **_NOTE,
+        )
+        fig.tight_layout(rect=(0.0, 0.04, 1.0, 1.0))
+        fig.savefig(path, dpi=110)
+    finally:
+        plt.close(fig)
+    return path
+
+
 def cmd_plot(args: argparse.Namespace) -> int:
     """Entry point of `cablebot plot`: 0 when the figures were written, 1 otherwise."""
     path = Path(args.file)
     try:
         tr = trace_from_recording(path, args.prefix)
         paths = plot_trace(tr, Path(args.out), args.name or path.stem)
+        paths.append(plot_speed(tr, Path(args.out), args.name or path.stem))
     except PlotError as exc:
         print(f"cablebot plot: {exc}", file=sys.stderr)
         return 1
@@ -634,11 +718,12 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     """Register `cablebot plot`."""
     p = sub.add_parser(
         "plot",
-        help="draw a recording's figures (3-D path, cable lengths, position, errors)",
+        help="draw a recording's figures (3-D path, cable lengths, position, errors, speed)",
         description=(
-            "Read a `cablebot record` file and write four PNG figures into DIR: the robot and "
-            "the path in 3-D, the cable lengths, the FPK position against the set-point, and "
-            "the tracking error and FPK residual."
+            "Read a `cablebot record` file and write five PNG figures into DIR: the robot and "
+            "the path in 3-D, the cable lengths, the FPK position against the set-point, "
+            "the tracking error and FPK residual, and the speed (set-point, measured, "
+            "requested) against time."
         ),
     )
     p.add_argument("file", metavar="FILE.mcap", help="a recording made by `cablebot record`")

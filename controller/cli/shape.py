@@ -65,7 +65,11 @@ class RobotShape:
                 (float(a[0]), float(a[1]), float(a[2]))
                 for a in (r["anchor_m"] for r in summary["reels"])
             )
-            limits_cfg = LimitsConfig(**{k: float(v) for k, v in summary["limits"].items()})
+            given: dict[str, Any] = {
+                k: int(v) if k == "max_queued_points" else float(v)
+                for k, v in summary["limits"].items()
+            }
+            limits_cfg = LimitsConfig(**given)
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise ShapeError(f"configuration summary without usable anchors/limits: {exc}") from exc
         if not all(math.isfinite(c) for a in anchors for c in a):

@@ -39,6 +39,7 @@ from types import FrameType, MappingProxyType
 from typing import Any
 
 from controller.core.commands import Arm
+from controller.core.motion import BRAKE_ACCEL_SHARE
 from controller.core.states import State
 from controller.service.runner import start_loop
 
@@ -331,10 +332,12 @@ def silent_nodes(readings: Any) -> list[tuple[int, int, str]]:
 
 def brake_wait_s(brake_time_s: float, max_speed_mps: float, max_accel_mps2: float) -> float:
     """How long shutdown waits for a brake that needs `brake_time_s` at the set-point's speed:
-    times `STOP_MARGIN_FACTOR` plus `STOP_MARGIN_S`, at most what the fastest allowed motion
-    needs, and never more than `STOP_WAIT_MAX_S`. Raises nothing (a non-finite input gives the
-    cap)."""
-    longest = max_speed_mps / max_accel_mps2 * STOP_MARGIN_FACTOR + STOP_MARGIN_S
+    times `STOP_MARGIN_FACTOR` plus `STOP_MARGIN_S`, at most what the slowest stop from the
+    fastest allowed motion needs (along corner arcs, `BRAKE_ACCEL_SHARE`), and never more than
+    `STOP_WAIT_MAX_S`. Raises nothing (a non-finite input gives the cap)."""
+    # the slowest stop: from max speed along corner arcs, at their share of the acceleration
+    longest = max_speed_mps / (max_accel_mps2 * BRAKE_ACCEL_SHARE) * STOP_MARGIN_FACTOR
+    longest += STOP_MARGIN_S
     wait = brake_time_s * STOP_MARGIN_FACTOR + STOP_MARGIN_S
     if not math.isfinite(wait) or not math.isfinite(longest):
         return STOP_WAIT_MAX_S
@@ -540,6 +543,8 @@ def run_daemon(
     t0 = time.monotonic()
     lim = cfg.limits
     brake_s = controller.brake_time_s()
+    vx, vy, vz = controller.planner.velocity_mps
+    start_speed_mps = math.sqrt(vx * vx + vy * vy + vz * vz)
     start_sp = controller.setpoint_m
     controller.begin_shutdown()
     wait_s = brake_wait_s(brake_s, float(lim.max_speed_mps), float(lim.max_accel_mps2))
@@ -558,7 +563,7 @@ def run_daemon(
         )
         log.info(
             "braked from %.3f m/s to rest in %.3f s over %.3f m",
-            brake_s * float(lim.max_accel_mps2),
+            start_speed_mps,
             time.monotonic() - t0,
             travel,
         )

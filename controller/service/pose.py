@@ -28,10 +28,13 @@ class PoseSample:
     """The cable tensions that hold the payload at the set-point (with `[payload]`)."""
     measured_tensions_n: tuple[float | None, ...] | None = None
     """The cable tensions read from the motors' torques (with torque telemetry)."""
+    queued_points: int = 0
+    """Path points queued and not yet reached (`MotionPlanner.queued_points`; 0 off a path)."""
 
     def to_json_bytes(self) -> bytes:
         """Encode as compact JSON; non-finite numbers become null, so the output is valid JSON.
-        "tensions_n" and "measured_tensions_n" appear only when known (statics configured).
+        "tensions_n" and "measured_tensions_n" appear only when known (statics configured);
+        "queued_points" always.
 
         Hand-formatted (about 4x faster than json.dumps for this fixed schema); float repr is
         the shortest round-tripping decimal, as json.dumps writes it.
@@ -54,7 +57,7 @@ class PoseSample:
         return (
             f'{{"seq":{int(self.seq)},"stamp_ns":{int(self.stamp_ns)},"position_m":{pos_s},'
             f'"cable_lengths_m":[{lengths}],"residual_m":{res},"valid":{valid},'
-            f'"state":"{_state_name(self.state)}"{extra}}}'
+            f'"state":"{_state_name(self.state)}"{extra},"queued_points":{int(self.queued_points)}}}'
         ).encode()
 
 

@@ -355,6 +355,13 @@ def test_move_reply_names_target_speed_and_a_limited_speed() -> None:
     assert client.format_reply("path", {"ok": True, "points": 4, "speed_mps": 0.3}) == (
         "path: 4 points at 0.300 m/s"
     )
+    queued = {"queued_points": 1500, "queued_s": 2.04, "queue_full": False}
+    reply = {"ok": True, "points": 1000, "append": True, "speed_mps": 0.1, **queued}
+    assert client.format_reply("path", reply) == (
+        "path: 1000 appended at 0.100 m/s; 1500 queued (2.0 s)"
+    )
+    reply["queue_full"] = True
+    assert client.format_reply("path", reply).endswith("1500 queued (2.0 s, full)")
 
 
 def test_refusal_prints_the_daemons_reason_verbatim(

@@ -1,5 +1,6 @@
 """Files a verb reads: every one that is not UTF-8 is named with the byte, its line and column
-(the same words as check-config); a path longer than one command takes is refused in points."""
+(the same words as check-config); a path longer than one command takes is streamed, checked
+whole first."""
 
 from __future__ import annotations
 
@@ -60,14 +61,20 @@ def test_the_points_limit_fits_the_byte_cap() -> None:
     assert len(parse_command("path", json.dumps(ok)).points_m) == MAX_PATH_POINTS_SENT
 
 
-def test_a_long_path_is_refused_in_points_with_what_to_do(
+def test_a_long_path_is_streamed_and_checked_whole_before_anything_is_sent(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     f = tmp_path / "long.csv"
-    f.write_text("".join(f"{0.1 + i * 1e-5:.6f},{0.2 - i * 1e-5:.6f},1.5\n" for i in range(10_000)))
+    rows = [f"{0.1 + i * 1e-5:.6f},{0.2 - i * 1e-5:.6f},1.5\n" for i in range(10_000)]
+    f.write_text("".join(rows))
+    # not refused for its length: streamed (here there is no daemon to take it)
+    code, _, err = run(capsys, "path", str(f), *NO_DAEMON)
+    assert code == exitcodes.NO_DAEMON, err
+    assert "points; one path command takes at most" not in err
+    # a bad point far into the file is refused before the first chunk is sent
+    rows[7_500] = "0.1,0.2\n"
+    f.write_text("".join(rows))
     code, _, err = run(capsys, "path", str(f), *NO_DAEMON)
     assert code == exitcodes.REFUSED
-    n = MAX_PATH_POINTS_SENT
-    assert f"10000 points; one path command takes at most {n} points" in err
-    assert f"split it into parts of at most {n} points" in err
+    assert "line 7501" in err
     assert "bytes" not in err

@@ -170,3 +170,30 @@ def test_an_axis_the_path_does_not_move_along_is_drawn_to_the_motion_s_scale(
     for c, axc in enumerate(figures[2].get_axes()):
         mid = still.position_m[0, c]
         assert axc.get_ylim() == pytest.approx((mid - 0.01, mid + 0.01))  # at least 1 cm
+
+
+def test_speed_is_measured_over_a_window_and_nan_across_a_missing_pose() -> None:
+    t = np.arange(0.0, 1.0, 0.01)
+    pos = np.stack([0.2 * t, np.zeros_like(t), np.full_like(t, 2.0)], axis=1)
+    pos[50] = np.nan
+    mid, v = plot.speed_mps(t, pos, window_s=0.05)
+    assert len(mid) == len(v) and np.all(np.diff(mid) > 0)
+    good = np.isfinite(v)
+    assert np.allclose(v[good], 0.2) and (~good).sum() == 2  # the two windows that end at 50
+    assert plot.speed_mps(t[:1], pos[:1])[0].size == 0
+
+
+def test_the_speed_figure_draws_set_point_measured_and_requested(
+    tmp_path: Path, figures: list[Any]
+) -> None:
+    tr = _trace(np.asarray(circle_path(0.5, (0.0, 0.0), 2.0, 24)), per_point=3)
+    tr.requested_speed_mps = np.full(len(tr.status_t_s), 0.3)
+    tr.state = ["MOVING"] * len(tr.t_s)
+    path = plot.plot_speed(tr, tmp_path, "run")
+    assert path == tmp_path / f"run-{plot.SPEED_FIGURE}.png"
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    (ax,) = figures[-1].axes
+    labels = [line.get_label() for line in ax.get_lines()]
+    assert labels == ["measured (FPK poses)", "set-point", "requested"]
+    requested = ax.get_lines()[2].get_ydata()
+    assert np.allclose(requested, 0.3)

@@ -249,7 +249,9 @@ def test_killed_recorder_leaves_a_readable_file(robot: tuple[Daemon, Path], tmp_
     )
     assert cp.returncode == 0, cp.stdout + cp.stderr
     assert "ends early" in cp.stdout
-    assert len(list(out.glob("killed-*.png"))) == 4
+    from controller.cli.plot import FIGURES
+
+    assert len(list(out.glob("killed-*.png"))) == len(FIGURES) + 1  # and the speed figure
 
 
 def test_recorder_skips_payloads_that_are_not_json(tmp_path: Path) -> None:
@@ -387,7 +389,7 @@ def test_replay_refuses_a_prefix_with_a_live_daemon(run: Run, robot: tuple[Daemo
 
 
 def test_plot_makes_the_four_figures(run: Run, tmp_path: Path) -> None:
-    from controller.cli.plot import FIGURES, trace_from_recording
+    from controller.cli.plot import FIGURES, SPEED_FIGURE, trace_from_recording
 
     tr = trace_from_recording(run.path)
     n_pose = sum(1 for t, _ in _mcap_messages(run.path) if t == f"{run.prefix}/pose")
@@ -409,7 +411,7 @@ def test_plot_makes_the_four_figures(run: Run, tmp_path: Path) -> None:
     assert cp.returncode == 0, cp.stdout + cp.stderr
     import matplotlib.image
 
-    for fig in FIGURES:
+    for fig in (*FIGURES, SPEED_FIGURE):
         png = out / f"moving-{fig}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         h, w = matplotlib.image.imread(png).shape[:2]

@@ -25,6 +25,7 @@ import pytest
 
 from controller.core import kinematics
 from controller.core.commands import Arm, CommandRefused, Move
+from controller.core.motion import BRAKE_ACCEL_SHARE
 from controller.core.states import State
 from controller.service.config import load_config
 from controller.service.daemon import (
@@ -52,8 +53,11 @@ def test_brake_wait_follows_the_actual_speed_and_is_bounded() -> None:
     assert brake_wait_s(2.0, 2.0, 1.0) == pytest.approx(2.0 * k + STOP_MARGIN_S)
     assert brake_wait_s(0.5, 2.0, 1.0) == pytest.approx(0.5 * k + STOP_MARGIN_S)
     assert brake_wait_s(0.0, 2.0, 1.0) == pytest.approx(STOP_MARGIN_S)
-    # never longer than the fastest allowed motion needs, nor than the hard cap
-    assert brake_wait_s(50.0, 2.0, 1.0) == pytest.approx(2.0 * k + STOP_MARGIN_S)
+    # a stop along corner arcs brakes at their share of the acceleration: longer than v / a
+    assert brake_wait_s(5.0, 2.0, 1.0) == pytest.approx(5.0 * k + STOP_MARGIN_S)
+    # never longer than the slowest stop from the fastest allowed motion, nor the hard cap
+    longest = 2.0 / BRAKE_ACCEL_SHARE
+    assert brake_wait_s(50.0, 2.0, 1.0) == pytest.approx(longest * k + STOP_MARGIN_S)
     assert brake_wait_s(100.0, 2.0, 0.01) == STOP_WAIT_MAX_S
     assert brake_wait_s(math.nan, 2.0, 1.0) == STOP_WAIT_MAX_S
 

@@ -528,8 +528,11 @@ def test_pose_json_schema_and_no_nan() -> None:
     s = PoseSample(7, 123, (1.0, -2.5, 0.125), (1.5, 2.0), 0.001, True, "HOLDING")
     assert s.to_json_bytes() == (
         b'{"seq":7,"stamp_ns":123,"position_m":[1.0,-2.5,0.125],'
-        b'"cable_lengths_m":[1.5,2.0],"residual_m":0.001,"valid":true,"state":"HOLDING"}'
+        b'"cable_lengths_m":[1.5,2.0],"residual_m":0.001,"valid":true,"state":"HOLDING",'
+        b'"queued_points":0}'
     )
+    deep = PoseSample(9, 5, (0.0, 0.0, 1.0), (1.0,), 0.0, True, "MOVING", queued_points=4321)
+    assert deep.to_json_bytes().endswith(b'"state":"MOVING","queued_points":4321}')
     bad = PoseSample(8, 124, (math.nan, 0.0, 0.0), (math.inf, 2.0), math.nan, True, "FAULT")
     obj = json.loads(bad.to_json_bytes())
     assert obj["position_m"] is None and obj["valid"] is False

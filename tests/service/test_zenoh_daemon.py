@@ -34,7 +34,16 @@ from tests.daemon_procs import CABLEBOT, REPO, Proc, free_tcp_port, to_toml, zen
 pytestmark = pytest.mark.slow
 
 RATE_HZ = 100.0  # loop rate; publish_every = 1, so also the pose rate
-POSE_KEYS = {"seq", "stamp_ns", "position_m", "cable_lengths_m", "residual_m", "valid", "state"}
+POSE_KEYS = {
+    "seq",
+    "stamp_ns",
+    "position_m",
+    "cable_lengths_m",
+    "residual_m",
+    "valid",
+    "state",
+    "queued_points",
+}
 PLANNED_TENSIONS = "tensions_n"
 """With `[payload]` (the built-in robot has one), the tensions of the set-point, while there is
 one (armed)."""

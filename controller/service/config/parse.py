@@ -14,6 +14,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from controller.core.commands import MAX_PATH_POINTS
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
 from controller.core.reel import ReelModel, spool_buildup
 from controller.core.statics import TensionCheck
@@ -455,6 +456,11 @@ def _check_telemetry_and_plant(
             )
 
 
+MAX_QUEUED_POINTS = 10_000_000
+"""The largest `[limits] max_queued_points` (a queued point costs about 150 bytes of planner
+memory: 1.5 GB); the smallest is one path command's `MAX_PATH_POINTS`, so a full path fits."""
+
+
 def _parse_limits(mt: _Table) -> LimitsConfig:
     mt.finish(tuple(LimitsConfig.__dataclass_fields__))
     d_lim = LimitsConfig()
@@ -470,6 +476,10 @@ def _parse_limits(mt: _Table) -> LimitsConfig:
         max_accel_mps2=mt.number("max_accel_mps2", required=True, gt=0.0),
         default_speed_mps=mt.number("default_speed_mps", max_speed, gt=0.0),
         velocity_timeout_s=mt.number("velocity_timeout_s", d_lim.velocity_timeout_s, gt=0.0),
+        junction_deviation_m=mt.number("junction_deviation_m", d_lim.junction_deviation_m, gt=0.0),
+        max_queued_points=mt.integer(
+            "max_queued_points", d_lim.max_queued_points, ge=MAX_PATH_POINTS, le=MAX_QUEUED_POINTS
+        ),
         min_tension_n=mt.number("min_tension_n", ge=0.0) if mt.has("min_tension_n") else None,
         max_tension_n=mt.number("max_tension_n", gt=0.0) if mt.has("max_tension_n") else None,
         tension_margin_n=mt.number("tension_margin_n", d_lim.tension_margin_n, ge=0.0),

@@ -27,6 +27,7 @@ from types import MappingProxyType
 from typing import Any, TypeVar
 
 from controller.core.kinematics import Geometry
+from controller.core.motion import DEFAULT_JUNCTION_DEVIATION_M, DEFAULT_MAX_QUEUED_POINTS
 from controller.core.pretension import PretensionSettings
 from controller.core.reel import ReelModel
 from drivers import registry
@@ -315,7 +316,8 @@ _IN_A_FILE = "required"
 class LimitsConfig:
     """Workspace, cable and motion limits (checked on command arrival and every tick).
 
-    In a file every key but `default_speed_mps`, `velocity_timeout_s` and the tension keys is
+    In a file every key but `default_speed_mps`, `velocity_timeout_s`, the path keys
+    (`junction_deviation_m`, `max_queued_points`) and the tension keys is
     required (a safe limit depends on the robot); the defaults here are stand-ins."""
 
     xy_margin_m: float = key(
@@ -338,6 +340,17 @@ class LimitsConfig:
     velocity_timeout_s: float = key(
         0.25,
         "dead-man of velocity input: no `<prefix>/velocity` sample for this long brakes to a hold",
+    )
+    junction_deviation_m: float = key(
+        DEFAULT_JUNCTION_DEVIATION_M,
+        "how far a path's rounded corner may pass from its point (Grbl's junction deviation: "
+        "larger is a faster corner; see [motion](motion.md))",
+    )
+    max_queued_points: int = key(
+        DEFAULT_MAX_QUEUED_POINTS,
+        "most path points queued ahead of the effector (a path and its appends); an append "
+        "beyond it is refused with the queue's depth (the client retries); 1000 (one path "
+        "command) to 10000000",
     )
     min_tension_n: float | None = key(
         None,
@@ -684,7 +697,8 @@ SECTIONS = (
     Section("loop", "", section_keys(LoopConfig)),
     Section(
         "limits",
-        "required; all keys but `default_speed_mps`, `velocity_timeout_s` and the tension keys",
+        "required; all keys but `default_speed_mps`, `velocity_timeout_s`, `junction_deviation_m`, "
+        "`max_queued_points` and the tension keys",
         section_keys(LimitsConfig),
     ),
     Section(

@@ -119,6 +119,10 @@ class ControllerState:
             self._default_speed_mps,
             velocity_timeout_s=cfg.limits.velocity_timeout_s,
             check_segment=self._check_segment,
+            junction_deviation_m=cfg.limits.junction_deviation_m,
+            anchors_m=self._anchors,
+            max_cable_speed_mps=cfg.limits.max_cable_speed_mps,
+            max_queued_points=cfg.limits.max_queued_points,
         )
         f = cfg.faults
         self._stale_s = float(f.stale_timeout_s)
@@ -214,6 +218,8 @@ class ControllerState:
         self.commanded_ff_rps: list[float] = [0.0] * self.n
         """Velocity feed-forward sent with the last set-point (motor rev/s)."""
         self._zero_ff: tuple[float, ...] = (0.0,) * self.n
+        self.path_speed_mps: float | None = None
+        """The speed requested by the last move, path or append taken (status `path.speed_mps`)."""
         self.dt_clamped = 0
         """Ticks whose planner step was cut to MAX_PLANNER_DT_PERIODS periods (stalls)."""
         self._arm_start_s = 0.0

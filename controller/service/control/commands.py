@@ -29,7 +29,7 @@ from controller.core.commands import (
     Vec3,
     Velocity,
 )
-from controller.core.motion import check_speed, dedupe_path
+from controller.core.motion import QueueError, check_speed, dedupe_path
 from controller.core.states import ARMED_STATES, State, refusal
 from controller.core.statics import SINGULAR_ROW
 from controller.core.workspace import points_array
@@ -254,18 +254,29 @@ class CommandExecution(Homing):
         now_s: float,
         motion: _Motion | None,
     ) -> Reply:
-        """`move`, `path`: start the prepared motion. Raises CommandRefused (the limits)."""
+        """`move`, `path`: start the prepared motion; a path with `append` joins the path in
+        progress. The reply of a path carries the queue's depth after it (`queued_points`,
+        `queued_s`, `queue_full`). Raises CommandRefused (the limits, the queue)."""
         if motion is None:  # not submitted through `submit`: prepare it here
             motion = self._prepare_motion(cmd)
-        self._start_motion(motion, cmd)
+        if isinstance(cmd, Path) and cmd.append:
+            self._append_motion(motion)
+        else:
+            self._start_motion(motion, cmd)
         reply: dict[str, Any] = {"ok": True}
         if isinstance(cmd, Move):
             reply["target_m"] = list(cmd.position_m)
         else:
             reply["points"] = len(cmd.points_m)
+            reply["append"] = cmd.append
         reply["speed_mps"] = motion.speed_mps
         if motion.limited_to_mps is not None:
             reply["speed_limited_to_mps"] = motion.limited_to_mps
+        if isinstance(cmd, Path):
+            planner = self.planner
+            reply["queued_points"] = planner.queued_points
+            reply["queued_s"] = planner.queued_s
+            reply["queue_full"] = planner.queue_full
         return reply
 
     def _cmd_stop(
@@ -341,21 +352,59 @@ class CommandExecution(Homing):
         """
         if motion.refusal is not None:
             raise CommandRefused(motion.refusal)
-        first = motion.points_m[0]
         if self.setpoint_m is not None:
-            start = self.planner.rest_point_m
-            reason = self.workspace.check_segment(start, first)
-            if reason is None and self.tension is not None:
-                failure = self._tension_failure((first,), start)
-                reason = None if failure is None else failure[1].removeprefix("on the leg to it: ")
-            if reason is not None:
-                where = "target" if isinstance(cmd, Move) else "points_m[0]"
-                raise CommandRefused(
-                    f"{where} {_fmt(first)}: on the leg to it from {_fmt(start)}: {reason}"
-                )
-        self.planner.follow_points(motion.points_m, motion.speed_mps)
+            self._check_first_leg(motion, self.planner.rest_point_m, isinstance(cmd, Move))
+        try:
+            self.planner.follow_points(motion.points_m, motion.speed_mps)
+        except QueueError as exc:  # more points than the queue holds: nothing changed
+            raise CommandRefused(str(exc)) from None
+        self.path_speed_mps = motion.speed_mps
         if self.state is State.HOLDING:
             self._set_state(State.MOVING, "move" if isinstance(cmd, Move) else "path")
+
+    def _append_motion(self, motion: _Motion) -> None:
+        """Append a prepared path to the path in progress (no braking): O(1) in its length.
+
+        The leg checked is from the last queued point (`planner.target_m`) to the first
+        appended point. A path that ran dry (HOLDING at its last point) continues (MOVING).
+        Raises CommandRefused (nothing changed) if the preparation refused it, the leg leaves
+        the limits, no path takes appends (none sent, or it was stopped, replaced or held:
+        an append never starts motion on its own) or the queue is full (with its depth: retry
+        when it has drained).
+        """
+        if motion.refusal is not None:
+            raise CommandRefused(motion.refusal)
+        planner = self.planner
+        if not planner.appendable:
+            raise CommandRefused(
+                "no path in progress to append to (none sent, or it was stopped, replaced or "
+                "held since): send the first points as a path without append"
+            )
+        self._check_first_leg(motion, planner.target_m, False)
+        try:
+            planner.append_prepared(motion.points_m, motion.speed_mps)
+        except QueueError as exc:
+            raise CommandRefused(
+                f"{exc}: {planner.queued_points} points ({planner.queued_s:.1f} s of motion) "
+                f"queued; retry when fewer are queued"
+            ) from None
+        self.path_speed_mps = motion.speed_mps
+        if self.state is State.HOLDING and planner.moving:
+            self._set_state(State.MOVING, "path")
+
+    def _check_first_leg(self, motion: _Motion, start: Vec3, is_move: bool) -> None:
+        """Raise CommandRefused if the leg from `start` to the motion's first point leaves the
+        workspace or (with `[payload]`) the tension rule."""
+        first = motion.points_m[0]
+        reason = self.workspace.check_segment(start, first)
+        if reason is None and self.tension is not None:
+            failure = self._tension_failure((first,), start)
+            reason = None if failure is None else failure[1].removeprefix("on the leg to it: ")
+        if reason is not None:
+            where = "target" if is_move else "points_m[0]"
+            raise CommandRefused(
+                f"{where} {_fmt(first)}: on the leg to it from {_fmt(start)}: {reason}"
+            )
 
     # ----------------------------------------------------------- limits of commands and set-points
 

@@ -64,6 +64,14 @@ class StatusReport(ControllerState):
                 "last_refusal": self.stream_last_refusal,
                 "discarded": self.stream_discarded,
             },
+            "path": {
+                "queued_points": self.planner.queued_points,
+                "queued_s": self.planner.queued_s,
+                "queue_full": self.planner.queue_full,
+                "appendable": self.planner.appendable,
+                "blends_dropped": self.planner.blends_dropped,
+                "speed_mps": self.path_speed_mps if self.planner.mode == "move" else None,
+            },
             "velocity": {
                 "command_mps": list(self.planner.velocity_command_mps),
                 "discarded": self.velocity_discarded,

@@ -10,6 +10,7 @@ from collections.abc import Callable, Sequence
 
 from controller.core import kinematics
 from controller.core.commands import Vec3
+from controller.core.motion import BRAKE_ACCEL_SHARE
 from controller.core.states import ARMED_STATES, State
 from controller.core.statics import StaticsError
 from controller.service.control.base import _Fault, _fmt, log
@@ -340,6 +341,7 @@ class ControlStep(CommandExecution):
             self.state.value,
             self.planned_tensions_n if self.setpoint_m is not None else None,
             tuple(self.measured_tensions_n) if self._measure else None,
+            self.planner.queued_points,
         )
         try:
             self.publisher.publish_pose(sample)
@@ -373,7 +375,19 @@ class ControlStep(CommandExecution):
         self.runner().run(stop, on_watchdog=on_watchdog, watchdog_period_s=watchdog_period_s)
 
     def brake_time_s(self) -> float:
-        """Seconds the set-point needs to come to rest from its current speed at the configured
-        acceleration (0 when still). Thread-safe (reads one tuple)."""
-        vx, vy, vz = self.planner.velocity_mps
-        return math.sqrt(vx * vx + vy * vy + vz * vz) / float(self.cfg.limits.max_accel_mps2)
+        """Seconds a stop now takes to bring the set-point to rest (`MotionPlanner.brake_time_s`:
+        on a path, braking along it, longer through corner arcs; 0 when still). Thread-safe:
+        read while the loop may change the planner, it is retried and, should the planner keep
+        changing under it, bounded from the speed at the corner arcs' braking share of the
+        acceleration (`BRAKE_ACCEL_SHARE`). Raises nothing."""
+        planner = self.planner
+        for _ in range(3):
+            try:
+                t = planner.brake_time_s
+            except (RuntimeError, IndexError):  # the deque changed while it was walked
+                continue
+            if math.isfinite(t) and t >= 0.0:
+                return t
+        vx, vy, vz = planner.velocity_mps
+        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+        return speed / (float(self.cfg.limits.max_accel_mps2) * BRAKE_ACCEL_SHARE)
