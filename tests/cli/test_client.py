@@ -108,7 +108,9 @@ def test_pose_count_json_and_human(daemon: Daemon, capsys: pytest.CaptureFixture
     assert seqs == sorted(seqs)
     code, out, _ = run(capsys, "pose", "--count", "2", *daemon.args())
     assert code == 0
-    lines = out.splitlines()
+    # A busy machine may drop a sample between the two: `pose` then says so in a line of its
+    # own ("gap: N samples missed"), as documented; the two pose lines must still be there.
+    lines = [line for line in out.splitlines() if not line.startswith("gap: ")]
     assert len(lines) == 2
     assert lines[0].startswith("seq ")
     assert "state DISARMED  x=+0.000 y=+0.000 z=+2.000 m  resid 0.0 mm" in lines[0]
