@@ -38,13 +38,16 @@ class TruthErrors:
     """One recording's errors against the truth (times in s from its first truth sample,
     errors in metres): `status_t_s`/`target_err_m` |truth - set-point| at the status samples,
     `pose_t_s`/`pose_err_m` |published pose - truth| at the pose samples (NaN while the pose
-    is not valid)."""
+    is not valid); `status_settled`/`pose_settled` the indices of the last sample of each
+    stretch of HOLDING (the effector at rest at a point, just before the next move)."""
 
     label: str
     status_t_s: FloatArray
     target_err_m: FloatArray
     pose_t_s: FloatArray
     pose_err_m: FloatArray
+    status_settled: npt.NDArray[np.intp]
+    pose_settled: npt.NDArray[np.intp]
 
 
 def _vec(value: Any) -> tuple[float, float, float] | None:
@@ -77,6 +80,16 @@ def has_truth(path: Path, prefix: str | None = None) -> bool:
     return False
 
 
+def _last_of_holding(states: list[str]) -> npt.NDArray[np.intp]:
+    """Indices of the last HOLDING sample of each run of HOLDING samples."""
+    out = [
+        i
+        for i, s in enumerate(states)
+        if s == "HOLDING" and (i + 1 == len(states) or states[i + 1] != "HOLDING")
+    ]
+    return np.asarray(out, dtype=np.intp)
+
+
 def truth_errors(path: Path, prefix: str | None = None, label: str | None = None) -> TruthErrors:
     """The errors against the truth of one recording (module docstring). Raises TruthError
     when the file cannot be read or holds no truth, or neither set-points nor valid poses."""
@@ -88,6 +101,8 @@ def truth_errors(path: Path, prefix: str | None = None, label: str | None = None
     tp: list[tuple[float, float, float]] = []
     st_t: list[int] = []
     st_sp: list[tuple[float, float, float]] = []
+    st_state: list[str] = []
+    po_state: list[str] = []
     po_t: list[int] = []
     po_p: list[tuple[float, float, float] | None] = []
     try:
@@ -104,14 +119,17 @@ def truth_errors(path: Path, prefix: str | None = None, label: str | None = None
                     tt.append(m.log_time_ns)
                     tp.append(v)
             elif m.topic == f"{prefix}/status":
-                sp = _vec(json.loads(m.data).get("setpoint_m"))
+                s = json.loads(m.data)
+                sp = _vec(s.get("setpoint_m"))
                 if sp is not None:
                     st_t.append(m.log_time_ns)
                     st_sp.append(sp)
+                    st_state.append(str(s.get("state")))
             elif m.topic == f"{prefix}/pose":
                 p = json.loads(m.data)
                 po_t.append(m.log_time_ns)
                 po_p.append(_vec(p.get("position_m")) if p.get("valid") else None)
+                po_state.append(str(p.get("state")))
     except (OSError, ValueError, KeyError, TypeError, AttributeError, McapError) as exc:
         raise TruthError(f"cannot read {path}: {exc}") from exc
     if len(tt) < 2:
@@ -142,6 +160,8 @@ def truth_errors(path: Path, prefix: str | None = None, label: str | None = None
         target_err_m=np.asarray(target_err, dtype=np.float64),
         pose_t_s=p_t,
         pose_err_m=np.asarray(pose_err, dtype=np.float64),
+        status_settled=_last_of_holding(st_state),
+        pose_settled=_last_of_holding(po_state),
     )
 
 
@@ -163,28 +183,37 @@ def plot_truth(runs: list[TruthErrors], out_path: Path, title: str) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(11, 6.8), sharex=True)
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(13, 7.5), sharex=True)
     try:
         for k, run in enumerate(runs):
             colour = _COLOURS[k % len(_COLOURS)]
-            a1.semilogy(
-                run.status_t_s,
-                np.maximum(run.target_err_m * 1e3, _FLOOR_MM),
-                color=colour,
-                lw=0.8,
-                label=f"{run.label} ({_summary(run.target_err_m)})",
-            )
-            a2.semilogy(
-                run.pose_t_s,
-                np.maximum(run.pose_err_m * 1e3, _FLOOR_MM),
-                color=colour,
-                lw=0.6,
-                label=f"{run.label} ({_summary(run.pose_err_m)})",
-            )
+            for ax, t, err, settled in (
+                (a1, run.status_t_s, run.target_err_m, run.status_settled),
+                (a2, run.pose_t_s, run.pose_err_m, run.pose_settled),
+            ):
+                ax.semilogy(
+                    t,
+                    np.maximum(err * 1e3, _FLOOR_MM),
+                    color=colour,
+                    lw=0.5,
+                    alpha=0.45,
+                    label=f"{run.label}, every sample ({_summary(err)})",
+                )
+                if len(settled):
+                    ax.semilogy(
+                        t[settled],
+                        np.maximum(err[settled] * 1e3, _FLOOR_MM),
+                        "o",
+                        color=colour,
+                        ms=3.5,
+                        mec="k",
+                        mew=0.4,
+                        label=f"{run.label}, end of each hold ({_summary(err[settled])})",
+                    )
         for ax in (a1, a2):
             ax.axhline(1.0, color="k", ls="--", lw=1, label="1 mm")
             ax.grid(True, which="both", alpha=0.25)
-            ax.legend(loc="upper right", fontsize=9)
+            ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
         a1.set_ylabel("|truth - set-point| (mm)")
         a1.set_title("Where the effector is against where it was sent (status samples)")
         a2.set_ylabel("|pose - truth| (mm)")
@@ -194,12 +223,14 @@ def plot_truth(runs: list[TruthErrors], out_path: Path, title: str) -> Path:
         fig.text(
             0.01,
             0.01,
-            f"The simulator's truth interpolated at each sample's receive time; values below "
-            f"{_FLOOR_MM:g} mm are drawn at {_FLOOR_MM:g} mm.",
+            "The simulator's truth interpolated at each sample's receive time (while moving: the "
+            "loop's lag, the dynamic loads and the sampling skew);\ndots: the last sample of each "
+            f"hold (HOLDING) before the next move. Values below {_FLOOR_MM:g} mm are drawn at "
+            f"{_FLOOR_MM:g} mm.",
             fontsize=9,
             color="#555555",
         )
-        fig.tight_layout(rect=(0.0, 0.03, 1.0, 1.0))
+        fig.tight_layout(rect=(0.0, 0.05, 1.0, 1.0))
         out_path.parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(out_path, dpi=110)
     finally:
