@@ -471,61 +471,81 @@ class CableStatics:
         # candidates; per axis the pair whose lines stay lowest on the + side is taken (the
         # forward derivative, the same on both sides where the tensions are smooth).
         lo, hi = self.t_min_n, self.t_max_n
+        n0, n1, n2, n3 = nv
+        flat_nv = 1e-12 * max(abs(n0), abs(n1), abs(n2), abs(n3))
         big = hi
-        for v in tensions_n:
-            if abs(v) > big:
-                big = abs(v)
-        tol = 1e-9 * (big + hi)
-        flat_nv = 1e-12 * max(abs(v) for v in nv)
-        rising: list[tuple[float, int, float]] = []
-        falling: list[tuple[float, int, float]] = []
-        flat = math.inf
+        best_r = best_f = flat = math.inf
+        lines: list[tuple[float, int, float, bool]] = []  # (distance, cable, sigma, rising)
         for i in range(4):
             ti = float(tensions_n[i])
-            for sig, dist in ((1.0, ti - lo), (-1.0, hi - ti)):
-                slope = sig * nv[i]
-                if abs(slope) <= flat_nv:
-                    flat = min(flat, dist)
-                elif slope > 0.0:
-                    rising.append((dist, i, sig))
-                else:
-                    falling.append((dist, i, sig))
-        if not rising or not falling:
+            if abs(ti) > big:
+                big = abs(ti)
+            ni = nv[i]
+            d_lo, d_hi = ti - lo, hi - ti
+            if abs(ni) <= flat_nv:
+                flat = min(flat, d_lo, d_hi)
+                continue
+            if ni > 0.0:  # t - t_min rises along +n, t_max - t falls
+                lines.append((d_lo, i, 1.0, True))
+                lines.append((d_hi, i, -1.0, False))
+                best_r = min(best_r, d_lo)
+                best_f = min(best_f, d_hi)
+            else:
+                lines.append((d_hi, i, -1.0, True))
+                lines.append((d_lo, i, 1.0, False))
+                best_r = min(best_r, d_hi)
+                best_f = min(best_f, d_lo)
+        tol = 1e-9 * (big + hi)
+        if best_r == math.inf or best_f == math.inf or flat <= max(best_r, best_f) + tol:
+            return None  # no crossing, or a flat line binds
+        cand_r = [(i, sg) for d, i, sg, up in lines if up and d <= best_r + tol]
+        cand_f = [(i, sg) for d, i, sg, up in lines if not up and d <= best_f + tol]
+        pairs: list[tuple[int, float, int, float, float, float, float]] = []
+        for r_i, r_sig in cand_r:
+            xr = rows[r_i]
+            for f_i, f_sig in cand_f:
+                cn = r_sig * nv[r_i] - f_sig * nv[f_i]
+                if abs(cn) > 0.0:
+                    xf = rows[f_i]
+                    pairs.append(
+                        (
+                            r_i,
+                            r_sig,
+                            f_i,
+                            f_sig,
+                            -(r_sig * xr[0] - f_sig * xf[0]) / cn,
+                            -(r_sig * xr[1] - f_sig * xf[1]) / cn,
+                            -(r_sig * xr[2] - f_sig * xf[2]) / cn,
+                        )
+                    )
+        if not pairs:
             return None
-        best_r = min(v[0] for v in rising)
-        best_f = min(v[0] for v in falling)
-        if flat <= max(best_r, best_f) + tol:  # a flat line binds: no crossing
-            return None
-        cand_r = [(i, sig) for d, i, sig in rising if d <= best_r + tol]
-        cand_f = [(i, sig) for d, i, sig in falling if d <= best_f + tol]
+        if len(pairs) == 1:
+            _, _, _, _, m0, m1, m2 = pairs[0]
+            return tuple(
+                [
+                    (rows[i][0] + m0 * nv[i], rows[i][1] + m1 * nv[i], rows[i][2] + m2 * nv[i])
+                    for i in range(4)
+                ]
+            )
         cols: list[list[float]] = []
         for k in range(3):
             col: list[float] | None = None
-            for r_i, r_sig in cand_r:
-                for f_i, f_sig in cand_f:
-                    cn = r_sig * nv[r_i] - f_sig * nv[f_i]
-                    if not abs(cn) > 0.0:
-                        continue
-                    mu = -(r_sig * rows[r_i][k] - f_sig * rows[f_i][k]) / cn
-                    dc = [rows[i][k] + mu * nv[i] for i in range(4)]
-                    if col is None:
-                        col = dc
-                    if len(cand_r) + len(cand_f) == 2:
-                        break
-                    rate_r = r_sig * dc[r_i]
-                    rate_f = f_sig * dc[f_i]
-                    if all(sg * dc[i] >= rate_r - tol for i, sg in cand_r) and all(
-                        sg * dc[i] >= rate_f - tol for i, sg in cand_f
-                    ):
-                        col = dc
-                        break
-                else:
-                    continue
-                break
-            if col is None:
-                return None
+            for r_i, r_sig, f_i, f_sig, *mus in pairs:
+                mk = mus[k]
+                dc = [rows[i][k] + mk * nv[i] for i in range(4)]
+                if col is None:
+                    col = dc
+                rate_r = r_sig * dc[r_i] - tol
+                rate_f = f_sig * dc[f_i] - tol
+                if all(sg * dc[i] >= rate_r for i, sg in cand_r) and all(
+                    sg * dc[i] >= rate_f for i, sg in cand_f
+                ):
+                    col = dc
+                    break
+            assert col is not None
             cols.append(col)
-        return tuple((cols[0][i], cols[1][i], cols[2][i]) for i in range(4))
+        return tuple([(cols[0][i], cols[1][i], cols[2][i]) for i in range(4)])
 
     def _solve_lp(self, u: list[tuple[float, float, float]], w: float) -> list[float]:
         um = np.array(u, dtype=np.float64).T  # (3, N)
