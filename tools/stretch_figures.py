@@ -5,6 +5,9 @@ pose, move to each pose, settle, and print |truth - target| and |published pose 
 millimetres. Real time (about a minute per case on the paper robot); run from the repository:
 
     .venv/bin/python tools/stretch_figures.py [paper|rigid|stretch|desk|ea20|measured ...]
+
+`daemon` runs the paper robot's cases through `cablebot sim` and `cablebot run` as processes
+over udp_multicast instead, the truth read on `<prefix>/sim/truth` over Zenoh.
 """
 
 from __future__ import annotations
@@ -34,7 +37,33 @@ def run(label: str, cfg_fn, plant_ea, model_ea, poses, **kw) -> None:  # type: i
         rig.close()
 
 
+def run_daemon(label: str, plant_ea, model_ea, poses) -> None:  # type: ignore[no-untyped-def]
+    import tempfile
+    from pathlib import Path
+
+    from tests.service.test_daemon_sim_stretch import SimDaemonRig
+
+    with tempfile.TemporaryDirectory() as tmp:
+        rig = SimDaemonRig(Path(tmp), plant_ea, model_ea)
+        try:
+            rig.arm()
+            for p in poses:
+                t = tuple(float(v) for v in p)
+                e_t, e_p = rig.move_and_settle(t, timeout_s=300.0)
+                print(
+                    f"{label:34s} {p!s:18s} truth-target {e_t * 1e3:9.3f} mm   "
+                    f"pose-truth {e_p * 1e3:9.3f} mm",
+                    flush=True,
+                )
+        finally:
+            rig.close()
+
+
 def main(which: list[str]) -> None:
+    if "daemon" in which:
+        for ea in (1e6, 2e5):
+            run_daemon(f"daemon EA {ea:g} rigid model", ea, None, PAPER_POSES)
+            run_daemon(f"daemon EA {ea:g} stretch model", ea, ea, PAPER_POSES)
     if "paper" in which:
         for ea in (1e6, 2e5):
             run(f"paper EA {ea:g} rigid model", paper_config, ea, None, PAPER_POSES)

@@ -497,9 +497,14 @@ class DemoStack:
                 self.zenoh_text = f"unavailable ({type(exc).__name__}: {exc}); publishing nothing"
                 self.notes.append(f"Zenoh {self.zenoh_text}")
             else:
+                from controller.service.daemon import start_truth_feed
+
                 inner = iface
                 self._stack.closers.append(("zenoh", iface.close))
                 self.zenoh_text = f"{self.endpoint}, key {self.dcfg.zenoh.prefix}/pose"
+                # the physical plant's truth, as the daemon publishes it
+                if start_truth_feed(self.dcfg, self._stack.sim_bank, iface, self._stack.closers):
+                    self.zenoh_text += " and sim/truth"
         self.say(f"Zenoh: {self.zenoh_text}")
         if not isinstance(inner, NullPublisher):
             self.say(

@@ -687,6 +687,33 @@ def plot_speed(tr: Trace, out_dir: Path, name: str) -> Path:
     return path
 
 
+def _truth_figure(path: Path, args: argparse.Namespace) -> list[Path]:
+    """`<name>-truth.png` when the recording holds the simulator's truth (`<prefix>/sim/truth`),
+    with the recordings of `--compare` beside it (`controller.cli.plot_truth`); [] without
+    truth. Raises PlotError for a recording that cannot be read or a `--compare` without
+    truth, ImportError without matplotlib, OSError if the file cannot be written."""
+    from controller.cli.plot_truth import (
+        TRUTH_FIGURE,
+        TruthError,
+        has_truth,
+        plot_truth,
+        truth_errors,
+    )
+
+    try:
+        if not has_truth(path, args.prefix):
+            if args.compare:
+                raise PlotError(f"{path}: no simulator truth to compare with")
+            return []
+        runs = [truth_errors(path, args.prefix)]
+        runs += [truth_errors(Path(other)) for other in args.compare or ()]
+    except TruthError as exc:
+        raise PlotError(str(exc)) from exc
+    name = args.name or path.stem
+    title = "Against the simulator's truth: " + ", ".join(r.label for r in runs)
+    return [plot_truth(runs, Path(args.out) / f"{name}-{TRUTH_FIGURE}.png", title)]
+
+
 def cmd_plot(args: argparse.Namespace) -> int:
     """Entry point of `cablebot plot`: 0 when the figures were written, 1 otherwise."""
     path = Path(args.file)
@@ -694,6 +721,7 @@ def cmd_plot(args: argparse.Namespace) -> int:
         tr = trace_from_recording(path, args.prefix)
         paths = plot_trace(tr, Path(args.out), args.name or path.stem)
         paths.append(plot_speed(tr, Path(args.out), args.name or path.stem))
+        paths += _truth_figure(path, args)
     except PlotError as exc:
         print(f"cablebot plot: {exc}", file=sys.stderr)
         return 1
@@ -732,4 +760,10 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         "--name", default=None, help="file name stem of the figures (default: the recording's)"
     )
     p.add_argument("--prefix", default=None, help="robot prefix (default: the recorded one)")
+    p.add_argument(
+        "--compare",
+        action="append",
+        metavar="OTHER.mcap",
+        help="a recording with the simulator's truth drawn beside this one in <name>-truth.png",
+    )
     p.set_defaults(func=cmd_plot)

@@ -34,10 +34,11 @@ def stretch_cost_us(cfg: Any | None = None, calls: int = 500, repeats: int = 5) 
     Keys: ``ipk_rigid`` (``kinematics.ipk_point``), ``ipk_stretch`` (IPK, statics solve and
     paid-out lengths), ``fpk_rigid`` (``kinematics.fpk``), ``fpk_stretch_rest`` (the last pose
     is the answer), ``fpk_stretch_moving`` (the pose moved 1 mm since the last call),
-    ``fpk_stretch_fast`` (8 mm: 2 m/s at 250 Hz), ``fpk_stretch_measured`` (measured
-    tensions), plus ``statics`` (one tension solve) for scale. `cfg` is a `RobotConfig` with
-    `[payload]` (default the built-in robot, its cables at EA 2e5 N). Raises ValueError for a
-    config without `[payload]`.
+    ``fpk_stretch_fast`` (8 mm: 2 m/s at 250 Hz), ``fpk_stretch_fresh`` (8 mm with nothing
+    cached: the statics solve and its derivative, the most a warm call does),
+    ``fpk_stretch_measured`` (measured tensions), plus ``statics`` (one tension solve) for
+    scale. `cfg` is a `RobotConfig` with `[payload]` (default the built-in robot, its cables
+    at EA 2e5 N). Raises ValueError for a config without `[payload]`.
     """
     from controller.core import kinematics
     from controller.service.cables import CableModel
@@ -63,6 +64,12 @@ def stretch_cost_us(cfg: Any | None = None, calls: int = 500, repeats: int = 5) 
     paid = [stretch.paid_out_m(g, t) for g, t in zip(geo, planned, strict=True)]
     path8 = [(p[0] + 0.007 * k, p[1], p[2]) for k, p in enumerate(path)]  # 8 mm apart
     paid8 = [stretch.ipk(p)[0] for p in path8]
+
+    def fresh(paid_m: tuple[float, ...], guess_m: tuple[float, float, float]) -> object:
+        assert stretch is not None
+        stretch.reset()
+        return stretch.fpk(paid_m, guess_m)
+
     out = {
         "ipk_rigid": _best_us(lambda i: kinematics.ipk_point(geom, path[i]), calls, repeats),
         "statics": _best_us(lambda i: check.solve(path[i]), calls, repeats),
@@ -77,6 +84,7 @@ def stretch_cost_us(cfg: Any | None = None, calls: int = 500, repeats: int = 5) 
         "fpk_stretch_rest": _best_us(lambda i: stretch.fpk(paid[i], path[i]), calls, repeats),
         "fpk_stretch_moving": _best_us(lambda i: stretch.fpk(paid[i + 1], path[i]), calls, repeats),
         "fpk_stretch_fast": _best_us(lambda i: stretch.fpk(paid8[i + 1], path8[i]), calls, repeats),
+        "fpk_stretch_fresh": _best_us(lambda i: fresh(paid8[i + 1], path8[i]), calls, repeats),
         "fpk_stretch_measured": _best_us(
             lambda i: stretch.fpk_measured(paid[i], planned[i]), calls, repeats
         ),

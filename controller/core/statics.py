@@ -329,6 +329,12 @@ class CableStatics:
         ]
 
     def _solve4(self, u: list[tuple[float, float, float]], w: float) -> list[float]:
+        return self._solve4_parts(u, w)[0]
+
+    def _solve4_parts(
+        self, u: list[tuple[float, float, float]], w: float
+    ) -> tuple[list[float], list[float]]:
+        """The four tensions and the null vector n (n_j = (-1)^j D_j) they were found with."""
         # D_j: determinant of the triple without cable j; the null vector is n_j = (-1)^j D_j.
         # The minimum-norm solution is sum_j D_j^2 t^(j) / |n|^2 where t^(j) solves the triple
         # without cable j (t^(j)_j = 0): the weights sum to 1 and make it orthogonal to n.
@@ -356,7 +362,190 @@ class CableStatics:
         tp = [x * scale for x in tp]
         s = [x / norm for x in n]
         lam = _maxmin_lambda(tp, s, self.t_min_n, self.t_max_n)
-        return [tp[i] + lam * s[i] for i in range(4)]
+        return [tp[i] + lam * s[i] for i in range(4)], n
+
+    def solve_with_derivative(
+        self, point_m: Sequence[float], mass_kg: float
+    ) -> tuple[tuple[float, ...], tuple[tuple[float, float, float], ...] | None]:
+        """(the tensions ``solve`` gives at P for a mass ``mass_kg``, their derivative
+        ``tension_derivative``) in one call sharing the cable directions and the null vector;
+        without the margin bookkeeping of ``Tensions``.  The derivative is None where
+        ``tension_derivative`` gives none.  Raises what ``solve`` raises.
+        """
+        m = _check_mass(mass_kg)
+        u = self._units(point_m)
+        w = m * G_MPS2
+        nv: list[float] | None = None
+        if self.n_cables == 3:
+            t = self._solve3(u, w)
+        elif self.n_cables == 4:
+            t, nv = self._solve4_parts(u, w)
+        else:
+            t = self._solve_lp(u, w)
+        total = sum(t)
+        if total - total != 0.0:  # overflow on a pathological pose: never return inf
+            raise SingularConfiguration("tensions overflow: the configuration is singular")
+        if self.n_cables > 4:
+            return tuple(t), None
+        return tuple(t), self._derivative(point_m, u, t, nv)
+
+    def tension_derivative(
+        self, point_m: Sequence[float], tensions_n: Sequence[float]
+    ) -> tuple[tuple[float, float, float], ...] | None:
+        """d t_i / d P (one row (d/dx, d/dy, d/dz) per cable, N/m) of the distribution
+        ``solve`` returns at `point_m`, given those `tensions_n` (its answer there).
+
+        Analytic for three and four cables: differentiating ``U(P) t = m g e_z`` gives
+        ``U T' = G`` with ``G = sum_i t_i (I - u_i u_i^T) / L_i``; for four cables the
+        distribution also keeps its two binding distances to the limits equal (the rising and
+        the falling line of ``_maxmin_lambda`` that cross at its optimum), which fixes the
+        null-space part.  Where the binding pair changes (a kink of the distribution) this is
+        the derivative on the side the tensions `tensions_n` belong to.  Returns None for more
+        than four cables (a linear program: no closed form here) and where no line pair binds
+        (a cable whose tension does not depend on the null space, a degenerate tie).  Raises
+        ``StaticsInputError`` for a bad point or a wrong count of tensions and
+        ``SingularConfiguration`` where ``solve`` would.
+        """
+        nc = self.n_cables
+        if len(tensions_n) != nc:
+            raise StaticsInputError(f"need {nc} tensions, got {len(tensions_n)}")
+        if nc > 4:
+            return None
+        return self._derivative(point_m, self._units(point_m), tensions_n, None)
+
+    def _derivative(
+        self,
+        point_m: Sequence[float],
+        u: list[tuple[float, float, float]],
+        tensions_n: Sequence[float],
+        nv: list[float] | None,
+    ) -> tuple[tuple[float, float, float], ...] | None:
+        """``tension_derivative`` from the unit vectors `u` at P and, for four cables, the null
+        vector `nv` of ``_solve4_parts`` (None: computed here)."""
+        nc = self.n_cables
+        px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
+        g11 = g12 = g13 = g22 = g23 = g33 = 0.0
+        for i, (ax, ay, az) in enumerate(self._anchors_t):
+            ux, uy, uz = u[i]
+            dx, dy, dz = ax - px, ay - py, az - pz
+            k = float(tensions_n[i]) / math.sqrt(dx * dx + dy * dy + dz * dz)
+            g11 += k * (1.0 - ux * ux)
+            g22 += k * (1.0 - uy * uy)
+            g33 += k * (1.0 - uz * uz)
+            g12 -= k * ux * uy
+            g13 -= k * ux * uz
+            g23 -= k * uy * uz
+        gc = ((g11, g12, g13), (g12, g22, g23), (g13, g23, g33))  # columns (symmetric)
+        if nc == 3:
+            x = _triple_solve(u, (0, 1, 2), gc)
+            if x is None:
+                raise SingularConfiguration(
+                    "the three cable directions are coplanar: they cannot balance the weight"
+                )
+            return (x[0], x[1], x[2])
+        # Four cables: a particular solution on the best-conditioned triple, plus mu n.
+        if nv is None:
+            nv = []
+            for q, (a, b, c) in enumerate(_TRIPLES4):
+                ax, ay, az = u[a]
+                bx, by, bz = u[b]
+                cx, cy, cz = u[c]
+                d = _det3(ax, ay, az, bx, by, bz, cx, cy, cz)
+                nv.append(-d if q & 1 else d)
+        j = 0
+        for q in range(1, 4):
+            if abs(nv[q]) > abs(nv[j]):
+                j = q
+        triple = _TRIPLES4[j]
+        xt = _triple_solve(u, triple, gc)
+        if xt is None:
+            raise SingularConfiguration(
+                "the four cable directions do not span space: they cannot balance the weight"
+            )
+        rows: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * 4
+        for q, i in enumerate(triple):
+            rows[i] = xt[q]
+        # The binding pair: the lowest rising and the lowest falling distance-to-limit line in
+        # the null-space coordinate (rising: grows along +n); sigma = +1 for t - t_min, -1 for
+        # t_max - t.  Lines tied with the lowest (a symmetric pose: the robot's centre) are
+        # candidates; per axis the pair whose lines stay lowest on the + side is taken (the
+        # forward derivative, the same on both sides where the tensions are smooth).
+        lo, hi = self.t_min_n, self.t_max_n
+        n0, n1, n2, n3 = nv
+        flat_nv = 1e-12 * max(abs(n0), abs(n1), abs(n2), abs(n3))
+        big = hi
+        best_r = best_f = flat = math.inf
+        lines: list[tuple[float, int, float, bool]] = []  # (distance, cable, sigma, rising)
+        for i in range(4):
+            ti = float(tensions_n[i])
+            if abs(ti) > big:
+                big = abs(ti)
+            ni = nv[i]
+            d_lo, d_hi = ti - lo, hi - ti
+            if abs(ni) <= flat_nv:
+                flat = min(flat, d_lo, d_hi)
+                continue
+            if ni > 0.0:  # t - t_min rises along +n, t_max - t falls
+                lines.append((d_lo, i, 1.0, True))
+                lines.append((d_hi, i, -1.0, False))
+                best_r = min(best_r, d_lo)
+                best_f = min(best_f, d_hi)
+            else:
+                lines.append((d_hi, i, -1.0, True))
+                lines.append((d_lo, i, 1.0, False))
+                best_r = min(best_r, d_hi)
+                best_f = min(best_f, d_lo)
+        tol = 1e-9 * (big + hi)
+        if best_r == math.inf or best_f == math.inf or flat <= max(best_r, best_f) + tol:
+            return None  # no crossing, or a flat line binds
+        cand_r = [(i, sg) for d, i, sg, up in lines if up and d <= best_r + tol]
+        cand_f = [(i, sg) for d, i, sg, up in lines if not up and d <= best_f + tol]
+        pairs: list[tuple[int, float, int, float, float, float, float]] = []
+        for r_i, r_sig in cand_r:
+            xr = rows[r_i]
+            for f_i, f_sig in cand_f:
+                cn = r_sig * nv[r_i] - f_sig * nv[f_i]
+                if abs(cn) > 0.0:
+                    xf = rows[f_i]
+                    pairs.append(
+                        (
+                            r_i,
+                            r_sig,
+                            f_i,
+                            f_sig,
+                            -(r_sig * xr[0] - f_sig * xf[0]) / cn,
+                            -(r_sig * xr[1] - f_sig * xf[1]) / cn,
+                            -(r_sig * xr[2] - f_sig * xf[2]) / cn,
+                        )
+                    )
+        if not pairs:
+            return None
+        if len(pairs) == 1:
+            _, _, _, _, m0, m1, m2 = pairs[0]
+            return tuple(
+                [
+                    (rows[i][0] + m0 * nv[i], rows[i][1] + m1 * nv[i], rows[i][2] + m2 * nv[i])
+                    for i in range(4)
+                ]
+            )
+        cols: list[list[float]] = []
+        for k in range(3):
+            col: list[float] | None = None
+            for r_i, r_sig, f_i, f_sig, *mus in pairs:
+                mk = mus[k]
+                dc = [rows[i][k] + mk * nv[i] for i in range(4)]
+                if col is None:
+                    col = dc
+                rate_r = r_sig * dc[r_i] - tol
+                rate_f = f_sig * dc[f_i] - tol
+                if all(sg * dc[i] >= rate_r for i, sg in cand_r) and all(
+                    sg * dc[i] >= rate_f for i, sg in cand_f
+                ):
+                    col = dc
+                    break
+            assert col is not None
+            cols.append(col)
+        return tuple([(cols[0][i], cols[1][i], cols[2][i]) for i in range(4)])
 
     def _solve_lp(self, u: list[tuple[float, float, float]], w: float) -> list[float]:
         um = np.array(u, dtype=np.float64).T  # (3, N)
@@ -432,6 +621,37 @@ class CableStatics:
             t[k] = r.tensions_n
             ok[k] = True
         return t, ok
+
+
+def _triple_solve(
+    u: Sequence[tuple[float, float, float]],
+    triple: tuple[int, int, int],
+    cols: tuple[tuple[float, float, float], ...],
+) -> tuple[tuple[float, float, float], ...] | None:
+    """x with ``sum_{i in triple} u_i x_i[k] = cols[k]`` for each k (Cramer: row i of the
+    inverse of [u_a u_b u_c] is the cross product of the other two over the determinant), one
+    row (x[k] for k = 0..2) per cable of the triple; None when the triple is coplanar."""
+    a, b, c = triple
+    ax, ay, az = u[a]
+    bx, by, bz = u[b]
+    cx, cy, cz = u[c]
+    det = _det3(ax, ay, az, bx, by, bz, cx, cy, cz)
+    if not abs(det) >= RANK_TOL:
+        return None
+    inv = 1.0 / det
+    ra = ((by * cz - bz * cy) * inv, (bz * cx - bx * cz) * inv, (bx * cy - by * cx) * inv)
+    rb = ((cy * az - cz * ay) * inv, (cz * ax - cx * az) * inv, (cx * ay - cy * ax) * inv)
+    rc = ((ay * bz - az * by) * inv, (az * bx - ax * bz) * inv, (ax * by - ay * bx) * inv)
+    out = []
+    for r in (ra, rb, rc):
+        out.append(
+            (
+                r[0] * cols[0][0] + r[1] * cols[0][1] + r[2] * cols[0][2],
+                r[0] * cols[1][0] + r[1] * cols[1][1] + r[2] * cols[1][2],
+                r[0] * cols[2][0] + r[1] * cols[2][1] + r[2] * cols[2][2],
+            )
+        )
+    return tuple(out)
 
 
 def _maxmin_lambda(tp: list[float], s: list[float], lo: float, hi: float) -> float:

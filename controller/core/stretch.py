@@ -23,12 +23,13 @@ and the dynamic loads of a move are not modelled (``docs/cable-stretch.md``).
   paid-out lengths, i.e. the least-squares solution of ``r_i(P) = |A_i - P| * EA_i / (EA_i +
   t_i(P)) - L0_i = 0``.  A fixed point "pose -> tensions -> stretch -> pose" diverges where the
   tensions change fast with the pose (close under the anchor plane the stretch's derivative
-  outgrows the geometric one), so this is Gauss-Newton on the joint equations.  The tensions
-  have no convenient derivative and a statics solve costs over ten times the cable lengths,
-  so each pass linearises them about a point P0, ``t(P) = t(P0) + T' (P - P0)`` (``T'`` by
-  forward differences, kept between calls while within ``JACOBIAN_REUSE_M``; ``t(P0)`` reused
-  while the warm start is within ``TENSIONS_REUSE_M``) and solves the smooth equations that
-  gives with the analytic Jacobian; a pass that ends farther than ``RELINEARISE_M`` from P0 is
+  outgrows the geometric one), so this is Gauss-Newton on the joint equations.  A statics
+  solve costs over ten times the cable lengths, so each pass linearises the tensions about a
+  point P0, ``t(P) = t(P0) + T' (P - P0)`` (``t(P0)`` reused while the warm start is within
+  ``TENSIONS_REUSE_M``; its derivative ``T'`` analytic for up to four cables, taken with the
+  statics solve by ``CableStatics.solve_with_derivative``, and kept between calls while
+  within ``JACOBIAN_REUSE_M``) and solves the smooth equations that gives
+  with the analytic Jacobian; a pass that ends farther than ``RELINEARISE_M`` from P0 is
   followed by one linearised at its result.  The linearisation's error grows with the square
   of the distance to P0 and with the tensions' curvature, largest close under the anchors with
   soft cables: on the paper robot with EA 2e5 N near (0, 0, 6) m it stays below 20 um while
@@ -85,9 +86,11 @@ the square of the distance)."""
 MAX_STEP_M = 0.5
 """Longest Gauss-Newton step (a cold start far from the solution)."""
 FD_STEP_M = 1e-5
-"""Finite-difference step of the Jacobian (forward differences, one statics solve per axis)."""
+"""Finite-difference step of the tension derivative where statics has no analytic one (more
+than four cables, a degenerate pose): forward differences, one statics solve per axis."""
 JACOBIAN_REUSE_M = 0.05
-"""A Jacobian is reused by later solves within this distance of where it was computed."""
+"""A tension derivative is reused by later solves within this distance of where it was
+taken."""
 COLD_START_STRAINS = (0.0, 1e-3, 3e-3, 1e-2, 3e-2, 0.1)
 """Strains tried in turn for the first pose of a cold FPK (see ``CableStretch._cold_start``)."""
 
@@ -127,7 +130,7 @@ class CableStretch:
     """The stretch model of one robot: its geometry, each cable's EA (None = rigid) and the
     payload's tension rule (`TensionCheck`, whose distribution gives the planned tensions).
 
-    Holds the FPK's cached Jacobian: one owner (the control loop) per instance.  Raises
+    Holds the FPK's cached linearisation: one owner (the control loop) per instance.  Raises
     ``KinematicsError`` for a wrong count of EA values or an EA not finite and > 0, and when the
     tension rule's anchors are not the geometry's.
     """
@@ -167,6 +170,14 @@ class CableStretch:
         self._jac_at: tuple[float, float, float] = (math.inf, math.inf, math.inf)
         self._lin_at: tuple[float, float, float] = (math.inf, math.inf, math.inf)
         self._lin_t: tuple[float, ...] = ()
+
+    def reset(self) -> None:
+        """Forget the FPK's cached linearisation (the last statics solve and tension
+        derivative): the next ``fpk`` solves both afresh.  Raises nothing."""
+        self._dt = None
+        self._jac_at = (math.inf, math.inf, math.inf)
+        self._lin_at = (math.inf, math.inf, math.inf)
+        self._lin_t = ()
 
     # ------------------------------------------------------------------ IPK
 
@@ -236,7 +247,30 @@ class CableStretch:
 
     # ------------------------------------------------------------------ FPK
 
-    def _tension_jacobian(
+    def _linearise(
+        self, p: tuple[float, float, float], fresh: bool
+    ) -> tuple[tuple[float, ...], tuple[tuple[float, float, float], ...]]:
+        """The planned tensions at `p` and their derivative d t_i / d P, cached as the FPK's
+        linearisation.  The derivative is kept while within ``JACOBIAN_REUSE_M`` of where it
+        was taken unless `fresh`; a new one comes analytically with the tensions
+        (``CableStatics.solve_with_derivative``: one statics solve), or where statics has none
+        (more than four cables, a degenerate pose) by forward differences.  Raises
+        ``StretchError`` where statics has no tensions."""
+        d = self._dt
+        try:
+            if d is not None and not fresh and math.dist(self._jac_at, p) <= JACOBIAN_REUSE_M:
+                t = self.check.solve(p).tensions_n
+            else:
+                t, d = self.check.statics.solve_with_derivative(p, self.check.mass_kg)
+                if d is None:
+                    d = self._fd_tension_jacobian(p, t)
+                self._jac_at = p
+        except StaticsError as exc:
+            raise StretchError(f"no cable tensions at {_fmt(p)}: {exc}") from None
+        self._lin_at, self._lin_t, self._dt = p, t, d
+        return t, d
+
+    def _fd_tension_jacobian(
         self, p: tuple[float, float, float], t0: Sequence[float]
     ) -> tuple[tuple[float, float, float], ...]:
         """d t_i / d P by forward differences of the statics (three solves)."""
@@ -247,7 +281,6 @@ class CableStretch:
             q[k] += h
             tk = self.tensions_n((q[0], q[1], q[2]))
             cols.append([(tk[i] - t0[i]) / h for i in range(self.n)])
-        self._jac_at = p
         return tuple((cols[0][i], cols[1][i], cols[2][i]) for i in range(self.n))
 
     def _cold_start(self, paid: list[float]) -> tuple[float, float, float]:
@@ -271,7 +304,8 @@ class CableStretch:
 
         Each pass linearises the tensions about a point P0, ``t(P) = t(P0) + T' (P - P0)``
         (``t(P0)`` by statics, reused while the warm start is within ``TENSIONS_REUSE_M`` of
-        P0; ``T'`` by finite differences, kept while within ``JACOBIAN_REUSE_M``), then fits P
+        P0; ``T'`` analytic with a statics solve, or by finite differences where statics has
+        none, kept while within ``JACOBIAN_REUSE_M``), then fits P
         by Gauss-Newton on the paid-out lengths with that smooth model; a pass that ends
         farther than ``RELINEARISE_M`` from P0 is followed by another linearised at its result.
         Warm-started a tick from the last pose: one pass, at most one statics solve.
@@ -300,24 +334,16 @@ class CableStretch:
         prev_move = math.inf
         best: tuple[float, tuple[float, float, float], tuple[float, ...]] | None = None
         for k in range(MAX_PASSES):
-            pe, te = self._lin_at, self._lin_t
-            if k > 0 or math.dist(pe, p) > TENSIONS_REUSE_M:
-                te = self.tensions_n(p)
-                pe = self._lin_at = p
-                self._lin_t = te
+            pe, te, dt = self._lin_at, self._lin_t, self._dt
+            if k > 0 or dt is None or math.dist(pe, p) > TENSIONS_REUSE_M:
+                # A later pass is a Newton step on the full equations: its tension derivative
+                # is taken where it linearises.
+                te, dt = self._linearise(p, k > 0)
+                pe = p
             if k > 0:
                 ss_p = self._sum_squares(p, te, paid)
                 if best is None or ss_p < best[0]:
                     best = (ss_p, p, te)
-            dt = self._dt
-            if (
-                dt is None
-                or math.dist(self._jac_at, pe) > JACOBIAN_REUSE_M
-                or (k > 0 and self._jac_at != pe)
-            ):
-                # A later pass is a Newton step on the full equations: its tension derivative
-                # is taken where it linearises.
-                dt = self._dt = self._tension_jacobian(pe, te)
             q, ss, t, its = self._pass(p, pe, te, dt, paid)
             total += its
             move = math.dist(pe, q)
@@ -369,9 +395,9 @@ class CableStretch:
         prev_ss = math.inf
         for it in range(MAX_ITERATIONS):
             ex, ey, ez = x - x0, y - y0, z - z0
-            jac = []
-            r = []
-            t = []
+            # The normal equations J^T J d = -J^T r, accumulated row by row.
+            a11 = a12 = a13 = a22 = a23 = a33 = 0.0
+            b1 = b2 = b3 = 0.0
             ss = 0.0
             for i in range(n):
                 ax, ay, az = anchors[i]
@@ -384,16 +410,23 @@ class CableStretch:
                     s = 1.0 / (1.0 + ci * ti)
                     k = length * ci * s * s
                     inv = s / length
-                    jac.append((-dx * inv - k * gx, -dy * inv - k * gy, -dz * inv - k * gz))
+                    j1, j2, j3 = -dx * inv - k * gx, -dy * inv - k * gy, -dz * inv - k * gz
                     ri = length * s - paid[i]
                 else:
                     inv = 1.0 / length
-                    jac.append((-dx * inv, -dy * inv, -dz * inv))
+                    j1, j2, j3 = -dx * inv, -dy * inv, -dz * inv
                     ri = length - paid[i]
-                t.append(ti if ti > 0.0 else 0.0)
-                r.append(ri)
+                a11 += j1 * j1
+                a12 += j1 * j2
+                a13 += j1 * j3
+                a22 += j2 * j2
+                a23 += j2 * j3
+                a33 += j3 * j3
+                b1 -= j1 * ri
+                b2 -= j2 * ri
+                b3 -= j3 * ri
                 ss += ri * ri
-            step = _gauss_newton_step(jac, r)
+            step = _normal_step(a11, a12, a13, a22, a23, a33, b1, b2, b3)
             if step is None:
                 raise StretchError(f"the cables do not fix the pose at {_fmt((x, y, z))}")
             sx, sy, sz = step
@@ -401,7 +434,15 @@ class CableStretch:
             if size <= STEP_TOL_M or (ss >= prev_ss and size <= 1e3 * STEP_TOL_M):
                 # The last step is far below a micrometre: take it (its residual is smaller
                 # still than the one reported, computed before it).
-                return (x + sx, y + sy, z + sz), ss, tuple(t), it
+                t = tuple(
+                    [
+                        v
+                        if (v := t0[i] + dt[i][0] * ex + dt[i][1] * ey + dt[i][2] * ez) > 0.0
+                        else 0.0
+                        for i in range(n)
+                    ]
+                )
+                return (x + sx, y + sy, z + sz), ss, t, it
             if size > MAX_STEP_M:  # far from the solution: no longer than the model holds
                 f = MAX_STEP_M / size
                 sx, sy, sz = sx * f, sy * f, sz * f
@@ -425,22 +466,19 @@ class CableStretch:
         )
 
 
-def _gauss_newton_step(
-    jac: Sequence[tuple[float, float, float]], r: Sequence[float]
+def _normal_step(
+    a11: float,
+    a12: float,
+    a13: float,
+    a22: float,
+    a23: float,
+    a33: float,
+    b1: float,
+    b2: float,
+    b3: float,
 ) -> tuple[float, float, float] | None:
-    """The step d solving (J^T J) d = -J^T r (3x3, Cramer), or None when J^T J is singular."""
-    a11 = a12 = a13 = a22 = a23 = a33 = 0.0
-    b1 = b2 = b3 = 0.0
-    for (j1, j2, j3), ri in zip(jac, r, strict=True):
-        a11 += j1 * j1
-        a12 += j1 * j2
-        a13 += j1 * j3
-        a22 += j2 * j2
-        a23 += j2 * j3
-        a33 += j3 * j3
-        b1 -= j1 * ri
-        b2 -= j2 * ri
-        b3 -= j3 * ri
+    """The step d solving the normal equations A d = b (A = J^T J symmetric, b = -J^T r;
+    3x3, Cramer), or None when A is singular."""
     c11 = a22 * a33 - a23 * a23
     c12 = a13 * a23 - a12 * a33
     c13 = a12 * a23 - a13 * a22

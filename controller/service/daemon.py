@@ -194,6 +194,8 @@ class Stack:
     controller: Any
     zenoh: Any | None
     closers: list[tuple[str, Callable[[], object]]] = field(default_factory=list)
+    sim_bank: Any | None = None
+    """The simulated drives (`[sim] enabled`), else None."""
 
     def close(self) -> None:
         """Close Zenoh, the simulated nodes and the buses (newest first); never raises."""
@@ -285,16 +287,29 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
                 closers.append(("ros2", ros2.close))
                 iface.status_extras["ros2"] = ros2.stats
                 controller.publisher = FanOutPublisher(iface, ros2)
-            if cfg.sim.enabled and getattr(bank, "coupling", None) is not None:
-                from controller.service.simulated import TRUTH_KEY, TruthFeed
-
-                period = max(1, int(cfg.loop.publish_every)) / float(cfg.loop.rate_hz)
-                feed = TruthFeed(bank.coupling, iface.json_publisher(TRUTH_KEY), period).start()
-                closers.append(("sim truth", feed.stop))
+            if cfg.sim.enabled:
+                start_truth_feed(cfg, bank, iface, closers)
     except BaseException:
         _close_all(closers)
         raise
-    return Stack(cfg, bus, driver, controller, iface, closers)
+    return Stack(cfg, bus, driver, controller, iface, closers, bank)
+
+
+def start_truth_feed(
+    cfg: Any, bank: Any, iface: Any, closers: list[tuple[str, Callable[[], object]]]
+) -> bool:
+    """With the physical plant (`bank.coupling`): publish its ground truth on
+    `<prefix>/sim/truth` through the open Zenoh interface `iface` at the pose rate, its stop
+    added to `closers`; True if started, False without a plant.  Raises what
+    `ZenohInterface.json_publisher` raises."""
+    if getattr(bank, "coupling", None) is None:
+        return False
+    from controller.service.simulated import TRUTH_KEY, TruthFeed
+
+    period = max(1, int(cfg.loop.publish_every)) / float(cfg.loop.rate_hz)
+    feed = TruthFeed(bank.coupling, iface.json_publisher(TRUTH_KEY), period).start()
+    closers.append(("sim truth", feed.stop))
+    return True
 
 
 def zenoh_open_problem(zcfg: Any, exc: BaseException) -> str:

@@ -703,3 +703,83 @@ def test_feasible_workspace_inside_a_region() -> None:
     # the bound counts the cells on both sides of the surface: 2 x area x step
     assert abs(ws.volume_m3 - exact) <= ws.uncertainty_m3 <= 2.2 * 1.3 * 0.03
     assert ws.n_feasible == ws.n_region < whole.n_feasible
+
+
+# -- the tensions' derivative with respect to the pose ---------------------------------------
+
+
+def central_derivative(
+    s: CableStatics, p: NDArray[np.float64], mass: float, h: float = 1e-6
+) -> tuple[NDArray[np.float64], float]:
+    """(d t / d P by central differences, the largest gap between the forward and backward
+    differences: large where the binding pair changes within h, a kink)."""
+    t0 = np.array(s.solve(p, mass).tensions_n)
+    cols = []
+    gap = 0.0
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = h
+        tp = np.array(s.solve(p + e, mass).tensions_n)
+        tm = np.array(s.solve(p - e, mass).tensions_n)
+        cols.append((tp - tm) / (2 * h))
+        gap = max(gap, float(np.max(np.abs((tp - t0) - (t0 - tm)))) / h)
+    return np.array(cols).T, gap
+
+
+@FAST
+@given(layout_and_point(3, 4), masses, limits)
+def test_tension_derivative_is_the_statics_derivative(
+    lp: tuple[NDArray[np.float64], NDArray[np.float64]],
+    mass: float,
+    lim: tuple[float, float],
+) -> None:
+    anchors, p = lp
+    s = CableStatics(anchors, *lim)
+    try:
+        t = s.solve(p, mass).tensions_n
+        fd, gap = central_derivative(s, p, mass)
+    except SingularConfiguration:
+        assume(False)
+        raise
+    scale = max(1.0, float(np.max(np.abs(fd))))
+    assume(gap < 1e-3 * scale)  # not at a kink of the distribution
+    d = s.tension_derivative(p, t)
+    assume(d is not None)  # a degenerate tie (checked below to be rare)
+    assert d is not None
+    assert np.max(np.abs(np.array(d) - fd)) < 1e-4 * scale
+    both = s.solve_with_derivative(p, mass)
+    assert both[0] == t and both[1] == d
+
+
+def test_tension_derivative_on_the_paper_robot() -> None:
+    """Close under the anchors the tensions change fast: the analytic derivative there."""
+    s = CableStatics(PAPER, 5.0, 2000.0)
+    for p in ([0.0, 0.0, 6.0], [20.0, 10.0, 2.0], [-30.0, -18.0, 1.0], [35.0, 20.0, 3.0]):
+        pt = np.array(p)
+        d = s.tension_derivative(pt, s.solve(pt, 5.0).tensions_n)
+        fd, gap = central_derivative(s, pt, 5.0)
+        assert gap < 1e-3 * float(np.max(np.abs(fd)))
+        assert d is not None
+        assert np.max(np.abs(np.array(d) - fd)) < 1e-5 * float(np.max(np.abs(fd)))
+    # a random path through the workspace: a derivative nearly everywhere
+    rng = np.random.default_rng(7)
+    pts = rng.uniform([-38.0, -23.0, 0.0], [38.0, 23.0, 6.6], size=(300, 3))
+    none = sum(s.tension_derivative(q, s.solve(q, 5.0).tensions_n) is None for q in pts)
+    assert none == 0
+    # at the centre, 6 m up: the four tensions rise with the height by hundreds of N/m
+    d = s.tension_derivative([0.0, 0.0, 6.0], s.solve([0.0, 0.0, 6.0], 5.0).tensions_n)
+    assert d is not None and all(row[2] > 100.0 for row in d)
+
+
+def test_tension_derivative_errors() -> None:
+    s = CableStatics(PAPER, 5.0, 2000.0)
+    with pytest.raises(StaticsInputError):
+        s.tension_derivative([0.0, 0.0, 2.0], [1.0, 2.0])
+    with pytest.raises(StaticsInputError):
+        s.tension_derivative([0.0, math.nan, 2.0], [1.0, 1.0, 1.0, 1.0])
+    with pytest.raises(SingularConfiguration):
+        s.tension_derivative(PAPER[0], [1.0, 1.0, 1.0, 1.0])
+    with pytest.raises(SingularConfiguration):
+        s.solve_with_derivative([0.0, 0.0, 9.0], 5.0)
+    six = np.vstack([PAPER, [[0.0, 30.0, 7.62], [0.0, -30.0, 7.62]]])
+    assert CableStatics(six, 5.0, 2000.0).tension_derivative([0.0, 0.0, 2.0], [1.0] * 6) is None

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import tomllib
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
@@ -203,3 +204,31 @@ def test_inconsistent_lengths_across_a_kink_of_the_tension_distribution_give_a_p
         assert math.dist(res.position_m, p) < 0.2
         assert res.residual_m < 0.03
         last = res.position_m
+
+
+def test_a_warm_call_makes_at_most_one_statics_solve(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The cost: warm-started a tick from the last pose, a call solves the statics at most once
+    (the tension derivative comes analytically with it, no finite differences), however far
+    the pose has moved since the derivative was last taken."""
+    from controller.core.statics import CableStatics
+
+    m = model(2e5)
+    path = [(0.008 * k, 0.002 * k, 6.0 - 0.001 * k) for k in range(80)]  # 8 mm a call, 0.65 m
+    paid = [m.ipk(p)[0] for p in path]
+    calls = [0]
+    units = CableStatics._units
+
+    def counting(self: CableStatics, point_m: Any) -> Any:
+        calls[0] += 1
+        return units(self, point_m)
+
+    monkeypatch.setattr(CableStatics, "_units", counting)
+    last = path[0]
+    worst = 0
+    for p, lengths in zip(path[1:], paid[1:], strict=True):
+        calls[0] = 0
+        res = m.fpk(lengths, guess_m=last)
+        worst = max(worst, calls[0])
+        assert math.dist(res.position_m, p) < 2e-5
+        last = res.position_m
+    assert worst == 1
