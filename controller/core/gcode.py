@@ -5,7 +5,8 @@ What a line may hold (`parse_line`):
 
 * comments: `;` to the end of the line, and `( ... )` anywhere (RepRapFirmware; Marlin with
   PAREN_COMMENTS); a `;` or `(` inside a quoted string is text, not a comment;
-* a line number `N123` as the first word and a checksum `*71` after the command: the XOR of
+* a line number `N123` as the first word (`N-1`, which hosts send with `M110` to restart the
+  numbering at 0, included) and a checksum `*71` after the command: the XOR of
   every byte before the `*` (comments excluded), as RepRap hosts compute it (`checksum`). A
   line with a checksum that does not match raises `ChecksumError`; a checksum without a line
   number is checked too;
@@ -55,7 +56,7 @@ _NUMBER: Final = r"[+-]?(?:\d+\.?\d*|\.\d+)"
 _WORD_RE: Final = re.compile(
     r"[ \t]*([A-Za-z])(?:\"((?:[^\"]|\"\")*)\"|(" + _NUMBER + r"(?::" + _NUMBER + r")*))?[ \t]*"
 )
-_N_RE: Final = re.compile(r"[ \t]*[Nn](\d+)[ \t]*")
+_N_RE: Final = re.compile(r"[ \t]*[Nn](-?\d+)[ \t]*")
 _CODE_RE: Final = re.compile(r"(\d+)(?:\.(\d+))?$")
 
 
@@ -144,8 +145,8 @@ def checksum(text: str) -> int:
 def numbered(number: int, command: str) -> str:
     """The line a host sends for `command` as line `number`: ``N<number> <command>*<cs>``.
     Raises ValueError for a negative line number or a command holding a newline."""
-    if number < 0:
-        raise ValueError(f"line number {number} is negative")
+    if number < -1:
+        raise ValueError(f"line number {number} is below -1")
     if "\n" in command or "\r" in command:
         raise ValueError("a command is one line")
     body = f"N{number} {command}"
