@@ -58,6 +58,7 @@ _WORD_RE: Final = re.compile(
 )
 _N_RE: Final = re.compile(r"[ \t]*[Nn](-?\d+)[ \t]*")
 _CODE_RE: Final = re.compile(r"(\d+)(?:\.(\d+))?$")
+_NUM_FULL_RE: Final = re.compile(_NUMBER + r"(?::" + _NUMBER + r")*")
 
 
 class GcodeError(ValueError):
@@ -244,13 +245,30 @@ def parse_line(text: str, line_no: int = 0) -> Line:
     return Line(line_no, _commands(body, pos, line_no), number, cs, comment)
 
 
-def _commands(body: str, offset: int, line_no: int) -> tuple[Command, ...]:
-    """The commands of a line's code part (after its `N` word)."""
-    out: list[Command] = []
-    letter = ""
-    number = 0
-    sub: int | None = None
-    params: dict[str, ParamValue] = {}
+_Word = tuple[str, str | None, str | None, int]
+"""(letter, quoted string or None, number text or None, end position in the body or -1)."""
+
+
+def _fast_words(body: str) -> list[_Word] | None:
+    """The words of a body whose whitespace-separated tokens are each one letter and a number
+    (or a flag): what slicers write. None for anything else (the general scanner reads it)."""
+    out: list[_Word] = []
+    for tok in body.split():
+        w = tok[0]
+        if not ("A" <= w <= "Z" or "a" <= w <= "z"):
+            return None
+        num = tok[1:]
+        if num:
+            if _NUM_FULL_RE.fullmatch(num) is None:
+                return None
+            out.append((w, None, num, -1))
+        else:
+            out.append((w, None, None, -1))
+    return out
+
+
+def _scan_words(body: str, offset: int, line_no: int) -> list[_Word]:
+    out: list[_Word] = []
     pos, n = 0, len(body)
     while pos < n:
         m = _WORD_RE.match(body, pos)
@@ -258,10 +276,26 @@ def _commands(body: str, offset: int, line_no: int) -> tuple[Command, ...]:
             col = offset + pos + 1 + (len(body[pos:]) - len(body[pos:].lstrip()))
             rest = body[pos:].strip()
             raise GcodeSyntaxError(line_no, f"column {col}: cannot read {rest[:20]!r}")
-        w = m.group(1).upper()
-        s, num = m.group(2), m.group(3)
-        is_cmd = w in "GM" or (w == "T" and not letter and not params)
-        if is_cmd:
+        out.append((m.group(1), m.group(2), m.group(3), m.end()))
+        pos = m.end()
+        if m.group(1) in "Mm" and f"M{m.group(3)}" in TEXT_CODES:
+            break  # the rest is the command's text
+    return out
+
+
+def _commands(body: str, offset: int, line_no: int, fast: bool = True) -> tuple[Command, ...]:
+    """The commands of a line's code part (after its `N` word)."""
+    words = _fast_words(body) if fast and '"' not in body else None
+    if words is None:
+        words = _scan_words(body, offset, line_no)
+    out: list[Command] = []
+    letter = ""
+    number = 0
+    sub: int | None = None
+    params: dict[str, ParamValue] = {}
+    for w, s, num, end in words:
+        w = w.upper()
+        if w in "GM" or (w == "T" and not letter and not params):
             if num is None or ":" in num:
                 raise GcodeSyntaxError(line_no, f"{w} needs a code number")
             cm = _CODE_RE.match(num)
@@ -272,10 +306,11 @@ def _commands(body: str, offset: int, line_no: int) -> tuple[Command, ...]:
                 params = {}
             letter, number = w, int(cm.group(1))
             sub = None if cm.group(2) is None else int(cm.group(2))
-            pos = m.end()
             code = f"{letter}{number}" if sub is None else f"{letter}{number}.{sub}"
             if code in TEXT_CODES:
-                rest = body[pos:].strip()
+                if end < 0:  # read by the fast path: find the text with the scanner
+                    return _commands(body, offset, line_no, fast=False)
+                rest = body[end:].strip()
                 if rest:
                     if len(rest) >= 2 and rest[0] == '"' and rest[-1] == '"':
                         rest = rest[1:-1].replace('""', '"')
@@ -289,14 +324,15 @@ def _commands(body: str, offset: int, line_no: int) -> tuple[Command, ...]:
             value = None
         elif ":" in num:
             value = tuple(float(x) for x in num.split(":"))
+            if not all(math.isfinite(x) for x in value):
+                raise GcodeSyntaxError(line_no, f"{w}: {num[:20]} is out of range")
         else:
             value = float(num)
-        if not _all_finite(value):
-            raise GcodeSyntaxError(line_no, f"{w}: {num[:20]} is out of range")
+            if value - value != 0.0:  # inf from a number of 300 digits
+                raise GcodeSyntaxError(line_no, f"{w}: {num[:20]} is out of range")
         if w in params:
             raise GcodeSyntaxError(line_no, f"{w} given twice")
         params[w] = value
-        pos = m.end()
     out.append(Command(letter, number, sub, MappingProxyType(params)))
     return tuple(out)
 
@@ -306,11 +342,3 @@ def parse_lines(lines: Iterable[str], first_line_no: int = 1) -> Iterator[Line]:
     Raises what `parse_line` raises, at the first bad line."""
     for i, text in enumerate(lines, first_line_no):
         yield parse_line(text.rstrip("\r\n"), i)
-
-
-def _all_finite(value: ParamValue) -> bool:
-    if isinstance(value, float):
-        return math.isfinite(value)
-    if isinstance(value, tuple):
-        return all(math.isfinite(v) for v in value)
-    return True
