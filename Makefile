@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-unit test-vcan vcan-tools bench lint venv clean docs-images
+.PHONY: run test test-unit test-vcan vcan-tools bench lint venv clean docs docs-images
 
 venv: $(STAMP)
 
@@ -50,6 +50,11 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check controller drivers tests
 	$(VENV)/bin/ruff format --check controller drivers tests
 	$(VENV)/bin/mypy
+
+# The configuration reference (docs/configuration.md), written from the schema in
+# controller/service/config/schema.py and the drive families' options (drivers/registry.py).
+docs: $(STAMP)
+	$(PY) -m controller.service.config.reference --write
 
 # The README's pictures (docs/img/circle-*.png): the paper's circle, example (c), on the simulated
 # paper robot through the whole stack; about 4 minutes.

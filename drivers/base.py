@@ -70,6 +70,22 @@ class AxisReading:
     always finite; meaningful once `torque_stamp_s` is set."""
     torque_stamp_s: float = NEVER_S
     """Clock time when the last torque reading arrived on the bus; -inf = never."""
+    command_stamp_s: float = NEVER_S
+    """Clock time when the driver last sent this axis a command that changes its state (arm,
+    disarm, e-stop, entering torque control, clearing errors); -inf = never."""
+    status_stamp_s: float = NEVER_S
+    """Clock time of the drive's latest report of its status (`ready`, `fault`,
+    `state_name`) that answers the last state-changing command: the driver moves it only on a
+    report the drive sent after taking that command (ODrive: a heartbeat that arrived after
+    it was sent; CiA 402: a statusword answering a SYNC sent after it); -inf = none yet.
+    While it is older than `command_stamp_s` the status fields still show the drive's state
+    before the command (see `status_fresh`)."""
+
+    def status_fresh(self) -> bool:
+        """True if `ready`, `fault` and `state_name` come from a report that answers the last
+        state-changing command (`status_stamp_s >= command_stamp_s`), so the drive's state can
+        be judged on them; False while the drive has not answered it yet. Raises nothing."""
+        return self.status_stamp_s >= self.command_stamp_s
 
     def snapshot(self) -> AxisReading:
         """Return an independent copy of this reading."""
@@ -87,6 +103,8 @@ class AxisReading:
             self.state_name,
             self.torque_nm,
             self.torque_stamp_s,
+            self.command_stamp_s,
+            self.status_stamp_s,
         )
 
     def encoder_age_s(self, now_s: float) -> float:

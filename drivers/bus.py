@@ -10,11 +10,19 @@ udp_multicast stays on this host unless told otherwise: python-can's own default
 local network. Here `hop_limit` defaults to 0 (delivered between processes on this host only; a
 TTL of 0 never reaches a wire). A configuration that sets `hop_limit` itself, for a deliberate
 bus across hosts, keeps its value. python-can offers no option to pin the outgoing interface.
+
+A udp_multicast receiver that the OS does not run for a while (a simulated drive or the
+controller on a busy host) keeps what arrives meanwhile in its socket's receive buffer; when that
+is full the kernel drops the newest frames, such as the last set-points of a stop. The default
+buffer (net.core.rmem_default, about 200 KiB) holds a tenth of a second of a robot's traffic:
+each udp_multicast bus asks for `UDP_RCVBUF_BYTES` instead (the kernel grants at most
+net.core.rmem_max).
 """
 
 from __future__ import annotations
 
 import errno
+import socket
 from collections.abc import Mapping
 from typing import Any
 
@@ -29,6 +37,10 @@ _NO_BITRATE = frozenset({"virtual", "udp_multicast", "socketcan"})
 #: The multicast TTL cablebot gives a udp_multicast bus whose configuration does not set one:
 #: 0 keeps every frame on this host.
 HOST_ONLY_HOP_LIMIT = 0
+
+#: The receive buffer a udp_multicast bus asks for: seconds of a robot's traffic (the kernel
+#: caps it at net.core.rmem_max).
+UDP_RCVBUF_BYTES = 4 * 1024 * 1024
 
 
 class BusOpenError(DriverError):
@@ -78,7 +90,23 @@ def open_bus(
             f"cannot open CAN bus interface={name!r} channel={channel!r}: "
             f"{type(exc).__name__}: {exc}" + (f". {hint}" if hint else "")
         ) from exc
+    if name == "udp_multicast":
+        enlarge_receive_buffer(bus)
     return bus
+
+
+def enlarge_receive_buffer(bus: can.BusABC, size_bytes: int = UDP_RCVBUF_BYTES) -> int:
+    """Ask for a `size_bytes` receive buffer on a udp_multicast bus's socket (see the module
+    docstring); return the size the kernel granted (as getsockopt reports it), 0 if the bus
+    has no such socket or the request failed. Raises nothing."""
+    sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
+    if not isinstance(sock, socket.socket):
+        return 0
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size_bytes)
+        return int(sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
+    except OSError:
+        return 0
 
 
 def _hint(name: str, channel: object, exc: BaseException) -> str:

@@ -219,7 +219,8 @@ _CIA402_OPTIONS = (
         required=True,
         gt=0.0,
         doc="position units (0x6064/0x607A) per motor turn: the encoder's increments per turn "
-        "unless the drive scales them",
+        "unless the drive scales them; every reel's cable range must fit the drives' 32-bit "
+        "position",
     ),
     Option(
         "velocity_units_per_rps",
@@ -227,7 +228,12 @@ _CIA402_OPTIONS = (
         gt=0.0,
         doc="velocity offset (0x60B1) units per motor turn per second (default: counts_per_rev)",
     ),
-    Option("eds", "path", doc="the drives' EDS file (default: the one shipped with cablebot)"),
+    Option(
+        "eds",
+        "path",
+        doc="the drives' EDS file (default: the one shipped with cablebot); it must load and "
+        "hold every object the driver uses",
+    ),
     Option(
         "velocity_offset",
         "bool",

@@ -11,11 +11,12 @@ import importlib
 import os
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 _MODULES: tuple[str, ...] = (
     "controller.service.daemon",  # run
     "controller.cli.sim",  # sim
-    "controller.cli.client",  # pose, status, move, path, stop, estop, arm, disarm, reset, home
+    "controller.cli.client",  # list, pose, status, move, path, stop, estop, arm, disarm, ...
     "controller.cli.offline",  # ipk, fpk
     "controller.cli.statics_cmd",  # statics, workspace
     "controller.cli.configs",  # check-config, init-config
@@ -51,12 +52,63 @@ def build_parser() -> argparse.ArgumentParser:
         prog="cablebot",
         description="Controller service and tools for cable-suspended robots.",
     )
+    parser.add_argument("--version", action="version", version=f"cablebot {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in _MODULES:
         module = importlib.import_module(name)
         module.register(sub)
     return parser
+
+
+def version() -> str:
+    """The installed cablebot's version ("unknown" when it runs from a tree not installed)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("cablebot")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
+    """`parser.parse_args(argv)`, with the errors a user can act on: an unknown verb gets the
+    closest known one ("did you mean"), and arguments a verb does not take are reported with
+    that verb's usage rather than the top-level one. Exits 2 (argparse) on a usage error."""
+    from controller.core.suggest import closest
+
+    verbs = _subcommands(parser)
+    first = next((a for a in argv if not a.startswith("-")), None)
+    if first is not None and verbs is not None and first not in verbs.choices:
+        hint = closest(first, verbs.choices)
+        parser.error(
+            f"unknown command {first!r}"
+            + (f"; did you mean {hint!r}?" if hint else "; `cablebot -h` lists them")
+        )
+    args, extras = parser.parse_known_args(argv)
+    if extras:
+        _innermost(parser, args).error(f"unrecognized arguments: {' '.join(extras)}")
+    return args
+
+
+def _subcommands(parser: argparse.ArgumentParser) -> argparse._SubParsersAction[Any] | None:
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return action
+    return None
+
+
+def _innermost(
+    parser: argparse.ArgumentParser, args: argparse.Namespace
+) -> argparse.ArgumentParser:
+    """The parser of the (sub)command that `args` chose, at the deepest level."""
+    while True:
+        verbs = _subcommands(parser)
+        chosen = None if verbs is None else getattr(args, verbs.dest, None)
+        if verbs is None or chosen not in verbs.choices:
+            return parser
+        parser = verbs.choices[chosen]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -68,7 +120,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from controller.cli import exitcodes
 
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = _parse(parser, list(sys.argv[1:] if argv is None else argv))
     try:
         code: int = args.func(args)
         sys.stdout.flush()

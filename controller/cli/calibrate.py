@@ -3,15 +3,16 @@
 - `cablebot calibrate collect OUT.csv` (daemon running) records, at each pose, every reel's
   motor position (`axes[].position_rev` of the daemon's status, motor turns as the drive
   reports them) and the pose the controller believes. The operator drives the robot to each
-  pose (move, jog, or by hand while disarmed) and presses Enter; or `--auto N` visits N poses
-  spread over the configured workspace (kept `--margin-m` inside it) with the ordinary `move`
-  command. A sample is taken only once the pose is still: for `--settle-s` every published
-  pose stays within `--still-m` of their mean. Rows are written and flushed as they come.
-- `cablebot calibrate solve SAMPLES.csv --config FILE` fits the anchors and the reel offsets
-  (`controller.core.calibration`), prints the changes, residuals, observability warnings and
-  the gates; `--write NEW.toml` writes the configuration with only the anchor values changed
-  (comments kept), `--write-offsets FILE` a homing state file with the fitted offsets; both
-  only when every gate passes.
+  pose (move, jog, or by hand while disarmed) and presses Enter; or `--auto [N]` visits N
+  poses (default: as many as solve recommends) spread over the configured workspace (kept
+  `--margin-m` inside it) with the ordinary `move` command, saying up front how long it takes.
+  A sample is taken only once the pose is still: for `--settle-s` every published pose stays
+  within `--still-m` of their mean. Rows are written and flushed as they come.
+- `cablebot calibrate solve SAMPLES.csv [--config FILE]` (default: the built-in robot) fits
+  the anchors and the reel offsets (`controller.core.calibration`), prints the changes,
+  residuals, observability warnings and the gates; `--write NEW.toml` writes the
+  configuration with only the anchor values changed (comments kept), `--write-offsets FILE` a
+  homing state file with the fitted offsets; both only when every gate passes.
 
 Exit codes: 0 done (solve: every gate passed); 1 refused, bad input or a failed gate;
 2 no daemon answered (collect).
@@ -51,6 +52,13 @@ Vec3 = tuple[float, float, float]
 
 DEFAULT_MARGIN_RATIO = 0.05
 """`--auto` keeps this fraction of the workspace's smallest extent inside its limits."""
+
+AUTO_RECOMMENDED = 0
+"""`--auto` without N: visit `calibration.recommended_poses` poses."""
+
+SAMPLE_OVERHEAD_S = 0.5
+"""Besides the settle time, what one `--auto` sample costs (command, status queries, the
+pose samples before the window starts), for the up-front estimate."""
 
 MAX_READING_AGE_S = 0.5
 """An axis reading older than this is not recorded (the drive stopped reporting)."""
@@ -122,6 +130,54 @@ def auto_poses(
         return spread_poses(n, lo, hi, inside, start_m=start_m)
     except CalibrationError as exc:
         raise InputError(str(exc)) from None
+
+
+def move_time_s(distance_m: float, speed_mps: float, accel_mps2: float) -> float:
+    """The time a straight move of `distance_m` takes with a trapezoidal (or, when short,
+    triangular) speed profile from rest to rest. Raises nothing (0 for no distance)."""
+    d = max(0.0, float(distance_m))
+    if d == 0.0 or speed_mps <= 0.0 or accel_mps2 <= 0.0:
+        return 0.0
+    if d >= speed_mps * speed_mps / accel_mps2:
+        return d / speed_mps + speed_mps / accel_mps2
+    return 2.0 * math.sqrt(d / accel_mps2)
+
+
+def auto_estimate_s(
+    start_m: Sequence[float],
+    targets: Sequence[Sequence[float]],
+    speed_mps: float,
+    accel_mps2: float,
+    settle_s: float,
+) -> tuple[float, float]:
+    """(travel in m, time in s) of an `--auto` tour: every move from rest to rest, then the
+    settle time and SAMPLE_OVERHEAD_S at each pose."""
+    here: Sequence[float] = start_m
+    travel_m = time_s = 0.0
+    for t in targets:
+        d = math.dist(here, t)
+        travel_m += d
+        time_s += move_time_s(d, speed_mps, accel_mps2) + settle_s + SAMPLE_OVERHEAD_S
+        here = t
+    return travel_m, time_s
+
+
+def auto_speed_mps(summary: dict[str, Any], speed_mps: float | None) -> tuple[float, float]:
+    """The speed and acceleration the daemon will move `--auto`'s poses at: `--speed` (or the
+    robot's default speed) capped at its maximum; its acceleration. Raises InputError when the
+    status summary lacks the limits."""
+    try:
+        lim = summary["limits"]
+        v_max = float(lim["max_speed_mps"])
+        v = float(lim["default_speed_mps"]) if speed_mps is None else float(speed_mps)
+        a = float(lim["max_accel_mps2"])
+    except (KeyError, TypeError, ValueError):
+        raise InputError("the daemon's status has no speed limits") from None
+    return min(v, v_max), a
+
+
+def _duration(s: float) -> str:
+    return f"{s:.0f} s" if s < 120 else f"{s / 60:.0f} min"
 
 
 class _Poses:
@@ -267,13 +323,21 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
             raise Refused("the daemon's status does not list its reels") from None
         pose_now = (st.get("pose") or {}).get("position_m")
         targets: list[Vec3] | None = None
+        start_m: list[float] = []
         if args.auto is not None:
             if st.get("state") != "HOLDING" or pose_now is None:
                 raise Refused(
                     f"--auto moves the robot: it must be armed and holding a valid pose "
                     f"(state {st.get('state')}; run `cablebot arm` first)"
                 )
-            targets = auto_poses(summary, args.auto, args.margin_m, pose_now)
+            n_auto = args.auto
+            if n_auto == AUTO_RECOMMENDED:
+                from controller.core.calibration import recommended_poses
+
+                n_auto = recommended_poses(len(node_ids))
+            start_m = [float(v) for v in pose_now]
+            targets = auto_poses(summary, n_auto, args.margin_m, start_m)
+            speed_mps, accel_mps2 = auto_speed_mps(summary, args.speed)
         raw: queue.Queue[bytes] = queue.Queue()
         sub = session.declare_subscriber(
             _key(args, "pose"), lambda s: raw.put(s.payload.to_bytes())
@@ -312,13 +376,27 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
                 )
 
             if targets is not None:
-                print(f"visiting {len(targets)} poses; samples go to {args.out}", flush=True)
+                travel_m, total_s = auto_estimate_s(
+                    start_m, targets, speed_mps, accel_mps2, args.settle_s
+                )
+                print(
+                    f"visiting {len(targets)} poses: {travel_m:.1f} m at {speed_mps:g} m/s, about "
+                    f"{_duration(total_s)}; samples go to {args.out}",
+                    flush=True,
+                )
+                t0 = time.monotonic()
+                here: Sequence[float] = start_m
                 for i, target in enumerate(targets, start=1):
                     payload: dict[str, Any] = {"position_m": list(target)}
                     if args.speed is not None:
                         payload["speed_mps"] = args.speed
+                    _, left_s = auto_estimate_s(
+                        here, targets[i - 1 :], speed_mps, accel_mps2, args.settle_s
+                    )
+                    here = target
                     print(
-                        f"pose {i}/{len(targets)}: move to "
+                        f"pose {i}/{len(targets)} ({_duration(time.monotonic() - t0)} in, about "
+                        f"{_duration(left_s)} left): move to "
                         f"x={target[0]:+.4f} y={target[1]:+.4f} z={target[2]:+.4f} m",
                         flush=True,
                     )
@@ -416,7 +494,8 @@ def _atomic_write(path: str, text: str) -> None:
 
 
 def cmd_solve(args: argparse.Namespace) -> int:
-    """`calibrate solve SAMPLES.csv --config FILE`: fit, report, and write when the gates pass."""
+    """`calibrate solve SAMPLES.csv [--config FILE]`: fit, report, and write when the gates
+    pass (the built-in robot without --config)."""
     import tomllib
 
     from controller.core.calibration import (
@@ -427,22 +506,36 @@ def cmd_solve(args: argparse.Namespace) -> int:
         parse_samples,
         replace_anchor_values,
     )
+    from controller.core.workspace import Workspace
     from controller.service import offsets as homing
     from controller.service.config import ConfigError, load_config, parse_config
+    from controller.service.textfile import NotUtf8Error, read_text
 
     def refuse(msg: str) -> int:
         if args.json:
             print(json.dumps({"ok": False, "error": msg}))
         return _fail(msg)
 
+    if args.write and args.config is None:
+        return refuse(
+            "--write edits the robot file given with --config; the built-in robot has none "
+            "(`cablebot init-config --example paper-acre` writes a robot file to start from)"
+        )
     try:
-        cfg = load_config(args.config)
-        config_text = Path(args.config).read_text()
-        samples_text = Path(args.samples).read_text()
+        cfg = load_config(args.config)  # None: the built-in robot, as `cablebot run` uses
+        config_text = "" if args.config is None else read_text(args.config)
     except ConfigError as exc:
         return refuse(str(exc))
     except OSError as exc:
         return refuse(f"cannot read {exc.filename}: {exc.strerror}")
+    except NotUtf8Error as exc:
+        return refuse(f"{args.config}: {exc}")
+    try:
+        samples_text = read_text(args.samples)
+    except OSError as exc:
+        return refuse(f"cannot read {exc.filename}: {exc.strerror}")
+    except NotUtf8Error as exc:
+        return refuse(f"{args.samples}: {exc}")
     try:
         settings = Settings(
             hold_std_m=args.hold_std_m,
@@ -450,7 +543,14 @@ def cmd_solve(args: argparse.Namespace) -> int:
             max_residual_m=args.max_residual_m,
         )
         samples = parse_samples(samples_text, args.samples, cfg.node_ids)
-        result = calibrate(cfg.anchors_m, [r.reel for r in cfg.reels], samples, settings)
+        _, _, (z_lo, z_hi) = Workspace.from_limits(cfg.limits, cfg.geometry).box()
+        result = calibrate(
+            cfg.anchors_m,
+            [r.reel for r in cfg.reels],
+            samples,
+            settings,
+            pose_height_m=z_hi - z_lo,
+        )
     except (CalibrationError, CalibrationUnavailable) as exc:
         return refuse(str(exc))
 
@@ -487,7 +587,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(out, allow_nan=False))
     else:
-        print(format_report(result, args.config, args.samples))
+        print(format_report(result, args.config or "the built-in robot", args.samples))
         for what, path in written.items():
             print(f"wrote {what}: {path}")
         if "offsets" in written:
@@ -518,9 +618,14 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     c.add_argument(
         "--auto",
         type=int,
+        nargs="?",
+        const=AUTO_RECOMMENDED,
         default=None,
         metavar="N",
-        help="visit N poses spread over the workspace",
+        help=(
+            "visit N poses spread over the workspace (without N: as many as calibrate solve "
+            "recommends, 28 for four cables); prints the time it will take first"
+        ),
     )
     c.add_argument(
         "--count", type=int, default=None, metavar="N", help="manual: stop after N samples"
@@ -555,7 +660,12 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
 
     s = steps.add_parser("solve", help="fit anchors and reel offsets to samples (offline)")
     s.add_argument("samples", metavar="SAMPLES.csv", help="samples from `calibrate collect`")
-    s.add_argument("--config", required=True, metavar="FILE", help="the robot's TOML")
+    s.add_argument(
+        "--config",
+        default=None,
+        metavar="FILE",
+        help="the robot's TOML (default: the built-in robot, as `cablebot run` without --config)",
+    )
     s.add_argument(
         "--write",
         default=None,

@@ -20,7 +20,6 @@ import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
-from pathlib import Path
 from typing import Any, TextIO
 
 from controller.cli import add_xyz_arguments, exitcodes, xyz_from_args
@@ -47,7 +46,12 @@ _RUST_LOCATION = re.compile(r" at /\S+\.rs:\d+\.?")
 
 
 class DaemonAbsent(RuntimeError):
-    """No daemon answered: nothing listening on the endpoint, wrong prefix, or no reply in time."""
+    """No daemon answered: nothing listening on the endpoint, wrong prefix, or no reply in time.
+
+    `live` names the prefixes of the daemons that are alive on the same network (filled in by
+    `run_with_session`), for the error message."""
+
+    live: tuple[str, ...] = ()
 
 
 class Refused(RuntimeError):
@@ -70,14 +74,16 @@ class WaitTimeout(RuntimeError):
 # Session and queries
 
 
-def normalize_endpoint(text: str) -> str:
-    """The Zenoh endpoint for a `--connect` value: `HOST:PORT` becomes `tcp/HOST:PORT`.
+def normalize_endpoint(text: str, option: str = "--connect") -> str:
+    """The Zenoh endpoint for an endpoint option's value: `HOST:PORT` becomes `tcp/HOST:PORT`.
 
-    Accepts `PROTO/ADDRESS` for Zenoh's link protocols (`tcp`, `udp`, `tls`, `quic`, `ws` need
-    `HOST:PORT` with a port 1..65535). Raises UsageError (one line) for anything else.
+    The one reading of an endpoint given on the command line (`--connect` of every verb,
+    `replay --listen`). Accepts `PROTO/ADDRESS` for Zenoh's link protocols (`tcp`, `udp`,
+    `tls`, `quic`, `ws` need `HOST:PORT` with a port 1..65535). Raises UsageError (one line,
+    naming `option`) for anything else.
     """
     t = text.strip()
-    bad = UsageError(f"--connect: expected tcp/HOST:PORT or HOST:PORT, got {text!r}")
+    bad = UsageError(f"{option}: expected tcp/HOST:PORT or HOST:PORT, got {text!r}")
     if "/" in t:
         proto, _, address = t.partition("/")
         if proto in _OTHER_PROTOCOLS and address:
@@ -101,7 +107,8 @@ def clean_zenoh_error(text: str) -> str:
 
 @contextmanager
 def open_session(endpoint: str, *, config_file: str | None = None) -> Iterator[Any]:
-    """Open a client-mode Zenoh session connected to `endpoint`; close it on exit.
+    """Open a client-mode Zenoh session connected to `endpoint` (any form `normalize_endpoint`
+    takes, e.g. `HOST:PORT`); close it on exit.
 
     Raises UsageError for an endpoint or `--zenoh-config` file that Zenoh rejects, and
     DaemonAbsent when nothing accepts the connection.
@@ -110,6 +117,7 @@ def open_session(endpoint: str, *, config_file: str | None = None) -> Iterator[A
 
     from controller.service.zenoh_io import client_config
 
+    endpoint = normalize_endpoint(endpoint)
     try:
         conf = client_config([endpoint], config_file=config_file)
     except zenoh.ZError as exc:
@@ -156,26 +164,59 @@ def query(session: Any, key: str, payload: dict[str, Any] | None, timeout_s: flo
     raise DaemonAbsent(f"no reply on {key}")
 
 
-def _absent_message(args: argparse.Namespace, detail: str) -> str:
-    return f"no cablebot daemon answered on {args.prefix} via {args.connect} ({detail})"
+LIVELINESS_TIMEOUT_S = 1.0
+"""How long `live_prefixes` waits for the daemons' liveliness tokens."""
+
+
+def live_prefixes(session: Any, timeout_s: float = LIVELINESS_TIMEOUT_S) -> list[str]:
+    """The key prefixes of every daemon alive on the session's network (each daemon declares
+    the liveliness token `<prefix>/alive` while its Zenoh interface is open), sorted.
+
+    Raises nothing: a failed lookup is an empty list."""
+    found: set[str] = set()
+    try:
+        for reply in session.liveliness().get("**/alive", timeout=timeout_s):
+            if reply.ok is not None:
+                key = str(reply.ok.key_expr)
+                if key.endswith("/alive"):
+                    found.add(key.removesuffix("/alive"))
+    except Exception:  # a closing session: nothing to name
+        return []
+    return sorted(found)
+
+
+def _absent_message(args: argparse.Namespace, exc: DaemonAbsent) -> str:
+    text = f"no cablebot daemon answered on {args.prefix} via {args.connect} ({exc})"
+    others = [p for p in exc.live if p != args.prefix.rstrip("/")]
+    if others:
+        text += (
+            f"; live daemons there: {', '.join(others)} (give --prefix {others[0]};"
+            " `cablebot list` shows them)"
+        )
+    return text
 
 
 def run_with_session(args: argparse.Namespace, body: Callable[[Any], int]) -> int:
     """Run `body(session)` with the CLI's error handling; returns the exit code.
 
-    Every failure is one line on stderr: a refusal prints the daemon's reason verbatim.
+    Every failure is one line on stderr: a refusal prints the daemon's reason verbatim; when
+    no daemon answers on `--prefix`, the line names the prefixes of the daemons that are alive.
     """
     try:
         endpoint = normalize_endpoint(args.connect)
         args.connect = endpoint
         with open_session(endpoint, config_file=args.zenoh_config) as session:
-            code: int = body(session)
+            try:
+                code: int = body(session)
+            except DaemonAbsent as exc:
+                exc.live = tuple(live_prefixes(session))
+                raise
             return code
     except UsageError as exc:
         print(f"cablebot: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except DaemonAbsent as exc:
-        print(f"cablebot: {_absent_message(args, str(exc))}", file=sys.stderr)
+        print(f"cablebot: {_absent_message(args, exc)}", file=sys.stderr)
         return EXIT_ABSENT
     except Refused as exc:
         print(f"cablebot: refused: {exc}", file=sys.stderr)
@@ -514,12 +555,17 @@ def load_path_file(path: str) -> dict[str, Any]:
     """Read a path file: JSON (a list of [x, y, z] or {"points_m": ..., "speed_mps": ...}) or
     CSV/whitespace lines `x,y,z` (`#` comments and a header line are skipped).
 
-    Returns the `path` command payload. Raises InputError for an unreadable or invalid file.
+    Returns the `path` command payload. Raises InputError for an unreadable, not UTF-8 or
+    invalid file.
     """
+    from controller.service.textfile import NotUtf8Error, read_text
+
     try:
-        text = Path(path).read_text()
+        text = read_text(path)
     except OSError as exc:
         raise InputError(f"cannot read {path}: {exc.strerror}") from None
+    except NotUtf8Error as exc:
+        raise InputError(f"{path}: {exc}") from None
     stripped = text.lstrip()
     payload: dict[str, Any]
     if stripped.startswith(("[", "{")):
@@ -550,7 +596,15 @@ def load_path_file(path: str) -> dict[str, Any]:
                 raise InputError(f"{path} line {n}: expected x,y,z, got {row}") from None
             points.append(_vec3(values, f"{path} line {n}"))
         payload = {"points_m": points}
-    from controller.core.commands import CommandError, parse_command
+    from controller.core.commands import MAX_PATH_POINTS_SENT, CommandError, parse_command
+
+    pts = payload.get("points_m")
+    if isinstance(pts, list) and len(pts) > MAX_PATH_POINTS_SENT:
+        raise InputError(
+            f"{path}: {len(pts)} points; one path command takes at most {MAX_PATH_POINTS_SENT}"
+            f" points: split it into parts of at most {MAX_PATH_POINTS_SENT} points and send"
+            " each with its own path command"
+        )
 
     try:
         parse_command("path", json.dumps(payload))
@@ -583,10 +637,34 @@ def _print_reply(verb: str, reply: Any, args: argparse.Namespace) -> None:
         print(format_reply(verb, reply), flush=True)
 
 
+ARMED_STATES = frozenset({"ARMING", "HOLDING", "MOVING", "PRETENSIONING"})
+"""States in which the motors are armed (or arming): `arm` there is already done."""
+
+
 def cmd_simple(args: argparse.Namespace) -> int:
-    """stop, estop, arm, disarm, reset: send the verb, print the reply."""
+    """stop, estop, arm, disarm, reset: send the verb, print the reply. `arm` on a robot that
+    is already armed succeeds, saying so."""
     verb: str = args.command
-    return _command(args, verb, None)
+    if verb != "arm":
+        return _command(args, verb, None)
+
+    def body(session: Any) -> int:
+        try:
+            reply = query(session, _key(args, "cmd/arm"), None, args.timeout)
+        except Refused:
+            st = query(session, _key(args, "status"), None, args.timeout)
+            state = st.get("state") if isinstance(st, dict) else None
+            if state not in ARMED_STATES:
+                raise
+            if getattr(args, "json", False):
+                print(json.dumps({"ok": True, "state": state, "already_armed": True}), flush=True)
+            else:
+                print(f"arm: already armed, state {state}", flush=True)
+            return EXIT_OK
+        _print_reply(verb, reply, args)
+        return EXIT_OK
+
+    return _run(args, body)
 
 
 def cmd_home(args: argparse.Namespace) -> int:
@@ -708,11 +786,40 @@ def _motion(
             status = query(session, _key(args, "status"), None, args.timeout)
             moving = isinstance(status, dict) and status.get("state") == "MOVING"
             return _wait_arrival(args, verb, poses, points, seen_moving=not moving)
+        except KeyboardInterrupt:
+            return _interrupted(session, args)
         finally:
             if sub is not None:
                 sub.undeclare()
 
     return _run(args, body)
+
+
+INTERRUPT_STOP_TEXT = "interrupted: braking to a hold"
+DETACH_TEXT = "interrupted: detached; the robot goes on with the motion"
+
+
+def _interrupted(session: Any, args: argparse.Namespace) -> int:
+    """Ctrl-C while a motion command runs: send `stop` (brake to a hold) and say so, unless
+    `--detach` was given (then only say that the motion goes on). Returns the exit code 130;
+    a stop the daemon does not take is printed as such (exit 1 or 3)."""
+    if getattr(args, "detach", False):
+        print(DETACH_TEXT, file=sys.stderr, flush=True)
+        return exitcodes.INTERRUPTED
+    print(INTERRUPT_STOP_TEXT, file=sys.stderr, flush=True)
+    try:
+        reply = query(session, _key(args, "cmd/stop"), None, args.timeout)
+    except Refused as exc:
+        print(f"cablebot: stop refused: {exc}", file=sys.stderr, flush=True)
+        return EXIT_REFUSED
+    except DaemonAbsent as exc:
+        print(f"cablebot: stop not confirmed: {exc}", file=sys.stderr, flush=True)
+        return EXIT_ABSENT
+    if getattr(args, "json", False):
+        print(json.dumps(reply), flush=True)
+    else:
+        print(format_reply("stop", reply), flush=True)
+    return exitcodes.INTERRUPTED
 
 
 def _wait_arrival(
@@ -729,7 +836,9 @@ def _wait_arrival(
     still running when the wait began, and older samples may stand where the path ends).
 
     On a terminal (and without `--json`) one line shows the distance still to travel, rewritten
-    in place. Raises WaitTimeout, Refused (the robot left the motion states) or DaemonAbsent.
+    in place. At the end it prints "arrived: <pose>" (with `--json` a line
+    `{"arrived": true, "pose": <the pose sample>}`). Raises WaitTimeout, Refused (the robot
+    left the motion states) or DaemonAbsent.
     """
     end = points[-1]
     line = StatusLine(sys.stdout, enabled=_isatty(sys.stdout) and not args.json)
@@ -763,7 +872,9 @@ def _wait_arrival(
                 seen_moving = True
             if state == "HOLDING" and seen_moving and math.dist(pos, end) <= ARRIVED_TOL_M:
                 line.clear()
-                if not args.json:
+                if args.json:
+                    print(json.dumps({"arrived": True, "pose": last}), flush=True)
+                else:
                     print(f"arrived: {format_pose(last)}", flush=True)
                 return EXIT_OK
             if legs is None:
@@ -776,6 +887,61 @@ def _wait_arrival(
             )
     finally:
         line.clear()
+
+
+def list_daemons(session: Any, timeout_s: float) -> list[dict[str, Any]]:
+    """Every live daemon on the session's network: prefix, robot name, state and the endpoints
+    it listens on (from its status; None where it did not answer within `timeout_s`)."""
+    out: list[dict[str, Any]] = []
+    for prefix in live_prefixes(session):
+        row: dict[str, Any] = {"prefix": prefix, "name": None, "state": None, "listen": None}
+        try:
+            st = query(session, f"{prefix}/status", None, timeout_s)
+        except (DaemonAbsent, Refused, ValueError):
+            st = None
+        if isinstance(st, dict):
+            cfg = st.get("config")
+            z = st.get("zenoh")
+            row["name"] = cfg.get("name") if isinstance(cfg, dict) else None
+            row["state"] = st.get("state")
+            row["listen"] = z.get("listen") if isinstance(z, dict) else None
+        out.append(row)
+    return out
+
+
+def format_daemons(rows: Sequence[dict[str, Any]]) -> str:
+    """The `list` table: one line per daemon (prefix, name, state, endpoints)."""
+    table = [("PREFIX", "NAME", "STATE", "ENDPOINT")]
+    for r in rows:
+        listen = r.get("listen")
+        table.append(
+            (
+                str(r["prefix"]),
+                "-" if r.get("name") is None else str(r["name"]),
+                "-" if r.get("state") is None else str(r["state"]),
+                "-" if not listen else ", ".join(str(e) for e in listen),
+            )
+        )
+    widths = [max(len(row[i]) for row in table) for i in range(3)]
+    return "\n".join(
+        "  ".join(cell.ljust(w) for cell, w in zip(row[:3], widths, strict=True)) + "  " + row[3]
+        for row in table
+    )
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    """list [--json]: every live daemon reachable via `--connect` (prefix, name, state,
+    endpoint); exit 3 when there is none."""
+
+    def body(session: Any) -> int:
+        rows = list_daemons(session, args.timeout)
+        if not rows:
+            print(f"cablebot: no live cablebot daemon via {args.connect}", file=sys.stderr)
+            return EXIT_ABSENT
+        print(json.dumps(rows) if args.json else format_daemons(rows), flush=True)
+        return EXIT_OK
+
+    return _run(args, body)
 
 
 def cmd_status(args: argparse.Namespace) -> int:
@@ -912,13 +1078,34 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     p.add_argument("--json", action="store_true", help="print the raw JSON samples")
     p.set_defaults(func=cmd_pose)
 
+    p = sub.add_parser(
+        "list",
+        help="list every live daemon (prefix, name, state, endpoint)",
+        description=(
+            "List the cablebot daemons alive on the Zenoh network reached via --connect (each "
+            "declares the liveliness token <prefix>/alive): their prefix (give it as --prefix "
+            "to the other verbs), robot name, state and listen endpoints."
+        ),
+    )
+    add_connection_arguments(p)
+    p.add_argument("--json", action="store_true", help="print a JSON list")
+    p.set_defaults(func=cmd_list)
+
     p = sub.add_parser("status", help="print the daemon's status")
     add_connection_arguments(p)
     p.add_argument("--json", action="store_true", help="print the raw JSON status")
     p.set_defaults(func=cmd_status)
 
     for verb, what in (("move", "move in a straight line to X Y Z"), ("path", "follow a path")):
-        p = sub.add_parser(verb, help=what)
+        p = sub.add_parser(
+            verb,
+            help=what,
+            description=(
+                f"{what[0].upper()}{what[1:]}. With --wait, Ctrl-C stops the robot: the CLI sends"
+                " stop (it brakes to a hold) and prints 'interrupted: braking to a hold'; with"
+                " --detach, Ctrl-C only stops waiting and the motion goes on."
+            ),
+        )
         add_connection_arguments(p)
         if verb == "move":
             add_xyz_arguments(p)
@@ -934,7 +1121,19 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
                 " the maximum"
             ),
         )
-        p.add_argument("--wait", action="store_true", help="wait until the end point is reached")
+        p.add_argument(
+            "--wait",
+            action="store_true",
+            help=(
+                "wait until the end point is reached; Ctrl-C while waiting stops the robot "
+                "(sends stop: it brakes to a hold) unless --detach is given"
+            ),
+        )
+        p.add_argument(
+            "--detach",
+            action="store_true",
+            help="with --wait: Ctrl-C only stops waiting and leaves the robot moving",
+        )
         p.add_argument(
             "--wait-timeout",
             type=float,

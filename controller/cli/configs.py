@@ -206,6 +206,10 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
         )
     else:
         lines.append("statics    no [payload]: cable tensions are not checked")
+    stretch = _stretch_lines(cfg, ((x_lo + x_hi) / 2.0, (y_lo + y_hi) / 2.0), lim.floor_z_m, top_z)
+    if stretch is not None:
+        lines.append(stretch[0])
+        data["stretch"] = stretch[1]
     lp = cfg.loop
     pub_hz = lp.rate_hz / max(1, lp.publish_every)
     lines.append(
@@ -255,6 +259,53 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
     return lines, notes, data
 
 
+def _stretch_lines(
+    cfg: Any, centre_xy: Point2, floor_z: float, top_z: float
+) -> tuple[str, list[dict[str, Any]]] | None:
+    """The check-config line on cable stretch (None: rigid cables) and its JSON: the most any
+    cable stretches under the planned tensions at the power-up pose and at the workspace's
+    centre line, at the floor, half-way and the top (``docs/cable-stretch.md``)."""
+    eas = [r.cable_ea_n for r in cfg.reels]
+    if all(e is None for e in eas) or cfg.payload is None or cfg.tension is None:
+        return None
+    from controller.core.stretch import CableStretch
+    from controller.service.config import tension_check
+
+    model = CableStretch(cfg.geometry, eas, tension_check(cfg.payload, cfg.tension, cfg.geometry))
+    known = sorted({e for e in eas if e is not None})
+    ea_text = (
+        "/".join(f"{e:g}" for e in known) + " N" + (" (some reels rigid)" if None in eas else "")
+    )
+    cx, cy = centre_xy
+    poses: list[tuple[str, tuple[float, float, float]]] = []
+    pu = cfg.homing.power_up_position_m
+    if pu is not None:
+        poses.append(("power-up", (float(pu[0]), float(pu[1]), float(pu[2]))))
+    for name, z in (("floor", floor_z), ("middle", (floor_z + top_z) / 2.0), ("top", top_z)):
+        poses.append((name, (cx, cy, z)))
+    parts = []
+    out: list[dict[str, Any]] = []
+    for name, p in poses:
+        try:
+            paid, tensions = model.ipk(p)
+        except ValueError as exc:  # KinematicsError: no tensions there
+            parts.append(f"{name} ({_xyz(p)}): {exc}")
+            continue
+        geo = model.stretched_m(paid, tensions)
+        st = [g - q for g, q in zip(geo, paid, strict=True)]
+        parts.append(f"{max(st) * 1e3:.1f} mm at {name} ({_xyz(p)})")
+        out.append({"pose": name, "position_m": list(p), "stretch_m": st})
+    line = (
+        f"stretch    cable EA {ea_text}, pose from {cfg.loop.stretch_tensions} tensions; "
+        f"most stretch: {', '.join(parts)}"
+    )
+    return line, out
+
+
+def _xyz(p: Sequence[float]) -> str:
+    return ", ".join(f"{v:g}" for v in p)
+
+
 def _toml_text(v: Any) -> str:
     """A scalar as a robot file writes it (true, 0.1, 131072, a path)."""
     if isinstance(v, bool):
@@ -264,14 +315,29 @@ def _toml_text(v: Any) -> str:
     return str(v)
 
 
+def invalid_report(file: str, exc: BaseException) -> dict[str, Any]:
+    """`check-config --json` for a file that is not valid: `{"ok": false, "file", "errors":
+    [{"key", "problem", "message"}, ...]}`, one entry per problem found."""
+    from controller.service.config import ConfigError
+
+    if isinstance(exc, ConfigError):
+        errors = [{"key": e.key, "problem": e.problem, "message": str(e)} for e in exc.errors]
+    else:
+        errors = [{"key": "", "problem": str(exc), "message": str(exc)}]
+    return {"ok": False, "file": file, "errors": errors}
+
+
 def cmd_check_config(args: argparse.Namespace) -> int:
-    """`cablebot check-config FILE`: validate and describe; exit 1 with every problem."""
+    """`cablebot check-config FILE`: validate and describe; exit 1 with every problem (with
+    `--json` also as a JSON object on stdout, see `invalid_report`)."""
     from controller.service.config import ConfigError, load_config
 
     try:
         cfg = load_config(args.file)
         lines, notes, data = describe(cfg)
     except (ConfigError, ValueError, OSError) as exc:
+        if args.json:
+            print(json.dumps(invalid_report(args.file, exc), indent=2))
         print(f"{exc}", file=sys.stderr)
         print(f"cablebot: {args.file}: not a valid robot configuration", file=sys.stderr)
         return exitcodes.REFUSED

@@ -1,6 +1,7 @@
 """The exit codes of the `cablebot` command line: one table, used by every verb.
 
-The README's exit-code table is checked against `TABLE` by a test, so the two cannot drift.
+The exit-code table of docs/operating.md is checked against `TABLE` by a test, so the two
+cannot drift.
 """
 
 from __future__ import annotations
@@ -47,4 +48,4 @@ TABLE: Final[tuple[tuple[int, str], ...]] = (
     (INTERRUPTED, "interrupted (Ctrl-C)"),
     (BROKEN_PIPE, "the output's reader went away (e.g. `head` closed the pipe); nothing printed"),
 )
-"""(code, meaning) rows, in the order of the README's table."""
+"""(code, meaning) rows, in the order of the table in docs/operating.md."""

@@ -1,14 +1,15 @@
 """`cablebot monitor`: a terminal dashboard of a running daemon, with stop and e-stop keys.
 
 Shows the state and its reason (a fault in red, across the screen), the pose and the
-set-point, every axis (its state and fault as the drive names them, in green when it is ready,
-age of the last reading, cable tension when the status carries `tensions_n`), loop and bus
-figures, samples missed from the pose stream, and the recent state changes (`<prefix>/state`).
-Keys: `s` stop (brake to a hold), `e` or space e-stop, `q` quit. Needs the `rich` library
-(`pip install 'cablebot[monitor]'`).
+set-point (both from one status sample), every axis (its state and fault as the drive names
+them, in green when it is ready, age of the last reading, cable tension when the status
+carries `tensions_n`), loop and bus figures, samples missed from the pose stream, and the
+recent state changes (`<prefix>/state`). Keys: `s` stop (brake to a hold), `e` or space
+e-stop, `q` quit. Needs the `rich` library (`pip install 'cablebot[monitor]'`).
 
 Threads: Zenoh's callbacks store the latest pose and state changes; a poller queries
-`<prefix>/status` twice a second; keys send commands from short-lived threads so the screen
+`<prefix>/status` four times a second (the pose and the set-point shown come from it, one
+instant); keys send commands from short-lived threads so the screen
 never waits on a reply. The main thread reads keys and redraws.
 """
 
@@ -29,7 +30,7 @@ from typing import Any
 
 from controller.cli import exitcodes
 
-STATUS_PERIOD_S = 0.5
+STATUS_PERIOD_S = 0.25
 POSE_STALE_S = 1.0
 RECENT_STATES = 8
 STATE_STYLES = {
@@ -214,10 +215,15 @@ def render(
         since = "yet" if age is None else f"for {age:.1f} s"
         t.add_row("pose", Text(f"no pose sample {since}", style="bold red"))
     else:
-        res = pose.get("residual_m")
+        # The pose beside the set-point must be from the same instant: the status carries both
+        # (one snapshot of the controller); the pose stream runs ahead of a status polled at
+        # STATUS_PERIOD_S (0.5 m at 1 m/s). The stream's sample is shown only without a status.
+        status_pose = st.get("pose")
+        shown: dict[str, Any] = status_pose if isinstance(status_pose, dict) else pose
+        res = shown.get("residual_m")
         t.add_row(
             "pose",
-            f"{_xyz(pose.get('position_m'))}   residual {_num(res, '.2f', 1e3)} mm",
+            f"{_xyz(shown.get('position_m'))}   residual {_num(res, '.2f', 1e3)} mm",
         )
     sp = st.get("setpoint_m")
     t.add_row("set-point", _xyz(sp) if sp is not None else "none")

@@ -527,8 +527,22 @@ def _figure_xyz(plt: Any, tr: Trace) -> Any:
     return fig
 
 
+LEGEND_X_WITH_UM = 1.09
+"""Where the legend of an axis with a µm scale on its right starts (axes fraction), clear of
+that scale's labels."""
+
+
+def _mm_to_um(v: Any) -> Any:
+    return v * 1e3
+
+
+def _um_to_mm(v: Any) -> Any:
+    return v * 1e-3
+
+
 def _figure_errors(plt: Any, tr: Trace) -> Any:
-    """The tracking error |FPK - set-point| and the FPK residual against time, in mm."""
+    """The tracking error |FPK - set-point| and the FPK residual against time, in mm; the
+    tracking error also on a µm scale (right), which reads the settled errors at the points."""
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(11, 6.8), sharex=True)
     floor = _FLOOR_MM
     err = tr.tracking_error_m * 1e3
@@ -559,7 +573,10 @@ def _figure_errors(plt: Any, tr: Trace) -> Any:
         )
     if a1.get_lines():
         a1.axhline(1.0, color="k", ls="--", lw=1, label="1 mm")
-        a1.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=10)
+        a1.legend(loc="upper left", bbox_to_anchor=(LEGEND_X_WITH_UM, 1.0), fontsize=10)
+        # The settled errors are micrometres: a scale in µm on the right reads them directly.
+        um = a1.secondary_yaxis("right", functions=(_mm_to_um, _um_to_mm))
+        um.set_ylabel("|FPK - set-point| (µm)")
     _shade_states(a1, tr, tr.t_s)
     a1.set_ylabel("|FPK - set-point| (mm)")
     a1.set_title(f"Tracking error: the pose minus the set-point ({tr.setpoint_source})")

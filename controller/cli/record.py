@@ -376,8 +376,24 @@ def positive_number(text: str) -> float:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    """Entry point of `cablebot record`: 0 when the file was written, 1 bad input, 2 no daemon."""
-    from controller.cli.client import EXIT_ABSENT, EXIT_OK, EXIT_REFUSED, DaemonAbsent, open_session
+    """Entry point of `cablebot record`: 0 when the file was written, 1 bad input, 2 a bad
+    `--connect`, 3 no daemon."""
+    from controller.cli.client import (
+        EXIT_ABSENT,
+        EXIT_OK,
+        EXIT_REFUSED,
+        EXIT_USAGE,
+        DaemonAbsent,
+        UsageError,
+        normalize_endpoint,
+        open_session,
+    )
+
+    try:
+        args.connect = normalize_endpoint(args.connect)
+    except UsageError as exc:
+        print(f"cablebot record: {exc}", file=sys.stderr)
+        return EXIT_USAGE
 
     prefix = args.prefix.rstrip("/")
     config_summary: dict[str, Any] | None = None
@@ -431,6 +447,9 @@ def cmd_record(args: argparse.Namespace) -> int:
     except DaemonAbsent as exc:
         print(f"cablebot record: no cablebot daemon answered ({exc})", file=sys.stderr)
         return EXIT_ABSENT
+    except UsageError as exc:  # a --zenoh-config file Zenoh rejects
+        print(f"cablebot record: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     finally:
         for s, handler in old.items():
             signal.signal(s, handler)

@@ -160,10 +160,29 @@ def live_daemon(session: Any, prefix: str, timeout_s: float = 1.0) -> bool:
     return any(r.ok is not None for r in replies)
 
 
+def replay_open_problem(listen: list[str], connect: list[str], exc: BaseException) -> str:
+    """What to tell the user when replay's Zenoh session did not open: Zenoh's reason on one
+    line and, when a listen address is taken, what to do about it."""
+    from controller.cli.client import clean_zenoh_error
+    from controller.service.zenoh_io import address_in_use
+
+    text = clean_zenoh_error(str(exc))
+    if address_in_use(exc):
+        return (
+            f"cannot listen on {', '.join(listen)}: the address is taken (is a cablebot daemon "
+            "or another replay running there?); give --listen tcp/127.0.0.1:PORT with a free "
+            f"port, or --connect ENDPOINT to join that network under another --prefix ({text})"
+        )
+    where = ", ".join([*(f"listen {e}" for e in listen), *(f"connect {e}" for e in connect)])
+    return f"cannot open Zenoh ({where}): {text}"
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
-    """Entry point of `cablebot replay`: 0 when replayed to the end (or stopped), 1 otherwise."""
+    """Entry point of `cablebot replay`: 0 when replayed to the end (or stopped), 2 a bad
+    endpoint, 1 otherwise."""
     import zenoh
 
+    from controller.cli.client import EXIT_USAGE, UsageError, normalize_endpoint
     from controller.service.zenoh_io import DEFAULT_ENDPOINT, session_config
 
     path = Path(args.file)
@@ -184,20 +203,27 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if not prefix:
         print(f"cablebot replay: {path} does not say its prefix; give --prefix", file=sys.stderr)
         return EXIT_REFUSED
-    listen = (
-        args.listen if args.listen is not None else ([] if args.connect else [DEFAULT_ENDPOINT])
-    )
+    try:
+        connect = [normalize_endpoint(e, "--connect") for e in args.connect]
+        listen = (
+            [normalize_endpoint(e, "--listen") for e in args.listen]
+            if args.listen is not None
+            else ([] if connect else [DEFAULT_ENDPOINT])
+        )
+    except UsageError as exc:
+        print(f"cablebot replay: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     zcfg = argparse.Namespace(
         mode="peer",
         listen=listen,
-        connect=args.connect,
+        connect=connect,
         multicast_scouting=False,
         config_file=args.zenoh_config,
     )
     try:
         session = zenoh.open(session_config(zcfg))
-    except zenoh.ZError as exc:
-        print(f"cablebot replay: cannot open Zenoh: {exc}", file=sys.stderr)
+    except (zenoh.ZError, OSError) as exc:
+        print(f"cablebot replay: {replay_open_problem(listen, connect, exc)}", file=sys.stderr)
         return EXIT_REFUSED
     stop = threading.Event()
 
@@ -214,7 +240,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return EXIT_REFUSED
-        where = ", ".join(listen + args.connect)
+        where = ", ".join(listen + connect)
         print(f"replaying {path} as {prefix} on {where} at {args.rate:g}x", flush=True)
         if args.wait_subscriber > 0 and not replayer.wait_subscriber(
             f"{prefix}/pose", args.wait_subscriber
@@ -264,15 +290,15 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         action="append",
         default=None,
         metavar="ENDPOINT",
-        help=f"Zenoh endpoint to listen on (repeatable; default {DEFAULT_ENDPOINT} unless"
-        " --connect is given)",
+        help=f"Zenoh endpoint to listen on, PROTO/HOST:PORT or HOST:PORT (repeatable; default"
+        f" {DEFAULT_ENDPOINT} unless --connect is given)",
     )
     p.add_argument(
         "--connect",
         action="append",
         default=[],
         metavar="ENDPOINT",
-        help="Zenoh endpoint to connect to (repeatable)",
+        help="Zenoh endpoint to connect to, PROTO/HOST:PORT or HOST:PORT (repeatable)",
     )
     p.add_argument("--zenoh-config", default=None, metavar="FILE", help="Zenoh JSON5 configuration")
     p.add_argument(

@@ -66,7 +66,7 @@ def tension_check_of(cfg: Any, mass_kg: float | None) -> Any:
     if cfg.tension is None:
         raise ValueError(
             f"{cfg.source} has no [payload] mass_kg and tension limits: nothing to solve "
-            "(see the README's Statics section)"
+            "(see the Statics section of docs/statics-and-calibration.md)"
         )
     payload = cfg.payload if mass_kg is None else PayloadConfig(mass_kg=mass_kg)
     return tension_check(payload, cfg.tension, cfg.geometry)

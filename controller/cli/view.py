@@ -710,8 +710,23 @@ def layout_json() -> str:
 
 def cmd_view(args: argparse.Namespace) -> int:
     """Entry point of `cablebot view`: runs until Ctrl-C / SIGTERM (exit 0); 1 bad input or the
-    WebSocket port is taken; 2 no daemon answered."""
-    from controller.cli.client import EXIT_ABSENT, EXIT_OK, EXIT_REFUSED, DaemonAbsent, open_session
+    WebSocket port is taken; 2 a bad `--connect`; 3 no daemon answered."""
+    from controller.cli.client import (
+        EXIT_ABSENT,
+        EXIT_OK,
+        EXIT_REFUSED,
+        EXIT_USAGE,
+        DaemonAbsent,
+        UsageError,
+        normalize_endpoint,
+        open_session,
+    )
+
+    try:
+        args.connect = normalize_endpoint(args.connect)
+    except UsageError as exc:
+        print(f"cablebot view: {exc}", file=sys.stderr)
+        return EXIT_USAGE
 
     try:
         import foxglove
@@ -765,6 +780,9 @@ def cmd_view(args: argparse.Namespace) -> int:
     except DaemonAbsent as exc:
         print(f"cablebot view: no cablebot daemon answered ({exc})", file=sys.stderr)
         return EXIT_ABSENT
+    except UsageError as exc:  # a --zenoh-config file Zenoh rejects
+        print(f"cablebot view: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     finally:
         for s, handler in old.items():
             signal.signal(s, handler)

@@ -75,8 +75,6 @@ redundancy), poses within a few per cent of one plane, or the same pose repeated
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 import re
 import tomllib
@@ -87,13 +85,51 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from controller.core.calibration_samples import (
+    POSE_COLUMNS,
+    CalibrationError,
+    Samples,
+    format_sample_row,
+    parse_samples,
+    rev_column,
+    samples_header,
+    samples_preamble,
+)
 from controller.core.reel import ReelModel
+
+__all__ = [
+    "ANCHORS_COPLANAR_RATIO",
+    "COPLANAR_POSES_RATIO",
+    "DISTINCT_POSE_M",
+    "MIN_CABLES",
+    "POSE_COLUMNS",
+    "RECOMMENDED_POSES",
+    "START_BELOW_ANCHORS_RATIO",
+    "THIN_POSES_RATIO",
+    "Calibration",
+    "CalibrationError",
+    "CalibrationUnavailable",
+    "Direction",
+    "Gate",
+    "Samples",
+    "Settings",
+    "calibrate",
+    "format_metres",
+    "format_sample_row",
+    "kabsch",
+    "minimum_poses",
+    "parse_samples",
+    "plane_fit",
+    "replace_anchor_values",
+    "rev_column",
+    "rigid_basis",
+    "samples_header",
+    "samples_preamble",
+    "spread_poses",
+]
 
 FloatArray = NDArray[np.float64]
 Vec3 = tuple[float, float, float]
-
-POSE_COLUMNS = ("x_m", "y_m", "z_m")
-"""The CSV columns of the pose the controller believed."""
 
 MIN_CABLES = 4
 """With three cables every pose fits any anchors: nothing can be calibrated."""
@@ -103,13 +139,20 @@ COPLANAR_POSES_RATIO = 0.05
 are refused (the height of the anchors above them is then not determined)."""
 
 THIN_POSES_RATIO = 0.2
-"""Below this fraction the poses are accepted with a warning."""
+"""Below this fraction the poses are accepted with a warning, unless they already use the
+height the workspace allows (THIN_POSES_OF_HEIGHT): a wide, low workspace (a stadium) cannot
+hold thicker poses, and a warning to spread them more in height would ask the impossible."""
+
+THIN_POSES_OF_HEIGHT = 0.4
+"""Poses whose RMS distance from their plane is at least this fraction of the most a pose
+height range H allows (H / 2: half at the floor, half at the top) use the height well: no
+warning whatever their width. `cablebot calibrate collect --auto` spreads poses to about 0.6."""
 
 DISTINCT_POSE_M = 1e-3
 """Poses closer than this count as one pose."""
 
 RECOMMENDED_POSES = 20
-"""Fewer poses (or fewer than twice the minimum) give a warning."""
+"""Fewer poses (or fewer than twice the minimum) give a warning; see `recommended_poses`."""
 
 ANCHORS_COPLANAR_RATIO = 1e-3
 """Anchors within this fraction of their spread from one plane count as coplanar (reported)."""
@@ -122,126 +165,8 @@ _UNBOUNDED_STD_M = 1e3
 """Standard deviations above this are reported as unbounded (None in JSON)."""
 
 
-class CalibrationError(ValueError):
-    """Samples or a configuration from which no calibration can be made; the reason says why."""
-
-
 class CalibrationUnavailable(RuntimeError):
     """scipy (needed for the least-squares solve) is not installed."""
-
-
-# --------------------------------------------------------------------------------------------
-# Samples (CSV)
-
-
-def rev_column(node_id: int) -> str:
-    """The CSV column of a reel's motor turns, e.g. ``node_3_rev``."""
-    return f"node_{int(node_id)}_rev"
-
-
-def samples_header(node_ids: Sequence[int]) -> list[str]:
-    """The CSV header: one ``node_<id>_rev`` column per reel (cable order), then x_m, y_m, z_m."""
-    return [rev_column(n) for n in node_ids] + list(POSE_COLUMNS)
-
-
-def samples_preamble(robot: str, node_ids: Sequence[int], when: str) -> str:
-    """The comment lines that open a samples file (each starts with ``#``, ends with newline)."""
-    ids = ", ".join(str(int(n)) for n in node_ids)
-    return (
-        f"# cablebot calibration samples: robot {robot!r}, nodes {ids}, recorded {when}\n"
-        "# one row per pose: each reel's motor position (node_<id>_rev, motor turns as the\n"
-        "# drive reports it) and the pose the controller believed (x_m, y_m, z_m, metres)\n"
-    )
-
-
-def format_sample_row(motor_rev: Sequence[float], position_m: Sequence[float]) -> list[str]:
-    """One CSV row (full float precision). Raises ValueError on a non-finite value."""
-    values = [float(v) for v in motor_rev] + [float(v) for v in position_m]
-    if len(position_m) != 3 or not all(math.isfinite(v) for v in values):
-        raise ValueError(f"a sample needs finite motor turns and 3 finite pose values: {values}")
-    return [repr(v) for v in values]
-
-
-@dataclass(frozen=True, slots=True)
-class Samples:
-    """K recorded poses: motor turns (K, N) in cable order and the believed poses (K, 3)."""
-
-    node_ids: tuple[int, ...]
-    motor_rev: FloatArray
-    believed_m: FloatArray
-
-    @property
-    def n_poses(self) -> int:
-        """Number of recorded poses (K)."""
-        return int(self.motor_rev.shape[0])
-
-
-def parse_samples(text: str, source: str, node_ids: Sequence[int]) -> Samples:
-    """Read samples CSV text (format in the module docstring) for reels `node_ids` (cable order).
-
-    Raises CalibrationError naming `source` and the line for: no header, a missing, unknown or
-    repeated column, a row with the wrong number of cells, a value that is not a finite
-    number, or no rows at all.
-    """
-    ids = tuple(int(n) for n in node_ids)
-    wanted = samples_header(ids)
-    header: list[str] | None = None
-    index: list[int] = []
-    rev_rows: list[list[float]] = []
-    pose_rows: list[list[float]] = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
-        cells = [c.strip() for c in next(csv.reader(io.StringIO(stripped)))]
-        if header is None:
-            header = cells
-            seen: set[str] = set()
-            for name in cells:
-                if name in seen:
-                    raise CalibrationError(f"{source} line {lineno}: column {name!r} repeated")
-                seen.add(name)
-                if name not in wanted:
-                    raise CalibrationError(
-                        f"{source} line {lineno}: unknown column {name!r} "
-                        f"(expected {', '.join(wanted)})"
-                    )
-            missing = [w for w in wanted if w not in seen]
-            if missing:
-                raise CalibrationError(
-                    f"{source} line {lineno}: missing column(s) {', '.join(missing)} "
-                    f"(the configuration's reels are nodes {', '.join(map(str, ids))})"
-                )
-            index = [cells.index(w) for w in wanted]
-            continue
-        if len(cells) != len(header):
-            raise CalibrationError(
-                f"{source} line {lineno}: {len(cells)} values, the header has {len(header)}"
-            )
-        values: list[float] = []
-        for j in index:
-            try:
-                v = float(cells[j])
-            except ValueError:
-                raise CalibrationError(
-                    f"{source} line {lineno}: {header[j]} = {cells[j]!r} is not a number"
-                ) from None
-            if not math.isfinite(v):
-                raise CalibrationError(
-                    f"{source} line {lineno}: {header[j]} = {cells[j]} is not finite"
-                )
-            values.append(v)
-        rev_rows.append(values[: len(ids)])
-        pose_rows.append(values[len(ids) :])
-    if header is None:
-        raise CalibrationError(f"{source}: no header line (expected {', '.join(wanted)})")
-    if not rev_rows:
-        raise CalibrationError(f"{source}: no samples after the header")
-    return Samples(
-        node_ids=ids,
-        motor_rev=np.array(rev_rows, dtype=np.float64),
-        believed_m=np.array(pose_rows, dtype=np.float64),
-    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -531,9 +456,18 @@ def minimum_poses(n_cables: int) -> int:
     return math.ceil((4 * n - 6 + n) / (n - 3))
 
 
-def _check_samples(samples: Samples, n: int) -> list[str]:
-    """Refuse degenerate sample sets; return warnings for weak ones."""
+def recommended_poses(n_cables: int) -> int:
+    """How many poses to record for `n_cables` cables: RECOMMENDED_POSES, or twice the
+    minimum when that is more (28 for four cables). Fewer give a warning; `calibrate collect
+    --auto` visits this many by default. Raises CalibrationError for fewer than four cables."""
+    return max(RECOMMENDED_POSES, 2 * minimum_poses(n_cables))
+
+
+def _check_samples(samples: Samples, n: int, pose_height_m: float | None = None) -> list[str]:
+    """Refuse degenerate sample sets; return warnings for weak ones (`pose_height_m`: the
+    height range the workspace allows poses, when known)."""
     k_min = minimum_poses(n)
+    k_rec = recommended_poses(n)
     k = samples.n_poses
     if samples.motor_rev.shape != (k, n) or samples.believed_m.shape != (k, 3):
         raise CalibrationError(
@@ -544,7 +478,7 @@ def _check_samples(samples: Samples, n: int) -> list[str]:
         raise CalibrationError(
             f"{k} poses give {k * n} equations for {unknowns} unknowns ({n} anchors, {n} "
             f"offsets, {k} poses, less the 6 of the frame); {n} cables need at least {k_min} "
-            f"poses (recommended {max(RECOMMENDED_POSES, 2 * k_min)})"
+            f"poses (recommended {k_rec})"
         )
     distinct = np.unique(np.round(samples.believed_m / DISTINCT_POSE_M), axis=0).shape[0]
     if distinct < k_min:
@@ -560,15 +494,15 @@ def _check_samples(samples: Samples, n: int) -> list[str]:
             "record poses at different heights as well as different x and y"
         )
     warnings: list[str] = []
-    if thick < THIN_POSES_RATIO * spread:
+    height_used = pose_height_m is not None and thick >= THIN_POSES_OF_HEIGHT * pose_height_m / 2
+    if thick < THIN_POSES_RATIO * spread and not height_used:
+        room = "" if pose_height_m is None else f" (the workspace allows {pose_height_m:.3g} m)"
         warnings.append(
             f"poses nearly coplanar: RMS {_length(thick)} from one plane against a spread "
-            f"of {spread:.3g} m; spread them more in height"
+            f"of {spread:.3g} m; spread them more in height{room}"
         )
-    if k < max(RECOMMENDED_POSES, 2 * k_min):
-        warnings.append(
-            f"few poses ({k}): {max(RECOMMENDED_POSES, 2 * k_min)} or more give a better check"
-        )
+    if k < k_rec:
+        warnings.append(f"few poses ({k}): {k_rec} or more give a better check")
     return warnings
 
 
@@ -785,31 +719,14 @@ def _solve(
     return a, o.copy(), p.copy(), bool(res.status > 0)
 
 
-def calibrate(
-    anchors_m: Any,
-    reels: Sequence[ReelModel],
-    samples: Samples,
-    settings: Settings | None = None,
-) -> Calibration:
-    """Estimate the anchors and reel offsets that best explain `samples`.
-
-    `anchors_m` (N, 3) and `reels` are the configuration's, in cable order (the reels' own
-    offsets are ignored). See the module docstring for the model, the frame convention, the
-    held directions and the gates; the result carries the gates, it does not raise on them.
-    Raises CalibrationError for degenerate samples (fewer than four cables, too few or
-    repeated poses, coplanar poses) or a reel that cannot reach the believed lengths, and
-    CalibrationUnavailable when scipy is missing.
-    """
-    st = settings if settings is not None else Settings()
-    a_cfg = np.asarray(anchors_m, dtype=np.float64)
+def _starting_point(
+    a_cfg: FloatArray, reels0: Sequence[ReelModel], samples: Samples, problem: _Problem
+) -> tuple[FloatArray, float, FloatArray]:
+    """The solve's start: the believed poses (lowered where needed), the height every pose
+    stays below, and the offsets that fit them. Raises CalibrationError when every pose is
+    at or above the lowest anchor or a reel cannot reach the believed lengths."""
     n = a_cfg.shape[0]
-    if a_cfg.shape != (n, 3) or len(reels) != n:
-        raise CalibrationError(f"{len(reels)} reels for anchors of shape {a_cfg.shape}")
-    warnings = _check_samples(samples, n)
     k = samples.n_poses
-    reels0 = [replace(r, offset_rev=0.0) for r in reels]
-    problem = _Problem(reels0, samples.motor_rev)
-
     # Starting point: the configured anchors, the believed poses and the offsets that fit them.
     # A pose believed near the anchors' height (the controller's FPK of inconsistent lengths
     # meets the anchor plane there) starts a little lower. During the solve every pose stays
@@ -838,6 +755,72 @@ def calibrate(
             )
         except ValueError as exc:
             raise CalibrationError(f"reel of cable {i + 1}: {exc}") from exc
+
+    return p0, z_max, o0
+
+
+def _add_warnings(
+    warnings: list[str],
+    directions: Sequence[Direction],
+    anchor_std: FloatArray,
+    coplanar: bool,
+    st: Settings,
+) -> None:
+    """Append to `warnings` what the solution leaves uncertain: coplanar anchors, held and
+    weak directions, poorly determined anchors. Raises nothing."""
+    n = anchor_std.shape[0]
+    if coplanar:
+        warnings.append(
+            "the anchors lie in one plane: stretches of the layout within that plane change "
+            "the cable lengths little or not at all"
+        )
+    for d in directions:
+        if d.kind == "held":
+            seen = "not at all" if d.std_m is None else f"to ±{d.std_m * 1e3:.2g} mm"
+            warnings.append(
+                f"not seen by the samples ({seen}, worse than the {st.hold_std_m * 1e3:g} mm "
+                f"hold threshold): {d.words}; held near the configured values (moved "
+                f"{(d.change_m or 0.0) * 1e3:+.2g} mm)"
+            )
+    for d in directions:
+        if d.kind == "weak":
+            warnings.append(f"poorly determined (±{(d.std_m or math.inf) * 1e3:.2g} mm): {d.words}")
+    for i in range(n):
+        if anchor_std[i] > st.weak_std_m:
+            warnings.append(f"anchor {i + 1} is poorly determined (±{anchor_std[i] * 1e3:.2g} mm)")
+
+
+def calibrate(
+    anchors_m: Any,
+    reels: Sequence[ReelModel],
+    samples: Samples,
+    settings: Settings | None = None,
+    *,
+    pose_height_m: float | None = None,
+) -> Calibration:
+    """Estimate the anchors and reel offsets that best explain `samples`.
+
+    `pose_height_m` is the height range the workspace allows poses (floor to top), when
+    known: poses that use it well are not warned about as nearly coplanar however wide.
+
+    `anchors_m` (N, 3) and `reels` are the configuration's, in cable order (the reels' own
+    offsets are ignored). See the module docstring for the model, the frame convention, the
+    held directions and the gates; the result carries the gates, it does not raise on them.
+    Raises CalibrationError for degenerate samples (fewer than four cables, too few or
+    repeated poses, coplanar poses) or a reel that cannot reach the believed lengths, and
+    CalibrationUnavailable when scipy is missing.
+    """
+    st = settings if settings is not None else Settings()
+    a_cfg = np.asarray(anchors_m, dtype=np.float64)
+    n = a_cfg.shape[0]
+    if a_cfg.shape != (n, 3) or len(reels) != n:
+        raise CalibrationError(f"{len(reels)} reels for anchors of shape {a_cfg.shape}")
+    warnings = _check_samples(samples, n, pose_height_m)
+    k = samples.n_poses
+    reels0 = [replace(r, offset_rev=0.0) for r in reels]
+    problem = _Problem(reels0, samples.motor_rev)
+
+    p0, z_max, o0 = _starting_point(a_cfg, reels0, samples, problem)
 
     q = _complement(rigid_basis(a_cfg))
     dq = q.shape[1]
@@ -906,25 +889,7 @@ def calibrate(
     _, a_thick, a_spread = plane_fit(a_cfg)
     coplanar = a_thick <= ANCHORS_COPLANAR_RATIO * a_spread
     free_bad = [float(v) for v in free_std if v > st.hold_std_m]
-    if coplanar:
-        warnings.append(
-            "the anchors lie in one plane: stretches of the layout within that plane change "
-            "the cable lengths little or not at all"
-        )
-    for d in directions:
-        if d.kind == "held":
-            seen = "not at all" if d.std_m is None else f"to ±{d.std_m * 1e3:.2g} mm"
-            warnings.append(
-                f"not seen by the samples ({seen}, worse than the {st.hold_std_m * 1e3:g} mm "
-                f"hold threshold): {d.words}; held near the configured values (moved "
-                f"{(d.change_m or 0.0) * 1e3:+.2g} mm)"
-            )
-    for d in directions:
-        if d.kind == "weak":
-            warnings.append(f"poorly determined (±{(d.std_m or math.inf) * 1e3:.2g} mm): {d.words}")
-    for i in range(n):
-        if anchor_std[i] > st.weak_std_m:
-            warnings.append(f"anchor {i + 1} is poorly determined (±{anchor_std[i] * 1e3:.2g} mm)")
+    _add_warnings(warnings, directions, anchor_std, bool(coplanar), st)
 
     high = int(np.sum(p[:, 2] >= float(a[:, 2].min())))
     gates = (

@@ -57,10 +57,13 @@ class Move:
 
 @dataclass(frozen=True, slots=True)
 class Path:
-    """Multi-point path through `points_m`, each leg a straight line."""
+    """Multi-point path through `points_m`, flown through its points with rounded corners
+    (`controller.core.motion`). `append`: add the points to the path in progress (a job longer
+    than `MAX_PATH_POINTS` is sent as a path and then appended chunks) instead of replacing it."""
 
     points_m: tuple[Vec3, ...]
     speed_mps: float | None = None
+    append: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -155,6 +158,24 @@ MAX_PAYLOAD_BYTES: Final[Mapping[str, int]] = MappingProxyType(
     }
 )
 """The largest payload, in bytes, of each verb (and of a `setpoint` or `velocity` sample)."""
+
+_WIDEST_FLOAT: Final = -2.2250738585072014e-308
+"""A finite float whose JSON text is as long as any (24 characters)."""
+
+
+def _max_path_points_sent() -> int:
+    envelope = len(json.dumps({"points_m": [], "speed_mps": _WIDEST_FLOAT}))
+    per_point = len(json.dumps([_WIDEST_FLOAT] * 3)) + len(", ")
+    by_bytes = (MAX_PAYLOAD_BYTES["path"] - envelope) // per_point
+    return min(MAX_PATH_POINTS, by_bytes)
+
+
+MAX_PATH_POINTS_SENT: Final = _max_path_points_sent()
+"""The most points one `path` command surely carries: MAX_PATH_POINTS, or fewer when that many
+of the widest points (every coordinate as long as a float's JSON text gets, with a speed, as
+`json.dumps` writes them) would not fit in `MAX_PAYLOAD_BYTES["path"]`. A longer path is sent
+as several parts of at most this many points."""
+
 
 MAX_JSON_DEPTH: Final = 8
 """The deepest nesting of brackets (`[`, `{`) accepted; a valid command needs 3."""
@@ -281,6 +302,17 @@ def _speed(obj: dict[str, Any]) -> float | None:
     return speed
 
 
+def _flag(obj: dict[str, Any], field: str) -> bool:
+    """Return the optional boolean `field` (absent or null: False) or raise CommandError (only
+    JSON `true` / `false`: a number or a string is not a flag)."""
+    value = obj.get(field)
+    if value is None:
+        return False
+    if not isinstance(value, bool):
+        raise CommandError(f"{field}: expected true or false, got {quote(value)}")
+    return value
+
+
 def _object(data: bytes, allowed: set[str], required: set[str]) -> dict[str, Any]:
     """Decode a JSON object (size already checked), refusing deep nesting, unknown and missing
     keys."""
@@ -318,8 +350,8 @@ def parse_command(verb: str, payload: bytes | str | None) -> Command:
     Raises CommandError (with a reason fit to send back to the client, quoting at most
     QUOTE_CHARS characters of the input) for an unknown verb, a payload larger than
     MAX_PAYLOAD_BYTES[verb] (checked before decoding), nesting deeper than MAX_JSON_DEPTH,
-    malformed JSON, unknown or missing fields, more than MAX_PATH_POINTS points, non-numbers
-    and non-finite numbers.
+    malformed JSON, unknown or missing fields, more than MAX_PATH_POINTS points, non-numbers,
+    non-finite numbers and a path's `append` that is not a JSON boolean.
     """
     if payload is None:
         data = b""
@@ -333,14 +365,14 @@ def parse_command(verb: str, payload: bytes | str | None) -> Command:
         obj = _object(data, {"position_m", "speed_mps"}, {"position_m"})
         return Move(_vec3(obj["position_m"], "position_m"), _speed(obj))
     if verb == "path":
-        obj = _object(data, {"points_m", "speed_mps"}, {"points_m"})
+        obj = _object(data, {"points_m", "speed_mps", "append"}, {"points_m"})
         pts = obj["points_m"]
         if not isinstance(pts, list) or not pts:
             raise CommandError("points_m: expected a non-empty list of [x, y, z]")
         if len(pts) > MAX_PATH_POINTS:
             raise CommandError(f"points_m: at most {MAX_PATH_POINTS} points, got {len(pts)}")
         points = tuple(_vec3(p, f"points_m[{i}]") for i, p in enumerate(pts))
-        return Path(points, _speed(obj))
+        return Path(points, _speed(obj), _flag(obj, "append"))
     if verb == "home":
         obj = _object(data, {"position_m"}, {"position_m"})
         return Home(_vec3(obj["position_m"], "position_m"))

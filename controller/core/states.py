@@ -8,7 +8,8 @@ controller makes goes through `check_transition`.
 
 `COMMAND_RULES` says, for every state, which verbs it accepts and why it refuses the others;
 the control loop asks `refusal(state, verb)` for every verb it receives (streamed set-points
-and velocity samples included) and README's state table is `command_table_markdown()`.
+and velocity samples included), and the state table of docs/operating.md is
+`command_table_markdown()`.
 """
 
 from __future__ import annotations
@@ -176,7 +177,7 @@ def refusal(state: State, verb: str) -> str | None:
 
 
 def command_table_markdown() -> str:
-    """README's table of what each state accepts and refuses, generated from COMMAND_RULES.
+    """The table of what each state accepts and refuses (docs/operating.md), from COMMAND_RULES.
 
     One row per state: the accepted verbs, then the refused ones grouped by reason.
     """

@@ -40,7 +40,7 @@ from typing import Any
 
 from controller.core.commands import Arm
 from controller.core.states import State
-from controller.service.runner import set_realtime, start_loop
+from controller.service.runner import start_loop
 
 log = logging.getLogger("cablebot.daemon")
 
@@ -75,9 +75,11 @@ class Notifier:
         usec = env.get("WATCHDOG_USEC")
         pid = env.get("WATCHDOG_PID")
         self.watchdog_period_s = 0.0
+        """Seconds between WATCHDOG=1 pings: half the WATCHDOG_USEC systemd asked for (the
+        sd_notify convention), when it is meant for this process; 0 = no watchdog, no pings."""
         if usec and (pid is None or pid == str(os.getpid())):
             try:
-                self.watchdog_period_s = int(usec) / 2e6
+                self.watchdog_period_s = max(int(usec), 0) / 2e6
             except ValueError:
                 log.warning("bad WATCHDOG_USEC %r ignored", usec)
 
@@ -121,16 +123,37 @@ class JournalFormatter(logging.Formatter):
         return "\n".join(prefix + line for line in super().format(record).splitlines())
 
 
-def setup_logging(level: str) -> None:
-    """Log to stderr; under journald (JOURNAL_STREAM set) with priority prefixes and no time."""
+OWN_LOGGERS = ("cablebot", "controller", "drivers")
+"""Top-level names of cablebot's own loggers; every other logger is a third party's."""
+
+
+class ThirdPartyFilter(logging.Filter):
+    """Passes cablebot's own records, and a third-party library's (e.g. canopen, which logs
+    every SDO at INFO) only from WARNING up, so they do not bury cablebot's lines."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        """True if `record` is to be logged. Raises nothing."""
+        if record.levelno >= logging.WARNING:
+            return True
+        return record.name.partition(".")[0] in OWN_LOGGERS
+
+
+def setup_logging(level: str, fmt: str | None = None) -> None:
+    """Log to stderr at `level`; under journald (JOURNAL_STREAM set) with priority prefixes and
+    no time, else with `fmt` (default: with the time). Third-party libraries log from WARNING
+    up unless `level` is DEBUG. Raises ValueError on an unknown level name."""
     handler = logging.StreamHandler(sys.stderr)
     if os.environ.get("JOURNAL_STREAM"):
         handler.setFormatter(JournalFormatter())
     else:
-        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        handler.setFormatter(
+            logging.Formatter(fmt or "%(asctime)s %(levelname)s %(name)s: %(message)s")
+        )
     root = logging.getLogger()
-    root.handlers[:] = [handler]
     root.setLevel(level.upper())
+    if root.level > logging.DEBUG:
+        handler.addFilter(ThirdPartyFilter())
+    root.handlers[:] = [handler]
 
 
 # -------------------------------------------------------------------------------- the daemon
@@ -188,7 +211,7 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
     the step.
     """
     from controller.service.loop import Controller
-    from controller.service.simulated import start_sim_bank
+    from controller.service.simulated import schedule_sim_thread, start_sim_bank
     from drivers import registry
     from drivers.base import ConfigurableDriver, DriverError
     from drivers.bus import open_bus
@@ -196,6 +219,7 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
     closers: list[tuple[str, Callable[[], object]]] = []
     b = cfg.bus
     fam = registry.family(cfg.drive.kind)
+    bank: Any = None
     try:
         bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
         closers.append(("bus", bus.shutdown))
@@ -205,12 +229,7 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
             closers.append(("sim bus", sim_bus.shutdown))
             bank = start_sim_bank(sim_cfg if sim_cfg is not None else cfg, sim_bus)
             closers.append(("sim", bank.stop))
-            sim_rt = "SCHED_OTHER"
-            sim_thread = bank.thread
-            if cfg.loop.realtime and sim_thread is not None and sim_thread.native_id is not None:
-                # The simulated drives stand in for hardware: a starved sim thread on a busy
-                # machine would look like a stale node. One step below the loop.
-                sim_rt = set_realtime(max(1, _rt_priority(cfg) - 1), sim_thread.native_id)
+            sim_rt = schedule_sim_thread(cfg, bank.thread)
             log.info(
                 "simulated %s nodes %s started in-process (%s)",
                 fam.title,
@@ -249,6 +268,22 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
                 raise RuntimeError(zenoh_open_problem(cfg.zenoh, exc)) from exc
             closers.append(("zenoh", iface.close))
             controller.publisher = iface
+            rcfg = getattr(cfg, "ros2", None)
+            if rcfg is not None and rcfg.enabled:
+                from controller.service.pose import FanOutPublisher
+                from controller.service.ros2.node import Ros2Node
+
+                ros2 = Ros2Node(rcfg, iface)
+                ros2.open()
+                closers.append(("ros2", ros2.close))
+                iface.status_extras["ros2"] = ros2.stats
+                controller.publisher = FanOutPublisher(iface, ros2)
+            if cfg.sim.enabled and getattr(bank, "coupling", None) is not None:
+                from controller.service.simulated import TRUTH_KEY, TruthFeed
+
+                period = max(1, int(cfg.loop.publish_every)) / float(cfg.loop.rate_hz)
+                feed = TruthFeed(bank.coupling, iface.json_publisher(TRUTH_KEY), period).start()
+                closers.append(("sim truth", feed.stop))
     except BaseException:
         _close_all(closers)
         raise
@@ -458,7 +493,9 @@ def run_daemon(
         controller.runner(),
         cfg.loop,
         stop_loop,
-        on_watchdog=lambda: notifier.notify("WATCHDOG=1"),
+        on_watchdog=(lambda: notifier.notify("WATCHDOG=1"))
+        if notifier.watchdog_period_s > 0.0
+        else None,
         watchdog_period_s=notifier.watchdog_period_s,
         on_crash=on_crash,
     )
@@ -541,10 +578,6 @@ def _auto_arm(cfg: Any) -> bool:
     return bool(value)
 
 
-def _rt_priority(cfg: Any) -> int:
-    return int(cfg.loop.rt_priority)
-
-
 def _summary_text(cfg: Any) -> str:
     """One line: robot, source, bus, rate, homing, Zenoh, sim."""
     h = cfg.homing
@@ -590,6 +623,7 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         "--log-level",
         default=os.environ.get("CABLEBOT_LOG_LEVEL", "INFO"),
         choices=["DEBUG", "INFO", "WARNING", "ERROR", "debug", "info", "warning", "error"],
+        help="DEBUG also shows the libraries' own INFO lines (e.g. canopen's SDO traffic)",
     )
     p.add_argument(
         "--status-every",

@@ -88,3 +88,33 @@ class NullPublisher:
 
     def publish_state(self, state: str, reason: str | None, stamp_ns: int) -> None:
         """Drop the state change."""
+
+
+class FanOutPublisher:
+    """A Publisher that hands everything to each of `publishers` in turn (the JSON interface
+    and the ROS 2 node); one that raises does not keep the others from their sample."""
+
+    def __init__(self, *publishers: Publisher) -> None:
+        self.publishers = publishers
+
+    def publish_pose(self, sample: PoseSample) -> None:
+        """Hand the sample to every publisher; re-raise the first failure after all ran."""
+        error: Exception | None = None
+        for pub in self.publishers:
+            try:
+                pub.publish_pose(sample)
+            except Exception as exc:
+                error = error or exc
+        if error is not None:
+            raise error
+
+    def publish_state(self, state: str, reason: str | None, stamp_ns: int) -> None:
+        """Hand the state change to every publisher; re-raise the first failure after all ran."""
+        error: Exception | None = None
+        for pub in self.publishers:
+            try:
+                pub.publish_state(state, reason, stamp_ns)
+            except Exception as exc:
+                error = error or exc
+        if error is not None:
+            raise error

@@ -156,7 +156,8 @@ class Runner:
         """Call the step at the period until `stop` is set.
 
         `on_watchdog` is called from this thread every `watchdog_period_s` (systemd
-        WATCHDOG=1), after the step. Raises whatever the step raises.
+        WATCHDOG=1), after the step; never when the period is not positive (no watchdog was
+        asked for). Raises whatever the step raises.
         """
         clock = self.clock
         period = self.period_s
@@ -168,6 +169,8 @@ class Runner:
         compute = stats.compute
         next_s = clock() + period
         next_wd = clock() + watchdog_period_s
+        if not watchdog_period_s > 0.0:  # 0 or NaN: no watchdog asked for
+            on_watchdog = None
         while not stop.is_set():
             remaining = next_s - clock()
             if remaining > spin:

@@ -94,3 +94,87 @@ def start_sim_bank(cfg: Any, bus: Any) -> Any:
     channel (python-can virtual buses do not hear their own frames).
     """
     return sim_bank(cfg, bus).start()
+
+
+def schedule_sim_thread(cfg: Any, thread: Any) -> str:
+    """Give the simulated drives' serving `thread` (a started `threading.Thread`) the control
+    loop's real-time scheduling, one SCHED_FIFO step below the loop (`loop.rt_priority` - 1),
+    when `loop.realtime` is on: the simulated drives stand in for hardware, and a sim starved
+    by a busy machine looks like a stale node (`stale_encoder`). Returns what was obtained,
+    for the log. Raises nothing."""
+    from controller.service.runner import set_realtime
+
+    if not cfg.loop.realtime:
+        return "SCHED_OTHER (loop.realtime = false)"
+    if thread is None or thread.native_id is None:
+        return "SCHED_OTHER (no serving thread)"
+    return set_realtime(max(1, int(cfg.loop.rt_priority) - 1), thread.native_id)
+
+
+TRUTH_KEY = "sim/truth"
+"""Key (under the robot's Zenoh prefix) of the simulator's ground truth: the physical plant's
+true effector position and cable tensions, JSON ``{"position_m": [x, y, z], "tensions_n":
+[...]}``.  The simulator's key, never the controller's input."""
+
+
+def truth_payload(plant: Any) -> bytes | None:
+    """The `TRUTH_KEY` JSON of a `controller.core.plant.ReelPlant` (None if a value is not
+    finite: nothing non-finite is published). Raises nothing."""
+    import json
+    import math
+
+    try:
+        pos = [float(v) for v in plant.position_m]
+        ten = [float(v) for v in plant.tensions_n]
+    except (TypeError, ValueError, AttributeError):
+        return None
+    if not all(map(math.isfinite, pos + ten)):
+        return None
+    return json.dumps({"position_m": pos, "tensions_n": ten}, separators=(",", ":")).encode()
+
+
+class TruthFeed:
+    """A thread that puts the plant's `truth_payload` through `put` every `period_s` (the pose
+    rate) until `stop`. `put` failures are counted (`errors`), never raised."""
+
+    def __init__(self, plant: Any, put: Any, period_s: float) -> None:
+        import threading
+
+        self.plant = plant
+        self.put = put
+        self.period_s = max(1e-3, float(period_s))
+        self.published = 0
+        self.errors = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="sim-truth", daemon=True)
+
+    def start(self) -> TruthFeed:
+        """Start the thread; returns self."""
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop and join the thread (idempotent)."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(2.0)
+
+    def _run(self) -> None:
+        import time
+
+        next_s = time.monotonic()
+        while not self._stop.is_set():
+            data = truth_payload(self.plant)
+            if data is not None:
+                try:
+                    self.put(data)
+                    self.published += 1
+                except Exception as exc:  # a closing session: keep the simulator running
+                    self.errors += 1
+                    log.debug("sim truth: %s", exc)
+            next_s += self.period_s
+            delay = next_s - time.monotonic()
+            if delay < 0.0:
+                next_s = time.monotonic()
+                delay = 0.0
+            self._stop.wait(delay)

@@ -201,6 +201,13 @@ def client_config(
 # Helpers
 
 
+def address_in_use(error: BaseException | str) -> bool:
+    """True when a Zenoh error (from `zenoh.open`) says a listen address is taken by another
+    process."""
+    text = str(error).lower()
+    return "in use" in text or "os error 98" in text
+
+
 def free_tcp_port() -> int:
     """A TCP port on 127.0.0.1 that was free a moment ago, never Zenoh's default 7447 (for a
     private loopback endpoint of a bench, demo or test daemon). Raises OSError if none is."""
@@ -391,6 +398,8 @@ class ZenohInterface:
         self._bad_velocity_log = _RateLimitedLog(1.0)
         self._bad_setpoint_log = _RateLimitedLog(1.0)
         self._put_error_log = _RateLimitedLog(1.0)
+        self.status_extras: dict[str, Callable[[], dict[str, Any]]] = {}
+        """More sections of the status reply, by name (e.g. "ros2": the ROS 2 node's stats)."""
 
     # ---------------------------------------------------------------- lifecycle
 
@@ -455,6 +464,20 @@ class ZenohInterface:
                 session.close()  # type: ignore[no-untyped-call]
             except Exception as exc:
                 log.warning("closing the Zenoh session: %s", exc)
+
+    def json_publisher(self, suffix: str) -> Callable[[bytes], None]:
+        """Declare a JSON publisher on `<prefix>/<suffix>` (undeclared by `close`) and return
+        its put (e.g. the simulator's ground truth, `controller.service.simulated.TRUTH_KEY`).
+        Raises RuntimeError before `open`, zenoh.ZError if the declaration fails."""
+        if self.session is None:
+            raise RuntimeError("the Zenoh session is not open")
+        pub = self.session.declare_publisher(
+            f"{self.prefix}/{suffix}",
+            encoding=JSON,
+            congestion_control=zenoh.CongestionControl.DROP,
+        )
+        self._declared.append(pub)
+        return pub.put
 
     def _endpoints(self) -> list[str]:
         return [str(e) for e in _get(self.zcfg, "listen", [DEFAULT_ENDPOINT])]
@@ -539,6 +562,8 @@ class ZenohInterface:
         try:
             status = dict(self.controller.status())
             status["zenoh"] = self.stats()
+            for name, section in self.status_extras.items():
+                status[name] = section()
             query.reply(key, dumps(status), encoding=JSON)
         except Exception as exc:
             log.exception("status query failed")
@@ -603,6 +628,10 @@ class ZenohInterface:
                 return
         self._count("ok")
         query.reply(key, dumps(reply), encoding=JSON)
+
+    def precheck(self, cmd: Command) -> str | None:
+        """Why `cmd` is refused before it reaches the controller (see `_precheck`), or None."""
+        return self._precheck(cmd)
 
     def _precheck(self, cmd: Command) -> str | None:
         """Refuse here, on the Zenoh thread, a move or path with a point the robot may not go to.

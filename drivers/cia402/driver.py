@@ -42,6 +42,14 @@ the raw numbers are kept for diagnostics: `axis_state` 8 while Operation enabled
 before the drive was heard); `axis_error` = the EMCY code while faulted (0x1000 without one),
 else 0.
 
+Freshness after a state-changing command (`arm`, `disarm`, `estop`): a drive answers the SYNCs
+in turn, so after a stall (its process paused, a backlog) its first TPDOs answer SYNCs sent
+before the command, with the statuswords of then. The driver keeps the send times of the
+SYNCs (`SYNC_RING`) and counts each drive's answers against them (a SYNC unanswered after
+`MAX_ANSWER_DELAY_S` is taken as lost); `status_stamp_s` moves only on a TPDO answering the
+first SYNC after the command or a later one, and `command_stamp_s` marks the command, so
+`AxisReading.status_fresh` tells the loop when the status describes the drive since then.
+
 `open_driver` and `check_options` are the registry's entries for the "cia402" family
 (`drivers.registry`): the driver from the `[drive]` options, and the options' checks.
 """
@@ -53,6 +61,7 @@ import math
 import struct
 import threading
 import time
+from array import array
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,15 +71,15 @@ import can
 import canopen
 from canopen.emcy import EmcyError
 from canopen.nmt import NMT_STATES
-from canopen.objectdictionary import datatypes
-from canopen.pdo import PdoMap
-from canopen.pdo.base import PDO_NOT_VALID
-from canopen.sdo.base import SdoVariable
-from canopen.sdo.exceptions import SdoAbortedError, SdoError
 
-from drivers.base import AxisReading, BusError, BusStats, DriverError
+from drivers.base import AxisReading, BusError, BusStats
 from drivers.cia402 import profile
 from drivers.cia402.profile import DriveState, Goal
+from drivers.cia402.sdo_config import (
+    SYNC_COB_ID,
+    configure_node,
+    pdo_struct,
+)
 from drivers.registry import LoopSettings
 
 EDS_PATH = Path(__file__).with_name("cia402.eds")
@@ -82,24 +91,13 @@ DEFAULT_HEARTBEAT_PERIOD_S = 0.1
 MAX_NODE_ID = 127
 NMT_OPERATIONAL = 5
 NMT_BOOT_UP = 0
-SYNC_COB_ID = 0x80
 INT32_MIN = -(2**31)
 INT32_MAX = 2**31 - 1
-_MODE_DISPLAY_WAIT_S = 0.2
-
-_FORMATS = {
-    datatypes.INTEGER8: "b",
-    datatypes.UNSIGNED8: "B",
-    datatypes.INTEGER16: "h",
-    datatypes.UNSIGNED16: "H",
-    datatypes.INTEGER32: "i",
-    datatypes.UNSIGNED32: "I",
-}
-
-
-class ConfigureError(DriverError):
-    """A drive could not be configured; the message names the node, the step and why
-    (SDO timeout, SDO abort with its code, an object missing from the EDS, a refused mode)."""
+SYNC_RING = 4096
+"""SYNCs whose send times are kept, to tell which SYNC a drive's TPDO answers."""
+MAX_ANSWER_DELAY_S = 1.0
+"""A SYNC not answered this long after it was sent is taken as lost (its frame or its answer):
+the drive's next TPDO answers a later one."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -152,6 +150,7 @@ class _Drive:
         "emcy",
         "fault_reset",
         "ff_units",
+        "next_answer",
         "nmt_state",
         "node",
         "node_id",
@@ -182,6 +181,8 @@ class _Drive:
         self.torque: int | None = None
         self.emcy: EmcyError | None = None
         self.fault_reset = False
+        self.next_answer = 0
+        """Index of the next SYNC whose TPDO this drive owes (its TPDOs answer them in turn)."""
         self.actual_counts: int | None = None
         self.target_counts = 0
         self.ff_units = 0
@@ -193,22 +194,6 @@ class _Drive:
         self.rpdo2: struct.Struct | None = None
         self.rpdo2_cob = 0
         self.tpdo1 = struct.Struct("<")
-
-
-def _pdo_struct(pdo: PdoMap) -> struct.Struct:
-    """The little-endian struct of a configured PDO (byte-aligned integer objects only)."""
-    fmt = "<"
-    offset = 0
-    for var in pdo.map:
-        code = _FORMATS.get(var.od.data_type or 0)
-        if code is None or var.length != 8 * struct.calcsize(code) or var.offset != offset:
-            raise ConfigureError(
-                f"0x{var.index:04X} ({var.name}) is not a byte-aligned 8/16/32-bit integer "
-                f"in {pdo.name}"
-            )
-        fmt += code
-        offset += var.length
-    return struct.Struct(fmt)
 
 
 class CiA402Reels:
@@ -311,6 +296,11 @@ class CiA402Reels:
         self._sdo_answer_ids = frozenset(0x580 + n for n in ids)
         self._goal = Goal.DISABLED
         self._last_sync_s = -math.inf
+        self._syncs_sent = 0
+        self._sync_times = array("d", [-math.inf]) * SYNC_RING
+        self._command_sync = 0
+        """Index of the first SYNC after the last state-changing command (`arm`, `disarm`,
+        `estop`): only statuswords answering it or a later one tell the drives' state since."""
         self._cycled_since_poll = False
         self._configuring = False
 
@@ -355,113 +345,29 @@ class CiA402Reels:
                 self._handle(msg)
 
     def _configure_drive(self, d: _Drive) -> None:
-        node = d.node
-        n = d.node_id
-        step = "NMT PRE-OPERATIONAL"
-        try:
-            d.configured = False
-            self._tpdo_by_cob = {c: x for c, x in self._tpdo_by_cob.items() if x is not d}
-            node.nmt.state = "PRE-OPERATIONAL"
-            step = "0x1005 COB-ID SYNC"
-            self._write(node.sdo[0x1005], SYNC_COB_ID)
-            step = "0x1017 heartbeat producer time"
-            self._write(node.sdo[0x1017], self._heartbeat_ms)
-            step = "0x6060 modes of operation"
-            self._write(node.sdo[0x6060], profile.CYCLIC_SYNCHRONOUS_POSITION)
-            step = "0x60C2 interpolation time period"
-            value, index = self._interp
-            self._write(node.sdo[0x60C2][1], value)
-            self._write(node.sdo[0x60C2][2], index)
-            step = "RPDO1"
-            rpdo1 = self._set_pdo(node.rpdo[1], 0x200 + n, [0x6040, 0x607A], rtr=True)
-            step = "RPDO2"
-            rpdo2 = None
-            if self._velocity_offset:
-                rpdo2 = self._set_pdo(node.rpdo[2], 0x300 + n, [0x60B1], rtr=True)
-            else:
-                self._disable_pdo(node.rpdo[2])
-            for i in (3, 4):
-                step = f"RPDO{i}"
-                self._disable_pdo(node.rpdo[i])
-            step = "TPDO1"
-            tpdo_objects = [0x6041, 0x6064] + ([0x6077] if self._torque else [])
-            tpdo1 = self._set_pdo(node.tpdo[1], 0x180 + n, tpdo_objects, rtr=False)
-            for i in (2, 3, 4):
-                step = f"TPDO{i}"
-                self._disable_pdo(node.tpdo[i])
-            step = "0x6061 modes of operation display"
-            self._check_mode(node)
-            step = "NMT OPERATIONAL"
-            node.nmt.state = "OPERATIONAL"
-        except (SdoError, DriverError, KeyError) as exc:
-            raise ConfigureError(f"node {n}: {step}: {type(exc).__name__}: {exc}") from exc
-        d.rpdo1, d.rpdo1_cob = _pdo_struct(rpdo1), rpdo1.cob_id or 0
+        d.configured = False
+        self._tpdo_by_cob = {c: x for c, x in self._tpdo_by_cob.items() if x is not d}
+        rpdo1, rpdo2, tpdo1 = configure_node(
+            d.node,
+            d.node_id,
+            heartbeat_ms=self._heartbeat_ms,
+            interp=self._interp,
+            velocity_offset=self._velocity_offset,
+            torque=self._torque,
+        )
+        d.rpdo1, d.rpdo1_cob = pdo_struct(rpdo1), rpdo1.cob_id or 0
         if rpdo2 is not None:
-            d.rpdo2, d.rpdo2_cob = _pdo_struct(rpdo2), rpdo2.cob_id or 0
+            d.rpdo2, d.rpdo2_cob = pdo_struct(rpdo2), rpdo2.cob_id or 0
         else:
             d.rpdo2 = None
-        d.tpdo1 = _pdo_struct(tpdo1)
+        d.tpdo1 = pdo_struct(tpdo1)
         self._host_cob_ids.update(c for c in (d.rpdo1_cob, d.rpdo2_cob) if c)
         d.restarted = False
         d.configured = True
+        d.next_answer = self._syncs_sent  # its TPDOs answer the SYNCs from now on
         d.nmt_state = None  # until its next heartbeat says OPERATIONAL
         self._tpdo_by_cob = {**self._tpdo_by_cob, tpdo1.cob_id or 0: d}
         self._refresh(d)
-
-    @staticmethod
-    def _write(var: object, value: int) -> None:
-        """SDO-write `value`; an object that refuses but already holds it is accepted."""
-        if not isinstance(var, SdoVariable):
-            raise ConfigureError(f"{var!r} is not a single object in the drive's dictionary")
-        try:
-            var.raw = value
-        except SdoAbortedError:
-            try:
-                held = var.raw
-            except SdoError:
-                held = None
-            if held != value:
-                raise
-
-    def _disable_pdo(self, pdo: PdoMap) -> int:
-        """Mark a PDO invalid (COB-ID bit 31), keeping its COB-ID; return that COB-ID."""
-        cob_var = pdo.com_record[1]
-        cob = int(cob_var.raw)
-        if not cob & PDO_NOT_VALID:
-            self._write(cob_var, cob | PDO_NOT_VALID)
-        return cob & 0x7FF
-
-    def _set_pdo(self, pdo: PdoMap, cob_id: int, objects: Sequence[int], *, rtr: bool) -> PdoMap:
-        """Map `objects` into `pdo`, synchronous (type 1), at `cob_id`, and enable it."""
-        cob_var = pdo.com_record[1]
-        cob = int(cob_var.raw)
-        if not cob & PDO_NOT_VALID and cob & 0x7FF != cob_id:
-            # A valid PDO keeps its COB-ID: disable it under its own before moving it.
-            self._write(cob_var, cob | PDO_NOT_VALID)
-        pdo.clear()
-        for index in objects:
-            if pdo.add_variable(index) is None:
-                raise ConfigureError(f"0x{index:04X} is not in the drive's object dictionary")
-        pdo.cob_id = cob_id
-        pdo.trans_type = 1
-        pdo.rtr_allowed = rtr
-        pdo.enabled = True
-        pdo.save()
-        return pdo
-
-    def _check_mode(self, node: canopen.RemoteNode) -> None:
-        """Wait (bounded) until 0x6061 shows cyclic synchronous position."""
-        deadline = time.monotonic() + _MODE_DISPLAY_WAIT_S
-        while True:
-            shown = int(node.sdo[0x6061].raw)
-            if shown == profile.CYCLIC_SYNCHRONOUS_POSITION:
-                return
-            if time.monotonic() >= deadline:
-                raise ConfigureError(
-                    f"the drive shows mode {shown} after 0x6060 was set to cyclic synchronous "
-                    "position (8): it does not support it"
-                )
-            time.sleep(0.01)
 
     # --- receive ----------------------------------------------------------------------------
 
@@ -548,8 +454,24 @@ class CiA402Reels:
         d.prev_sample_s = t_sample
         d.actual_counts = counts
         r.position_rev = counts / cpr
-        r.stamp_s = self._clock()
+        r.stamp_s = now_s = self._clock()
         r.stamp_ns = self._wall_ns()
+        # Which SYNC does it answer? A drive answers them in turn, late ones too (a paused
+        # drive working through its backlog): its status tells the state since the last
+        # state-changing command only once it answers a SYNC sent after that command.
+        k = d.next_answer
+        sent = self._syncs_sent
+        if k < sent:
+            k = max(k, sent - SYNC_RING)
+            oldest_s = now_s - MAX_ANSWER_DELAY_S
+            times = self._sync_times
+            while k < sent - 1 and times[k % SYNC_RING] < oldest_s:
+                k += 1  # presumed lost: never answered
+            d.next_answer = k + 1
+        else:
+            k = sent - 1  # more answers than SYNCs: it answers the last one
+        if k >= self._command_sync:
+            r.status_stamp_s = now_s
         if len(values) > 2:
             d.torque = values[2]
         if values[0] != d.statusword:
@@ -558,7 +480,9 @@ class CiA402Reels:
 
     def _heartbeat_handler(self, d: _Drive) -> Callable[[int], None]:
         def on_heartbeat(state: int) -> None:
-            d.reading.heartbeat_stamp_s = self._clock()
+            d.reading.heartbeat_stamp_s = now_s = self._clock()
+            if not d.configured:  # no TPDOs: its status is its NMT state (and restart)
+                d.reading.status_stamp_s = now_s
             if state == NMT_BOOT_UP and d.configured:
                 # The drive restarted: its PDO set-up and mode are back to their defaults.
                 d.configured = False
@@ -689,7 +613,11 @@ class CiA402Reels:
             self._network.sync.transmit()
         except BusError as exc:
             failures.append(f"SYNC: {exc}")
-        self._last_sync_s = self._clock()
+            self._last_sync_s = self._clock()
+        else:
+            self._last_sync_s = sent_s = self._clock()
+            self._sync_times[self._syncs_sent % SYNC_RING] = sent_s
+            self._syncs_sent += 1
         self._cycled_since_poll = True
         if failures:
             raise BusError("; ".join(failures))
@@ -741,6 +669,16 @@ class CiA402Reels:
             d.ff_units = f
         self._cycle()
 
+    def _commanded(self) -> None:
+        """A state-changing command goes out with the next cycle: the drives' status is judged
+        again only on statuswords answering that cycle's SYNC or a later one
+        (`AxisReading.status_fresh`); a drive that is not configured is judged on its NMT
+        heartbeats."""
+        self._command_sync = self._syncs_sent
+        now_s = self._clock()
+        for r in self._readings:
+            r.command_stamp_s = now_s
+
     def arm(self) -> None:
         """Bring every drive to Operation enabled, holding where its reel is.
 
@@ -756,6 +694,7 @@ class CiA402Reels:
         for d in self._drives:
             d.fault_reset = d.state in fault_states
         self._goal = Goal.ENABLED
+        self._commanded()
         self._cycle()
 
     def disarm(self) -> None:
@@ -763,6 +702,7 @@ class CiA402Reels:
         self._goal = Goal.DISABLED
         for d in self._drives:
             d.fault_reset = False
+        self._commanded()
         self._cycle()
 
     def estop(self) -> None:
@@ -772,6 +712,7 @@ class CiA402Reels:
         if a send fails (after trying every frame).
         """
         self._goal = Goal.QUICK_STOP
+        self._commanded()
         failures: list[str] = []
         for d in self._drives:
             d.fault_reset = False

@@ -277,6 +277,21 @@ class RemoteRequest:
     cmd_id: int
 
 
+HOST_MESSAGES: Final = (
+    Estop,
+    SetAxisState,
+    SetControllerMode,
+    SetInputPos,
+    SetInputVel,
+    SetInputTorque,
+    SetLimits,
+    ClearErrors,
+    RemoteRequest,
+)
+"""The messages a host sends to an axis (commands and RTR requests); the others (Heartbeat,
+GetError, EncoderEstimates, Torques) are what an axis sends."""
+
+
 class DecodeErrorKind(enum.Enum):
     """Why a frame could not be decoded."""
 

@@ -26,6 +26,13 @@ the pre-tension before homing (`drivers.base.TorqueDriver`: `enter_torque_mode`,
 `stats.bus_errors`/`stats.last_error`; the method still tries every axis, then raises
 `BusError` naming what failed so the loop can fault.
 
+Freshness after a state-changing command (`arm`, `disarm`, `estop`, `clear_errors`, and
+`enter_torque_mode` for the axes it brings into closed loop): the driver stamps the axis's
+`command_stamp_s` once the frames are sent, and `status_stamp_s` follows the heartbeats; until a
+heartbeat arrives after the command (`AxisReading.status_fresh`), `ready`/`fault`/`state_name`
+still describe the drive before it (an e-stop's error, say, until the drive takes the
+Clear_Errors), and the loop does not judge the axis on them.
+
 Velocity limit in torque mode: an ODrive in TORQUE_CONTROL turns as fast as the torque
 imbalance drives it, up to its vel_limit. `enter_torque_mode` can lower vel_limit for the
 pre-tension, but CANSimple sets vel_limit and the current limit together (Set_Limits), so it
@@ -264,7 +271,7 @@ class ODriveReels:
                         rec.axis_state = state
                         rec.axis_error = error
                         _derive_status(rec)
-                    rec.heartbeat_stamp_s = now_s - age
+                    rec.heartbeat_stamp_s = rec.status_stamp_s = now_s - age
             elif mtype is cs.Torques:
                 rec = by_node[m.node_id]
                 if rec is None:
@@ -447,7 +454,10 @@ class ODriveReels:
             if r.stamp_ns:
                 frames.append(cs.encode_set_input_pos(r.node_id, r.position_rev))
             frames.append(cs.encode_set_axis_state(r.node_id, cs.AxisState.CLOSED_LOOP_CONTROL))
-        self._send_all(frames, "arm")
+        try:
+            self._send_all(frames, "arm")
+        finally:
+            self._commanded(self._readings)
         self._limits_lowered = False
 
     # --- torque mode (drivers.base.TorqueDriver) ------------------------------------------
@@ -493,6 +503,7 @@ class ODriveReels:
         current = self.current_limit_a
         limits = velocity_limits_rps if self.velocity_limit_rps is not None else None
         frames: list[cs.Frame] = []
+        changed = [r for r in self._readings if not r.ready]
         for i, r in enumerate(self._readings):
             n = r.node_id
             if not r.ready:
@@ -510,7 +521,10 @@ class ODriveReels:
         applied = limits is not None and current is not None
         if applied:
             self._limits_lowered = True  # before sending: a partial failure may have lowered some
-        self._send_all(frames, "torque mode")
+        try:
+            self._send_all(frames, "torque mode")
+        finally:
+            self._commanded(changed)
         return applied
 
     def command_torque(self, torques_nm: Sequence[float]) -> None:
@@ -548,19 +562,37 @@ class ODriveReels:
         self._send_all(frames, "position mode")
         self._limits_lowered = False
 
+    def _commanded(self, readings: Sequence[AxisReading]) -> None:
+        """Stamp a state-changing command just sent to the axes of `readings`: their status is
+        judged again only on heartbeats that arrive from now on (`AxisReading.status_fresh`).
+        The stamp is taken after the send, so a heartbeat the drive sent before it took the
+        command is not taken for its answer."""
+        now_s = self._clock()
+        for r in readings:
+            r.command_stamp_s = now_s
+
     def disarm(self) -> None:
         """Request IDLE on every axis. Raises BusError if a send fails."""
-        self._send_all(
-            [cs.encode_set_axis_state(n, cs.AxisState.IDLE) for n in self.node_ids], "disarm"
-        )
+        try:
+            self._send_all(
+                [cs.encode_set_axis_state(n, cs.AxisState.IDLE) for n in self.node_ids], "disarm"
+            )
+        finally:
+            self._commanded(self._readings)
 
     def estop(self) -> None:
         """Send Estop to every axis (each tried even if one fails). Raises BusError on failure."""
-        self._send_all([cs.encode_estop(n) for n in self.node_ids], "Estop")
+        try:
+            self._send_all([cs.encode_estop(n) for n in self.node_ids], "Estop")
+        finally:
+            self._commanded(self._readings)
 
     def clear_errors(self) -> None:
         """Send Clear_Errors to every axis. Raises BusError if a send fails."""
-        self._send_all([cs.encode_clear_errors(n) for n in self.node_ids], "Clear_Errors")
+        try:
+            self._send_all([cs.encode_clear_errors(n) for n in self.node_ids], "Clear_Errors")
+        finally:
+            self._commanded(self._readings)
 
     def set_limits(self, velocity_limit_rps: float, current_limit_a: float) -> None:
         """Send Set_Limits to every axis. Raises ValueError if not finite, BusError on failure."""

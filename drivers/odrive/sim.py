@@ -89,8 +89,10 @@ DEFAULT_POS_GAIN = 20.0
 MAX_SUBSTEP_S = 0.001
 """Longest integration step of the axis dynamics (a longer `step` is split)."""
 _MAX_SUBSTEPS = 10_000
-_AXIS_TX_TYPES = (cs.Heartbeat, cs.EncoderEstimates, cs.GetError)
-"""What an axis sends itself: heard back (udp_multicast loops frames back), they feed nothing."""
+_HOST_TX_TYPES = frozenset(cs.HOST_MESSAGES)
+"""What a host sends: only these feed the watchdog. What an axis sends itself (heartbeats,
+encoder estimates, Get_Error and Get_Torques answers and broadcasts), heard back because
+udp_multicast loops frames back, feeds nothing."""
 REST_SNAP_REV = 1e-9
 REST_SNAP_RPS = 1e-6
 
@@ -284,7 +286,7 @@ class SimODriveAxis:
 
     def _handle(self, msg: cs.Message) -> list[cs.Frame]:
         t = type(msg)
-        if t not in _AXIS_TX_TYPES:
+        if t in _HOST_TX_TYPES:
             self._since_feed_s = 0.0  # any frame from a host to the axis feeds its watchdog
         if t is cs.SetInputPos:
             assert isinstance(msg, cs.SetInputPos)

@@ -12,6 +12,7 @@ import csv
 import io
 import json
 import random
+import re
 import subprocess
 import time
 import tomllib
@@ -285,6 +286,9 @@ def test_collect_auto_visits_spread_poses_and_solve_recovers_the_config(
     res = collect(desk_daemon, str(out), "--auto", "14")
     assert res.returncode == 0, res.stdout + res.stderr
     assert "14 sample(s)" in res.stdout
+    # an estimate up front, and at every pose how far along and how long is left
+    assert re.search(r"visiting 14 poses: [0-9.]+ m at [0-9.]+ m/s, about \d+ (s|min);", res.stdout)
+    assert re.search(r"pose 14/14 \(\d+ (s|min) in, about \d+ (s|min) left\): move to", res.stdout)
     header, rows = read_rows(out)
     assert header == ["node_0_rev", "node_1_rev", "node_2_rev", "node_3_rev", "x_m", "y_m", "z_m"]
     assert len(rows) == 14
@@ -355,3 +359,56 @@ def test_collect_manual_records_the_pose_at_each_enter(
     )
     assert gone.returncode == exitcodes.NO_DAEMON, gone.stderr
     assert not (tmp_path / "x.csv").exists()
+
+
+@pytest.mark.parametrize("config", [None, DESK])
+def test_auto_poses_satisfy_the_solver_that_recommends_them(config: Path | None) -> None:
+    """`collect --auto` (its default count, the built-in robot's or the desk's workspace) gives
+    poses the solver has nothing to warn about: the recommendation, the thresholds and the
+    pose generator agree."""
+    from controller.cli.calibrate import auto_poses
+    from controller.core.kinematics import Geometry
+    from controller.core.workspace import Workspace
+    from tests.core.test_calibration import believed_poses, make_rig
+
+    cfg = load_config(config)
+    n = cal.recommended_poses(len(cfg.reels))
+    assert n == 28
+    poses = np.array(auto_poses(cfg.summary(), n, None, cfg.homing.power_up_position_m))
+    rig = make_rig(config if config is not None else REPO / "config" / "paper-acre.toml", seed=3)
+    assert np.allclose(rig.config_anchors_m, cfg.anchors_m)
+    turns = rig.turns(poses)
+    believed, _ = believed_poses(rig, poses, turns)
+    samples = cal.Samples(rig.node_ids, turns, believed)
+    _, _, (z_lo, z_hi) = Workspace.from_limits(cfg.limits, Geometry(cfg.anchors_m)).box()
+    res = cal.calibrate(rig.config_anchors_m, rig.reels, samples, pose_height_m=z_hi - z_lo)
+    assert not [w for w in res.warnings if "few poses" in w or "coplanar" in w], res.warnings
+    if config is None:  # wide and low: without the workspace's height the poses look flat
+        res = cal.calibrate(rig.config_anchors_m, rig.reels, samples)
+        assert any("poses nearly coplanar" in w for w in res.warnings)
+    short = cal.calibrate(
+        rig.config_anchors_m,
+        rig.reels,
+        cal.Samples(rig.node_ids, turns[:25], believed[:25]),
+        pose_height_m=z_hi - z_lo,
+    )
+    assert "few poses (25): 28 or more give a better check" in short.warnings
+
+
+def test_solve_defaults_to_the_built_in_robot(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    rig = make_rig(REPO / "config" / "paper-acre.toml", seed=1)
+    samples, _ = sample_set(rig, n=28)
+    path = tmp_path / "s.csv"
+    write_samples(path, samples)
+    code, out, err = run_cli(["calibrate", "solve", str(path), "--json"], capsys)
+    assert "--config" not in err, err
+    data = json.loads(out)
+    assert np.allclose(data["config_anchors_m"], load_config(None).anchors_m)
+    code, out, _ = run_cli(["calibrate", "solve", str(path)], capsys)
+    assert out.startswith(f"calibration of the built-in robot from {path}: 28 poses")
+    code, _, err = run_cli(
+        ["calibrate", "solve", str(path), "--write", str(tmp_path / "n.toml")], capsys
+    )
+    assert code == 1 and "--write edits the robot file given with --config" in err

@@ -130,3 +130,45 @@ def test_workspace_cable_range_matches_sampling() -> None:
     assert lo == pytest.approx(seen_lo, abs=1e-12) and hi == pytest.approx(seen_hi, abs=1e-12)
     assert lo == pytest.approx(math.dist((-0.5, -0.5, 0.8), (-0.45, -0.45, 0.7)))
     assert hi == pytest.approx(math.dist((-0.5, -0.5, 0.8), (0.45, 0.45, 0.01)))
+
+
+def _bad_reels(tmp_path: Path) -> Path:
+    """desk.toml with reels[0]'s drum radius negative and reels[1] on reels[0]'s node id."""
+    lines = (REPO / "config" / "desk.toml").read_text().splitlines(keepends=True)
+    radius = [i for i, line in enumerate(lines) if line.startswith("drum_radius_m")]
+    node = [i for i, line in enumerate(lines) if line.startswith("node_id")]
+    lines[radius[0]] = "drum_radius_m = -0.015\n"
+    lines[node[1]] = "node_id = 0\n"
+    bad = tmp_path / "bad-reels.toml"
+    bad.write_text("".join(lines))
+    return bad
+
+
+def test_a_bad_reel_does_not_hide_a_duplicate_node_id(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = _bad_reels(tmp_path)
+    code, _, err = run(capsys, "check-config", str(bad))
+    assert code == exitcodes.REFUSED
+    assert f"{bad}: reels[0].drum_radius_m: must be > 0, got -0.015\n" in err
+    assert f"{bad}: reels[1].node_id: duplicate node id 0 (also reels[0])\n" in err
+
+
+def test_json_on_an_invalid_file_prints_the_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = _bad_reels(tmp_path)
+    code, out, err = run(capsys, "check-config", "--json", str(bad))
+    assert code == exitcodes.REFUSED
+    report = json.loads(out)
+    assert report["ok"] is False and report["file"] == str(bad)
+    assert [e["key"] for e in report["errors"]] == ["reels[0].drum_radius_m", "reels[1].node_id"]
+    assert report["errors"][1]["problem"] == "duplicate node id 0 (also reels[0])"
+    assert "not a valid robot configuration" in err
+    latin1 = tmp_path / "latin1.toml"
+    latin1.write_bytes('name = "d\xe9sk"\n'.encode("latin-1"))
+    code, out, _ = run(capsys, "check-config", "--json", str(latin1))
+    assert code == exitcodes.REFUSED
+    assert (
+        "not UTF-8 text: byte 0xe9 at line 1, column 10" in json.loads(out)["errors"][0]["problem"]
+    )

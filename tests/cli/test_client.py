@@ -280,3 +280,31 @@ def test_cli_process_exit_code_without_daemon() -> None:
     )
     assert proc.returncode == exitcodes.NO_DAEMON
     assert "no cablebot daemon answered" in proc.stderr
+
+
+def test_move_wait_json_prints_the_arrival(
+    daemon: Daemon, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert run(capsys, "arm", *daemon.args())[0] == 0
+    code, out, err = run(
+        capsys, "move", "0.2", "-0.1", "2.1", "--speed", "1.0", "--wait", "--json", *daemon.args()
+    )
+    assert code == 0, err
+    lines = [json.loads(line) for line in out.splitlines()]
+    assert lines[0]["state"] == "MOVING"
+    assert lines[-1]["arrived"] is True
+    assert lines[-1]["pose"]["state"] == "HOLDING"
+    assert lines[-1]["pose"]["position_m"] == pytest.approx([0.2, -0.1, 2.1], abs=1e-3)
+
+
+def test_arm_when_already_armed_succeeds_saying_so(
+    daemon: Daemon, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert run(capsys, "arm", *daemon.args())[0] == 0
+    assert run(capsys, "arm", *daemon.args()) == (0, "arm: already armed, state HOLDING\n", "")
+    code, out, _ = run(capsys, "arm", "--json", *daemon.args())
+    assert code == 0
+    assert json.loads(out) == {"ok": True, "state": "HOLDING", "already_armed": True}
+    assert run(capsys, "estop", *daemon.args())[0] == 0
+    code, _, err = run(capsys, "arm", *daemon.args())
+    assert code == exitcodes.REFUSED and "not allowed in ESTOPPED" in err

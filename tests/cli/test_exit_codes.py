@@ -1,4 +1,4 @@
-"""The exit codes: one table in `controller.cli.exitcodes`, distinct; the README table is it."""
+"""The exit codes: one table in `controller.cli.exitcodes`, distinct; the documented table is it."""
 
 from __future__ import annotations
 
@@ -8,13 +8,13 @@ import pytest
 
 from controller.cli import exitcodes, main
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+OPERATING = Path(__file__).resolve().parents[2] / "docs" / "operating.md"
 
 
 def readme_exit_table() -> list[tuple[int, str]]:
-    """The rows of the table under the README's "Exit codes" heading."""
-    text = README.read_text()
-    start = text.index("### Exit codes")
+    """The rows of the table under the "Exit codes" heading of docs/operating.md."""
+    text = OPERATING.read_text()
+    start = text.index("## Exit codes")
     rows: list[tuple[int, str]] = []
     in_table = False
     for line in text[start:].splitlines()[1:]:

@@ -330,3 +330,26 @@ def test_monitor_without_rich_says_how_to_get_it(
     monkeypatch.setitem(sys.modules, "rich.console", None)
     assert main(["monitor", "--connect", "127.0.0.1:1"]) == 1
     assert "pip install 'cablebot[monitor]'" in capsys.readouterr().err
+
+
+def test_render_shows_pose_and_set_point_from_the_same_sample() -> None:
+    """At 1 m/s the pose stream runs ahead of the polled status: the pose shown beside the
+    set-point is the status's own, taken with it."""
+    from rich.console import Console
+
+    from controller.cli.monitor import Snapshot, render
+
+    status = {
+        "state": "MOVING",
+        "pose": {"valid": True, "position_m": [1.0, 0.0, 2.0], "residual_m": 1e-4},
+        "setpoint_m": [1.0005, 0.0, 2.0],
+    }
+    stream = {"seq": 50, "state": "MOVING", "position_m": [1.4, 0.0, 2.0], "residual_m": 2e-4}
+    snap = Snapshot(pose=stream, pose_rx_s=1.0, status=status, status_rx_s=0.6)
+    console = Console(record=True, width=120)
+    console.print(render(snap, 1.05, 100.0, "t"))
+    text = console.export_text()
+    assert re.search(r"pose\s+x\s+\+1\.0000", text), text
+    assert not re.search(r"pose\s+x\s+\+1\.4000", text)
+    assert re.search(r"set-point\s+x\s+\+1\.0005", text)
+    assert "residual 0.10 mm" in text

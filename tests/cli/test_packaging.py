@@ -53,6 +53,11 @@ def test_wheel_holds_the_examples_and_the_unit(tmp_path: Path) -> None:
         with zipfile.ZipFile(wheel) as z:
             assert z.read(f"{pkg}/{name}") == (REPO / "config" / name).read_bytes()
     assert "controller/cli/configs.py" in names and "controller/cli/monitor.py" in names
+    # Every package of the source tree ships (pyproject.toml lists them one by one).
+    for init in sorted(
+        (*(REPO / "controller").rglob("__init__.py"), *(REPO / "drivers").rglob("__init__.py"))
+    ):
+        assert init.relative_to(REPO).as_posix() in names, init.parent.relative_to(REPO)
 
 
 def test_the_examples_are_found_through_the_package() -> None:
@@ -104,8 +109,8 @@ def test_unit_is_a_template_without_a_hard_coded_install_path() -> None:
     assert svc["RestartPreventExitStatus"] == str(exitcodes.USAGE)  # a configuration error
     for key, value in (*unit["Unit"].items(), *svc.items()):
         assert "/opt/" not in value and ".venv" not in value, (key, value)
-    readme = (REPO / "README.md").read_text()
-    assert "systemctl enable --now cablebot@desk" in readme
+    guide = (REPO / "docs" / "hardware.md").read_text()
+    assert "systemctl enable --now cablebot@desk" in guide
 
 
 def test_unit_passes_systemd_analyze_verify(tmp_path: Path) -> None:

@@ -114,6 +114,10 @@ def test_settled_error_is_marked_on_the_error_figure(tmp_path: Path, figures: li
     labels = [ln.get_label() for ln in a1.get_lines()]
     assert "settled at the points\n(max 0.250 mm)" in labels
     assert "1 mm" in labels
+    # the settled errors are micrometres: the axis has a µm scale on its right (1 mm = 1000 µm)
+    um = [ax for ax in a1.child_axes if "µm" in ax.get_ylabel()]
+    assert len(um) == 1
+    assert um[0].get_ylim() == pytest.approx([v * 1e3 for v in a1.get_ylim()])
 
 
 def test_a_small_path_is_zoomed_with_the_robot_in_an_inset(

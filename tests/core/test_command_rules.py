@@ -1,5 +1,5 @@
 """The one table of command rules: its shape, the loop obeying it for every verb in every state,
-and README's table being the table's."""
+and the table in docs/operating.md being the table's."""
 
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ from controller.core.states import (
 from tests.fakes import make_config
 from tests.service.test_loop import RATE_HZ, Rig
 
-README = pathlib.Path(__file__).resolve().parents[2] / "README.md"
+OPERATING = pathlib.Path(__file__).resolve().parents[2] / "docs" / "operating.md"
 
 
 def test_every_state_rules_every_verb() -> None:
@@ -56,8 +56,8 @@ def test_estop_is_accepted_everywhere_and_latched_states_take_only_reset() -> No
         assert {s for s in State if refusal(s, verb) is None} == {State.HOLDING, State.MOVING}
 
 
-def test_readme_shows_the_table_of_the_code() -> None:
-    text = README.read_text()
+def test_the_operating_guide_shows_the_table_of_the_code() -> None:
+    text = OPERATING.read_text()
     assert command_table_markdown() in text
 
 

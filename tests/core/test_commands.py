@@ -368,3 +368,25 @@ def test_arbitrary_json_gives_a_command_or_command_error(verb: str, obj: object)
         assert all(v is None or math.isfinite(v) for v in values)
     for point in getattr(cmd, "points_m", ()):
         assert all(math.isfinite(v) for v in point)
+
+
+def test_path_append_flag_parses_and_refuses_non_booleans() -> None:
+    pts = ((0.0, 0.0, 1.0), (1.0, 0.0, 1.0))
+    base = '{"points_m": [[0, 0, 1], [1, 0, 1]]'
+    assert parse_command("path", base + "}") == Path(pts)
+    assert parse_command("path", base + ', "append": true}') == Path(pts, None, True)
+    assert parse_command("path", base + ', "append": false, "speed_mps": 0.5}') == Path(
+        pts, 0.5, False
+    )
+    assert parse_command("path", base + ', "append": null}') == Path(pts)
+    for bad in ("1", "0", '"true"', "[true]", "{}"):
+        with pytest.raises(CommandError, match="append: expected true or false"):
+            parse_command("path", base + f', "append": {bad}}}')
+    # the same caps and finite checks as a path that replaces
+    with pytest.raises(CommandError, match="non-finite"):
+        parse_command("path", '{"points_m": [[0, 0, NaN]], "append": true}')
+    too_many = json.dumps({"points_m": [[0, 0, 1]] * (MAX_PATH_POINTS + 1), "append": True})
+    with pytest.raises(CommandError, match="at most"):
+        parse_command("path", too_many)
+    with pytest.raises(CommandError, match="append"):
+        parse_command("move", '{"position_m": [0, 0, 1], "append": true}')

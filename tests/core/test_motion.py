@@ -139,23 +139,26 @@ class Recorder:
 
 @settings(max_examples=40, deadline=None)
 @given(spoint, st.lists(spoint, min_size=1, max_size=4), pspeed, paccel, dt)
-def test_planner_path_respects_limits_and_visits_points(
+def test_planner_path_respects_limits_and_passes_its_points(
     start: Vec3, pts: list[Vec3], vmax: float, amax: float, dt_s: float
 ) -> None:
-    pl = MotionPlanner(vmax, amax)
+    jd = 0.01
+    pl = MotionPlanner(vmax, amax, junction_deviation_m=jd)
     pl.hold(start)
     pl.follow_path(pts)
     assert pl.target_m == pts[-1]
     total = sum(
         minimal_time(math.dist(a, b), vmax, amax) for a, b in zip([start, *pts], pts, strict=False)
     )
-    dt_s = max(dt_s, total / MAX_TICKS)
+    # A rounded corner may be slower than a stop at a sharp turn (it is flown at the corner
+    # speed); the bound only keeps the run finite.
+    dt_s = max(dt_s, 2 * total / MAX_TICKS)
     rec = Recorder(pl, dt_s)
-    rec.run_until_still(int(total / dt_s) + 5)
+    rec.run_until_still(int((2 * total + len(pts)) / dt_s) + 5)
     assert pl.position_m == pts[-1]  # exactly
     assert pl.velocity_mps == (0.0, 0.0, 0.0)
-    for p in pts:  # every point is visited (the set-point stops there: within 1/2 a dt^2)
-        assert min(math.dist(p, q) for q in rec.trace) <= 0.5 * amax * dt_s**2 + 1e-9
+    for p in pts:  # every point is passed within the junction deviation (+ a tick's travel)
+        assert min(math.dist(p, q) for q in rec.trace) <= jd + vmax * dt_s + 1e-9
 
 
 @settings(max_examples=40, deadline=None)
@@ -387,28 +390,21 @@ def test_speed_below_the_minimum_is_refused_by_the_planner() -> None:
     assert pl.moving
 
 
-def test_legs_are_built_as_they_are_reached() -> None:
-    from controller.core import motion
+def test_points_are_planned_as_they_are_needed() -> None:
+    from controller.core.motion import PLAN_POINTS_PER_CALL
 
-    built = []
-    real = motion.TrapezoidMove.__init__
-
-    def counting(self: TrapezoidMove, *a: object, **kw: object) -> None:
-        built.append(a[1])
-        real(self, *a, **kw)  # type: ignore[arg-type]
-
+    # Starting a path of any length plans a bounded number of points; the rest are planned a
+    # bounded number per tick, ahead of the set-point (the look-ahead horizon).
     pts = tuple((0.01 * (i + 1), 0.0, 0.0) for i in range(50_000))
     pl = MotionPlanner(2.0, 1.0)
     pl.hold((0, 0, 0))
-    motion.TrapezoidMove.__init__ = counting  # type: ignore[method-assign]
-    try:
-        pl.follow_points(pts, 1.0)
-        assert len(built) == 1 and pl.target_m == pts[-1]
-        for _ in range(3):
-            pl.advance(0.1)  # a leg of 1 cm at 1 m/s^2 takes 0.2 s
-        assert 1 < len(built) <= 3
-    finally:
-        motion.TrapezoidMove.__init__ = real  # type: ignore[method-assign]
+    pl.follow_points(pts, 1.0)
+    assert pl.target_m == pts[-1] and pl.queued_points == len(pts)
+    assert len(pl._q) <= PLAN_POINTS_PER_CALL
+    for _ in range(3):
+        pl.advance(0.1)
+    assert len(pl._q) <= 4 * PLAN_POINTS_PER_CALL
+    assert pl.queued_points < len(pts)
 
 
 def test_one_advance_crosses_a_bounded_number_of_legs() -> None:

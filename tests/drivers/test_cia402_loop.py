@@ -13,11 +13,12 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import Any, cast
 
+import can
 import pytest
 
-from controller.core.commands import Arm, Estop, Move, Reset
+from controller.core.commands import Arm, Disarm, Estop, Move, Reset
 from controller.core.states import State
 from controller.service.loop import Controller
 from drivers.bus import open_bus
@@ -29,8 +30,33 @@ RATE_HZ = 250.0
 CPR = 131072
 
 
+class PausableLink:
+    """The simulated drives' side of the bus, pausable as a stopped drive process is: while
+    paused their thread stands still at its next receive or send (the host's frames queue up
+    for it), and on resume it works through the backlog."""
+
+    def __init__(self, bus: can.BusABC) -> None:
+        self.bus = bus
+        self.paused = threading.Event()
+
+    def _hold(self) -> None:
+        while self.paused.is_set():  # stopped: nothing runs until it is continued
+            time.sleep(0.001)
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        self._hold()
+        msg = self.bus.recv(timeout)
+        if msg is not None and time.time() - msg.timestamp > 0.01:
+            time.sleep(0.0002)  # a drive working through a backlog takes its time
+        return msg
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._hold()
+        self.bus.send(msg, timeout)
+
+
 class Rig:
-    def __init__(self) -> None:
+    def __init__(self, heartbeat_period_s: float = 0.1) -> None:
         channel = f"test-cia402-loop-{uuid.uuid4().hex[:8]}"
         base = make_config(
             bus={"interface": "virtual", "channel": channel},
@@ -46,8 +72,9 @@ class Rig:
         )
         self.sim_bus = open_bus("virtual", channel)
         self.bus = open_bus("virtual", channel)
+        self.link = PausableLink(self.sim_bus)
         self.bank = SimCiA402Bank(
-            self.sim_bus,
+            cast(can.BusABC, self.link),
             self.cfg.node_ids,
             initial_position_rev=power_up_turns(self.cfg),
             counts_per_rev=CPR,
@@ -55,7 +82,11 @@ class Rig:
             max_accel_rps2=float(self.cfg.sim.max_accel_rps2),
         ).start()
         self.driver = CiA402Reels(
-            self.bus, self.cfg.node_ids, counts_per_rev=CPR, period_s=1.0 / RATE_HZ
+            self.bus,
+            self.cfg.node_ids,
+            counts_per_rev=CPR,
+            period_s=1.0 / RATE_HZ,
+            heartbeat_period_s=heartbeat_period_s,
         )
         self.driver.configure()
         self.pub = RecordingPublisher()
@@ -144,3 +175,39 @@ def test_silent_drive_gives_stale_fault(rig: Rig) -> None:
     rig.bank.axis(3).silence(True)
     rig.wait(lambda: rig.ctl.state is State.FAULT, 2.0, "FAULT")
     assert str(rig.ctl.reason).startswith("stale_encoder: node 3"), rig.ctl.reason
+
+
+@pytest.fixture
+def fast_heartbeat_rig() -> Iterator[Rig]:
+    r = Rig(heartbeat_period_s=0.01)
+    yield r
+    r.close()
+
+
+def test_an_arm_right_after_a_disarm_is_judged_on_answers_to_it_from_a_late_drive(
+    fast_heartbeat_rig: Rig,
+) -> None:
+    # A drive that answers 150 ms late (its process paused) first sends the statuswords of
+    # the cycles before the disarm: the arm must not take them for its confirmation (it would
+    # reach HOLDING, then see the drive leave Operation enabled as it works through the
+    # disarm, and fault "left closed loop"). Heartbeats every 10 ms: one comes amid the
+    # backlog, as a paused drive's overdue heartbeat does.
+    rig = fast_heartbeat_rig
+    rig.arm()
+    ticks = rig.ctl.ticks
+    rig.link.paused.set()
+    paused_at = time.monotonic()
+    rig.wait(lambda: rig.ctl.ticks >= ticks + 3, 2.0, "ticks with the drives paused")
+    rig.ctl.submit(Disarm()).result(timeout=2.0)
+    ticks = rig.ctl.ticks
+    rig.wait(lambda: rig.ctl.ticks >= ticks + 3, 2.0, "cycles carrying the disarm")
+    rig.ctl.submit(Arm()).result(timeout=2.0)
+    rig.wait(lambda: time.monotonic() - paused_at >= 0.15, 2.0, "a 150 ms pause")
+    rig.link.paused.clear()
+    rig.wait(lambda: rig.ctl.state is not State.ARMING, 5.0, "the end of arming")
+    assert rig.ctl.state is State.HOLDING, rig.ctl.reason
+    held_at = time.monotonic()
+    while time.monotonic() - held_at < 0.5:  # and it holds on
+        assert rig.ctl.state is State.HOLDING, rig.ctl.reason
+        time.sleep(0.005)
+    assert all(x.ready for x in rig.driver.read())

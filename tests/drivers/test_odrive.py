@@ -652,3 +652,45 @@ def test_open_driver_takes_the_configured_limits(buses: tuple[can.BusABC, can.Bu
         open_driver(bus, (0,), {"current_limit_a": -1.0}, loop)
     with pytest.raises(ValueError, match=r"named \['vel_limit'\]"):
         open_driver(bus, (0,), {"vel_limit": 1.0}, loop)
+
+
+def test_after_a_state_changing_command_the_status_is_fresh_only_on_a_later_heartbeat(
+    buses: tuple[can.BusABC, can.BusABC],
+) -> None:
+    bus, peer = buses
+    d = ODriveReels(bus, NODES)
+    r = d.read()
+    estop = int(cs.ODriveError.ESTOP_REQUESTED)
+    for n in NODES:
+        send(peer, cs.encode_heartbeat(n, estop, cs.AxisState.IDLE))
+    time.sleep(0.01)
+    d.poll()
+    assert all(x.fault is not None and x.status_fresh() for x in r)
+    # A heartbeat that arrived before the command, read after it, is still from before.
+    send(peer, cs.encode_heartbeat(0, estop, cs.AxisState.IDLE))
+    time.sleep(0.01)
+    d.enter_torque_mode([0.1] * len(NODES))  # clears the errors of the axes not in closed loop
+    d.poll()
+    assert all(x.command_stamp_s > x.status_stamp_s for x in r)
+    assert not any(x.status_fresh() for x in r)
+    assert r[0].fault is not None  # what the drive said before it took the Clear_Errors
+    # The answer to the command: fresh, and without the error.
+    for n in NODES:
+        send(peer, cs.encode_heartbeat(n, 0, cs.AxisState.CLOSED_LOOP_CONTROL))
+    time.sleep(0.01)
+    d.poll()
+    assert all(x.status_fresh() and x.ready and x.fault is None for x in r)
+    snap = r[0].snapshot()
+    assert (snap.command_stamp_s, snap.status_stamp_s) == (
+        r[0].command_stamp_s,
+        r[0].status_stamp_s,
+    )
+    # disarm, estop and arm are state-changing commands too
+    for command in (d.disarm, d.estop, d.arm):
+        command()
+        assert not any(x.status_fresh() for x in r), command
+        for n in NODES:
+            send(peer, cs.encode_heartbeat(n, 0, cs.AxisState.IDLE))
+        time.sleep(0.01)
+        d.poll()
+        assert all(x.status_fresh() for x in r), command

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import random
 import time
 import uuid
 from collections.abc import Callable, Iterator
@@ -459,6 +460,49 @@ def test_the_axis_own_frames_heard_back_do_not_feed_its_watchdog() -> None:
         axis.handle(cs.GetError(1, 0, 0))
     assert axis.axis_state == cs.AxisState.IDLE
     assert axis.axis_error == cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+
+
+def test_the_axis_own_torque_broadcasts_heard_back_do_not_feed_its_watchdog() -> None:
+    # With torque telemetry on, the axis's Get_Torques broadcasts come back to it too.
+    axis = SimODriveAxis(1, watchdog_timeout_s=0.2, torque_period_s=0.01)
+    arm(axis)
+    heard = 0
+    for _ in range(30):
+        for m in run(axis, 0.01):
+            if isinstance(m, cs.Heartbeat | cs.EncoderEstimates | cs.Torques):
+                heard += isinstance(m, cs.Torques)
+                axis.handle(m)
+    assert heard >= 25
+    assert axis.axis_state == cs.AxisState.IDLE
+    assert axis.axis_error == cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+
+
+def test_a_bank_with_torque_telemetry_on_udp_multicast_disarms_once_the_host_goes_silent() -> None:
+    # udp_multicast echoes every frame to every member, the bank's own included: after the
+    # host stops, only the watchdog stops an axis left in closed loop.
+    group = f"239.74.{random.randint(1, 254)}.{random.randint(1, 254)}"
+    port = random.randint(40000, 49000)
+    sim_bus = open_bus("udp_multicast", group, port=port)
+    host_bus = open_bus("udp_multicast", group, port=port)
+    axes = [SimODriveAxis(n, watchdog_timeout_s=0.3, torque_period_s=0.01) for n in (0, 1)]
+    bank = SimODriveBank(sim_bus, axes).start()
+    try:
+        driver = ODriveReels(host_bus, (0, 1))
+        r = driver.read()
+        assert poll_until(driver, lambda: all(x.heartbeat_stamp_s > -math.inf for x in r))
+        driver.arm()
+        assert poll_until(driver, lambda: all(x.ready for x in r))
+        assert poll_until(driver, lambda: all(x.torque_stamp_s > -math.inf for x in r))
+        # The host goes silent (nothing sent from now on): the axes disarm by their watchdog.
+        deadline = time.monotonic() + 10.0
+        while not all(a.axis_state == cs.AxisState.IDLE for a in axes):
+            assert time.monotonic() < deadline, [a.axis_state for a in axes]
+            time.sleep(0.01)
+        assert all(a.axis_error == cs.ODriveError.WATCHDOG_TIMER_EXPIRED for a in axes)
+    finally:
+        assert bank.stop(timeout_s=2.0)
+        sim_bus.shutdown()
+        host_bus.shutdown()
 
 
 # --- TORQUE_CONTROL ---------------------------------------------------------------------------

@@ -41,3 +41,35 @@ def test_setup_logging_picks_the_journal_format_under_journald(
     finally:
         root.handlers[:], level = saved
         root.setLevel(level)
+
+
+@pytest.mark.parametrize("level", ["info", "WARNING"])
+def test_third_party_info_lines_are_held_back_unless_debug_is_asked(
+    level: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # canopen logs every SDO at INFO (172 lines at a CiA 402 start-up): they must not bury
+    # cablebot's own lines; its warnings still show.
+    root = logging.getLogger()
+    saved = root.handlers[:], root.level
+    monkeypatch.delenv("JOURNAL_STREAM", raising=False)
+    try:
+        setup_logging(level)
+        logging.getLogger("canopen.sdo.client").info("sdo upload 0x6041")
+        logging.getLogger("canopen.sdo.client").warning("sdo timeout node 3")
+        logging.getLogger("cablebot.daemon").warning("own warning")
+        logging.getLogger("cablebot.daemon").info("own info")
+        logging.getLogger("controller.service.zenoh_io").info("zenoh info")
+        err = capsys.readouterr().err
+        assert "sdo upload" not in err
+        assert "sdo timeout node 3" in err and "own warning" in err
+        assert ("own info" in err) == (level == "info")
+        assert ("zenoh info" in err) == (level == "info")
+        # Asked for: --log-level DEBUG shows everything.
+        setup_logging("DEBUG")
+        logging.getLogger("canopen.sdo.client").info("sdo upload 0x6041")
+        logging.getLogger("canopen.sdo.client").debug("sdo bytes")
+        err = capsys.readouterr().err
+        assert "sdo upload 0x6041" in err and "sdo bytes" in err
+    finally:
+        root.handlers[:], lvl = saved
+        root.setLevel(lvl)

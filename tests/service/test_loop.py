@@ -645,12 +645,12 @@ def test_status_loop_figures_keep_their_keys_before_and_after_running() -> None:
     stop = threading.Event()
     beats: list[float] = []
 
-    def watchdog() -> None:  # every tick (period 0): stops the runner after 20
+    def watchdog() -> None:  # every tick (a period shorter than one): stops the runner after 20
         beats.append(clk())
         if len(beats) >= 20:
             stop.set()
 
-    ctl.runner(spin_s=0.0).run(stop, on_watchdog=watchdog, watchdog_period_s=0.0)
+    ctl.runner(spin_s=0.0).run(stop, on_watchdog=watchdog, watchdog_period_s=1e-9)
     after = ctl.status()["loop"]
     assert list(after) == keys
     assert after["ticks"] == ctl.ticks == 20

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from controller.core.commands import Move, Pretension
+from controller.core.commands import Arm, Move, Pretension, Reset
 from controller.core.states import State
 from controller.service.config import tension_check
 from tests.service.test_loop_sim_statics import PhysicalRig
@@ -96,3 +96,29 @@ def test_a_reel_with_nothing_on_it_winds_until_the_travel_limit_faults(
     # the drives hold where the reels are, in position control
     axes = [rig.bank.axis(n) for n in rig.ctl.node_ids]
     rig.wait(lambda: all(a.control_mode == 3 for a in axes), 1.0, "position control on every axis")
+
+
+def test_a_pretension_right_after_an_estop_and_reset_is_judged_on_the_drives_new_answers(
+    rig: PhysicalRig,
+) -> None:
+    # After an incident is exactly when a user pre-tensions: the drives still report the
+    # e-stop's error until they take the Clear_Errors of the pre-tension. Readings from before
+    # that command must not fault it.
+    home = tuple(float(v) for v in rig.cfg.homing.power_up_position_m)
+    rig.wait(lambda: rig.ctl.pose_valid, 3.0, "a valid pose")
+    rig.ctl.submit(Arm()).result(timeout=2.0)
+    rig.wait(lambda: rig.ctl.state is State.HOLDING, 5.0, "HOLDING")
+    rig.ctl.request_estop()
+    rig.wait(lambda: rig.ctl.state is State.ESTOPPED, 2.0, "ESTOPPED")
+    rig.wait(
+        lambda: all(r.fault is not None and not r.ready for r in rig.driver.read()),
+        2.0,
+        "every axis reporting the e-stop",
+    )
+    rig.ctl.submit(Reset()).result(timeout=2.0)
+    assert rig.ctl.state is State.DISARMED
+    reply = rig.ctl.submit(Pretension(home)).result(timeout=2.0)
+    assert reply["ok"] is True
+    rig.wait(lambda: rig.ctl.state is not State.PRETENSIONING, 60.0, "the end of the pre-tension")
+    assert rig.ctl.state is State.HOLDING, rig.ctl.reason
+    assert rig.ctl.status()["pretension"]["result"]["ok"] is True

@@ -36,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from controller.core.kinematics.errors import KinematicsError, SingularGeometryError
-from controller.core.kinematics.fit import _Fit, _make_fit, _make_planar4, _Planar4
+from controller.core.kinematics.fitplan import _Fit, _make_fit, _make_planar4, _Planar4
 from controller.core.kinematics.spheres import (
     Vec3,
     _EqualSeed,

@@ -1,0 +1,139 @@
+"""The benchmark's settings: how much to measure (`Plan`), the targets, the JSON keys."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class Plan:
+    """How much to measure: repeats per figure and the loop duration."""
+
+    scalar_repeats: int
+    scalar_calls: int
+    fpk4_repeats: int
+    fpk4_poses: int
+    batch_repeats: int
+    batch_poses: int
+    statics_repeats: int
+    statics_poses: int
+    statics_batch_poses: int
+    sim_seconds: float
+    decode_repeats: int
+    decode_frames: int
+    loop_seconds: float
+    loop_runs: int
+    estop_tries: int
+
+
+FULL = Plan(501, 400, 15, 32, 5, 1_000_000, 51, 200, 100_000, 5.0, 5, 50_000, 10.0, 3, 100)
+
+
+QUICK = Plan(101, 400, 5, 16, 3, 1_000_000, 11, 100, 100_000, 1.0, 3, 20_000, 2.0, 1, 50)
+
+
+LENGTH_NOISE_M = 1e-3
+"""Standard deviation of the noise put on the cable lengths for `fpk4` and the batch."""
+
+
+LOOP_RATES_HZ = (500, 1000)
+
+
+CIA402_RATE_HZ = 500
+"""The rate of the loop run on simulated CiA 402 drives (13 frames a tick fill 66 % of a
+1 Mbit/s bus at 500 Hz; 1 kHz would not fit)."""
+
+
+E2E_RATE_HZ = 1000
+
+
+MOVE_SPEED_MPS = 1.0
+
+
+MOVE_POINTS_M = ((-2.0, -1.0, 2.0), (2.0, 1.0, 3.0))
+
+
+DRAIN_PERIOD_S = 0.1
+
+
+SIM_TICK_S = 0.000993
+"""The simulated nodes' clock runs 0.7 % fast (see the module docstring: phase sweep)."""
+
+
+CHILD_START_TIMEOUT_S = 30.0
+
+
+SEED = 8
+
+
+TARGET_SIMPLIFIED_OVER_GENERAL = 0.6
+
+
+TARGET_SIMPLIFIED_US = 2.0
+
+
+TARGET_SCIPY_OVER_FPK4 = 100.0
+
+
+TARGET_BATCH_OVER_COPY = 20.0
+
+
+TARGET_DECODE_FRAMES_PER_S = 20_000.0
+
+
+TARGET_SIM_RTF = 1.0
+
+
+TARGET_JITTER_P99_FRAC = 0.10
+
+
+TARGET_COMPUTE_P99_FRAC = 0.25
+
+
+TARGET_OVERRUN_FRAC = 0.001
+
+
+E2E_MARGIN_US = 300.0
+
+
+TARGET_ESTOP_FLOOD_P99_MS = 50.0
+
+
+ESTOP_FLOOD_THREADS = 4
+"""Queries the flooding client keeps in flight."""
+
+
+LOOP_KEYS = (
+    "ticks",
+    "overruns",
+    "jitter_p50_frac",
+    "jitter_p99_frac",
+    "compute_p50_frac",
+    "compute_p99_frac",
+)
+
+
+JSON_KEYS = (
+    "fpk_simplified_us",
+    "fpk_general_us",
+    "fpk_simplified_over_general",
+    "fpk4_us",
+    "scipy_over_fpk4",
+    "batch_over_copy",
+    "statics_us",
+    "statics_batch_us",
+    "sim_plant_rtf",
+    "decode_frames_per_s",
+    "zenoh_put_us",
+    "loop",
+    "e2e_p50_us",
+    "e2e_p99_us",
+    "estop_latency_flood_ms",
+)
+
+
+ESTOP_KEYS = ("reply_p50", "reply_p99", "frame_p50", "frame_p99")
+
+
+class BenchError(RuntimeError):
+    """A figure could not be measured (a helper process failed, no samples, ...)."""

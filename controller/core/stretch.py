@@ -1,0 +1,463 @@
+"""Cable stretch: the paid-out (unstretched) length of an elastic cable under its tension.
+
+Pure module (``math``; the kinematics and statics of this package), no I/O, no threads.
+
+Model
+-----
+Cable ``i`` runs straight from its anchor ``A_i`` to the effector ``P`` with the geometric length
+``L_i = |A_i - P|``.  Under the tension ``t_i`` an elastic cable of axial stiffness ``EA_i``
+(newtons) is longer than what its reel has paid out, ``L0_i``: Hooke's law ``t = EA (L - L0) /
+L0`` gives
+
+    L0_i = L_i * EA_i / (EA_i + t_i)        L_i = L0_i * (EA_i + t_i) / EA_i
+
+A cable without an EA is rigid (``L0 = L``).  Static stretch only: the tensions are those that
+hold the payload at rest (``controller.core.statics``, the distribution the controller plans,
+farthest from the tension limits) or, where the caller has them, measured ones; cable mass, sag
+and the dynamic loads of a move are not modelled (``docs/cable-stretch.md``).
+
+* IPK (``CableStretch.ipk`` / ``paid_out_m``): the geometric lengths at the set-point, then the
+  paid-out lengths under the planned tensions there.  With these commanded, the cables at rest
+  pull the planned tensions and hold the effector at the set-point.
+* FPK (``CableStretch.fpk``): the pose whose planned tensions stretch the cables to the measured
+  paid-out lengths, i.e. the least-squares solution of ``r_i(P) = |A_i - P| * EA_i / (EA_i +
+  t_i(P)) - L0_i = 0``.  A fixed point "pose -> tensions -> stretch -> pose" diverges where the
+  tensions change fast with the pose (close under the anchor plane the stretch's derivative
+  outgrows the geometric one), so this is Gauss-Newton on the joint equations.  The tensions
+  have no convenient derivative and a statics solve costs over ten times the cable lengths,
+  so each pass linearises them about a point P0, ``t(P) = t(P0) + T' (P - P0)`` (``T'`` by
+  forward differences, kept between calls while within ``JACOBIAN_REUSE_M``; ``t(P0)`` reused
+  while the warm start is within ``TENSIONS_REUSE_M``) and solves the smooth equations that
+  gives with the analytic Jacobian; a pass that ends farther than ``RELINEARISE_M`` from P0 is
+  followed by one linearised at its result.  The linearisation's error grows with the square
+  of the distance to P0 and with the tensions' curvature, largest close under the anchors with
+  soft cables: on the paper robot with EA 2e5 N near (0, 0, 6) m it stays below 20 um while
+  the pose moves 8 mm per call (2 m/s at 250 Hz), 10 um at 4 mm, and below 2 um at rest
+  (``tests/core/test_stretch.py``).
+  Warm-started from the last pose a tick earlier, one pass and at most one statics solve.
+* FPK with measured tensions (``fpk_measured``): the geometric lengths follow directly from the
+  paid-out ones and the tensions; one rigid FPK, no iteration.
+
+Errors: ``KinematicsError`` (and ``StretchError``, a subclass, for what is specific to stretch:
+no tensions at an iterate, no convergence) for bad inputs and for lengths no pose explains;
+``StaticsError`` subclasses never escape ``fpk``.  Nothing returns NaN or inf.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from controller.core.kinematics import Geometry, KinematicsError, fpk, ipk_point
+from controller.core.statics import StaticsError, TensionCheck
+
+__all__ = [
+    "COLD_START_STRAINS",
+    "FD_STEP_M",
+    "JACOBIAN_REUSE_M",
+    "MAX_ITERATIONS",
+    "MAX_PASSES",
+    "MAX_STEP_M",
+    "RELINEARISE_M",
+    "STEP_TOL_M",
+    "TENSIONS_REUSE_M",
+    "CableStretch",
+    "StretchError",
+    "StretchFpk",
+]
+
+STEP_TOL_M = 1e-7
+"""A pass has converged when its Gauss-Newton step is shorter than this (the step is taken:
+near the solution the next would be shorter than 1e-12 m)."""
+MAX_ITERATIONS = 30
+"""Most Gauss-Newton steps of one pass of the FPK (no statics solve in a step)."""
+MAX_PASSES = 20
+"""Most passes (statics solve, linearised tensions, Gauss-Newton) of one FPK."""
+TENSIONS_REUSE_M = 0.002
+"""The statics solve of the last linearisation is reused by later solves whose warm start is
+within this distance of it (the loop's poses a tick apart); farther, the statics is solved at
+the warm start."""
+RELINEARISE_M = 0.01
+"""A pass whose result lies farther than this from its linearisation point is followed by one
+linearised at its result (the tensions' curvature makes the linearisation's error grow with
+the square of the distance)."""
+MAX_STEP_M = 0.5
+"""Longest Gauss-Newton step (a cold start far from the solution)."""
+FD_STEP_M = 1e-5
+"""Finite-difference step of the Jacobian (forward differences, one statics solve per axis)."""
+JACOBIAN_REUSE_M = 0.05
+"""A Jacobian is reused by later solves within this distance of where it was computed."""
+COLD_START_STRAINS = (0.0, 1e-3, 3e-3, 1e-2, 3e-2, 0.1)
+"""Strains tried in turn for the first pose of a cold FPK (see ``CableStretch._cold_start``)."""
+
+
+class StretchError(KinematicsError):
+    """The stretch model cannot explain the lengths: no tensions at an iterate (a singular pose),
+    or the solve did not converge."""
+
+
+@dataclass(frozen=True, slots=True)
+class StretchFpk:
+    """One FPK with stretch: the pose, the RMS of the paid-out length mismatch (m), the tensions
+    the stretch was computed with (N) and the Gauss-Newton steps taken (0 for measured ones)."""
+
+    position_m: tuple[float, float, float]
+    residual_m: float
+    tensions_n: tuple[float, ...]
+    iterations: int
+
+
+def _compliances(ea_n: Sequence[float | None], n: int) -> tuple[float, ...]:
+    if len(ea_n) != n:
+        raise KinematicsError(f"cable EA has {len(ea_n)} values for {n} cables")
+    out = []
+    for i, ea in enumerate(ea_n):
+        if ea is None:
+            out.append(0.0)
+            continue
+        v = float(ea)
+        if not (math.isfinite(v) and v > 0.0):
+            raise KinematicsError(f"cable {i + 1}: EA must be finite and > 0 N, got {ea!r}")
+        out.append(1.0 / v)
+    return tuple(out)
+
+
+class CableStretch:
+    """The stretch model of one robot: its geometry, each cable's EA (None = rigid) and the
+    payload's tension rule (`TensionCheck`, whose distribution gives the planned tensions).
+
+    Holds the FPK's cached Jacobian: one owner (the control loop) per instance.  Raises
+    ``KinematicsError`` for a wrong count of EA values or an EA not finite and > 0, and when the
+    tension rule's anchors are not the geometry's.
+    """
+
+    __slots__ = (
+        "_anchors",
+        "_c",
+        "_dt",
+        "_jac_at",
+        "_lin_at",
+        "_lin_t",
+        "check",
+        "ea_n",
+        "geometry",
+        "n",
+        "rigid",
+    )
+
+    def __init__(
+        self, geometry: Geometry, ea_n: Sequence[float | None], check: TensionCheck
+    ) -> None:
+        n = geometry.n_cables
+        self.geometry = geometry
+        self.n = n
+        self._c = _compliances(ea_n, n)
+        self.ea_n: tuple[float | None, ...] = tuple(None if e is None else float(e) for e in ea_n)
+        self.rigid = all(c == 0.0 for c in self._c)
+        if check.statics.anchors_m.shape != geometry.anchors_m.shape or not bool(
+            (check.statics.anchors_m == geometry.anchors_m).all()
+        ):
+            raise KinematicsError("the tension rule's anchors are not the geometry's")
+        self.check = check
+        self._anchors: tuple[tuple[float, float, float], ...] = tuple(
+            (float(a[0]), float(a[1]), float(a[2])) for a in geometry.anchors_m.tolist()
+        )
+        self._dt: tuple[tuple[float, float, float], ...] | None = None
+        self._jac_at: tuple[float, float, float] = (math.inf, math.inf, math.inf)
+        self._lin_at: tuple[float, float, float] = (math.inf, math.inf, math.inf)
+        self._lin_t: tuple[float, ...] = ()
+
+    # ------------------------------------------------------------------ IPK
+
+    def paid_out_m(
+        self, lengths_m: Sequence[float], tensions_n: Sequence[float]
+    ) -> tuple[float, ...]:
+        """Paid-out lengths ``L * EA / (EA + t)`` of cables of geometric lengths `lengths_m`
+        under `tensions_n` (a negative tension counts as none: a cable cannot push).
+
+        The per-tick IPK step after ``ipk_point``; raises ``KinematicsError`` for a wrong count
+        or a non-finite result.
+        """
+        c = self._c
+        if len(lengths_m) != self.n or len(tensions_n) != self.n:
+            raise KinematicsError(
+                f"need {self.n} lengths and tensions, got {len(lengths_m)} and {len(tensions_n)}"
+            )
+        out = tuple(
+            [
+                lengths_m[i] / (1.0 + c[i] * t) if (t := tensions_n[i]) > 0.0 else lengths_m[i]
+                for i in range(self.n)
+            ]
+        )
+        s = sum(out)
+        if s - s != 0.0:
+            raise KinematicsError(f"paid-out lengths are not finite: {out!r}")
+        return out
+
+    def stretched_m(
+        self, paid_m: Sequence[float], tensions_n: Sequence[float]
+    ) -> tuple[float, ...]:
+        """Geometric lengths ``L0 * (EA + t) / EA`` of cables paid out by `paid_m` under
+        `tensions_n` (negative: none).  Raises ``KinematicsError`` for a wrong count or a
+        non-finite result."""
+        c = self._c
+        if len(paid_m) != self.n or len(tensions_n) != self.n:
+            raise KinematicsError(
+                f"need {self.n} lengths and tensions, got {len(paid_m)} and {len(tensions_n)}"
+            )
+        out = tuple(
+            [
+                paid_m[i] * (1.0 + c[i] * t) if (t := tensions_n[i]) > 0.0 else paid_m[i]
+                for i in range(self.n)
+            ]
+        )
+        s = sum(out)
+        if s - s != 0.0:
+            raise KinematicsError(f"stretched lengths are not finite: {out!r}")
+        return out
+
+    def tensions_n(self, position_m: Sequence[float]) -> tuple[float, ...]:
+        """The planned tensions at `position_m` (the tension rule's distribution, whether or
+        not it keeps the limits).  Raises ``StretchError`` where statics has none."""
+        try:
+            return self.check.solve(position_m).tensions_n
+        except StaticsError as exc:
+            raise StretchError(f"no cable tensions at {_fmt(position_m)}: {exc}") from None
+
+    def ipk(self, position_m: Sequence[float]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """(paid-out lengths, planned tensions) that hold the payload at rest at `position_m`.
+
+        Raises ``KinematicsError`` for a non-finite position, ``StretchError`` where statics
+        has no tensions."""
+        lengths = ipk_point(self.geometry, position_m)
+        tensions = self.tensions_n(position_m)
+        return self.paid_out_m(lengths, tensions), tensions
+
+    # ------------------------------------------------------------------ FPK
+
+    def _tension_jacobian(
+        self, p: tuple[float, float, float], t0: Sequence[float]
+    ) -> tuple[tuple[float, float, float], ...]:
+        """d t_i / d P by forward differences of the statics (three solves)."""
+        h = FD_STEP_M
+        cols = []
+        for k in range(3):
+            q = [p[0], p[1], p[2]]
+            q[k] += h
+            tk = self.tensions_n((q[0], q[1], q[2]))
+            cols.append([(tk[i] - t0[i]) / h for i in range(self.n)])
+        self._jac_at = p
+        return tuple((cols[0][i], cols[1][i], cols[2][i]) for i in range(self.n))
+
+    def _cold_start(self, paid: list[float]) -> tuple[float, float, float]:
+        """A first pose without a last one: the rigid FPK of the paid-out lengths, or where
+        those cannot meet (paid-out lengths shorter than any pose's: stretched cables close
+        under the anchors), of the lengths stretched by a growing guess of the strain."""
+        for strain in COLD_START_STRAINS:
+            try:
+                g = fpk(self.geometry, [v * (1.0 + strain) for v in paid]).position_m
+            except KinematicsError:
+                if strain == COLD_START_STRAINS[-1]:
+                    raise
+                continue
+            break
+        return (float(g[0]), float(g[1]), float(g[2]))
+
+    def fpk(self, paid_m: Sequence[float], guess_m: Sequence[float] | None = None) -> StretchFpk:
+        """The pose whose planned tensions stretch the cables paid out by `paid_m` to reach
+        it (module docstring), warm-started from `guess_m` (the last pose; None: the rigid FPK
+        of the paid-out lengths).
+
+        Each pass linearises the tensions about a point P0, ``t(P) = t(P0) + T' (P - P0)``
+        (``t(P0)`` by statics, reused while the warm start is within ``TENSIONS_REUSE_M`` of
+        P0; ``T'`` by finite differences, kept while within ``JACOBIAN_REUSE_M``), then fits P
+        by Gauss-Newton on the paid-out lengths with that smooth model; a pass that ends
+        farther than ``RELINEARISE_M`` from P0 is followed by another linearised at its result.
+        Warm-started a tick from the last pose: one pass, at most one statics solve.
+        Raises ``KinematicsError`` for bad lengths (what ``kinematics.fpk`` raises when there is
+        no guess) or a non-finite guess, ``StretchError`` when statics has no tensions at a
+        pass's start or a solve does not converge.
+        """
+        n = self.n
+        if len(paid_m) != n:
+            raise KinematicsError(f"need {n} cable lengths, got {len(paid_m)}")
+        paid = [float(v) for v in paid_m]
+        for i, v in enumerate(paid):
+            if not (0.0 < v < math.inf):
+                raise KinematicsError(f"cable {i + 1}: length must be finite and > 0, got {v!r}")
+        if self.rigid:
+            res = fpk(self.geometry, paid)
+            g = res.position_m
+            return StretchFpk((float(g[0]), float(g[1]), float(g[2])), res.residual_m, (), 0)
+        if guess_m is None:
+            p = self._cold_start(paid)
+        else:
+            p = (float(guess_m[0]), float(guess_m[1]), float(guess_m[2]))
+            if not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
+                raise KinematicsError(f"guess must be finite, got {tuple(guess_m)!r}")
+        total = 0
+        prev_move = math.inf
+        best: tuple[float, tuple[float, float, float], tuple[float, ...]] | None = None
+        for k in range(MAX_PASSES):
+            pe, te = self._lin_at, self._lin_t
+            if k > 0 or math.dist(pe, p) > TENSIONS_REUSE_M:
+                te = self.tensions_n(p)
+                pe = self._lin_at = p
+                self._lin_t = te
+            if k > 0:
+                ss_p = self._sum_squares(p, te, paid)
+                if best is None or ss_p < best[0]:
+                    best = (ss_p, p, te)
+            dt = self._dt
+            if (
+                dt is None
+                or math.dist(self._jac_at, pe) > JACOBIAN_REUSE_M
+                or (k > 0 and self._jac_at != pe)
+            ):
+                # A later pass is a Newton step on the full equations: its tension derivative
+                # is taken where it linearises.
+                dt = self._dt = self._tension_jacobian(pe, te)
+            q, ss, t, its = self._pass(p, pe, te, dt, paid)
+            total += its
+            move = math.dist(pe, q)
+            if move <= RELINEARISE_M:
+                return StretchFpk(q, math.sqrt(ss / n), t, total)
+            if move >= prev_move:  # not contracting: half the way
+                q = (0.5 * (p[0] + q[0]), 0.5 * (p[1] + q[1]), 0.5 * (p[2] + q[2]))
+                move = math.dist(p, q)
+            prev_move = move
+            p = q
+        # The passes did not settle: the tensions' distribution has a kink there (the cable
+        # that limits it changes) and the lengths disagree (a large residual), so the passes
+        # step across the kink.  The best pose seen, by its exact residual.
+        if best is None:
+            raise StretchError(f"FPK with stretch did not settle at {_fmt(p)}")
+        ss_b, p_b, t_b = best
+        return StretchFpk(p_b, math.sqrt(ss_b / n), tuple(max(0.0, v) for v in t_b), total)
+
+    def _sum_squares(
+        self, p: tuple[float, float, float], t: Sequence[float], paid: Sequence[float]
+    ) -> float:
+        """Sum of squared paid-out length mismatches at `p` with tensions `t` there."""
+        c = self._c
+        x, y, z = p
+        ss = 0.0
+        for i, (ax, ay, az) in enumerate(self._anchors):
+            length = math.sqrt((ax - x) ** 2 + (ay - y) ** 2 + (az - z) ** 2)
+            ti = t[i]
+            ri = (length / (1.0 + c[i] * ti) if ti > 0.0 else length) - paid[i]
+            ss += ri * ri
+        return ss
+
+    def _pass(
+        self,
+        start: tuple[float, float, float],
+        p0: tuple[float, float, float],
+        t0: Sequence[float],
+        dt: Sequence[tuple[float, float, float]],
+        paid: Sequence[float],
+    ) -> tuple[tuple[float, float, float], float, tuple[float, ...], int]:
+        """Gauss-Newton from `start` with the tensions linearised about `p0` (``t0`` there):
+        (pose, sum of squared residuals, tensions there, steps). Raises ``StretchError``
+        without convergence."""
+        c = self._c
+        anchors = self._anchors
+        n = self.n
+        x0, y0, z0 = p0
+        x, y, z = start
+        prev_ss = math.inf
+        for it in range(MAX_ITERATIONS):
+            ex, ey, ez = x - x0, y - y0, z - z0
+            jac = []
+            r = []
+            t = []
+            ss = 0.0
+            for i in range(n):
+                ax, ay, az = anchors[i]
+                dx, dy, dz = ax - x, ay - y, az - z
+                length = math.sqrt(dx * dx + dy * dy + dz * dz)
+                gx, gy, gz = dt[i]
+                ti = t0[i] + gx * ex + gy * ey + gz * ez
+                ci = c[i]
+                if ti > 0.0 and ci > 0.0:
+                    s = 1.0 / (1.0 + ci * ti)
+                    k = length * ci * s * s
+                    inv = s / length
+                    jac.append((-dx * inv - k * gx, -dy * inv - k * gy, -dz * inv - k * gz))
+                    ri = length * s - paid[i]
+                else:
+                    inv = 1.0 / length
+                    jac.append((-dx * inv, -dy * inv, -dz * inv))
+                    ri = length - paid[i]
+                t.append(ti if ti > 0.0 else 0.0)
+                r.append(ri)
+                ss += ri * ri
+            step = _gauss_newton_step(jac, r)
+            if step is None:
+                raise StretchError(f"the cables do not fix the pose at {_fmt((x, y, z))}")
+            sx, sy, sz = step
+            size = math.sqrt(sx * sx + sy * sy + sz * sz)
+            if size <= STEP_TOL_M or (ss >= prev_ss and size <= 1e3 * STEP_TOL_M):
+                # The last step is far below a micrometre: take it (its residual is smaller
+                # still than the one reported, computed before it).
+                return (x + sx, y + sy, z + sz), ss, tuple(t), it
+            if size > MAX_STEP_M:  # far from the solution: no longer than the model holds
+                f = MAX_STEP_M / size
+                sx, sy, sz = sx * f, sy * f, sz * f
+            prev_ss = ss
+            x, y, z = x + sx, y + sy, z + sz
+        raise StretchError(
+            f"FPK with stretch did not converge in {MAX_ITERATIONS} steps (at {_fmt((x, y, z))})"
+        )
+
+    def fpk_measured(self, paid_m: Sequence[float], tensions_n: Sequence[float]) -> StretchFpk:
+        """The pose of cables paid out by `paid_m` stretched by measured `tensions_n`: one rigid
+        FPK of the stretched lengths.  Raises what ``stretched_m`` and ``kinematics.fpk``
+        raise."""
+        res = fpk(self.geometry, self.stretched_m(paid_m, tensions_n))
+        g = res.position_m
+        return StretchFpk(
+            (float(g[0]), float(g[1]), float(g[2])),
+            float(res.residual_m),
+            tuple(float(v) for v in tensions_n),
+            0,
+        )
+
+
+def _gauss_newton_step(
+    jac: Sequence[tuple[float, float, float]], r: Sequence[float]
+) -> tuple[float, float, float] | None:
+    """The step d solving (J^T J) d = -J^T r (3x3, Cramer), or None when J^T J is singular."""
+    a11 = a12 = a13 = a22 = a23 = a33 = 0.0
+    b1 = b2 = b3 = 0.0
+    for (j1, j2, j3), ri in zip(jac, r, strict=True):
+        a11 += j1 * j1
+        a12 += j1 * j2
+        a13 += j1 * j3
+        a22 += j2 * j2
+        a23 += j2 * j3
+        a33 += j3 * j3
+        b1 -= j1 * ri
+        b2 -= j2 * ri
+        b3 -= j3 * ri
+    c11 = a22 * a33 - a23 * a23
+    c12 = a13 * a23 - a12 * a33
+    c13 = a12 * a23 - a13 * a22
+    det = a11 * c11 + a12 * c12 + a13 * c13
+    scale = a11 * a22 * a33
+    if not (abs(det) > 1e-14 * scale and scale > 0.0):
+        return None
+    c22 = a11 * a33 - a13 * a13
+    c23 = a12 * a13 - a11 * a23
+    c33 = a11 * a22 - a12 * a12
+    d1 = (c11 * b1 + c12 * b2 + c13 * b3) / det
+    d2 = (c12 * b1 + c22 * b2 + c23 * b3) / det
+    d3 = (c13 * b1 + c23 * b2 + c33 * b3) / det
+    if not (math.isfinite(d1) and math.isfinite(d2) and math.isfinite(d3)):
+        return None
+    return (d1, d2, d3)
+
+
+def _fmt(p: Sequence[float]) -> str:
+    return "(" + ", ".join(f"{float(v):.4g}" for v in p) + ") m"

@@ -1,0 +1,1 @@
+"""The parts of the controller (`controller.service.loop.Controller`), one module each."""

@@ -1,0 +1,446 @@
+"""Command execution: the thread-safe submit API, preparing moves and paths off the tick, and in
+the tick one small handler per verb, dispatched after `controller.core.states.COMMAND_RULES`
+allowed the verb in the current state; the limit checks commands and set-points get.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import math
+import queue
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from controller.core.commands import (
+    Arm,
+    Command,
+    CommandRefused,
+    Disarm,
+    Estop,
+    Home,
+    Move,
+    Path,
+    Pretension,
+    Reset,
+    Setpoint,
+    Stop,
+    Vec3,
+    Velocity,
+)
+from controller.core.motion import check_speed, dedupe_path
+from controller.core.states import ARMED_STATES, State, refusal
+from controller.core.statics import SINGULAR_ROW
+from controller.core.workspace import points_array
+from controller.service.control.base import TENSION_MAX_SAMPLES, Reply, _chain, _fmt, _Motion, log
+from controller.service.control.homing import Homing
+from drivers.base import AxisReading
+
+_VERBS: Mapping[type, str] = {
+    Move: "move",
+    Path: "path",
+    Stop: "stop",
+    Estop: "estop",
+    Arm: "arm",
+    Disarm: "disarm",
+    Reset: "reset",
+    Home: "home",
+    Pretension: "pretension",
+    Setpoint: "setpoint",
+    Velocity: "velocity",
+}
+_MAX_COMMANDS_PER_TICK = 8
+
+
+class CommandExecution(Homing):
+    """The controller's commands: submitting, preparing, checking and executing them."""
+
+    # ---------------------------------------------------------------- thread-safe API
+
+    def submit(self, cmd: Command) -> concurrent.futures.Future[dict[str, Any]]:
+        """Queue `cmd` for the loop; the future resolves with a reply dict or CommandRefused.
+
+        Estop bypasses the queue (it is never refused as busy). A full queue refuses at once
+        with CommandRefused("busy"). Setpoint and Velocity commands go to `submit_setpoint` /
+        `submit_velocity`.
+        """
+        fut: concurrent.futures.Future[dict[str, Any]] = concurrent.futures.Future()
+        if isinstance(cmd, Estop):
+            with self._estop_lock:
+                self._estop_futures.append(fut)
+                self._estop_flag = True
+            return fut
+        if isinstance(cmd, Setpoint | Velocity):
+            try:
+                if isinstance(cmd, Setpoint):
+                    why = self._offer_setpoint(cmd.position_m)
+                else:
+                    why = self._offer_velocity(cmd.velocity_mps)
+            except ValueError as exc:
+                why = str(exc)
+            if why is None:
+                fut.set_result({"ok": True})
+            else:
+                fut.set_exception(CommandRefused(why))
+            return fut
+        motion = None
+        if isinstance(cmd, Move | Path):
+            # Here, in the submitting thread: O(number of points), so never in the tick.
+            motion = self._prepare_motion(cmd)
+        try:
+            self._queue.put_nowait((cmd, fut, motion))
+        except queue.Full:
+            fut.set_exception(CommandRefused("busy: command queue full"))
+        return fut
+
+    def request_estop(self) -> None:
+        """Ask for an e-stop at the start of the next tick (thread-safe, never blocks)."""
+        with self._estop_lock:
+            self._estop_flag = True
+
+    def submit_setpoint(self, position_m: Sequence[float]) -> None:
+        """Stream a target position; the latest one wins, validated and limited in the tick.
+
+        Taken only while HOLDING or MOVING (`COMMAND_RULES`); otherwise discarded and counted.
+        Raises ValueError/TypeError/IndexError for a position that is not three numbers.
+        """
+        self._offer_setpoint(position_m)
+
+    def _offer_setpoint(self, position_m: Sequence[float]) -> str | None:
+        """Store a streamed set-point for the tick, or return why the state discards it."""
+        p = (float(position_m[0]), float(position_m[1]), float(position_m[2]))
+        # Read the session before the state: if the state then says armed, the session read is
+        # that one or an earlier one (discarded by the tick), never a later one.
+        epoch = self._arm_epoch
+        state = self.state
+        why = refusal(state, "setpoint")
+        if why is not None:
+            self.stream_discarded += 1
+            return self._refusal_text(state, why)
+        self._stream_target = (p, epoch)  # one reference assignment: atomic
+        return None
+
+    def submit_velocity(self, velocity_mps: Sequence[float]) -> None:
+        """Velocity input: fly at `velocity_mps` (latest wins; see `controller.service.loop`).
+
+        Taken only while HOLDING or MOVING (`COMMAND_RULES`); otherwise discarded and counted.
+        Raises ValueError/TypeError/IndexError for a velocity that is not three finite numbers.
+        """
+        self._offer_velocity(velocity_mps)
+
+    def _offer_velocity(self, velocity_mps: Sequence[float]) -> str | None:
+        """Store a velocity sample for the tick, or return why the state discards it."""
+        v = (float(velocity_mps[0]), float(velocity_mps[1]), float(velocity_mps[2]))
+        if not (math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2])):
+            raise ValueError(f"velocity_mps must be finite, got {list(v)}")
+        epoch = self._arm_epoch  # before the state: see `_offer_setpoint`
+        state = self.state
+        why = refusal(state, "velocity")
+        if why is not None:
+            self.velocity_discarded += 1
+            return self._refusal_text(state, why)
+        self._velocity_cmd = (v, epoch)  # one reference assignment: atomic
+        return None
+
+    def _prepare_motion(self, cmd: Move | Path) -> _Motion:
+        """Check a move's or path's points, legs and speed and prepare them for the planner.
+
+        Reads only immutable limits and configuration: safe in any thread. Vectorised over the
+        points; the leg from where the set-point comes to rest to the first point depends on
+        the state and is checked in the tick. Raises nothing (a problem becomes `refusal`).
+        """
+        limited: float | None = None
+        if cmd.speed_mps is None:
+            speed = self._default_speed_mps
+        else:
+            why = check_speed(cmd.speed_mps)
+            if why is not None:
+                return _Motion((), 0.0, None, f"speed_mps: {why}")
+            speed = float(cmd.speed_mps)
+            vmax = float(self.cfg.limits.max_speed_mps)
+            if speed > vmax:
+                speed = limited = vmax
+        if isinstance(cmd, Move):
+            points: Sequence[Vec3] = (cmd.position_m,)
+        else:
+            points = cmd.points_m
+        try:
+            arr = points_array(points) if len(points) > 1 else None
+            failure = self.workspace.path_failure(points, array=arr)
+            if failure is None and self.tension is not None:
+                failure = self._tension_failure(points, None)
+            if failure is not None:
+                i, why = failure
+                where = "target" if isinstance(cmd, Move) else f"points_m[{i}]"
+                return _Motion((), speed, limited, f"{where} {_fmt(points[i])}: {why}")
+            if (
+                arr is not None
+                and type(points) is tuple
+                and bool(np.all(np.any(arr[1:] != arr[:-1], axis=1)))
+            ):
+                pts: tuple[Vec3, ...] = points  # checked finite, no repeats: as it is
+            else:
+                pts = dedupe_path(points)
+        except Exception as exc:  # e.g. a malformed point built in code: refuse, do not raise
+            return _Motion((), speed, limited, f"invalid points: {exc}")
+        return _Motion(pts, speed, limited, None)
+
+    def begin_shutdown(self) -> concurrent.futures.Future[dict[str, Any]]:
+        """Start a shutdown: from now on no new motion is taken (move, path, streamed set-points,
+        arm, home are refused or ignored) and any motion brakes to a hold at `max_accel_mps2`
+        (a queued Stop, whose future is returned). Thread-safe; the loop keeps running."""
+        self._closing = True
+        return self.submit(Stop())
+
+    # ---------------------------------------------------------------- commands in the tick
+
+    def _take_commands(self, readings: Sequence[AxisReading], now_s: float) -> None:
+        for _ in range(_MAX_COMMANDS_PER_TICK):
+            try:
+                cmd, fut, motion = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            if not fut.set_running_or_notify_cancel():
+                continue
+            try:
+                reply = self._execute(cmd, readings, now_s, motion)
+            except CommandRefused as exc:
+                log.info("refused %s: %s", type(cmd).__name__.lower(), exc)
+                fut.set_exception(exc)
+            except Exception as exc:  # a bug must not kill the loop
+                log.exception("command %r failed", cmd)
+                fut.set_exception(CommandRefused(f"internal error: {exc}"))
+            else:
+                if isinstance(reply, concurrent.futures.Future):  # answered later (homing save)
+                    reply.add_done_callback(_chain(fut))
+                else:
+                    fut.set_result(reply)
+
+    def _refusal_text(self, state: State, why: str) -> str:
+        """The refusal message for a verb `state` refuses with reason `why` (COMMAND_RULES)."""
+        if state is State.FAULT or state is State.ESTOPPED:
+            return f"not allowed in {state.value} ({self.reason}): {why}"
+        return f"not allowed in {state.value}: {why}"
+
+    def _execute(
+        self,
+        cmd: Command,
+        readings: Sequence[AxisReading],
+        now_s: float,
+        motion: _Motion | None = None,
+    ) -> Reply:
+        """Carry out one command in the tick: its reply, or a future of it when it comes later
+        (a homing save). Raises CommandRefused when the state or the limits refuse it."""
+        verb = _VERBS.get(type(cmd))
+        if verb is None:
+            raise CommandRefused(f"unsupported command {type(cmd).__name__}")
+        if self._closing and isinstance(cmd, Move | Path | Arm | Home | Pretension):
+            raise CommandRefused("shutting down: no new motion")
+        why = refusal(self.state, verb)
+        if why is not None:
+            raise CommandRefused(self._refusal_text(self.state, why))
+        handler = _HANDLERS.get(verb)
+        if handler is None:  # estop, setpoint, velocity: taken outside the queue
+            raise CommandRefused(f"unsupported command {type(cmd).__name__}")
+        return handler(self, cmd, readings, now_s, motion)
+
+    # ----------------------- one handler per verb (called by `_execute` once the state allowed it)
+
+    def _cmd_motion(
+        self,
+        cmd: Move | Path,
+        readings: Sequence[AxisReading],
+        now_s: float,
+        motion: _Motion | None,
+    ) -> Reply:
+        """`move`, `path`: start the prepared motion. Raises CommandRefused (the limits)."""
+        if motion is None:  # not submitted through `submit`: prepare it here
+            motion = self._prepare_motion(cmd)
+        self._start_motion(motion, cmd)
+        reply: dict[str, Any] = {"ok": True}
+        if isinstance(cmd, Move):
+            reply["target_m"] = list(cmd.position_m)
+        else:
+            reply["points"] = len(cmd.points_m)
+        reply["speed_mps"] = motion.speed_mps
+        if motion.limited_to_mps is not None:
+            reply["speed_limited_to_mps"] = motion.limited_to_mps
+        return reply
+
+    def _cmd_stop(
+        self, cmd: Stop, readings: Sequence[AxisReading], now_s: float, motion: _Motion | None
+    ) -> Reply:
+        """`stop`: end a pre-tension where the reels are, or brake the motion to a hold."""
+        if self.state is State.PRETENSIONING:
+            self._stop_pretension()
+        elif self.state in ARMED_STATES:
+            self.planner.stop()
+        return {"ok": True, "state": self.state.value}
+
+    def _cmd_arm(
+        self, cmd: Arm, readings: Sequence[AxisReading], now_s: float, motion: _Motion | None
+    ) -> Reply:
+        """`arm`: closed loop, holding the motors where they are. Raises CommandRefused when
+        not homed or when the bus fails."""
+        if not self.homed:
+            raise CommandRefused("not homed: run `home` at a known pose first")
+        try:
+            self.driver.arm()
+        except Exception as exc:
+            raise CommandRefused(f"bus_error: arm: {exc}") from None
+        self._arm_start_s = now_s
+        self._arm_rev = None
+        self.commanded_rev = None
+        self.setpoint_m = None
+        self.setpoint_lengths_m = None
+        # A new armed session: set-points streamed before it are never taken.
+        self._arm_epoch += 1
+        self._stream_target = None
+        self._velocity_cmd = None
+        self._set_state(State.ARMING)
+        return {"ok": True, "state": State.ARMING.value}
+
+    def _cmd_disarm(
+        self, cmd: Disarm, readings: Sequence[AxisReading], now_s: float, motion: _Motion | None
+    ) -> Reply:
+        """`disarm`: idle the motors. Raises nothing."""
+        self._disarm("disarm")
+        return {"ok": True, "state": self.state.value}
+
+    def _cmd_reset(
+        self, cmd: Reset, readings: Sequence[AxisReading], now_s: float, motion: _Motion | None
+    ) -> Reply:
+        """`reset`: from FAULT or ESTOPPED back to DISARMED. Raises nothing."""
+        if self.state is not State.DISARMED:
+            self._disarm("reset")
+        return {"ok": True, "state": self.state.value}
+
+    def _cmd_home(
+        self, cmd: Home, readings: Sequence[AxisReading], now_s: float, motion: _Motion | None
+    ) -> Reply:
+        """`home`: `_execute_home`. Raises CommandRefused as it does."""
+        return self._execute_home(cmd, readings, now_s)
+
+    def _cmd_pretension(
+        self,
+        cmd: Pretension,
+        readings: Sequence[AxisReading],
+        now_s: float,
+        motion: _Motion | None,
+    ) -> Reply:
+        """`pretension`: `_start_pretension`. Raises CommandRefused as it does."""
+        return self._start_pretension(cmd, readings, now_s)
+
+    def _start_motion(self, motion: _Motion, cmd: Move | Path) -> None:
+        """Start a prepared move or path (a move is a one-point path): O(1) in its length.
+
+        Raises CommandRefused (nothing changed) if the preparation refused it or if the first
+        leg leaves the limits; that leg starts where the set-point will come to rest (a motion
+        that arrives while moving first brakes to a stop).
+        """
+        if motion.refusal is not None:
+            raise CommandRefused(motion.refusal)
+        first = motion.points_m[0]
+        if self.setpoint_m is not None:
+            start = self.planner.rest_point_m
+            reason = self.workspace.check_segment(start, first)
+            if reason is None and self.tension is not None:
+                failure = self._tension_failure((first,), start)
+                reason = None if failure is None else failure[1].removeprefix("on the leg to it: ")
+            if reason is not None:
+                where = "target" if isinstance(cmd, Move) else "points_m[0]"
+                raise CommandRefused(
+                    f"{where} {_fmt(first)}: on the leg to it from {_fmt(start)}: {reason}"
+                )
+        self.planner.follow_points(motion.points_m, motion.speed_mps)
+        if self.state is State.HOLDING:
+            self._set_state(State.MOVING, "move" if isinstance(cmd, Move) else "path")
+
+    # ----------------------------------------------------------- limits of commands and set-points
+
+    def _check_segment(self, a: Sequence[float], b: Sequence[float]) -> str | None:
+        """Velocity mode's look-ahead: `Workspace.check_segment`, then with `[payload]` the
+        tension rule at points `_tension_step_m` apart along a->b (b included; a is where the
+        set-point is). Scalar: the look-ahead is a braking distance, a few samples. Raises
+        nothing."""
+        reason = self.workspace.check_segment(a, b)
+        chk = self.tension
+        if reason is not None or chk is None:
+            return reason
+        ax, ay, az = float(a[0]), float(a[1]), float(a[2])
+        dx, dy, dz = float(b[0]) - ax, float(b[1]) - ay, float(b[2]) - az
+        n = max(1, math.ceil(math.sqrt(dx * dx + dy * dy + dz * dz) / self._tension_step_m))
+        for k in range(1, n + 1):
+            f = k / n
+            q = (ax + f * dx, ay + f * dy, az + f * dz)
+            why = chk.check(q)
+            if why is not None:
+                return f"at {_fmt(q)}: {why}"
+        return None
+
+    def _check_target(self, p: Sequence[float]) -> str | None:
+        """Why `p` is not an allowed target (`Workspace.check_target`, then with `[payload]`
+        the payload's cable tensions within their limits and margin), or None if it is.
+        Raises nothing."""
+        reason = self.workspace.check_target(p)
+        if reason is None and self.tension is not None:
+            reason = self.tension.check(p)
+        return reason
+
+    def _tension_failure(
+        self, points: Sequence[Sequence[float]], start_m: Sequence[float] | None
+    ) -> tuple[int, str] | None:
+        """The first point of `points` (or point on the leg to it, from `start_m` for point 0)
+        where the payload cannot be held by the tension rule, as (index, reason), or None.
+
+        Each leg is sampled every `TENSION_SAMPLE_FRACTION` of the anchors' span (coarser if
+        that would exceed `TENSION_MAX_SAMPLES`) and solved in one batch; the first failing
+        sample is solved again for its reason. Raises nothing for finite points (checked by
+        the limits before)."""
+        chk = self.tension
+        assert chk is not None
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if start_m is None:
+            starts = np.vstack([pts[:1], pts[:-1]])
+        else:
+            starts = np.vstack([np.asarray(start_m, dtype=np.float64).reshape(1, 3), pts[:-1]])
+        leg = pts - starts
+        length = np.sqrt(np.einsum("ij,ij->i", leg, leg))
+        step = self._tension_step_m
+        counts = np.maximum(1, np.ceil(length / step)).astype(np.int64)
+        total = int(counts.sum())
+        if total > TENSION_MAX_SAMPLES:
+            counts = np.maximum(1, np.ceil(counts * (TENSION_MAX_SAMPLES / total))).astype(np.int64)
+        idx = np.repeat(np.arange(len(pts)), counts)
+        # fraction j / m_k along leg k, j = 1..m_k: the last sample is the point itself
+        first = np.cumsum(counts) - counts
+        frac = (np.arange(idx.size) - first[idx] + 1) / counts[idx]
+        samples = starts[idx] + frac[:, None] * leg[idx]
+        _, margin, _, limiting = chk.statics.solve_batch(samples, chk.mass_kg)
+        bad = np.flatnonzero((limiting == SINGULAR_ROW) | (margin < chk.margin_n))
+        if bad.size == 0:
+            return None
+        j = int(bad[0])
+        i = int(idx[j])
+        q = (float(samples[j, 0]), float(samples[j, 1]), float(samples[j, 2]))
+        reason = chk.check(q) or "the tension rule fails there"
+        if frac[j] < 1.0:
+            return i, f"on the leg to it: at {_fmt(q)}: {reason}"
+        return i, reason
+
+
+_HANDLERS: Mapping[
+    str, Callable[[CommandExecution, Any, Sequence[AxisReading], float, _Motion | None], Reply]
+] = {
+    "move": CommandExecution._cmd_motion,
+    "path": CommandExecution._cmd_motion,
+    "stop": CommandExecution._cmd_stop,
+    "arm": CommandExecution._cmd_arm,
+    "disarm": CommandExecution._cmd_disarm,
+    "reset": CommandExecution._cmd_reset,
+    "home": CommandExecution._cmd_home,
+    "pretension": CommandExecution._cmd_pretension,
+}
+"""The handler of each verb of `controller.core.states.COMMAND_VERBS` that goes through the
+command queue (estop, streamed set-points and velocity samples do not)."""

@@ -1,0 +1,51 @@
+"""`cablebot sim`: the simulated drives as their own process get the daemon loop's scheduling."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from tests.daemon_procs import CABLEBOT, Proc, udp_bus, write_config
+
+
+def fifo_threads(pid: int) -> list[tuple[int, int]]:
+    """(thread id, SCHED_FIFO priority) of every SCHED_FIFO thread of process `pid`."""
+    out: list[tuple[int, int]] = []
+    for name in os.listdir(f"/proc/{pid}/task"):
+        tid = int(name)
+        try:
+            if os.sched_getscheduler(tid) == os.SCHED_FIFO:
+                out.append((tid, os.sched_getparam(tid).sched_priority))
+        except OSError:  # the thread ended meanwhile
+            continue
+    return out
+
+
+def test_the_sim_process_serves_at_the_loop_real_time_priority(tmp_path: Path) -> None:
+    # A sim at normal priority beside a real-time daemon loop starves on a busy machine and
+    # its drives look stale (stale_encoder): it gets the in-process simulator's scheduling.
+    cfg, _info = write_config(tmp_path, udp_bus(), loop={"realtime": True, "rt_priority": 20})
+    sim = Proc([*CABLEBOT, "sim", "--config", str(cfg)], "sim")
+    try:
+        sim.wait_line("READY", 30)
+        line = sim.wait_line("simulated ODrive nodes", 10, stderr=True)
+        if "not available" in line:
+            pytest.skip(f"this machine grants no SCHED_FIFO: {line}")
+        assert "SCHED_FIFO priority 19" in line, line
+        assert [prio for _tid, prio in fifo_threads(sim.p.pid)] == [19], sim.log()
+    finally:
+        assert sim.terminate() == 0, sim.log()
+
+
+def test_the_sim_process_stays_at_normal_priority_without_loop_realtime(tmp_path: Path) -> None:
+    cfg, _info = write_config(tmp_path, udp_bus())  # loop.realtime = false
+    sim = Proc([*CABLEBOT, "sim", "--config", str(cfg)], "sim")
+    try:
+        sim.wait_line("READY", 30)
+        line = sim.wait_line("simulated ODrive nodes", 10, stderr=True)
+        assert "SCHED_OTHER (loop.realtime = false)" in line, line
+        assert fifo_threads(sim.p.pid) == []
+    finally:
+        assert sim.terminate() == 0, sim.log()

@@ -1,0 +1,46 @@
+"""Usage errors a user can act on: did-you-mean for a mistyped verb, the verb's own usage for
+arguments it does not take, and `--version`."""
+
+from __future__ import annotations
+
+import pytest
+
+from controller.cli import exitcodes, main, version
+
+
+def usage_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
+    with pytest.raises(SystemExit) as exc:
+        main(list(argv))
+    assert exc.value.code == exitcodes.USAGE
+    out, err = capsys.readouterr()
+    assert out == ""
+    return err
+
+
+def test_a_mistyped_verb_gets_did_you_mean(capsys: pytest.CaptureFixture[str]) -> None:
+    err = usage_error(capsys, "stauts")
+    assert (
+        err.splitlines()[-1] == "cablebot: error: unknown command 'stauts'; did you mean 'status'?"
+    )
+    err = usage_error(capsys, "calibrat", "solve", "x.csv")
+    assert "did you mean 'calibrate'?" in err
+    err = usage_error(capsys, "qqqqqq")
+    assert "unknown command 'qqqqqq'; `cablebot -h` lists them" in err
+
+
+def test_extra_arguments_show_the_verbs_usage(capsys: pytest.CaptureFixture[str]) -> None:
+    err = usage_error(capsys, "move", "1", "2", "3", "4")
+    assert err.startswith("usage: cablebot move ")
+    assert err.splitlines()[-1] == "cablebot move: error: unrecognized arguments: 4"
+    err = usage_error(capsys, "calibrate", "solve", "x.csv", "--config", "c.toml", "--bogus")
+    assert err.startswith("usage: cablebot calibrate solve ")
+    assert err.splitlines()[-1].endswith("unrecognized arguments: --bogus")
+
+
+def test_version(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    out, _ = capsys.readouterr()
+    assert out == f"cablebot {version()}\n"
+    assert version()[0].isdigit()

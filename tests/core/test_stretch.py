@@ -1,0 +1,205 @@
+"""Cable stretch: paid-out lengths that put the effector where it is asked (checked against the
+physical plant's equilibrium), and the pose of paid-out lengths (FPK with stretch)."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from controller.core import kinematics
+from controller.core.kinematics import Geometry, KinematicsError
+from controller.core.plant import PlantParams, equilibrium
+from controller.core.statics import TensionCheck
+from controller.core.stretch import CableStretch, StretchError
+
+CONFIG = Path(__file__).resolve().parents[2] / "config"
+FAST = settings(max_examples=40, deadline=None, derandomize=True)
+MASS_KG = 5.0
+SIX_POSES = [(0, 0, 2), (20, 10, 2), (-30, -18, 1), (0, 0, 6), (35, 20, 3), (10, -5, 0.5)]
+
+
+def anchors_of(name: str) -> list[tuple[float, float, float]]:
+    with (CONFIG / name).open("rb") as f:
+        reels = tomllib.load(f)["reels"]
+    return [tuple(r["anchor_m"]) for r in reels]
+
+
+PAPER = anchors_of("paper-acre.toml")
+DESK = anchors_of("desk.toml")
+
+
+def model(
+    ea_n: float | list[float | None],
+    anchors: list[tuple[float, float, float]] = PAPER,
+    mass_kg: float = MASS_KG,
+    t_max_n: float = 2000.0,
+) -> CableStretch:
+    ea = ea_n if isinstance(ea_n, list) else [ea_n] * len(anchors)
+    return CableStretch(Geometry(anchors), ea, TensionCheck(anchors, mass_kg, 5.0, t_max_n))
+
+
+@pytest.mark.parametrize("ea_n", [1e6, 2e5])
+@pytest.mark.parametrize("target", SIX_POSES)
+def test_paid_out_lengths_put_the_plant_at_the_target(
+    ea_n: float, target: tuple[float, ...]
+) -> None:
+    m = model(ea_n)
+    params = PlantParams(PAPER, ea_n, MASS_KG)
+    paid, tensions = m.ipk(target)
+    eq = equilibrium(params, paid, guess_m=target)
+    assert math.dist(eq.position_m, target) < 1e-6
+    assert eq.tensions_n == pytest.approx(tensions, rel=1e-6)
+    # the rigid model's lengths put it millimetres to a metre away (the figures of the docs)
+    rigid = equilibrium(params, kinematics.ipk_point(m.geometry, target), guess_m=target)
+    assert math.dist(rigid.position_m, target) > 5e-3
+
+
+@pytest.mark.parametrize("ea_n", [1e6, 2e5])
+@pytest.mark.parametrize("target", SIX_POSES)
+def test_fpk_inverts_ipk_cold_and_warm(ea_n: float, target: tuple[float, ...]) -> None:
+    m = model(ea_n)
+    paid, tensions = m.ipk(target)
+    cold = m.fpk(paid)
+    assert math.dist(cold.position_m, target) < 1e-6
+    warm = m.fpk(paid, guess_m=(target[0] + 0.01, target[1] - 0.02, target[2] + 0.01))
+    assert math.dist(warm.position_m, target) < 1e-9
+    assert warm.residual_m < 1e-7  # computed before the last (sub-0.1 um) step
+    assert warm.tensions_n == pytest.approx(tensions, rel=1e-6)
+    at_rest = m.fpk(paid, guess_m=warm.position_m)
+    assert math.dist(at_rest.position_m, target) < 1e-9
+
+
+def test_fixed_point_iteration_diverges_where_the_fpk_converges() -> None:
+    """Near the anchor plane the stretch's derivative outgrows the geometry's: "pose ->
+    tensions -> stretch -> rigid FPK" runs away, the Gauss-Newton solve does not."""
+    m = model(2e5)
+    target = (0.0, 0.0, 6.0)
+    paid, _ = m.ipk(target)
+    p = (0.0, 0.0, 5.99)
+    errors = []
+    for _ in range(6):
+        try:
+            p = kinematics.fpk(m.geometry, m.stretched_m(paid, m.tensions_n(p))).position_m
+        except KinematicsError:
+            errors.append(math.inf)
+            break
+        errors.append(math.dist(p, target))
+    assert errors[-1] > errors[0] > 1e-3  # it moves away
+    assert math.dist(m.fpk(paid, guess_m=(0.0, 0.0, 5.99)).position_m, target) < 1e-9
+
+
+@FAST
+@given(
+    x=st.floats(-0.35, 0.35),
+    y=st.floats(-0.35, 0.35),
+    z=st.floats(0.05, 0.6),
+    log_ea=st.floats(4.0, 7.0),
+    dx=st.floats(-0.005, 0.005),
+)
+def test_desk_round_trip(x: float, y: float, z: float, log_ea: float, dx: float) -> None:
+    m = model(10.0**log_ea, DESK, mass_kg=0.5, t_max_n=500.0)
+    target = (x, y, z)
+    try:
+        paid, _ = m.ipk(target)
+    except StretchError:
+        return
+    res = m.fpk(paid, guess_m=(x + dx, y - dx, z))
+    assert math.dist(res.position_m, target) < 1e-7
+    params = PlantParams(DESK, 10.0**log_ea, 0.5)
+    eq = equilibrium(params, paid, guess_m=target)
+    assert math.dist(eq.position_m, target) < 1e-6
+
+
+def test_measured_tensions_give_the_pose_in_one_rigid_fpk() -> None:
+    m = model(2e5)
+    target = (20.0, 10.0, 2.0)
+    paid, tensions = m.ipk(target)
+    res = m.fpk_measured(paid, tensions)
+    assert math.dist(res.position_m, target) < 1e-7
+    assert res.iterations == 0
+    # a tension 10 % off moves the pose
+    off = [t * 1.1 for t in tensions]
+    assert math.dist(m.fpk_measured(paid, off).position_m, target) > 1e-3
+
+
+def test_rigid_cables_are_the_rigid_kinematics() -> None:
+    m = model([None, None, None, None])
+    target = (3.0, -4.0, 2.5)
+    paid, _ = m.ipk(target)
+    assert paid == pytest.approx(kinematics.ipk_point(m.geometry, target), abs=0.0)
+    assert m.fpk(paid).position_m == pytest.approx(target, abs=1e-9)
+    mixed = model([2e5, None, 2e5, None])
+    paid, _tensions = mixed.ipk(target)
+    assert paid[1] == kinematics.ipk_point(m.geometry, target)[1]
+    assert paid[0] < kinematics.ipk_point(m.geometry, target)[0]
+    assert math.dist(mixed.fpk(paid).position_m, target) < 1e-6
+
+
+def test_bad_inputs_raise_named_errors() -> None:
+    with pytest.raises(KinematicsError, match="EA"):
+        model([1e5, 0.0, 1e5, 1e5])
+    with pytest.raises(KinematicsError, match="EA"):
+        model([1e5, math.nan, 1e5, 1e5])
+    with pytest.raises(KinematicsError, match="4 cables"):
+        model([1e5, 1e5, 1e5])
+    m = model(1e6)
+    with pytest.raises(KinematicsError):
+        m.fpk([10.0, math.nan, 10.0, 10.0])
+    with pytest.raises(KinematicsError):
+        m.fpk([10.0, 10.0, 10.0])
+    with pytest.raises(KinematicsError):
+        m.fpk([50.0] * 4, guess_m=(math.inf, 0.0, 0.0))
+    with pytest.raises(StretchError, match="no cable tensions"):
+        m.ipk((0.0, 0.0, 7.62))  # in the anchor plane: nothing pulls up
+    with pytest.raises(KinematicsError):
+        m.paid_out_m([1.0, 2.0], [1.0, 2.0])
+
+
+@pytest.mark.parametrize(("step_m", "bound_m"), [(0.0005, 5e-6), (0.004, 1e-5), (0.008, 2e-5)])
+def test_warm_started_along_a_path_the_fpk_stays_within_micrometres(
+    step_m: float, bound_m: float
+) -> None:
+    """The loop's use: one call per tick, warm-started from the last pose, statics solves
+    reused while close (the linearisation's error is largest close under the anchors, with
+    soft cables)."""
+    m = model(2e5)
+    path = [(0.3 * step_m * k, step_m * k, 6.0 - 0.2 * step_m * k) for k in range(120)]
+    last = path[0]
+    worst = 0.0
+    for p in path:
+        res = m.fpk(m.ipk(p)[0], guess_m=last)
+        worst = max(worst, math.dist(res.position_m, p))
+        last = res.position_m
+    assert worst < bound_m
+    # at rest: repeated solves of the same lengths settle on the pose
+    paid = m.ipk(path[-1])[0]
+    for _ in range(3):
+        last = m.fpk(paid, guess_m=last).position_m
+    assert math.dist(last, path[-1]) < 2e-6
+
+
+def test_inconsistent_lengths_across_a_kink_of_the_tension_distribution_give_a_pose() -> None:
+    """Where the cable that limits the planned distribution changes, the tensions have a kink;
+    with lengths that disagree by centimetres (a move on a loaded host) the linearised passes
+    step across it. The solve still returns its best pose (the loop's residual check judges
+    it), never an error that would fault the loop."""
+    m = model(2e5, t_max_n=500.0)  # the paper robot's limits: 5..500 N
+    a, b = (0.0, 0.0, 6.0), (35.0, 20.0, 3.0)
+    n = int(math.dist(a, b) / 0.004)
+    last = None
+    for k in range(int(0.25 * n)):
+        f = k / n
+        p = (a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f, a[2] + (b[2] - a[2]) * f)
+        paid, _ = m.ipk(p)
+        s = math.sin(k * 0.01)
+        noisy = [paid[0] + 0.02 * s, paid[1] - 0.01 * s, paid[2] + 0.006, paid[3] - 0.02 * s]
+        # (the first call is cold, as after start-up)
+        res = m.fpk(noisy, guess_m=last or p)
+        assert math.dist(res.position_m, p) < 0.2
+        assert res.residual_m < 0.03
+        last = res.position_m
