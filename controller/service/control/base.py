@@ -45,6 +45,36 @@ TENSION_MAX_SAMPLES = 200_000
 """At most this many tension samples per command (the spacing grows to fit)."""
 
 
+def make_planner(
+    cfg: RobotConfig,
+    *,
+    check_segment: Callable[[Sequence[float], Sequence[float]], str | None] | None = None,
+    max_accel_mps2: float | None = None,
+) -> MotionPlanner:
+    """The motion planner of the robot `cfg` as the control loop builds it (the G-code dry run
+    plans on the same), with `check_segment` for velocity mode and the acceleration lowered to
+    `max_accel_mps2` if given (never raised). Raises ValueError for limits the planner
+    refuses (a validated configuration has none)."""
+    lim = cfg.limits
+    accel = (
+        lim.max_accel_mps2 if max_accel_mps2 is None else min(max_accel_mps2, lim.max_accel_mps2)
+    )
+    return MotionPlanner(
+        lim.max_speed_mps,
+        accel,
+        min(float(lim.default_speed_mps), float(lim.max_speed_mps)),
+        velocity_timeout_s=lim.velocity_timeout_s,
+        check_segment=check_segment,
+    )
+
+
+def tension_sample_step_m(cfg: RobotConfig) -> float:
+    """How far apart a move's or path's legs are checked for tensions (m):
+    `TENSION_SAMPLE_FRACTION` of the anchors' span."""
+    anchors = cfg.anchors_m
+    return TENSION_SAMPLE_FRACTION * max(math.dist(a, b) for a in anchors for b in anchors)
+
+
 class _Fault(Exception):
     """Raised inside the tick to abort the step and enter FAULT with `reason`."""
 
@@ -113,13 +143,7 @@ class ControllerState:
             float(cfg.limits.default_speed_mps),
             float(cfg.limits.max_speed_mps),
         )
-        self.planner = MotionPlanner(
-            cfg.limits.max_speed_mps,
-            cfg.limits.max_accel_mps2,
-            self._default_speed_mps,
-            velocity_timeout_s=cfg.limits.velocity_timeout_s,
-            check_segment=self._check_segment,
-        )
+        self.planner = make_planner(cfg, check_segment=self._check_segment)
         f = cfg.faults
         self._stale_s = float(f.stale_timeout_s)
         self._hb_timeout_s = float(f.heartbeat_timeout_s)
@@ -137,8 +161,7 @@ class ControllerState:
         )
         self.cables = CableModel.from_config(cfg, self.tension)
         """Rigid or stretching cables: homing lengths, commanded lengths (IPK), pose (FPK)."""
-        span = max(math.dist(a, b) for a in self._anchors for b in self._anchors)
-        self._tension_step_m = TENSION_SAMPLE_FRACTION * span
+        self._tension_step_m = tension_sample_step_m(cfg)
         self.planned_tensions_n: tuple[float, ...] | None = None
         """Tensions that hold the payload at the last good set-point (None: not known)."""
         self.planned_margin_n: float | None = None

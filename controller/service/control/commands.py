@@ -29,9 +29,8 @@ from controller.core.commands import (
     Vec3,
     Velocity,
 )
-from controller.core.motion import check_speed, dedupe_path
+from controller.core.motion import QueueError, check_speed, dedupe_path
 from controller.core.states import ARMED_STATES, State, refusal
-from controller.core.statics import SINGULAR_ROW
 from controller.core.workspace import points_array
 from controller.service.control.base import TENSION_MAX_SAMPLES, Reply, _chain, _fmt, _Motion, log
 from controller.service.control.homing import Homing
@@ -263,6 +262,7 @@ class CommandExecution(Homing):
             reply["target_m"] = list(cmd.position_m)
         else:
             reply["points"] = len(cmd.points_m)
+            reply["queued_points"] = self.planner.queued_points
         reply["speed_mps"] = motion.speed_mps
         if motion.limited_to_mps is not None:
             reply["speed_limited_to_mps"] = motion.limited_to_mps
@@ -341,6 +341,9 @@ class CommandExecution(Homing):
         """
         if motion.refusal is not None:
             raise CommandRefused(motion.refusal)
+        if isinstance(cmd, Path) and cmd.append:
+            self._append_motion(motion)
+            return
         first = motion.points_m[0]
         if self.setpoint_m is not None:
             start = self.planner.rest_point_m
@@ -388,6 +391,34 @@ class CommandExecution(Homing):
             reason = self.tension.check(p)
         return reason
 
+    def _append_motion(self, motion: _Motion) -> None:
+        """Add a prepared path to the path in progress (`"append": true`): O(1) in its length.
+
+        The leg from the queue's last point to the first new point is checked as a path's
+        first leg is. Raises CommandRefused (nothing changed) when no path takes appends (none
+        sent, or stopped, replaced or held since), when the leg leaves the limits, or while the
+        queue is full (`QUEUE_FULL_TEXT`: the client waits and sends it again).
+        """
+        planner = self.planner
+        if self.setpoint_m is None or not planner.appendable:
+            raise CommandRefused("append: no path in progress to append to (send a path first)")
+        start = planner.target_m
+        first = motion.points_m[0]
+        reason = self.workspace.check_segment(start, first)
+        if reason is None and self.tension is not None:
+            failure = self._tension_failure((first,), start)
+            reason = None if failure is None else failure[1].removeprefix("on the leg to it: ")
+        if reason is not None:
+            raise CommandRefused(
+                f"points_m[0] {_fmt(first)}: on the leg to it from {_fmt(start)}: {reason}"
+            )
+        try:
+            planner.append_prepared(motion.points_m, motion.speed_mps)
+        except QueueError as exc:
+            raise CommandRefused(f"append: {exc}") from None
+        if self.state is State.HOLDING:
+            self._set_state(State.MOVING, "path")
+
     def _tension_failure(
         self, points: Sequence[Sequence[float]], start_m: Sequence[float] | None
     ) -> tuple[int, str] | None:
@@ -400,34 +431,7 @@ class CommandExecution(Homing):
         the limits before)."""
         chk = self.tension
         assert chk is not None
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        if start_m is None:
-            starts = np.vstack([pts[:1], pts[:-1]])
-        else:
-            starts = np.vstack([np.asarray(start_m, dtype=np.float64).reshape(1, 3), pts[:-1]])
-        leg = pts - starts
-        length = np.sqrt(np.einsum("ij,ij->i", leg, leg))
-        step = self._tension_step_m
-        counts = np.maximum(1, np.ceil(length / step)).astype(np.int64)
-        total = int(counts.sum())
-        if total > TENSION_MAX_SAMPLES:
-            counts = np.maximum(1, np.ceil(counts * (TENSION_MAX_SAMPLES / total))).astype(np.int64)
-        idx = np.repeat(np.arange(len(pts)), counts)
-        # fraction j / m_k along leg k, j = 1..m_k: the last sample is the point itself
-        first = np.cumsum(counts) - counts
-        frac = (np.arange(idx.size) - first[idx] + 1) / counts[idx]
-        samples = starts[idx] + frac[:, None] * leg[idx]
-        _, margin, _, limiting = chk.statics.solve_batch(samples, chk.mass_kg)
-        bad = np.flatnonzero((limiting == SINGULAR_ROW) | (margin < chk.margin_n))
-        if bad.size == 0:
-            return None
-        j = int(bad[0])
-        i = int(idx[j])
-        q = (float(samples[j, 0]), float(samples[j, 1]), float(samples[j, 2]))
-        reason = chk.check(q) or "the tension rule fails there"
-        if frac[j] < 1.0:
-            return i, f"on the leg to it: at {_fmt(q)}: {reason}"
-        return i, reason
+        return chk.path_failure(points, start_m, self._tension_step_m, TENSION_MAX_SAMPLES)
 
 
 _HANDLERS: Mapping[
