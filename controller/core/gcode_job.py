@@ -44,11 +44,11 @@ workspace, and with a payload the tension rule, naming the first G-code line tha
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 from controller.core.gcode import Command, GcodeError, Line
-from controller.core.motion import check_speed
+from controller.core.motion import MotionPlanner, QueueError, check_speed, dedupe_path
 from controller.core.statics import TensionCheck
 from controller.core.workspace import Workspace, points_array
 
@@ -193,6 +193,9 @@ class Job:
     bbox_m: tuple[Vec3, Vec3] = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     not_driven: dict[str, int] = field(default_factory=dict)
     unsupported: dict[str, int] = field(default_factory=dict)
+    accel_mps2: float = math.inf
+    """The lowest acceleration limit in effect at any point of the job (the frame's, or lower
+    by `M201`/`M204`)."""
 
 
 # -------------------------------------------------------------------------- the interpreter
@@ -209,7 +212,7 @@ class Interpreter:
         if not all(math.isfinite(c) for c in start):
             raise ValueError(f"start_m must be finite, got {start_m!r}")
         self.frame = frame
-        self.job = Job(start, bbox_m=(start, start))
+        self.job = Job(start, bbox_m=(start, start), accel_mps2=frame.max_accel_mps2)
         self.pos_m: Vec3 = start
         self._shift_m: list[float] = list(frame.origin_m)  # robot point of G-code 0 (G92)
         self.unit_m = frame.unit_m
@@ -501,6 +504,7 @@ class Interpreter:
             self.max_speed_mps = min(self.frame.max_speed_mps, min(vals))
         else:
             self.max_accel_mps2 = min(self.frame.max_accel_mps2, min(vals))
+            self.job.accel_mps2 = min(self.job.accel_mps2, self.max_accel_mps2)
         return Limits(n, self.max_speed_mps, self.max_accel_mps2)
 
 
@@ -541,3 +545,125 @@ def check_job(
     k, why = failure
     p = points[k]
     return owners[k], f"point [{p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}]: {why}"
+
+
+# ------------------------------------------------------------------------- chunks and timing
+DRY_RUN_DT_S = 0.01
+"""The time step at which `plan_job` advances the planner (the loop's own step is shorter; a
+step crosses at most `motion.MAX_LEGS_PER_ADVANCE` pieces, 1,600 pieces a second here)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Chunk:
+    """Consecutive motions at one speed, at most a given number of points: one path command
+    (the first of a job, or after a wait) or one append. `first_line`..`last_line` are their
+    G-code lines; `moves` the G0 to G3 moves among them."""
+
+    points_m: tuple[Vec3, ...]
+    speed_mps: float
+    first_line: int
+    last_line: int
+    moves: int
+
+
+Step = Chunk | Dwell | Sync | Disarm | Estop
+
+
+def chunks(actions: Iterable[Action], max_points: int) -> Iterator[Step]:
+    """The job's motions gathered into chunks of at most `max_points` points at one speed,
+    and its waits, disarm and e-stop in order (a `Limits` needs nothing more: each motion
+    carries its speed). Raises ValueError when `max_points` < 1."""
+    if max_points < 1:
+        raise ValueError(f"max_points must be >= 1, got {max_points}")
+    pts: list[Vec3] = []
+    speed = 0.0
+    first = last = moves = 0
+    for act in actions:
+        if isinstance(act, Motion):
+            if pts and act.speed_mps != speed:
+                yield Chunk(tuple(pts), speed, first, last, moves)
+                pts = []
+            if not pts:
+                speed, first, moves = act.speed_mps, act.line_no, 0
+            last = act.line_no
+            moves += int(act.move)
+            k = 0
+            while k < len(act.points_m):
+                room = max_points - len(pts)
+                take = act.points_m[k : k + room]
+                pts.extend(take)
+                k += len(take)
+                if len(pts) >= max_points:
+                    yield Chunk(tuple(pts), speed, first, last, moves)
+                    pts, first, moves = [], act.line_no, 0
+        elif isinstance(act, Limits):
+            continue
+        else:
+            if pts:
+                yield Chunk(tuple(pts), speed, first, last, moves)
+                pts = []
+            yield act
+    if pts:
+        yield Chunk(tuple(pts), speed, first, last, moves)
+
+
+@dataclass(frozen=True, slots=True)
+class JobPlan:
+    """A job as the planner flies it: `duration_s` (motion and dwells), `motion_s` (motion
+    only) and the corners flown as stops (`blends_dropped`)."""
+
+    duration_s: float
+    motion_s: float
+    blends_dropped: int
+
+
+def plan_job(
+    job: Job, planner: MotionPlanner, dt_s: float = DRY_RUN_DT_S, chunk_points: int = 1000
+) -> JobPlan:
+    """Fly `job` on `planner` (built with the robot's limits; the caller lowers its
+    acceleration to `job.accel_mps2`) as the daemon would fly its path commands: one path, then
+    appends, resting at every wait (G4, M400, M114, M18/M84); an M112 ends the job. Advances
+    the planner `dt_s` at a time and counts the time until it rests at the end. Raises
+    ValueError for a non-positive `dt_s` (and what the planner raises for a chunk it refuses;
+    `interpret` makes none)."""
+    if not (dt_s > 0.0 and math.isfinite(dt_s)):
+        raise ValueError(f"dt_s must be finite and > 0, got {dt_s!r}")
+    planner.hold(job.start_m)
+    ticks = 0
+    dwell_s = 0.0
+    fresh = True
+    room = planner.max_queued_points
+    for step in chunks(job.actions, chunk_points):
+        if isinstance(step, Chunk):
+            while planner.queued_points + len(step.points_m) > room:
+                planner.advance(dt_s)
+                ticks += 1
+            if fresh or not planner.appendable:
+                planner.follow_points(_deduped(step.points_m, planner.position_m), step.speed_mps)
+                fresh = False
+            else:
+                try:
+                    planner.append_points(step.points_m, step.speed_mps)
+                except QueueError:  # ran dry and closed meanwhile: start again from rest
+                    planner.follow_points(
+                        _deduped(step.points_m, planner.position_m), step.speed_mps
+                    )
+            continue
+        while planner.moving:
+            planner.advance(dt_s)
+            ticks += 1
+        fresh = True
+        if isinstance(step, Dwell):
+            dwell_s += step.duration_s
+        elif isinstance(step, Estop):
+            break
+    while planner.moving:
+        planner.advance(dt_s)
+        ticks += 1
+    motion_s = ticks * dt_s
+    return JobPlan(motion_s + dwell_s, motion_s, planner.blends_dropped)
+
+
+def _deduped(points: tuple[Vec3, ...], start: Vec3) -> tuple[Vec3, ...]:
+    """`points` without repeats (the planner's rule), never empty."""
+    return dedupe_path(points) or (start,)
