@@ -36,6 +36,7 @@ from controller.core.gcode_job import (
     Sync,
     check_job,
     chunks,
+    dry_run_step_s,
     interpret,
     plan_job,
 )
@@ -124,7 +125,8 @@ def plan(job: Job, cfg: Any) -> JobPlan:
     """Plan `job` on the daemon's planner for `cfg`, its acceleration lowered to the job's."""
     from controller.service.control.base import make_planner
 
-    return plan_job(job, make_planner(cfg, max_accel_mps2=job.accel_mps2))
+    dt = dry_run_step_s(job, 1.0 / cfg.loop.rate_hz)
+    return plan_job(job, make_planner(cfg, max_accel_mps2=job.accel_mps2), dt)
 
 
 # ------------------------------------------------------------------------------- reports
@@ -364,7 +366,7 @@ class ZenohRobot:
 def cmd_stream(args: argparse.Namespace) -> int:
     """`gcode FILE`: check the job from the robot's set-point and stream it to the daemon."""
     from controller.cli import client
-    from controller.core.commands import MAX_PATH_POINTS
+    from controller.core.commands import MAX_PATH_POINTS_SENT
     from controller.service.config import ConfigError
 
     try:
@@ -409,7 +411,7 @@ def cmd_stream(args: argparse.Namespace) -> int:
 
         streamer.on_wait = show
         try:
-            for step in chunks(job.actions, MAX_PATH_POINTS):
+            for step in chunks(job.actions, MAX_PATH_POINTS_SENT):
                 streamer.send(step)
                 show()
                 if isinstance(step, Estop):

@@ -7,7 +7,7 @@ the link is replaced atomically and removed at the end) and prints its path. Eac
 sends goes through `controller.core.gcode_protocol.LineProtocol` (line numbers, checksums,
 `Resend:`, `M105`/`M115`), then `controller.core.gcode_job.Interpreter`; its motions gather
 into chunks sent to the daemon by the same `Streamer` as `cablebot gcode FILE`, a chunk going
-out when it holds `MAX_PATH_POINTS` points, at a wait, or when the host pauses for `IDLE_S`.
+out when it holds `MAX_PATH_POINTS_SENT` points, at a wait, or when the host pauses for `IDLE_S`.
 `ok` goes back once a line is queued (a full daemon queue delays it: the host's flow control).
 During a wait (`G4`, `M400`, `M114`) the host hears `echo:busy: processing` every 2 s.
 
@@ -85,10 +85,10 @@ class SerialJob:
         """Send the gathered motions (as path or appends)."""
         if not self.pending:
             return
-        from controller.core.commands import MAX_PATH_POINTS
+        from controller.core.commands import MAX_PATH_POINTS_SENT
 
         acts, self.pending, self.pending_points = self.pending, [], 0
-        for step in chunks(acts, MAX_PATH_POINTS):
+        for step in chunks(acts, MAX_PATH_POINTS_SENT):
             self._send(step)
 
     def _send(self, step: Step) -> str | None:
@@ -102,7 +102,7 @@ class SerialJob:
 
     def line(self, text: str) -> None:
         """Take one line from the host and answer it."""
-        from controller.core.commands import MAX_PATH_POINTS
+        from controller.core.commands import MAX_PATH_POINTS_SENT
 
         r = self.proto.receive(text)
         for reply in r.replies:
@@ -124,7 +124,7 @@ class SerialJob:
                     if isinstance(act, Motion):
                         self.pending.append(act)
                         self.pending_points += len(act.points_m)
-                        if self.pending_points >= MAX_PATH_POINTS:
+                        if self.pending_points >= MAX_PATH_POINTS_SENT:
                             self.flush()
                         continue
                     self.flush()

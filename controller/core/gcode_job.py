@@ -548,9 +548,33 @@ def check_job(
 
 
 # ------------------------------------------------------------------------- chunks and timing
-DRY_RUN_DT_S = 0.01
-"""The time step at which `plan_job` advances the planner (the loop's own step is shorter; a
-step crosses at most `motion.MAX_LEGS_PER_ADVANCE` pieces, 1,600 pieces a second here)."""
+DRY_RUN_DT_S = 0.02
+"""The longest time step at which `plan_job` advances the planner (`dry_run_step_s`)."""
+PIECES_PER_STEP = 4
+"""`dry_run_step_s` keeps the points crossed in one step of all but the job's shortest 1 %
+segments under this (each point is a line and a corner arc: 8 pieces, half of
+`motion.MAX_LEGS_PER_ADVANCE`, beyond which a step drops time)."""
+
+
+def dry_run_step_s(job: Job, loop_period_s: float) -> float:
+    """The time step for `plan_job`: as long as `DRY_RUN_DT_S` (fewer steps, a faster dry
+    run) but short enough that a step crosses at most `PIECES_PER_STEP` points of the job's
+    segments at their speeds (but its shortest 1 %), and never shorter than the loop's period:
+    where the planner would drop time in a long step, the loop does not. Raises nothing."""
+    times: list[float] = []
+    prev = job.start_m
+    for act in job.actions:
+        if isinstance(act, Motion):
+            for q in act.points_m:
+                d = math.dist(prev, q)
+                if d > 0.0:
+                    times.append(d / act.speed_mps)
+                prev = q
+    if not times:
+        return DRY_RUN_DT_S
+    times.sort()
+    typical = times[len(times) // 100]
+    return max(loop_period_s, min(DRY_RUN_DT_S, PIECES_PER_STEP * typical))
 
 
 @dataclass(frozen=True, slots=True)
@@ -623,7 +647,8 @@ def plan_job(
     """Fly `job` on `planner` (built with the robot's limits; the caller lowers its
     acceleration to `job.accel_mps2`) as the daemon would fly its path commands: one path, then
     appends, resting at every wait (G4, M400, M114, M18/M84); an M112 ends the job. Advances
-    the planner `dt_s` at a time and counts the time until it rests at the end. Raises
+    the planner `dt_s` at a time (`dry_run_step_s`) and counts the time until it rests at the
+    end. Raises
     ValueError for a non-positive `dt_s` (and what the planner raises for a chunk it refuses;
     `interpret` makes none)."""
     if not (dt_s > 0.0 and math.isfinite(dt_s)):

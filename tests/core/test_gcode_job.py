@@ -252,3 +252,14 @@ def test_arc_chords_stay_within_tolerance(
         assert (d < 0) == cw
         turned += abs(d)
     assert turned == pytest.approx(sweep, abs=1e-5)
+
+
+def test_dry_run_step_follows_the_shortest_segments_but_not_below_the_loop() -> None:
+    from controller.core.gcode_job import DRY_RUN_DT_S, dry_run_step_s
+
+    slow = run("G1 X100 F600\nG1 X200\n")  # 10 s a segment
+    assert dry_run_step_s(slow, 0.002) == DRY_RUN_DT_S
+    # 0.1 mm segments at 100 mm/s: 1 ms each, 4 of them a step
+    fine = run("G1 F6000\n" + "".join(f"G1 X{0.1 * k:.1f}\n" for k in range(1, 500)))
+    assert dry_run_step_s(fine, 0.002) == pytest.approx(0.004)
+    assert dry_run_step_s(fine, 0.01) == 0.01  # never below the loop's period
