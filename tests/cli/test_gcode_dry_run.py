@@ -32,6 +32,7 @@ def slicer_estimate_s(text: str) -> float:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(300)
 def test_sliced_vase_plans_within_10_percent_of_the_slicer(
     capsys: pytest.CaptureFixture[str],
 ) -> None:

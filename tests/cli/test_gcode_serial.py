@@ -47,6 +47,7 @@ def _poll(pred, timeout_s: float, what: str) -> None:  # type: ignore[no-untyped
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(300)
 def test_printcore_streams_a_job_to_the_end(tmp_path: Path) -> None:
     printcore_mod = pytest.importorskip("printrun.printcore")
     gcoder = pytest.importorskip("printrun.gcoder")
@@ -79,6 +80,7 @@ def test_printcore_streams_a_job_to_the_end(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(300)
 def test_resend_and_answers_as_hosts_read_them(tmp_path: Path) -> None:
     from controller.core.gcode import numbered
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from controller.cli import exitcodes
+from tests.cli.test_monitor import Tmux, tmux_available  # noqa: F401 (a fixture)
 from tests.daemon_procs import CABLEBOT, Proc
 from tests.live_daemon import Daemon, live_daemon, wait_holding_at_rest
 
@@ -44,6 +45,7 @@ def _circle(n: int, r_mm: float, z_mm: float) -> list[str]:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(300)
 def test_a_job_streams_in_chunks_and_ends_at_its_last_point(tmp_path: Path) -> None:
     # 2,404 moves: more than two path commands' worth (1,000 points each), a dwell between
     # them (the robot rests, then a new path starts), and a modal feed change
@@ -68,6 +70,7 @@ def test_a_job_streams_in_chunks_and_ends_at_its_last_point(tmp_path: Path) -> N
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(300)
 def test_ctrl_c_stops_the_job_and_brakes_to_a_hold(tmp_path: Path) -> None:
     job = tmp_path / "long.gcode"
     job.write_text("G1 X0 Y0 Z2000 F30000\nG1 X12000\nG1 X0\n")  # 24 m at 0.5 m/s
@@ -91,6 +94,7 @@ def test_ctrl_c_stops_the_job_and_brakes_to_a_hold(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(300)
 def test_a_job_out_of_the_workspace_moves_nothing(tmp_path: Path) -> None:
     job = tmp_path / "out.gcode"
     job.write_text("G1 X1000 Y0 Z2000 F6000\nG1 Z-5 ; under the floor\n")
@@ -102,3 +106,24 @@ def test_a_job_out_of_the_workspace_moves_nothing(tmp_path: Path) -> None:
         cli.wait_line("line 2: refused: point [1.0000, 0.0000, -0.0050]", 5.0, stderr=True)
         st = d.status()
         assert st["state"] == "HOLDING" and st["setpoint_m"] == before
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+@pytest.mark.usefixtures("tmux_available")
+def test_progress_line_on_a_terminal(tmp_path: Path) -> None:
+    job = tmp_path / "slow.gcode"
+    job.write_text("G1 X0 Y0 Z2000 F30000\nG1 F24000\n" + "\n".join(_circle(200, 500.0, 2000.0)))
+    with live_daemon(tmp_path) as (d, cfg):
+        argv = [*CABLEBOT, "gcode", str(job), "--config", str(cfg), "--wait"]
+        term = Tmux([*argv, "--connect", d.endpoint, "--prefix", d.prefix])
+        try:
+            live = term.wait_for(
+                "the progress line", lambda s: "gcode: line" in s and "remaining ~" in s, 120.0
+            )
+            assert "moves " in live and "/202" in live and "elapsed " in live, live
+            done = term.wait_for("the end", lambda s: "gcode: done:" in s, 180.0)
+            assert "gcode: line" not in done, done  # the progress line is erased at the end
+            assert term.dead_status() in (None, 0)
+        finally:
+            term.kill()
