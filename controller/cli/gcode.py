@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import gzip
-import io
 import json
 import math
 import sys
@@ -25,6 +24,8 @@ from typing import Any, Protocol
 from controller.cli import exitcodes
 from controller.core.gcode import GcodeError, Line, parse_lines
 from controller.core.gcode_job import (
+    INCH_M,
+    MM_M,
     Chunk,
     Disarm,
     Dwell,
@@ -65,7 +66,10 @@ def read_lines(path: str) -> list[str]:
                 data = f.read()
     except (OSError, EOFError) as exc:
         raise JobInputError(f"{path}: {exc}") from None
-    return io.StringIO(data.decode("utf-8", errors="replace")).read().splitlines()
+    lines = data.decode("utf-8", errors="replace").replace("\r\n", "\n").split("\n")
+    if lines and lines[-1] == "":
+        lines.pop()  # the newline that ends the last line
+    return lines
 
 
 def parse_file(path: str, lines: Sequence[str]) -> list[Line]:
@@ -81,7 +85,7 @@ def frame_of(cfg: Any) -> GcodeFrame:
     g = cfg.gcode
     return GcodeFrame(
         origin_m=g.origin_m,
-        unit_m=0.0254 if g.units == "inch" else 0.001,
+        unit_m=INCH_M if g.units == "inch" else MM_M,
         home_m=g.home_m,
         arc_tolerance_m=g.arc_tolerance_m,
         max_speed_mps=cfg.limits.max_speed_mps,
@@ -95,7 +99,6 @@ def load_job(path: str, cfg: Any, start_m: Sequence[float]) -> Job:
     """Read, parse, interpret and check the job at `path` from `start_m` (robot frame) for the
     robot `cfg`. Raises JobInputError naming the line that cannot run or that leaves the
     workspace or the tension-feasible region."""
-
     return check_loaded(path, parse_file(path, read_lines(path)), cfg, start_m)
 
 

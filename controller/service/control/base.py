@@ -22,7 +22,7 @@ from controller.core.motion import MotionPlanner
 from controller.core.pretension import PretensionRun
 from controller.core.reel import ReelModel
 from controller.core.states import State
-from controller.core.statics import TensionCheck
+from controller.core.statics import PATH_MAX_SAMPLES, TensionCheck
 from controller.core.workspace import Workspace
 from controller.service.cables import CableModel
 from controller.service.config import RobotConfig, tension_check
@@ -41,7 +41,7 @@ MAX_PLANNER_DT_PERIODS = 4.0
 TENSION_SAMPLE_FRACTION = 0.01
 """A move's or path's legs are checked for tensions at points this fraction of the anchors'
 span apart (the tick checks every set-point on them too)."""
-TENSION_MAX_SAMPLES = 200_000
+TENSION_MAX_SAMPLES = PATH_MAX_SAMPLES
 """At most this many tension samples per command (the spacing grows to fit)."""
 
 
