@@ -384,7 +384,10 @@ def cmd_stream(args: argparse.Namespace) -> int:
         state = st.get("state")
         start = st.get("setpoint_m")
         if state != "HOLDING" or start is None:
-            raise client.Refused(f"the robot is {state}: a job starts from HOLDING (arm, home)")
+            why = f" ({st.get('reason')})" if st.get("reason") else ""
+            raise client.Refused(
+                f"the robot is {state}{why}: a job starts from HOLDING (arm, home)"
+            )
         try:
             job = check_loaded(args.file, lines, cfg, start)
         except JobInputError as exc:
@@ -415,7 +418,10 @@ def cmd_stream(args: argparse.Namespace) -> int:
         streamer.on_wait = show
         try:
             for step in chunks(job.actions, MAX_PATH_POINTS_SENT):
-                streamer.send(step)
+                report = streamer.send(step)
+                if report is not None and not args.json:  # M114, once the robot rests
+                    progress.clear()
+                    print(f"M114 (line {streamer.line}): {report}", flush=True)
                 show()
                 if isinstance(step, Estop):
                     break

@@ -58,7 +58,9 @@ _WORD_RE: Final = re.compile(
 )
 _N_RE: Final = re.compile(r"[ \t]*[Nn](-?\d+)[ \t]*")
 _CODE_RE: Final = re.compile(r"(\d+)(?:\.(\d+))?$")
-_NUM_FULL_RE: Final = re.compile(_NUMBER + r"(?::" + _NUMBER + r")*")
+_PLAIN_WORD: Final = r"[A-Za-z](?:" + _NUMBER + r")?"
+_PLAIN_RE: Final = re.compile(r"[ \t]*(?:" + _PLAIN_WORD + r"[ \t]+)*" + _PLAIN_WORD + r"[ \t]*")
+_PAIR_RE: Final = re.compile(r"([A-Za-z])(\S*)")
 
 
 class GcodeError(ValueError):
@@ -250,21 +252,12 @@ _Word = tuple[str, str | None, str | None, int]
 
 
 def _fast_words(body: str) -> list[_Word] | None:
-    """The words of a body whose whitespace-separated tokens are each one letter and a number
-    (or a flag): what slicers write. None for anything else (the general scanner reads it)."""
-    out: list[_Word] = []
-    for tok in body.split():
-        w = tok[0]
-        if not ("A" <= w <= "Z" or "a" <= w <= "z"):
-            return None
-        num = tok[1:]
-        if num:
-            if _NUM_FULL_RE.fullmatch(num) is None:
-                return None
-            out.append((w, None, num, -1))
-        else:
-            out.append((w, None, None, -1))
-    return out
+    """The words of a body of whitespace-separated words, each one letter and a number (or a
+    flag): what slicers write, read with two regular-expression calls. None for anything else
+    (the general scanner reads it)."""
+    if _PLAIN_RE.fullmatch(body) is None:
+        return None
+    return [(w, None, num or None, -1) for w, num in _PAIR_RE.findall(body)]
 
 
 def _scan_words(body: str, offset: int, line_no: int) -> list[_Word]:
