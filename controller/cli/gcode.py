@@ -226,6 +226,19 @@ def cmd_gcode(args: argparse.Namespace) -> int:
 
 
 # ------------------------------------------------------------------------------- streaming
+SENT_DECIMALS = 7
+"""Coordinates go to the daemon rounded to 0.1 um (shorter payloads; far below any limit)."""
+_POINT_JSON_MAX = 3 * len("-12345.1234567, ") + 2
+"""The longest JSON text of a rounded point inside +-1e4 m ("[x, y, z], ")."""
+
+
+def chunk_points(max_points: int, decode_limit_bytes: int) -> int:
+    """Points per path command of a job: as many as keep its payload within the daemon's fast
+    (C) JSON decoder, `decode_limit_bytes` (a longer payload is decoded by the pure-Python
+    scanner, tens of times slower, on the daemon's Zenoh thread), at most `max_points`."""
+    return max(1, min(max_points, (decode_limit_bytes - 256) // _POINT_JSON_MAX))
+
+
 QUEUE_FULL_TEXT = "path queue full"
 """How the daemon words a refused append while its queue is full (then the append waits)."""
 POLL_S = 0.05
@@ -347,7 +360,11 @@ class ZenohRobot:
         """Send a path command (`append` as the JSON flag); raises client.Refused."""
         from controller.cli.client import query
 
-        payload = {"points_m": [list(p) for p in points_m], "speed_mps": speed_mps}
+        nd = SENT_DECIMALS
+        payload = {
+            "points_m": [[round(p[0], nd), round(p[1], nd), round(p[2], nd)] for p in points_m],
+            "speed_mps": speed_mps,
+        }
         if append:
             payload["append"] = True
         return query(self.session, self._key("cmd/path"), payload, self.args.timeout)
@@ -369,7 +386,7 @@ class ZenohRobot:
 def cmd_stream(args: argparse.Namespace) -> int:
     """`gcode FILE`: check the job from the robot's set-point and stream it to the daemon."""
     from controller.cli import client
-    from controller.core.commands import MAX_PATH_POINTS_SENT
+    from controller.core.commands import C_DECODE_MAX_BYTES, MAX_PATH_POINTS_SENT
     from controller.service.config import ConfigError
 
     try:
@@ -417,7 +434,8 @@ def cmd_stream(args: argparse.Namespace) -> int:
 
         streamer.on_wait = show
         try:
-            for step in chunks(job.actions, MAX_PATH_POINTS_SENT):
+            per_chunk = chunk_points(MAX_PATH_POINTS_SENT, C_DECODE_MAX_BYTES)
+            for step in chunks(job.actions, per_chunk):
                 report = streamer.send(step)
                 if report is not None and not args.json:  # M114, once the robot rests
                     progress.clear()

@@ -7,7 +7,7 @@ the link is replaced atomically and removed at the end) and prints its path. Eac
 sends goes through `controller.core.gcode_protocol.LineProtocol` (line numbers, checksums,
 `Resend:`, `M105`/`M115`), then `controller.core.gcode_job.Interpreter`; its motions gather
 into chunks sent to the daemon by the same `Streamer` as `cablebot gcode FILE`, a chunk going
-out when it holds `MAX_PATH_POINTS_SENT` points, at a wait, or when the host pauses for `IDLE_S`.
+out when it holds `CHUNK_POINTS` points, at a wait, or when the host pauses for `IDLE_S`.
 `ok` goes back once a line is queued (a full daemon queue delays it: the host's flow control).
 During a wait (`G4`, `M400`, `M114`) the host hears `echo:busy: processing` every 2 s.
 
@@ -28,11 +28,22 @@ import tty
 from contextlib import suppress
 from typing import Any
 
-from controller.cli.gcode import JobInputError, Streamer, ZenohRobot, _config, _fail, frame_of
+from controller.cli.gcode import (
+    JobInputError,
+    Streamer,
+    ZenohRobot,
+    _config,
+    _fail,
+    chunk_points,
+    frame_of,
+)
+from controller.core.commands import C_DECODE_MAX_BYTES, MAX_PATH_POINTS_SENT
 from controller.core.gcode import GcodeError
 from controller.core.gcode_job import Chunk, Interpreter, Motion, Step, chunks
 from controller.core.gcode_protocol import BUSY, BUSY_INTERVAL_S, LineProtocol
 
+CHUNK_POINTS = chunk_points(MAX_PATH_POINTS_SENT, C_DECODE_MAX_BYTES)
+"""Points gathered before a chunk goes to the daemon (its fast JSON decoder's limit)."""
 IDLE_S = 0.1
 """A host silent this long: the motions gathered so far go to the daemon."""
 MAX_LINE_BYTES = 1024
@@ -85,10 +96,8 @@ class SerialJob:
         """Send the gathered motions (as path or appends)."""
         if not self.pending:
             return
-        from controller.core.commands import MAX_PATH_POINTS_SENT
-
         acts, self.pending, self.pending_points = self.pending, [], 0
-        for step in chunks(acts, MAX_PATH_POINTS_SENT):
+        for step in chunks(acts, CHUNK_POINTS):
             self._send(step)
 
     def _send(self, step: Step) -> str | None:
@@ -102,8 +111,6 @@ class SerialJob:
 
     def line(self, text: str) -> None:
         """Take one line from the host and answer it."""
-        from controller.core.commands import MAX_PATH_POINTS_SENT
-
         r = self.proto.receive(text)
         for reply in r.replies:
             self.write(reply)
@@ -124,7 +131,7 @@ class SerialJob:
                     if isinstance(act, Motion):
                         self.pending.append(act)
                         self.pending_points += len(act.points_m)
-                        if self.pending_points >= MAX_PATH_POINTS_SENT:
+                        if self.pending_points >= CHUNK_POINTS:
                             self.flush()
                         continue
                     self.flush()

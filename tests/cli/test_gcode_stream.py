@@ -64,7 +64,7 @@ def test_a_job_streams_in_chunks_and_ends_at_its_last_point(tmp_path: Path) -> N
         assert f"{len(lines)} lines, 2404 moves in" in done, done
         commands = int(done.split(" moves in ")[1].split()[0])
         assert commands >= 4, done  # 1,202 + 1,202 points at two speeds: several chunks
-        m114 = cli.wait_line("M114 (line 1208): ", 5.0)
+        m114 = cli.wait_line("M114 (line 1209): ", 5.0)
         assert "X:300.000" in m114 and "Z:2000.000 E:0.000" in m114, m114
         st = wait_holding_at_rest(d, 30.0)
         assert st["setpoint_m"] == pytest.approx([0.0, 0.0, 2.1], abs=1e-9)

@@ -114,3 +114,17 @@ def test_rest_has_a_deadline() -> None:
     with pytest.raises(WaitTimeout):
         st.rest(deadline_s=5.0)
     assert 5.0 <= now[0] < 5.2
+
+
+def test_a_chunk_of_the_widest_points_fits_the_daemons_fast_decoder() -> None:
+    import json
+
+    from controller.cli.gcode import SENT_DECIMALS, chunk_points
+    from controller.core.commands import C_DECODE_MAX_BYTES, MAX_PATH_POINTS_SENT
+
+    n = chunk_points(MAX_PATH_POINTS_SENT, C_DECODE_MAX_BYTES)
+    assert 300 <= n < MAX_PATH_POINTS_SENT
+    widest = round(-12345.123456789, SENT_DECIMALS)
+    payload = {"points_m": [[widest] * 3] * n, "speed_mps": 0.1234567890123456, "append": True}
+    assert len(json.dumps(payload)) <= C_DECODE_MAX_BYTES
+    assert chunk_points(5, C_DECODE_MAX_BYTES) == 5 and chunk_points(1000, 10) == 1
