@@ -322,9 +322,9 @@ class Streamer:
     def _check_moving(self) -> None:
         from controller.cli.client import Refused
 
-        state = self.robot.status().get("state")
-        if state != "MOVING":
-            raise Refused(f"the robot went {state} during the job (line {self.line})")
+        st = self.robot.status()
+        if st.get("state") != "MOVING":
+            raise Refused(_gone(st, self.line))
 
     def rest(self, deadline_s: float = math.inf) -> None:
         """Wait until the robot rests at the end of what was sent (HOLDING); the next chunk
@@ -336,14 +336,21 @@ class Streamer:
             while True:
                 if self.clock() > deadline_s:
                     raise WaitTimeout(f"the job is still running (line {self.line})")
-                state = self.robot.status().get("state")
+                st = self.robot.status()
+                state = st.get("state")
                 if state == "HOLDING":
                     break
                 if state != "MOVING":
-                    raise Refused(f"the robot went {state} during the job (line {self.line})")
+                    raise Refused(_gone(st, self.line))
                 self.on_wait()
                 self.sleep(POLL_S)
         self.fresh = True
+
+
+def _gone(status: dict[str, Any], line: int) -> str:
+    """Why a job ends when the robot left the motion states: its state and reason."""
+    why = f" ({status['reason']})" if status.get("reason") else ""
+    return f"the robot went {status.get('state')}{why} during the job (line {line})"
 
 
 class ZenohRobot:
