@@ -241,8 +241,9 @@ def chunk_points(max_points: int, decode_limit_bytes: int) -> int:
 
 QUEUE_FULL_TEXT = "path queue full"
 """How the daemon words a refused append while its queue is full (then the append waits)."""
-POLL_S = 0.05
-"""How often the streamer asks the daemon's status while it waits for room or for rest."""
+POLL_S = 0.2
+"""How often the streamer asks the daemon's status while it waits for room or for rest (each
+query costs the daemon a status snapshot: not more often than a person needs)."""
 
 
 class RobotLink(Protocol):
