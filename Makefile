@@ -15,6 +15,9 @@ $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[dev]'
+	# Printrun's printcore, the printer host the G-code serial test streams with; without its
+	# dependencies (they would bring a GUI toolkit: printcore needs only pyserial).
+	$(PY) -m pip install -q --no-deps 'printrun==2.2.0'
 	touch $(STAMP)
 	@echo "cablebot: $(VENV) ready"
 

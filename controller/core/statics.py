@@ -63,6 +63,7 @@ from numpy.typing import ArrayLike, NDArray
 __all__ = [
     "ANCHOR_TOL_M",
     "G_MPS2",
+    "PATH_MAX_SAMPLES",
     "RANK_TOL",
     "SINGULAR_MARGIN_N",
     "SINGULAR_ROW",
@@ -821,6 +822,11 @@ def _batch_closed(
     return t, ok
 
 
+PATH_MAX_SAMPLES = 200_000
+"""At most this many tension samples per path check (`TensionCheck.path_failure`): the spacing
+grows to fit."""
+
+
 class TensionCheck:
     """The tension rule for one robot and payload: every cable within the limits, by a margin.
 
@@ -882,6 +888,50 @@ class TensionCheck:
             return self.reason(self.statics.solve(point_m, self.mass_kg))
         except StaticsError as exc:
             return f"the cables cannot hold {self.mass_kg:g} kg there: {exc}"
+
+    def path_failure(
+        self,
+        points: Sequence[Sequence[float]],
+        start_m: Sequence[float] | None,
+        step_m: float,
+        max_samples: int = PATH_MAX_SAMPLES,
+    ) -> tuple[int, str] | None:
+        """The first point of `points` (or point on the straight leg to it, from the point
+        before, and from `start_m` for point 0 when given) where the payload cannot be held by
+        the rule, as (0-based index, reason), or None.
+
+        Each leg is sampled every `step_m` (coarser if that would exceed `max_samples` in
+        all) and solved in one batch; the first failing sample is solved again for its
+        reason, which starts with "on the leg to it: at [x, y, z]: " when it is not the point
+        itself. Raises nothing for finite points."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if start_m is None:
+            starts = np.vstack([pts[:1], pts[:-1]])
+        else:
+            starts = np.vstack([np.asarray(start_m, dtype=np.float64).reshape(1, 3), pts[:-1]])
+        leg = pts - starts
+        length = np.sqrt(np.einsum("ij,ij->i", leg, leg))
+        counts = np.maximum(1, np.ceil(length / step_m)).astype(np.int64)
+        total = int(counts.sum())
+        if total > max_samples:
+            counts = np.maximum(1, np.ceil(counts * (max_samples / total))).astype(np.int64)
+        idx = np.repeat(np.arange(len(pts)), counts)
+        # fraction j / m_k along leg k, j = 1..m_k: the last sample is the point itself
+        first = np.cumsum(counts) - counts
+        frac = (np.arange(idx.size) - first[idx] + 1) / counts[idx]
+        samples = starts[idx] + frac[:, None] * leg[idx]
+        _, margin, _, limiting = self.statics.solve_batch(samples, self.mass_kg)
+        bad = np.flatnonzero((limiting == SINGULAR_ROW) | (margin < self.margin_n))
+        if bad.size == 0:
+            return None
+        j = int(bad[0])
+        i = int(idx[j])
+        q = (float(samples[j, 0]), float(samples[j, 1]), float(samples[j, 2]))
+        reason = self.check(q) or "the tension rule fails there"
+        if frac[j] < 1.0:
+            at = "[" + ", ".join(f"{v:.4f}" for v in q) + "]"
+            return i, f"on the leg to it: at {at}: {reason}"
+        return i, reason
 
 
 # -- module-level conveniences ---------------------------------------------------------------

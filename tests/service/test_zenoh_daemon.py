@@ -173,9 +173,10 @@ def write_config(tmp_path: Path) -> tuple[Path, str, str]:
     data = paper_robot_data(name)
     data["bus"] = {"interface": "virtual", "channel": f"zenoh-test-{name}"}
     data["loop"] = {"rate_hz": RATE_HZ, "realtime": False, "publish_every": 1}
-    data["sim"] = {"enabled": True}
     # This file tests the Zenoh interface, not fault detection: on a loaded 2-core machine the
-    # in-process simulated nodes can lag by more than the default stale-encoder timeout.
+    # in-process simulated nodes can lag by more than the default stale-encoder timeout, and the
+    # daemon's loop by more than the simulated drives' default watchdog (0.3 s).
+    data["sim"] = {"enabled": True, "watchdog_timeout_s": 1.0}
     data["faults"] = {**data["faults"], "stale_timeout_s": 0.5, "heartbeat_timeout_s": 2.0}
     data["homing"] = {
         "power_up_position_m": [0.0, 0.0, 2.0],

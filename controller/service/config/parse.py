@@ -23,6 +23,8 @@ from controller.service.config.interfaces import _parse_bus, _parse_ros2, _parse
 from controller.service.config.schema import (
     _NAME_RE,
     FLOAT32_RESOLUTION_LIMIT_M,
+    GCODE_DIALECTS,
+    GCODE_UNITS,
     REEL_KEYS,
     SIM_PLANTS,
     STRETCH_TENSIONS,
@@ -34,6 +36,7 @@ from controller.service.config.schema import (
     ConfigError,
     DriveConfig,
     FaultConfig,
+    GcodeConfig,
     HomingConfig,
     LimitsConfig,
     LoopConfig,
@@ -322,6 +325,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
 
     zenoh = _parse_zenoh(top, name)
     ros2 = _parse_ros2(top)
+    gcode = _parse_gcode(top, limits if limits_ok else None)
 
     if family is not None:
         limits_used = limits if limits_ok else None
@@ -352,7 +356,34 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         payload=payload,
         tension=tension,
         ros2=ros2,
+        gcode=gcode,
     )
+
+
+def _parse_gcode(top: _Table, limits: LimitsConfig | None) -> GcodeConfig:
+    """The `[gcode]` table (`cablebot gcode`); `rapid_speed_mps` is checked against
+    `limits.max_speed_mps` when the limits are valid (None: they are not)."""
+    gt = top.sub("gcode")
+    gt.finish(tuple(GcodeConfig.__dataclass_fields__))
+    d = GcodeConfig()
+    origin = gt.vec3("origin_m", required=False) or d.origin_m
+    home = gt.vec3("home_m", required=False)
+    units = gt.string("units", d.units) or d.units
+    if units not in GCODE_UNITS:
+        gt.fail("units", f"must be one of {', '.join(GCODE_UNITS)}, got {units!r}")
+    dialect = gt.string("dialect", d.dialect) or d.dialect
+    if dialect not in GCODE_DIALECTS:
+        gt.fail("dialect", f"must be one of {', '.join(GCODE_DIALECTS)}, got {dialect!r}")
+    tol = gt.number("arc_tolerance_m", d.arc_tolerance_m, gt=0.0)
+    rapid: float | None = None
+    if gt.has("rapid_speed_mps"):
+        rapid = gt.number("rapid_speed_mps", None, gt=0.0)
+        if limits is not None and math.isfinite(rapid) and rapid > limits.max_speed_mps:
+            gt.fail(
+                "rapid_speed_mps",
+                f"{rapid:g} m/s exceeds limits.max_speed_mps ({limits.max_speed_mps:g} m/s)",
+            )
+    return GcodeConfig(origin, units, home, tol, rapid, dialect)
 
 
 def _parse_homing(

@@ -570,6 +570,33 @@ class Ros2Config:
     )
 
 
+GCODE_UNITS = ("mm", "inch")
+GCODE_DIALECTS = ("marlin", "reprapfirmware")
+
+
+@dataclass(frozen=True, slots=True)
+class GcodeConfig:
+    """`[gcode]`: where G-code coordinates are in the robot frame, and how they read
+    (`cablebot gcode`, `docs/gcode.md`)."""
+
+    origin_m: Vec3 = key(  # noqa: RUF009 (a tuple: immutable)
+        (0.0, 0.0, 0.0), "robot-frame point of G-code X0 Y0 Z0", unit="m [x,y,z]"
+    )
+    units: str = key("mm", "G-code length unit at the start of a job: `mm` or `inch`")
+    home_m: Vec3 | None = key(  # noqa: RUF009 (a tuple: immutable)
+        None, "where `G28` goes (unset: the G-code origin)", unit="m [x,y,z]"
+    )
+    arc_tolerance_m: float = key(
+        0.0001, "largest distance of a `G2`/`G3` arc's chords from the arc, > 0"
+    )
+    rapid_speed_mps: float | None = key(
+        None, "speed of a `G0` without F (unset: `limits.max_speed_mps`)", shown="`max_speed_mps`"
+    )
+    dialect: str = key(
+        "marlin", "`marlin` or `reprapfirmware`: the unit of `M203` (mm/s or mm/min)"
+    )
+
+
 @dataclass(frozen=True, slots=True)
 class RobotConfig:
     """A validated robot configuration (build it with `load_config` / `parse_config`)."""
@@ -591,6 +618,7 @@ class RobotConfig:
     """Set exactly when `payload` is."""
     drive: DriveConfig = field(default_factory=DriveConfig)
     ros2: Ros2Config = field(default_factory=lambda: Ros2Config())
+    gcode: GcodeConfig = field(default_factory=lambda: GcodeConfig())
 
     @property
     def node_ids(self) -> tuple[int, ...]:
@@ -714,6 +742,7 @@ SECTIONS = (
     ),
     Section("sim", "", section_keys(SimConfig)),
     Section("ros2", "optional: the robot as a ROS 2 node over Zenoh", section_keys(Ros2Config)),
+    Section("gcode", "optional: G-code jobs (`cablebot gcode`)", section_keys(GcodeConfig)),
     Section("reels", "≥ 3, in cable order: the first is cable 1", REEL_KEYS),
 )
 """Every table of a robot file, in the order the reference shows them; the `[drive]` family

@@ -22,7 +22,7 @@ from controller.core.motion import MotionPlanner
 from controller.core.pretension import PretensionRun
 from controller.core.reel import ReelModel
 from controller.core.states import State
-from controller.core.statics import TensionCheck
+from controller.core.statics import PATH_MAX_SAMPLES, TensionCheck
 from controller.core.workspace import Workspace
 from controller.service.cables import CableModel
 from controller.service.config import RobotConfig, tension_check
@@ -41,8 +41,42 @@ MAX_PLANNER_DT_PERIODS = 4.0
 TENSION_SAMPLE_FRACTION = 0.01
 """A move's or path's legs are checked for tensions at points this fraction of the anchors'
 span apart (the tick checks every set-point on them too)."""
-TENSION_MAX_SAMPLES = 200_000
+TENSION_MAX_SAMPLES = PATH_MAX_SAMPLES
 """At most this many tension samples per command (the spacing grows to fit)."""
+
+
+def make_planner(
+    cfg: RobotConfig,
+    *,
+    check_segment: Callable[[Sequence[float], Sequence[float]], str | None] | None = None,
+    max_accel_mps2: float | None = None,
+) -> MotionPlanner:
+    """The motion planner of the robot `cfg` as the control loop builds it (the G-code dry run
+    plans on the same), with `check_segment` for velocity mode and the acceleration lowered to
+    `max_accel_mps2` if given (never raised). Raises ValueError for limits the planner
+    refuses (a validated configuration has none)."""
+    lim = cfg.limits
+    accel = (
+        lim.max_accel_mps2 if max_accel_mps2 is None else min(max_accel_mps2, lim.max_accel_mps2)
+    )
+    return MotionPlanner(
+        lim.max_speed_mps,
+        accel,
+        min(float(lim.default_speed_mps), float(lim.max_speed_mps)),
+        velocity_timeout_s=lim.velocity_timeout_s,
+        check_segment=check_segment,
+        junction_deviation_m=lim.junction_deviation_m,
+        anchors_m=cfg.anchors_m,
+        max_cable_speed_mps=lim.max_cable_speed_mps,
+        max_queued_points=lim.max_queued_points,
+    )
+
+
+def tension_sample_step_m(cfg: RobotConfig) -> float:
+    """How far apart a move's or path's legs are checked for tensions (m):
+    `TENSION_SAMPLE_FRACTION` of the anchors' span."""
+    anchors = cfg.anchors_m
+    return TENSION_SAMPLE_FRACTION * max(math.dist(a, b) for a in anchors for b in anchors)
 
 
 class _Fault(Exception):
@@ -113,17 +147,7 @@ class ControllerState:
             float(cfg.limits.default_speed_mps),
             float(cfg.limits.max_speed_mps),
         )
-        self.planner = MotionPlanner(
-            cfg.limits.max_speed_mps,
-            cfg.limits.max_accel_mps2,
-            self._default_speed_mps,
-            velocity_timeout_s=cfg.limits.velocity_timeout_s,
-            check_segment=self._check_segment,
-            junction_deviation_m=cfg.limits.junction_deviation_m,
-            anchors_m=self._anchors,
-            max_cable_speed_mps=cfg.limits.max_cable_speed_mps,
-            max_queued_points=cfg.limits.max_queued_points,
-        )
+        self.planner = make_planner(cfg, check_segment=self._check_segment)
         f = cfg.faults
         self._stale_s = float(f.stale_timeout_s)
         self._hb_timeout_s = float(f.heartbeat_timeout_s)
@@ -141,8 +165,7 @@ class ControllerState:
         )
         self.cables = CableModel.from_config(cfg, self.tension)
         """Rigid or stretching cables: homing lengths, commanded lengths (IPK), pose (FPK)."""
-        span = max(math.dist(a, b) for a in self._anchors for b in self._anchors)
-        self._tension_step_m = TENSION_SAMPLE_FRACTION * span
+        self._tension_step_m = tension_sample_step_m(cfg)
         self.planned_tensions_n: tuple[float, ...] | None = None
         """Tensions that hold the payload at the last good set-point (None: not known)."""
         self.planned_margin_n: float | None = None

@@ -31,7 +31,6 @@ from controller.core.commands import (
 )
 from controller.core.motion import QueueError, check_speed, dedupe_path
 from controller.core.states import ARMED_STATES, State, refusal
-from controller.core.statics import SINGULAR_ROW
 from controller.core.workspace import points_array
 from controller.service.control.base import TENSION_MAX_SAMPLES, Reply, _chain, _fmt, _Motion, log
 from controller.service.control.homing import Homing
@@ -449,34 +448,7 @@ class CommandExecution(Homing):
         the limits before)."""
         chk = self.tension
         assert chk is not None
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        if start_m is None:
-            starts = np.vstack([pts[:1], pts[:-1]])
-        else:
-            starts = np.vstack([np.asarray(start_m, dtype=np.float64).reshape(1, 3), pts[:-1]])
-        leg = pts - starts
-        length = np.sqrt(np.einsum("ij,ij->i", leg, leg))
-        step = self._tension_step_m
-        counts = np.maximum(1, np.ceil(length / step)).astype(np.int64)
-        total = int(counts.sum())
-        if total > TENSION_MAX_SAMPLES:
-            counts = np.maximum(1, np.ceil(counts * (TENSION_MAX_SAMPLES / total))).astype(np.int64)
-        idx = np.repeat(np.arange(len(pts)), counts)
-        # fraction j / m_k along leg k, j = 1..m_k: the last sample is the point itself
-        first = np.cumsum(counts) - counts
-        frac = (np.arange(idx.size) - first[idx] + 1) / counts[idx]
-        samples = starts[idx] + frac[:, None] * leg[idx]
-        _, margin, _, limiting = chk.statics.solve_batch(samples, chk.mass_kg)
-        bad = np.flatnonzero((limiting == SINGULAR_ROW) | (margin < chk.margin_n))
-        if bad.size == 0:
-            return None
-        j = int(bad[0])
-        i = int(idx[j])
-        q = (float(samples[j, 0]), float(samples[j, 1]), float(samples[j, 2]))
-        reason = chk.check(q) or "the tension rule fails there"
-        if frac[j] < 1.0:
-            return i, f"on the leg to it: at {_fmt(q)}: {reason}"
-        return i, reason
+        return chk.path_failure(points, start_m, self._tension_step_m, TENSION_MAX_SAMPLES)
 
 
 _HANDLERS: Mapping[

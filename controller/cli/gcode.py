@@ -1,0 +1,531 @@
+"""`cablebot gcode FILE|-`: run a G-code job (docs/gcode.md).
+
+- `cablebot gcode FILE --dry-run [--config FILE] [--from X Y Z] [--json]` plans the whole job
+  offline with the robot's limits on the daemon's planner and prints its duration, length,
+  moves, bounding box and what is not driven or unsupported.
+- `cablebot gcode FILE [--config FILE] [--wait]` checks the job from the robot's set-point and
+  streams it to the daemon as a path and appends, resting at the job's waits; a progress line
+  on a terminal; Ctrl-C stops the job and brakes to a hold.
+
+`FILE` may be gzipped (`.gz`); `-` reads standard input. Exit codes: `controller.cli.exitcodes`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol
+
+from controller.cli import exitcodes
+from controller.core.gcode import GcodeError, Line, parse_lines
+from controller.core.gcode_job import (
+    INCH_M,
+    MM_M,
+    Chunk,
+    Disarm,
+    Dwell,
+    Estop,
+    GcodeFrame,
+    Job,
+    JobPlan,
+    Step,
+    Sync,
+    check_job,
+    chunks,
+    dry_run_step_s,
+    interpret,
+    plan_job,
+)
+
+Vec3 = tuple[float, float, float]
+
+
+class JobInputError(ValueError):
+    """The file cannot be read, or its G-code cannot run as written (the message names the
+    line); nothing was sent."""
+
+
+# ------------------------------------------------------------------------------- reading
+def read_lines(path: str) -> list[str]:
+    """The text lines of `path` (gzipped when it ends in `.gz`; `-`: standard input). Bytes
+    that are not UTF-8 become U+FFFD (they can only stand in comments: the G-code words are
+    ASCII). Raises JobInputError when the file cannot be read."""
+    try:
+        if path == "-":
+            data = sys.stdin.buffer.read()
+        elif path.endswith(".gz"):
+            with gzip.open(path, "rb") as fz:
+                data = fz.read()
+        else:
+            with open(path, "rb") as f:
+                data = f.read()
+    except (OSError, EOFError) as exc:
+        raise JobInputError(f"{path}: {exc}") from None
+    lines = data.decode("utf-8", errors="replace").replace("\r\n", "\n").split("\n")
+    if lines and lines[-1] == "":
+        lines.pop()  # the newline that ends the last line
+    return lines
+
+
+def parse_file(path: str, lines: Sequence[str]) -> list[Line]:
+    """Parse every line; raises JobInputError naming the file and the first bad line."""
+    try:
+        return list(parse_lines(lines))
+    except GcodeError as exc:
+        raise JobInputError(f"{path}: {exc}") from None
+
+
+def frame_of(cfg: Any) -> GcodeFrame:
+    """The `GcodeFrame` of a robot configuration: its `[gcode]` table and `[limits]`."""
+    g = cfg.gcode
+    return GcodeFrame(
+        origin_m=g.origin_m,
+        unit_m=INCH_M if g.units == "inch" else MM_M,
+        home_m=g.home_m,
+        arc_tolerance_m=g.arc_tolerance_m,
+        max_speed_mps=cfg.limits.max_speed_mps,
+        max_accel_mps2=cfg.limits.max_accel_mps2,
+        rapid_speed_mps=g.rapid_speed_mps,
+        m203_per_minute=g.dialect == "reprapfirmware",
+    )
+
+
+def load_job(path: str, cfg: Any, start_m: Sequence[float]) -> Job:
+    """Read, parse, interpret and check the job at `path` from `start_m` (robot frame) for the
+    robot `cfg`. Raises JobInputError naming the line that cannot run or that leaves the
+    workspace or the tension-feasible region."""
+    return check_loaded(path, parse_file(path, read_lines(path)), cfg, start_m)
+
+
+def check_loaded(path: str, lines: Sequence[Line], cfg: Any, start_m: Sequence[float]) -> Job:
+    """`load_job` for lines parsed already."""
+    from controller.core.workspace import Workspace
+    from controller.service.config import tension_check
+    from controller.service.control.base import tension_sample_step_m
+
+    try:
+        job = interpret(lines, frame_of(cfg), start_m)
+    except GcodeError as exc:
+        raise JobInputError(f"{path}: {exc}") from None
+    ws = Workspace.from_limits(cfg.limits, cfg.geometry)
+    chk = (
+        None
+        if cfg.tension is None or cfg.payload is None
+        else tension_check(cfg.payload, cfg.tension, cfg.geometry)
+    )
+    failure = check_job(job, ws, chk, tension_sample_step_m(cfg))
+    if failure is not None:
+        raise JobInputError(f"{path}: line {failure[0]}: refused: {failure[1]}")
+    return job
+
+
+def plan(job: Job, cfg: Any) -> JobPlan:
+    """Plan `job` on the daemon's planner for `cfg`, its acceleration lowered to the job's."""
+    from controller.service.control.base import make_planner
+
+    dt = dry_run_step_s(job, 1.0 / cfg.loop.rate_hz)
+    return plan_job(job, make_planner(cfg, max_accel_mps2=job.accel_mps2), dt)
+
+
+# ------------------------------------------------------------------------------- reports
+def summary(job: Job, planned: JobPlan) -> dict[str, Any]:
+    """The dry run's figures as one JSON-ready dict."""
+    lo, hi = job.bbox_m
+    return {
+        "duration_s": round(planned.duration_s, 3),
+        "motion_s": round(planned.motion_s, 3),
+        "moves": job.moves,
+        "lines": job.lines,
+        "path_m": round(job.path_m, 6),
+        "start_m": list(job.start_m),
+        "bbox_m": [list(lo), list(hi)],
+        "accel_mps2": job.accel_mps2,
+        "not_driven": dict(sorted(job.not_driven.items())),
+        "unsupported": dict(sorted(job.unsupported.items())),
+    }
+
+
+def _hms(s: float) -> str:
+    s = max(0.0, s)
+    h, rem = divmod(round(s), 3600)
+    m, sec = divmod(rem, 60)
+    return f"{h}h{m:02d}m{sec:02d}s" if h else f"{m}m{sec:02d}s"
+
+
+def _codes(table: dict[str, int]) -> str:
+    return ", ".join(f"{k} ({v})" for k, v in sorted(table.items())) or "none"
+
+
+def format_summary(s: dict[str, Any]) -> str:
+    """The dry run's figures for a person."""
+    lo, hi = s["bbox_m"]
+    box = "  ".join(f"{a}={lo[i]:+.4f}..{hi[i]:+.4f}" for i, a in enumerate("xyz"))
+    return "\n".join(
+        [
+            f"duration   {_hms(s['duration_s'])} ({s['duration_s']:.1f} s)",
+            f"path       {s['path_m']:.3f} m in {s['moves']} moves ({s['lines']} lines)",
+            f"bbox       {box} m",
+            f"not driven {_codes(s['not_driven'])}",
+            f"unsupported {_codes(s['unsupported'])}",
+        ]
+    )
+
+
+def _fail(msg: str) -> int:
+    print(f"cablebot: {msg}", file=sys.stderr)
+    return exitcodes.REFUSED
+
+
+def _config(path: str | None) -> Any:
+    from controller.service.config import load_config
+
+    return load_config(path)
+
+
+def cmd_dry_run(args: argparse.Namespace) -> int:
+    """`gcode FILE --dry-run`: plan offline and print the figures."""
+    from controller.service.config import ConfigError
+
+    try:
+        cfg = _config(args.config)
+    except (ConfigError, OSError) as exc:
+        return _fail(str(exc))
+    start = tuple(args.start) if args.start is not None else cfg.gcode.origin_m
+    if not all(math.isfinite(v) for v in start):
+        return _fail(f"--from: expected three finite numbers, got {args.start}")
+    try:
+        job = load_job(args.file, cfg, start)
+    except JobInputError as exc:
+        return _fail(str(exc))
+    s = summary(job, plan(job, cfg))
+    print(json.dumps(s) if args.json else format_summary(s), flush=True)
+    return exitcodes.OK
+
+
+def cmd_gcode(args: argparse.Namespace) -> int:
+    """`gcode FILE`: the dry run, or stream the job to the daemon; `gcode --serial`: serve the
+    line protocol on a pseudo-terminal."""
+    if args.serial is not None:
+        if args.file is not None or args.dry_run:
+            print("cablebot gcode: --serial takes no FILE and no --dry-run", file=sys.stderr)
+            return exitcodes.USAGE
+        from controller.cli.gcode_serial import cmd_serial
+
+        return cmd_serial(args)
+    if args.file is None:
+        print("cablebot gcode: a FILE (or - for standard input) is needed", file=sys.stderr)
+        return exitcodes.USAGE
+    if args.dry_run:
+        return cmd_dry_run(args)
+    return cmd_stream(args)
+
+
+# ------------------------------------------------------------------------------- streaming
+SENT_DECIMALS = 7
+"""Coordinates go to the daemon rounded to 0.1 um (shorter payloads; far below any limit)."""
+_POINT_JSON_MAX = 3 * len("-12345.1234567, ") + 2
+"""The longest JSON text of a rounded point inside +-1e4 m ("[x, y, z], ")."""
+
+
+def chunk_points(max_points: int, decode_limit_bytes: int) -> int:
+    """Points per path command of a job: as many as keep its payload within the daemon's fast
+    (C) JSON decoder, `decode_limit_bytes` (a longer payload is decoded by the pure-Python
+    scanner, tens of times slower, on the daemon's Zenoh thread), at most `max_points`."""
+    return max(1, min(max_points, (decode_limit_bytes - 256) // _POINT_JSON_MAX))
+
+
+QUEUE_FULL_TEXT = "path queue full"
+"""How the daemon words a refused append while its queue is full (then the append waits)."""
+POLL_S = 0.2
+"""How often the streamer asks the daemon's status while it waits for room or for rest (each
+query costs the daemon a status snapshot: not more often than a person needs)."""
+
+
+class RobotLink(Protocol):
+    """What the streamer needs of the daemon (`ZenohRobot`; a fake in tests)."""
+
+    def path(self, points_m: Sequence[Vec3], speed_mps: float, append: bool) -> Any:
+        """Send a path command; raises client.Refused with the daemon's reason."""
+
+    def status(self) -> dict[str, Any]:
+        """The daemon's status."""
+
+    def command(self, verb: str) -> Any:
+        """Send a verb without payload (disarm, estop); raises client.Refused."""
+
+
+class Streamer:
+    """Sends a job's steps (`gcode_job.chunks`) to the daemon in order: the first chunk (and
+    the first after a wait) as a path, the others as appends, waiting while the queue is full;
+    each wait (G4, M400, M114, M18/M84) lets the robot come to rest first. Counts the lines and
+    moves sent. Raises client.Refused when the daemon refuses a chunk or the robot leaves the
+    motion states during the job, client.DaemonAbsent when it stops answering."""
+
+    def __init__(
+        self,
+        robot: RobotLink,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        self.robot = robot
+        self.clock = clock
+        self.sleep = sleep
+        self.on_wait: Callable[[], None] = lambda: None
+        """Called at every poll while the streamer waits (for room, for rest, in a dwell)."""
+        self.fresh = True
+        self.line = 0
+        self.moves = 0
+        self.chunks = 0
+        self.full_waits = 0
+
+    def send(self, step: Step) -> str | None:
+        """Send one step; returns the M114 report of a `Sync` that has one (after the rest)."""
+        from controller.cli.client import Refused
+
+        if isinstance(step, Chunk):
+            while True:
+                try:
+                    self.robot.path(step.points_m, step.speed_mps, append=not self.fresh)
+                    break
+                except Refused as exc:
+                    if self.fresh or QUEUE_FULL_TEXT not in str(exc):
+                        raise
+                    self.full_waits += 1
+                    self._check_moving()
+                    self.on_wait()
+                    self.sleep(POLL_S)
+            self.fresh = False
+            self.chunks += 1
+            self.line = step.last_line
+            self.moves += step.moves
+            return None
+        self.rest()
+        self.line = step.line_no
+        if isinstance(step, Dwell):
+            end = self.clock() + step.duration_s
+            while (left := end - self.clock()) > 0.0:
+                self.on_wait()
+                self.sleep(min(left, POLL_S))
+        elif isinstance(step, Disarm):
+            self.robot.command("disarm")
+        elif isinstance(step, Estop):
+            self.robot.command("estop")
+        elif isinstance(step, Sync):
+            return step.report
+        return None
+
+    def _check_moving(self) -> None:
+        from controller.cli.client import Refused
+
+        st = self.robot.status()
+        if st.get("state") != "MOVING":
+            raise Refused(_gone(st, self.line))
+
+    def rest(self, deadline_s: float = math.inf) -> None:
+        """Wait until the robot rests at the end of what was sent (HOLDING); the next chunk
+        then starts a path. Raises client.Refused if it goes to another state, and
+        client.WaitTimeout if it still moves at `deadline_s` (of `clock`)."""
+        from controller.cli.client import Refused, WaitTimeout
+
+        if not self.fresh:
+            while True:
+                if self.clock() > deadline_s:
+                    raise WaitTimeout(f"the job is still running (line {self.line})")
+                st = self.robot.status()
+                state = st.get("state")
+                if state == "HOLDING":
+                    break
+                if state != "MOVING":
+                    raise Refused(_gone(st, self.line))
+                self.on_wait()
+                self.sleep(POLL_S)
+        self.fresh = True
+
+
+def _gone(status: dict[str, Any], line: int) -> str:
+    """Why a job ends when the robot left the motion states: its state and reason."""
+    why = f" ({status['reason']})" if status.get("reason") else ""
+    return f"the robot went {status.get('state')}{why} during the job (line {line})"
+
+
+class ZenohRobot:
+    """`RobotLink` over the CLI's Zenoh session (`controller.cli.client.query`)."""
+
+    def __init__(self, session: Any, args: argparse.Namespace) -> None:
+        self.session = session
+        self.args = args
+
+    def _key(self, suffix: str) -> str:
+        return f"{self.args.prefix}/{suffix}"
+
+    def path(self, points_m: Sequence[Vec3], speed_mps: float, append: bool) -> Any:
+        """Send a path command (`append` as the JSON flag); raises client.Refused."""
+        from controller.cli.client import query
+
+        nd = SENT_DECIMALS
+        payload = {
+            "points_m": [[round(p[0], nd), round(p[1], nd), round(p[2], nd)] for p in points_m],
+            "speed_mps": speed_mps,
+        }
+        if append:
+            payload["append"] = True
+        return query(self.session, self._key("cmd/path"), payload, self.args.timeout)
+
+    def status(self) -> dict[str, Any]:
+        """The daemon's status ({} if it is not an object)."""
+        from controller.cli.client import query
+
+        st = query(self.session, self._key("status"), None, self.args.timeout)
+        return st if isinstance(st, dict) else {}
+
+    def command(self, verb: str) -> Any:
+        """Send `verb` without a payload; raises client.Refused."""
+        from controller.cli.client import query
+
+        return query(self.session, self._key(f"cmd/{verb}"), None, self.args.timeout)
+
+
+def cmd_stream(args: argparse.Namespace) -> int:
+    """`gcode FILE`: check the job from the robot's set-point and stream it to the daemon."""
+    from controller.cli import client
+    from controller.cli.formats import is_tty
+    from controller.core.commands import C_DECODE_MAX_BYTES, MAX_PATH_POINTS_SENT
+    from controller.service.config import ConfigError
+
+    try:
+        cfg = _config(args.config)
+        lines = parse_file(args.file, read_lines(args.file))
+    except (ConfigError, OSError, JobInputError) as exc:
+        return _fail(str(exc))
+
+    def body(session: Any) -> int:
+        robot = ZenohRobot(session, args)
+        st = robot.status()
+        state = st.get("state")
+        start = st.get("setpoint_m")
+        if state != "HOLDING" or start is None:
+            why = f" ({st.get('reason')})" if st.get("reason") else ""
+            raise client.Refused(
+                f"the robot is {state}{why}: a job starts from HOLDING (arm, home)"
+            )
+        try:
+            job = check_loaded(args.file, lines, cfg, start)
+        except JobInputError as exc:
+            raise client.InputError(str(exc)) from None
+        planned = plan(job, cfg)
+        if job.accel_mps2 < cfg.limits.max_accel_mps2:
+            print(
+                f"cablebot: the job asks for {job.accel_mps2:g} m/s^2; the daemon flies at its "
+                f"max_accel_mps2 {cfg.limits.max_accel_mps2:g} m/s^2",
+                file=sys.stderr,
+                flush=True,
+            )
+        progress = client.StatusLine(
+            sys.stdout, enabled=is_tty(sys.stdout) and not args.json
+        )
+        streamer = Streamer(robot)
+        t0 = time.monotonic()
+
+        def show() -> None:
+            now = time.monotonic()
+            el = now - t0
+            progress.show(
+                f"gcode: line {streamer.line}/{job.lines}  moves {streamer.moves}/{job.moves}  "
+                f"elapsed {_hms(el)}  remaining ~{_hms(planned.duration_s - el)}",
+                now,
+            )
+
+        streamer.on_wait = show
+        try:
+            per_chunk = chunk_points(MAX_PATH_POINTS_SENT, C_DECODE_MAX_BYTES)
+            for step in chunks(job.actions, per_chunk):
+                report = streamer.send(step)
+                if report is not None and not args.json:  # M114, once the robot rests
+                    progress.clear()
+                    print(f"M114 (line {streamer.line}): {report}", flush=True)
+                show()
+                if isinstance(step, Estop):
+                    break
+            streamer.line = job.lines
+            if args.wait:
+                streamer.rest(time.monotonic() + args.wait_timeout)
+        except KeyboardInterrupt:
+            progress.clear()
+            return client._interrupted(session, args)
+        finally:
+            progress.clear()
+        result = {
+            "sent": True,
+            "done": bool(args.wait),
+            "lines": job.lines,
+            "moves": streamer.moves,
+            "chunks": streamer.chunks,
+            "elapsed_s": round(time.monotonic() - t0, 3),
+            "planned_s": round(planned.duration_s, 3),
+        }
+        if args.json:
+            print(json.dumps(result), flush=True)
+        else:
+            what = "done" if args.wait else "sent"
+            print(
+                f"gcode: {what}: {job.lines} lines, {streamer.moves} moves in {streamer.chunks} "
+                f"commands, {_hms(result['elapsed_s'])} (planned {_hms(planned.duration_s)})",
+                flush=True,
+            )
+        return exitcodes.OK
+
+    return client.run_with_session(args, body)
+
+
+def register(sub: argparse._SubParsersAction[Any]) -> None:
+    """Register `gcode`."""
+    from controller.cli.client import add_connection_arguments
+
+    p = sub.add_parser(
+        "gcode",
+        help="run a G-code job (slicer or CAM output); --dry-run plans it offline",
+        description=(
+            "Run a G-code file on the robot: checked whole against the workspace first, then "
+            "streamed to the daemon; --dry-run plans it offline with the robot's limits "
+            "(docs/gcode.md)."
+        ),
+    )
+    p.add_argument(
+        "file", metavar="FILE", nargs="?", help="G-code file (.gz read as gzip), - for stdin"
+    )
+    p.add_argument("--config", default=None, metavar="FILE", help="robot TOML (default built-in)")
+    p.add_argument("--dry-run", action="store_true", help="plan offline, no daemon")
+    p.add_argument(
+        "--from",
+        dest="start",
+        type=float,
+        nargs=3,
+        default=None,
+        metavar="M",
+        help="--dry-run: start here (robot frame, m) instead of the G-code origin",
+    )
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument(
+        "--serial",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="PATH",
+        help="serve the RepRap line protocol on a pseudo-terminal (linked at PATH) for hosts",
+    )
+    p.add_argument("--wait", action="store_true", help="return when the job has been flown")
+    p.add_argument(
+        "--wait-timeout",
+        type=float,
+        default=86400.0,
+        metavar="S",
+        help="--wait: give up after S seconds (default a day)",
+    )
+    add_connection_arguments(p)
+    p.set_defaults(func=cmd_gcode)
