@@ -52,6 +52,10 @@ first SYNC after the command or a later one, and `command_stamp_s` marks the com
 
 `open_driver` and `check_options` are the registry's entries for the "cia402" family
 (`drivers.registry`): the driver from the `[drive]` options, and the options' checks.
+
+The receive path (frame hand-off, TPDO decoding, heartbeat and EMCY callbacks, the readings'
+state fields; `SYNC_RING`, `MAX_ANSWER_DELAY_S`) is in `drivers.cia402.receive`, a mixin of
+`CiA402Reels`.
 """
 
 from __future__ import annotations

@@ -43,6 +43,9 @@ next `arm`) restores.
 Velocity feed-forward travels as an int16 in 0.001 rev/s, so it is limited to ±32.767 rev/s:
 `command` clamps it to that range (counting `stats.ff_clamped`) instead of refusing the set-point,
 because the feed-forward only shapes tracking; the position set-point itself is never altered.
+
+The receive path (with the timestamp constants) is in `drivers.odrive.receive`, the torque mode
+in `drivers.odrive.torque`: mixins of `ODriveReels`.
 """
 
 from __future__ import annotations
