@@ -12,16 +12,16 @@ ratios of one run with the two paths interleaved round by round:
   kinematics, motion, command) at 500 Hz, moving, with four simulated ODrives in another process
   on the same interface.
 
-`python -m controller.cli.bench_vcan host [--rate-hz 1000] [--seconds 5]` measures the
-controller's own compute per tick without any transport: readings handed in by a driver that
-does no I/O, commands discarded (the main benchmark's host figure).
+* `no_transport`: the controller's own compute per tick without any transport, on the same
+  machine, as the baseline of `loop_compute_p50_s`: `controller.cli.bench.compute.bench_compute`
+  (the `compute_per_tick` section of `cablebot bench`; CPU time of `Controller.tick` at 1 kHz,
+  moving, on a driver that hands in readings from memory), p50 and p99 in seconds.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import platform
 import statistics
@@ -35,7 +35,7 @@ from typing import Any
 
 import can
 
-from drivers.base import AxisReading, BusStats
+from controller.cli.bench.compute import bench_compute
 from drivers.bus import open_bus
 from drivers.odrive import cansimple as cs
 from drivers.odrive.driver import ODriveReels
@@ -43,6 +43,8 @@ from drivers.socketcan_fast import FastSocketCan, socket_of
 
 NODES = (0, 1, 2, 3)
 MODES = ("stock", "fast")
+NO_TRANSPORT_TICKS = 2000
+"""Ticks of the no-transport baseline (`bench_compute`; a few seconds under the emulated VM)."""
 
 
 def _burst(n: int) -> list[cs.Frame]:
@@ -54,30 +56,6 @@ def _burst(n: int) -> list[cs.Frame]:
         else:
             out.append(cs.encode_heartbeat(node, 0, cs.AxisState.CLOSED_LOOP_CONTROL))
     return out
-
-
-def keep_moving(controller: Any, seconds: float, compute: Any) -> int:
-    """Move the robot back and forth for `seconds` (re-arming after a fault), draining the
-    compute ring `compute` (a `controller.cli.bench._RingReader`); returns the moves started."""
-    from controller.core.commands import Arm, Move, Reset
-    from controller.core.states import State
-
-    points = ((0.3, 0.2, 1.0), (-0.3, -0.2, 1.2))
-    moves = 0
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        time.sleep(0.05)
-        compute.drain()
-        state: Any = controller.state
-        if state is State.FAULT:
-            controller.submit(Reset())
-        elif state is State.DISARMED:
-            controller.submit(Arm())
-        elif state is State.HOLDING:
-            controller.submit(Move(points[moves % 2], 0.5))
-            moves += 1
-    compute.drain()
-    return moves
 
 
 def hold_armed(controller: Any, timeout_s: float) -> None:
@@ -358,106 +336,6 @@ def loop_compute(
 
 
 # --------------------------------------------------------------------------------------------
-# The controller without transport (host)
-
-
-class NoTransportDriver:
-    """A `ReelDriver` without I/O: four axes always ready, each reading the turns last
-    commanded (a perfect drive), the commands otherwise discarded."""
-
-    def __init__(self, node_ids: Sequence[int], positions_rev: Sequence[float]) -> None:
-        """Axes `node_ids` at `positions_rev` (motor turns), ready and fresh."""
-        self.node_ids = tuple(node_ids)
-        self._readings = tuple(
-            AxisReading(n, position_rev=p, ready=True, state_name="CLOSED_LOOP_CONTROL")
-            for n, p in zip(self.node_ids, positions_rev, strict=True)
-        )
-        self._stats = BusStats()
-
-    def poll(self) -> int:
-        """Stamp every reading now (as if its frames had just arrived); returns 0."""
-        now_s = time.monotonic()
-        now_ns = time.time_ns()
-        for r in self._readings:
-            r.stamp_s = now_s
-            r.heartbeat_stamp_s = now_s
-            r.stamp_ns = now_ns
-        return 0
-
-    def read(self) -> Sequence[AxisReading]:
-        """The readings (live)."""
-        return self._readings
-
-    def command(
-        self, positions_rev: Sequence[float], velocity_ff_rps: Sequence[float] | None = None
-    ) -> None:
-        """Take the set-points as the new positions; raises ValueError on a non-finite one."""
-        for r, p in zip(self._readings, positions_rev, strict=True):
-            if not math.isfinite(p):
-                raise ValueError("non-finite set-point")
-            r.position_rev = p
-
-    def arm(self) -> None:
-        """Nothing to do: the axes are ready."""
-
-    def disarm(self) -> None:
-        """Nothing to do."""
-
-    def estop(self) -> None:
-        """Nothing to do."""
-
-    def request_encoders(self) -> None:
-        """Nothing to do."""
-
-    @property
-    def stats(self) -> BusStats:
-        """Empty counters."""
-        return self._stats
-
-
-def host_compute(rate_hz: float = 1000.0, seconds: float = 5.0) -> dict[str, float]:
-    """The control step's compute per tick (p50, p99, seconds) at `rate_hz` on the paper robot,
-    moving, with `NoTransportDriver`. Raises RuntimeError if the robot does not arm."""
-    from controller.cli.bench.loop import _RingReader
-    from controller.core.commands import Arm
-    from controller.core.states import State
-    from controller.service.config import paper_robot_data, parse_config
-    from controller.service.loop import Controller
-    from controller.service.runner import start_loop
-    from controller.service.simulated import initial_turns
-
-    data = paper_robot_data("bench-host")
-    data["loop"] = {"rate_hz": float(rate_hz), "realtime": True, "gc_freeze": True}
-    data["sim"] = {"enabled": False}
-    cfg = parse_config(data, "<bench>")
-    driver = NoTransportDriver(cfg.node_ids, initial_turns(cfg))
-    controller = Controller(cfg, driver)
-    stop = threading.Event()
-    thread, _report = start_loop(controller.runner(), cfg.loop, stop)
-    try:
-        controller.submit(Arm())
-        deadline = time.monotonic() + 10.0
-        while controller.state is not State.HOLDING:
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"arming failed: {controller.state.value} {controller.reason}")
-            time.sleep(0.01)
-        compute = _RingReader(controller.loop_stats.compute)
-        compute.drain(keep=False)
-        moves = keep_moving(controller, seconds, compute)
-    finally:
-        stop.set()
-        thread.join(5.0)
-    values = sorted(compute.values)
-    return {
-        "rate_hz": rate_hz,
-        "compute_p50_s": values[len(values) // 2],
-        "compute_p99_s": values[min(len(values) - 1, int(len(values) * 0.99))],
-        "ticks": float(len(values)),
-        "moves": float(moves),
-    }
-
-
-# --------------------------------------------------------------------------------------------
 
 
 def _progress(text: str) -> None:
@@ -467,7 +345,9 @@ def _progress(text: str) -> None:
 def run_io_bench(
     channel: str, out: Path | None, rounds: int, frames: int, ticks: int, seconds: float
 ) -> dict[str, Any]:
-    """All SocketCAN figures, stock and fast; written as JSON to `out` when given."""
+    """All SocketCAN figures, stock and fast, and the no-transport baseline; written as JSON to
+    `out` when given. Raises RuntimeError as `io_figures`, BenchError if the baseline's robot
+    does not fly its path."""
     _progress(f"receive and send paths on {channel}: {rounds} rounds")
     figures = io_figures(channel, rounds, frames, ticks)
     _progress(json.dumps(figures))
@@ -483,6 +363,13 @@ def run_io_bench(
             runs = key.setdefault("loop_runs", [])
             runs.append(lp)
             key["loop_compute_p50_s"] = statistics.mean(r["loop_compute_p50_s"] for r in runs)
+    _progress(f"the controller without transport: {NO_TRANSPORT_TICKS} ticks")
+    base = bench_compute(NO_TRANSPORT_TICKS)
+    figures["no_transport"] = {
+        "compute_p50_s": base["p50_us"] * 1e-6,
+        "compute_p99_s": base["p99_us"] * 1e-6,
+        "ticks": base["ticks"],
+    }
     result: dict[str, Any] = {
         "channel": channel,
         "machine": f"{platform.machine()} {platform.release()}, {os.cpu_count()} CPU(s)",
@@ -502,10 +389,6 @@ def run_io_bench(
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark named on the command line and print its figures as JSON."""
     p = argparse.ArgumentParser(prog="python -m controller.cli.bench_vcan", description=__doc__)
-    sub = p.add_subparsers(dest="what")
-    h = sub.add_parser("host", help="the controller's compute per tick without transport")
-    h.add_argument("--rate-hz", type=float, default=1000.0)
-    h.add_argument("--seconds", type=float, default=5.0)
     p.add_argument("--channel", default="vcan0")
     p.add_argument("--out", type=Path, default=None)
     p.add_argument("--rounds", type=int, default=10)
@@ -513,9 +396,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--ticks", type=int, default=100)
     p.add_argument("--seconds", type=float, default=20.0)
     args = p.parse_args(argv)
-    if args.what == "host":
-        print(json.dumps(host_compute(args.rate_hz, args.seconds), indent=2))
-        return 0
     result = run_io_bench(
         args.channel, args.out, args.rounds, args.frames, args.ticks, args.seconds
     )

@@ -43,6 +43,9 @@ next `arm`) restores.
 Velocity feed-forward travels as an int16 in 0.001 rev/s, so it is limited to ±32.767 rev/s:
 `command` clamps it to that range (counting `stats.ff_clamped`) instead of refusing the set-point,
 because the feed-forward only shapes tracking; the position set-point itself is never altered.
+
+The receive path (with the timestamp constants) is in `drivers.odrive.receive`, the torque mode
+in `drivers.odrive.torque`: mixins of `ODriveReels`.
 """
 
 from __future__ import annotations
@@ -58,46 +61,14 @@ from typing import Any
 
 import can
 
-from drivers.base import NEVER_S, AxisReading, BusError, BusStats
+from drivers.base import AxisReading, BusError, BusStats
 from drivers.odrive import cansimple as cs
+from drivers.odrive.receive import ODriveReceive
+from drivers.odrive.torque import F32_MAX, ODriveTorqueMode, as_float
 from drivers.registry import LoopSettings
-from drivers.socketcan_fast import CAN_EFF_FLAG as _EFF_FLAG
-from drivers.socketcan_fast import CAN_EFF_MASK as _EFF_MASK
-from drivers.socketcan_fast import CAN_ERR_FLAG as _ERR_FLAG
-from drivers.socketcan_fast import CAN_RTR_FLAG as _RTR_FLAG
-from drivers.socketcan_fast import CAN_SFF_MASK as _SFF_MASK
 from drivers.socketcan_fast import FastSocketCan, open_fast_path
 
 DEFAULT_SEND_TIMEOUT_S = 0.005
-TIMESTAMP_FUTURE_TOLERANCE_S = 1.0
-"""A frame timestamp further ahead of the wall clock than this is not a wall-clock reading."""
-TIMESTAMP_MAX_AGE_S = 3600.0
-"""A frame timestamp further behind the wall clock than this is not a wall-clock reading."""
-CATCH_UP_FACTOR = 8
-"""A poll that catches up with a backlog takes at most this many times `max_frames_per_poll`."""
-_F32_MAX = 3.4028234663852886e38
-_ENCODER = cs.EncoderEstimates
-_HEARTBEAT = cs.Heartbeat
-
-
-def _as_float(value: object) -> float | None:
-    """`value` as a float, None if it is not a number (NaN stays NaN: the caller's range
-    check refuses it)."""
-    if isinstance(value, bool):
-        return None
-    try:
-        return float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return None
-
-
-def _derive_status(r: AxisReading) -> None:
-    """The generic status of a reading from its heartbeat's axis state and error bits."""
-    state = r.axis_state
-    error = r.axis_error
-    r.ready = state == cs.AxisState.CLOSED_LOOP_CONTROL and error == 0
-    r.fault = cs.fault_text(error)
-    r.state_name = cs.axis_state_name(state)
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,7 +81,7 @@ class AxisFault:
     detail: str
 
 
-class ODriveReels:
+class ODriveReels(ODriveReceive, ODriveTorqueMode):
     """Reel motors on ODrive axes (CANSimple node ids `node_ids`) over one python-can bus.
 
     The bus is owned by the caller (open it with `drivers.bus.open_bus`, shut it down after).
@@ -180,8 +151,8 @@ class ODriveReels:
             ("velocity_limit_rps", velocity_limit_rps),
             ("current_limit_a", current_limit_a),
         ):
-            f = None if limit is None else _as_float(limit)
-            if limit is not None and (f is None or not 0.0 < f <= _F32_MAX):
+            f = None if limit is None else as_float(limit)
+            if limit is not None and (f is None or not 0.0 < f <= F32_MAX):
                 raise ValueError(f"{name} must be finite and > 0, got {limit!r}")
         self.node_ids: tuple[int, ...] = ids
         self.velocity_limit_rps = None if velocity_limit_rps is None else float(velocity_limit_rps)
@@ -254,170 +225,6 @@ class ODriveReels:
             with contextlib.suppress(BusError):
                 self.request_torques()
         return handled
-
-    def _catch_up(self, handled: int, limit: int, stamp: float, wall_s: float) -> int:
-        """The poll's frame limit after `handled` frames, the last received at `stamp`: raised
-        to read through a backlog (a loop stall, see `catch_up_age_s`), else unchanged."""
-        if (
-            handled == limit == self._max_frames
-            and self._catch_up_age_s < wall_s - stamp < TIMESTAMP_MAX_AGE_S
-        ):
-            self._stats.catch_up_polls += 1
-            return limit * CATCH_UP_FACTOR
-        return limit
-
-    def _drain_bus(self, now_s: float, now_ns: int, wall_s: float) -> int:
-        """python-can's receive path (every interface but SocketCAN): one Message per frame."""
-        recv = self._bus.recv
-        take = self._take
-        handled = 0
-        limit = self._max_frames
-        while handled < limit:
-            try:
-                msg = recv(0.0)
-            except Exception as exc:  # a receive error must never escape into the loop
-                self._stats.count_bus_error(f"receive: {type(exc).__name__}: {exc}")
-                break
-            if msg is None:
-                break
-            handled += 1
-            if handled == limit:
-                limit = self._catch_up(handled, limit, msg.timestamp, wall_s)
-            if msg.is_error_frame:
-                self._error_frame(msg.arbitration_id)
-                continue
-            take(
-                msg.arbitration_id,
-                msg.data,
-                msg.is_remote_frame,
-                msg.is_extended_id,
-                msg.timestamp,
-                now_s,
-                now_ns,
-                wall_s,
-            )
-        return handled
-
-    def _drain_fast(self, fast: FastSocketCan, now_s: float, now_ns: int, wall_s: float) -> int:
-        """The SocketCAN fast path: batches straight off the kernel socket, no Message objects,
-        until the kernel has no more (`drivers.socketcan_fast`)."""
-        take = self._take
-        frame = fast.frame
-        handled = 0
-        limit = self._max_frames
-        drops = fast.kernel_drops
-        while handled < limit:
-            try:
-                n = fast.recv_batch(limit - handled)
-            except Exception as exc:  # a receive error must never escape into the loop
-                self._stats.count_bus_error(f"receive: {type(exc).__name__}: {exc}")
-                break
-            if n == 0:
-                break
-            for i in range(n):
-                can_id, length, data, stamp = frame(i)
-                handled += 1
-                if handled == limit:
-                    limit = self._catch_up(handled, limit, stamp, wall_s)
-                if can_id & _ERR_FLAG:
-                    self._error_frame(can_id & _EFF_MASK)
-                    continue
-                if can_id & _EFF_FLAG:
-                    take(
-                        can_id & _EFF_MASK, data[:length], False, True, stamp, now_s, now_ns, wall_s
-                    )
-                elif can_id & _RTR_FLAG:
-                    take(can_id & _SFF_MASK, b"", True, False, stamp, now_s, now_ns, wall_s)
-                else:
-                    take(can_id, data[:length], False, False, stamp, now_s, now_ns, wall_s)
-        if fast.kernel_drops != drops:
-            # The socket's receive queue overflowed while the loop did not poll (a stall): the
-            # oldest frames are lost, the newest still arrive. Counted as dropped frames of
-            # kind "rx_overrun", not as a bus error: the stale-reading rules judge the stall.
-            lost = fast.kernel_drops - drops
-            self._stats.dropped += lost
-            errs = self._stats.errors_by_kind
-            errs["rx_overrun"] = errs.get("rx_overrun", 0) + lost
-        return handled
-
-    def _error_frame(self, error_id: int) -> None:
-        # SocketCAN error frame: bus-off, controller or protocol trouble. A bus error for the
-        # loop (which faults when they persist), not a dropped data frame.
-        self._stats.count_bus_error(f"CAN error frame 0x{error_id:x}")
-        errs = self._stats.errors_by_kind
-        errs["error_frame"] = errs.get("error_frame", 0) + 1
-
-    def _take(
-        self,
-        arb_id: int,
-        data: bytes | bytearray,
-        is_remote: bool,
-        is_extended: bool,
-        stamp: float,
-        now_s: float,
-        now_ns: int,
-        wall_s: float,
-    ) -> None:
-        """Decode one received data or remote frame (arrived at wall-clock `stamp`) and update
-        the readings or the counters."""
-        m = cs.decode(arb_id, data, is_remote, is_extended)
-        mtype = type(m)
-        if mtype is _ENCODER or mtype is _HEARTBEAT:
-            rec = self._by_node[m.node_id]
-            if rec is None:
-                self._stats.count("unknown_node")
-                return
-            age = wall_s - stamp
-            if age < 0.0:
-                if age < -TIMESTAMP_FUTURE_TOLERANCE_S:
-                    self._stats.untimed_frames += 1
-                age = 0.0
-            elif age > TIMESTAMP_MAX_AGE_S:
-                self._stats.untimed_frames += 1
-                age = 0.0
-            if mtype is _ENCODER:
-                rec.position_rev = m.pos_estimate_rev  # type: ignore[union-attr]
-                rec.velocity_rps = m.vel_estimate_rps  # type: ignore[union-attr]
-                rec.stamp_s = now_s - age
-                rec.stamp_ns = now_ns - int(age * 1e9)
-            else:
-                state = m.axis_state  # type: ignore[union-attr]
-                error = m.axis_error  # type: ignore[union-attr]
-                if (
-                    state != rec.axis_state
-                    or error != rec.axis_error
-                    or rec.heartbeat_stamp_s == NEVER_S
-                ):
-                    rec.axis_state = state
-                    rec.axis_error = error
-                    _derive_status(rec)
-                rec.heartbeat_stamp_s = rec.status_stamp_s = now_s - age
-        elif mtype is cs.Torques:
-            rec = self._by_node[m.node_id]
-            if rec is None:
-                self._stats.count("unknown_node")
-                return
-            age = wall_s - stamp
-            rec.torque_nm = m.torque_estimate_nm  # type: ignore[union-attr]
-            rec.torque_stamp_s = now_s - (age if 0.0 <= age <= TIMESTAMP_MAX_AGE_S else 0.0)
-        else:
-            self._handle_other(m)
-
-    def _handle_other(self, m: cs.Message | cs.DecodeError) -> None:
-        if isinstance(m, cs.DecodeError):
-            node = m.node_id
-            self._bad_frames_by_node[node] = self._bad_frames_by_node.get(node, 0) + 1
-            self._last_decode_error[node] = m
-            self._stats.count(m.kind.value, decode_error=True)
-        elif isinstance(m, cs.GetError):
-            if self._by_node[m.node_id] is None:
-                self._stats.count("unknown_node")
-            else:
-                self._last_get_error[m.node_id] = m
-        else:
-            # Host-to-ODrive commands and RTR requests: our own frames echoed back (e.g. by
-            # udp_multicast) or another master on the bus. Not for us, and not lost either.
-            self._stats.count("not_for_host")
 
     def read(self) -> Sequence[AxisReading]:
         """Latest reading per axis, in `node_ids` order (live objects updated by `poll`)."""
@@ -584,108 +391,6 @@ class ODriveReels:
             self._send_all(frames, "arm")
         finally:
             self._commanded(self._readings)
-        self._limits_lowered = False
-
-    # --- torque mode (drivers.base.TorqueDriver) ------------------------------------------
-
-    def _check_values(self, values: Sequence[float], what: str, *, positive: bool) -> None:
-        """ValueError naming the node unless `values` has one finite float32 per axis (> 0
-        with `positive`)."""
-        ids = self.node_ids
-        if len(values) != len(ids):
-            raise ValueError(f"{what} needs {len(ids)} values, got {len(values)}")
-        for node, v in zip(ids, values, strict=True):
-            f = _as_float(v)
-            if f is None or not -_F32_MAX <= f <= _F32_MAX:
-                raise ValueError(f"{what} for node {node} is not a finite float32: {v!r}")
-            if positive and not f > 0.0:
-                raise ValueError(f"{what} for node {node} must be > 0, got {v!r}")
-
-    def _restore_limit_frames(self) -> list[cs.Frame]:
-        v = self.velocity_limit_rps
-        c = self.current_limit_a
-        if not self._limits_lowered or v is None or c is None:
-            return []
-        return [cs.encode_set_limits(n, v, c) for n in self.node_ids]
-
-    def enter_torque_mode(
-        self, torques_nm: Sequence[float], velocity_limits_rps: Sequence[float] | None = None
-    ) -> bool:
-        """Select TORQUE_CONTROL + PASSTHROUGH with `torques_nm` on every axis, in closed loop.
-
-        Per axis: Clear_Errors if it is not ready (not in closed loop without error);
-        Set_Limits(limit, current_limit_a) when `velocity_limits_rps` is given and both
-        configured limits are known (Set_Limits sets both at once, and only known values can
-        be restored); Set_Input_Torque(torque) before the mode changes (an axis holding a
-        suspended load never pulls with zero); Set_Controller_Mode; Set_Axis_State
-        CLOSED_LOOP_CONTROL if it is not ready. Returns True if the velocity limits were
-        applied. Raises ValueError (nothing sent) on a torque that is not a finite float32, a
-        limit that is not finite and > 0, or a wrong count, BusError if a send fails (after
-        trying every frame).
-        """
-        self._check_values(torques_nm, "torque", positive=False)
-        if velocity_limits_rps is not None:
-            self._check_values(velocity_limits_rps, "velocity limit", positive=True)
-        current = self.current_limit_a
-        limits = velocity_limits_rps if self.velocity_limit_rps is not None else None
-        frames: list[cs.Frame] = []
-        changed = [r for r in self._readings if not r.ready]
-        for i, r in enumerate(self._readings):
-            n = r.node_id
-            if not r.ready:
-                frames.append(cs.encode_clear_errors(n))
-            if limits is not None and current is not None:
-                frames.append(cs.encode_set_limits(n, limits[i], current))
-            frames.append(cs.encode_set_input_torque(n, torques_nm[i]))
-            frames.append(
-                cs.encode_set_controller_mode(
-                    n, cs.ControlMode.TORQUE_CONTROL, cs.InputMode.PASSTHROUGH
-                )
-            )
-            if not r.ready:
-                frames.append(cs.encode_set_axis_state(n, cs.AxisState.CLOSED_LOOP_CONTROL))
-        applied = limits is not None and current is not None
-        if applied:
-            self._limits_lowered = True  # before sending: a partial failure may have lowered some
-        try:
-            self._send_all(frames, "torque mode")
-        finally:
-            self._commanded(changed)
-        return applied
-
-    def command_torque(self, torques_nm: Sequence[float]) -> None:
-        """Send Set_Input_Torque to every axis (N m, motor's positive direction, `node_ids`
-        order). Raises ValueError (nothing sent) on a value that is not a finite float32 or a
-        wrong count, BusError if a send fails (after trying every axis)."""
-        self._check_values(torques_nm, "torque", positive=False)
-        ids = self.node_ids
-        self._send_all(
-            [cs.encode_set_input_torque(ids[i], torques_nm[i]) for i in range(len(ids))],
-            "Set_Input_Torque",
-        )
-
-    def leave_torque_mode(self, positions_rev: Sequence[float]) -> None:
-        """Hold `positions_rev` in POSITION_CONTROL + PASSTHROUGH; restore lowered limits.
-
-        Per axis: Set_Input_Pos(p), Set_Controller_Mode, Set_Input_Pos(p) again (the firmware
-        may reset input_pos on the mode change; the second one makes sure it holds `p`); then,
-        if `enter_torque_mode` lowered the velocity limits, Set_Limits with the configured
-        ones on every axis. Raises ValueError (nothing sent) on a position that is not a
-        finite float32 or a wrong count, BusError if a send fails (after trying every frame).
-        """
-        self._check_values(positions_rev, "position", positive=False)
-        frames: list[cs.Frame] = []
-        for n, p in zip(self.node_ids, positions_rev, strict=True):
-            hold = cs.encode_set_input_pos(n, p)
-            frames.append(hold)
-            frames.append(
-                cs.encode_set_controller_mode(
-                    n, cs.ControlMode.POSITION_CONTROL, cs.InputMode.PASSTHROUGH
-                )
-            )
-            frames.append(hold)
-        frames.extend(self._restore_limit_frames())
-        self._send_all(frames, "position mode")
         self._limits_lowered = False
 
     def _commanded(self, readings: Sequence[AxisReading]) -> None:

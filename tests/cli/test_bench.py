@@ -220,9 +220,11 @@ def test_bench_compute_piece() -> None:
 
 def test_echo_driver_hands_in_commanded_positions() -> None:
     from controller.cli.bench.compute import _Clock
+    from drivers.base import ReelDriver
 
     clock = _Clock()
     drv = bench.EchoDriver((0, 1), (1.0, 2.0), clock)
+    assert isinstance(drv, ReelDriver)
     drv.command([5.0, 6.0])
     clock.now_s += 0.001
     drv.poll()
