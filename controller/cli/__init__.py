@@ -29,7 +29,7 @@ _MODULES: tuple[str, ...] = (
     "controller.cli.replay",  # replay
     "controller.cli.plot",  # plot
     "controller.cli.calibrate",  # calibrate collect, calibrate solve
-    "controller.cli.gcode",  # gcode
+    "controller.cli.gcode_verb",  # gcode
 )
 
 

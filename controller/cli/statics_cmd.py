@@ -158,7 +158,7 @@ def cmd_statics(args: argparse.Namespace) -> int:
 
 
 def workspace_map(cfg: Any, check: Any, step_m: float | None) -> Any:
-    """`controller.core.statics.FeasibleWorkspace` of the geometric workspace for `check`.
+    """`controller.core.feasible.FeasibleWorkspace` of the geometric workspace for `check`.
 
     The grid spans the workspace's bounding box (`Workspace.box`); a cell counts where its
     centre is inside the geometric limits (`Workspace.inside_points`) and the payload can be
@@ -166,7 +166,8 @@ def workspace_map(cfg: Any, check: Any, step_m: float | None) -> Any:
     StaticsInputError for a step that gives too many cells, WorkspaceError (a ValueError) for
     an empty workspace.
     """
-    from controller.core.statics import StaticsInputError, feasible_workspace
+    from controller.core.feasible import feasible_workspace
+    from controller.core.statics import StaticsInputError
     from controller.core.workspace import Workspace
 
     workspace = Workspace.from_limits(cfg.limits, cfg.geometry)

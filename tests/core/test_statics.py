@@ -20,6 +20,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
+from controller.core.feasible import feasible_workspace
 from controller.core.statics import (
     G_MPS2,
     SINGULAR_MARGIN_N,
@@ -30,7 +31,6 @@ from controller.core.statics import (
     StaticsError,
     StaticsInputError,
     Tensions,
-    feasible_workspace,
     solve_tensions,
     tensions_batch,
 )

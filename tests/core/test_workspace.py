@@ -208,7 +208,7 @@ def test_plain_values_and_a_limits_object_build_the_same_workspace() -> None:
 
 
 def test_box_is_the_shrunk_footprint_and_the_z_band() -> None:
-    # the paper robot's box, as `statics.feasible_workspace` and `calibrate --auto` take it
+    # the paper robot's box, as `feasible.feasible_workspace` and `calibrate --auto` take it
     assert LIM.box() == ((-38.45, 38.45), (-23.0, 23.0), (0.0, 6.62))
     desk = load_config("config/desk.toml")
     box = Workspace.from_limits(desk.limits, desk.geometry).box()
