@@ -21,8 +21,8 @@ here (an idle axis has nothing to stop). The timer counts the time since the las
 simulation sees it: a step during which the axis was fed does not count (the frame arrived
 within it), and the serving loop handles every frame already received before it steps, so a
 simulation thread starved on a busy host (a long late step, a backlog of frames) does not
-mistake a live host for a silent one; a dead host is still caught `watchdog_timeout_s` (plus at
-most one late step) after its last frame.
+mistake a live host for a silent one. A dead host is caught `watchdog_timeout_s` after its last
+frame, and a late step ends the motion at that time (the axis does not run on through a stall).
 
 Motion model (POSITION_CONTROL with INPUT_MODE_PASSTHROUGH, the firmware's cascaded loop):
 Set_Input_Pos sets input_pos and input_vel (its Vel_FF field), and the velocity command is
@@ -361,8 +361,9 @@ class SimODriveAxis:
         """Advance the motion (and watchdog, drift) by `dt_s` seconds; no frames."""
         with self._lock:
             if dt_s > 0.0:
-                self._watchdog(dt_s)
-                self._move(dt_s)
+                run_s = self._watchdog(dt_s)
+                if run_s > 0.0:
+                    self._move(run_s)
                 self._drift_rev += self._drift_rate_rps * dt_s
 
     def broadcasts(self, dt_s: float) -> list[cs.Frame]:
@@ -393,23 +394,28 @@ class SimODriveAxis:
                 out.append(self._heartbeat_frame())
             return out
 
-    def _watchdog(self, dt: float) -> None:
+    def _watchdog(self, dt: float) -> float:
+        """Count `dt` on the watchdog; return how long of it the axis stays in closed loop
+        (all of it, or up to the expiry, where it disarms: a late step on a busy host does not
+        run the axis past its watchdog time)."""
         if self.watchdog_timeout_s <= 0.0 or self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
-            return
-        # Checked before the step is counted: after a stall of the simulation thread the
-        # commands that queued meanwhile are handled before the expiry is judged, so a slow
-        # simulator does not look like a silent host (a dead host is caught one step later).
-        if self._since_feed_s > self.watchdog_timeout_s:
-            self.axis_error |= cs.ODriveError.WATCHDOG_TIMER_EXPIRED
-            self.disarm_reason = cs.ODriveError.WATCHDOG_TIMER_EXPIRED
-            self._disarm()
-            return
+            self._fed = False
+            return dt
         if self._fed:
             # fed during this step: the frame came within it, at the latest just now (after a
             # stall, the backlog the serving loop drained before stepping)
             self._fed = False
-            return
+            return dt
+        left = self.watchdog_timeout_s - self._since_feed_s
+        if dt > left:
+            self.axis_error |= cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+            self.disarm_reason = cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+            if left > 0.0:
+                self._move(left)
+            self._disarm()
+            return 0.0
         self._since_feed_s += dt
+        return dt
 
     def _move(self, dt: float) -> None:
         if self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
