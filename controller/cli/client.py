@@ -46,6 +46,7 @@ from controller.cli.session import (
     DEFAULT_PREFIX,
     LIVELINESS_TIMEOUT_S,
     DaemonAbsent,
+    Failed,
     InputError,
     Refused,
     UsageError,
@@ -80,6 +81,7 @@ __all__ = [
     "PRETENSION_POLL_S",
     "PROGRESS_PERIOD_S",
     "DaemonAbsent",
+    "Failed",
     "InputError",
     "Refused",
     "SeqGaps",
@@ -266,9 +268,32 @@ def cmd_simple(args: argparse.Namespace) -> int:
                 print(f"arm: already armed, state {state}", flush=True)
             return EXIT_OK
         _print_reply(verb, reply, args)
+        if isinstance(reply, dict) and reply.get("state") == "ARMING":
+            _follow_arming(session, args)
         return EXIT_OK
 
     return _run(args, body)
+
+
+ARM_FOLLOW_S = 10.0
+"""How long `arm` follows the arming (the daemon's own arming limit ends it sooner)."""
+ARM_POLL_S = 0.1
+"""How often `arm` asks the daemon how the arming goes."""
+
+
+def _follow_arming(session: Any, args: argparse.Namespace) -> None:
+    """After an accepted arm, follow the status until the arming ends. Returns when the robot
+    is armed (or still arming after `ARM_FOLLOW_S`: the daemon goes on); raises Failed when
+    the arming ended in FAULT, ESTOPPED or DISARMED, DaemonAbsent when the daemon is gone."""
+    deadline = time.monotonic() + max(ARM_FOLLOW_S, args.timeout)
+    while time.monotonic() < deadline:
+        st = query(session, _key(args, "status"), None, args.timeout)
+        state = st.get("state") if isinstance(st, dict) else None
+        if state in ("FAULT", "ESTOPPED", "DISARMED"):
+            raise Failed(f"the arming ended in {state}: {st.get('reason')}")
+        if state != "ARMING":
+            return
+        time.sleep(ARM_POLL_S)
 
 
 def cmd_home(args: argparse.Namespace) -> int:
@@ -290,7 +315,8 @@ PRETENSION_POLL_S = 0.2
 
 def _pretension(args: argparse.Namespace, payload: dict[str, Any]) -> int:
     """Start the pre-tension, then follow the daemon's status until it ends: the home pose
-    declared (HOLDING), or the reason it did not. Raises Refused, WaitTimeout, DaemonAbsent."""
+    declared (HOLDING), or the reason it did not. Raises Refused (Failed when the pre-tension
+    ended in FAULT or another state without homing), WaitTimeout, DaemonAbsent."""
 
     def body(session: Any) -> int:
         reply = query(session, _key(args, "cmd/pretension"), payload, args.timeout)
@@ -313,7 +339,7 @@ def _pretension(args: argparse.Namespace, payload: dict[str, Any]) -> int:
                         else:
                             print(format_pretension_result(result), flush=True)
                         return EXIT_OK
-                    raise Refused(f"the pre-tension ended in {state}: {st.get('reason')}")
+                    raise Failed(f"the pre-tension ended in {state}: {st.get('reason')}")
                 now = time.monotonic()
                 if now - t0 > args.wait_timeout:
                     raise WaitTimeout(
@@ -530,7 +556,7 @@ def _wait_arrival(
             last = json.loads(data)
             state = str(last.get("state"))
             if state in ("FAULT", "ESTOPPED", "DISARMED"):
-                raise Refused(f"the robot went {state} during the motion: {format_pose(last)}")
+                raise Failed(f"the robot went {state} during the motion: {format_pose(last)}")
             pos = last.get("position_m")
             if pos is None:
                 continue

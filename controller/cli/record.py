@@ -473,14 +473,18 @@ def _record(
         alive = sample.kind == zenoh.SampleKind.PUT
         push(f"{prefix}/alive", b'{"alive":true}' if alive else b'{"alive":false}')
 
+    def on_status(reply: Any) -> None:
+        if reply.ok is not None:
+            push(f"{prefix}/status", reply.ok.payload.to_bytes())
+
     def poll_status() -> None:
+        # The queries go out at --status-hz without waiting for the answers (a daemon slow to
+        # answer on a busy host does not slow the sampling); each answer is recorded on arrival.
         period_s = 1.0 / args.status_hz
         next_t = time.monotonic()
         while not stop.is_set():
             try:
-                for reply in session.get(f"{prefix}/status", timeout=args.timeout):
-                    if reply.ok is not None:
-                        push(f"{prefix}/status", reply.ok.payload.to_bytes())
+                session.get(f"{prefix}/status", on_status, timeout=args.timeout)
             except Exception as exc:  # a closing session; the loop ends with `stop`
                 if not stop.is_set():
                     print(f"cablebot record: status query failed: {exc}", file=sys.stderr)

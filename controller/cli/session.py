@@ -41,6 +41,13 @@ class Refused(RuntimeError):
     """The daemon answered with an error reply; the message is its reason."""
 
 
+class Failed(Refused):
+    """The daemon accepted the command, which then did not complete: the robot went FAULT,
+    ESTOPPED or DISARMED while the CLI followed it; the message says what happened. (A
+    `Refused` for the handlers that only need "it did not work"; printed as
+    "accepted, then ...", not as a refusal.)"""
+
+
 class InputError(ValueError):
     """The user's input (numbers, path file) is invalid; nothing was sent."""
 
@@ -182,7 +189,8 @@ def _absent_message(args: argparse.Namespace, exc: DaemonAbsent) -> str:
 def run_with_session(args: argparse.Namespace, body: Callable[[Any], int]) -> int:
     """Run `body(session)` with the CLI's error handling; returns the exit code.
 
-    Every failure is one line on stderr: a refusal prints the daemon's reason verbatim; when
+    Every failure is one line on stderr: a refusal prints the daemon's reason verbatim, a
+    command accepted that then failed says "accepted, then" what happened; when
     no daemon answers on `--prefix`, the line names the prefixes of the daemons that are alive.
     """
     try:
@@ -201,6 +209,9 @@ def run_with_session(args: argparse.Namespace, body: Callable[[Any], int]) -> in
     except DaemonAbsent as exc:
         print(f"cablebot: {_absent_message(args, exc)}", file=sys.stderr)
         return exitcodes.NO_DAEMON
+    except Failed as exc:
+        print(f"cablebot: accepted, then {exc}", file=sys.stderr)
+        return exitcodes.REFUSED
     except Refused as exc:
         print(f"cablebot: refused: {exc}", file=sys.stderr)
         return exitcodes.REFUSED

@@ -17,7 +17,12 @@ the firmware's CANSimple handler; the axis's own broadcasts heard back do not); 
 closed loop that goes `watchdog_timeout_s` without one disarms to IDLE with
 WATCHDOG_TIMER_EXPIRED (reported by heartbeat and Get_Error), so a host that dies mid-move does
 not leave the axis running on its last velocity feed-forward. The timer runs only in closed loop
-here (an idle axis has nothing to stop).
+here (an idle axis has nothing to stop). The timer counts the time since the last feed as the
+simulation sees it: a step during which the axis was fed does not count (the frame arrived
+within it), and the serving loop handles every frame already received before it steps, so a
+simulation thread starved on a busy host (a long late step, a backlog of frames) does not
+mistake a live host for a silent one. A dead host is caught `watchdog_timeout_s` after its last
+frame, and a late step ends the motion at that time (the axis does not run on through a stall).
 
 Motion model (POSITION_CONTROL with INPUT_MODE_PASSTHROUGH, the firmware's cascaded loop):
 Set_Input_Pos sets input_pos and input_vel (its Vel_FF field), and the velocity command is
@@ -89,6 +94,8 @@ DEFAULT_POS_GAIN = 20.0
 MAX_SUBSTEP_S = 0.001
 """Longest integration step of the axis dynamics (a longer `step` is split)."""
 _MAX_SUBSTEPS = 10_000
+MAX_DRAIN_FRAMES = 10_000
+"""Most frames the serving loop handles back to back before a due step (a bound, not a rate)."""
 _HOST_TX_TYPES = frozenset(cs.HOST_MESSAGES)
 """What a host sends: only these feed the watchdog. What an axis sends itself (heartbeats,
 encoder estimates, Get_Error and Get_Torques answers and broadcasts), heard back because
@@ -162,6 +169,8 @@ class SimODriveAxis:
         """The TORQUE_CONTROL set-point (Set_Input_Torque)."""
         self._torque_due_s = 0.0
         self._since_feed_s = 0.0
+        self._fed = False
+        """A host frame fed the watchdog since the last step (that step's time is not counted)."""
         self.position_rev = float(initial_position_rev)
         self.velocity_rps = 0.0
         self.input_pos_rev = self.position_rev
@@ -288,6 +297,7 @@ class SimODriveAxis:
         t = type(msg)
         if t in _HOST_TX_TYPES:
             self._since_feed_s = 0.0  # any frame from a host to the axis feeds its watchdog
+            self._fed = True
         if t is cs.SetInputPos:
             assert isinstance(msg, cs.SetInputPos)
             self.commands_received += 1
@@ -351,8 +361,9 @@ class SimODriveAxis:
         """Advance the motion (and watchdog, drift) by `dt_s` seconds; no frames."""
         with self._lock:
             if dt_s > 0.0:
-                self._watchdog(dt_s)
-                self._move(dt_s)
+                run_s = self._watchdog(dt_s)
+                if run_s > 0.0:
+                    self._move(run_s)
                 self._drift_rev += self._drift_rate_rps * dt_s
 
     def broadcasts(self, dt_s: float) -> list[cs.Frame]:
@@ -383,18 +394,28 @@ class SimODriveAxis:
                 out.append(self._heartbeat_frame())
             return out
 
-    def _watchdog(self, dt: float) -> None:
+    def _watchdog(self, dt: float) -> float:
+        """Count `dt` on the watchdog; return how long of it the axis stays in closed loop
+        (all of it, or up to the expiry, where it disarms: a late step on a busy host does not
+        run the axis past its watchdog time)."""
         if self.watchdog_timeout_s <= 0.0 or self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
-            return
-        # Checked before the step is counted: after a stall of the simulation thread the
-        # commands that queued meanwhile are handled before the expiry is judged, so a slow
-        # simulator does not look like a silent host (a dead host is caught one step later).
-        if self._since_feed_s > self.watchdog_timeout_s:
+            self._fed = False
+            return dt
+        if self._fed:
+            # fed during this step: the frame came within it, at the latest just now (after a
+            # stall, the backlog the serving loop drained before stepping)
+            self._fed = False
+            return dt
+        left = self.watchdog_timeout_s - self._since_feed_s
+        if dt > left:
             self.axis_error |= cs.ODriveError.WATCHDOG_TIMER_EXPIRED
             self.disarm_reason = cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+            if left > 0.0:
+                self._move(left)
             self._disarm()
-            return
+            return 0.0
         self._since_feed_s += dt
+        return dt
 
     def _move(self, dt: float) -> None:
         if self.axis_state != cs.AxisState.CLOSED_LOOP_CONTROL:
@@ -576,22 +597,36 @@ def run_sim(
             with contextlib.suppress(Exception):  # a simulated node survives a broken bus
                 bus.send(_to_can(f), timeout=0.01)
 
+    def serve_one(timeout_s: float) -> bool:
+        """Receive and handle at most one frame; False when none came within `timeout_s`."""
+        try:
+            msg = bus.recv(timeout=timeout_s)
+        except Exception:
+            time.sleep(min(timeout_s, 0.001))
+            return False
+        if msg is None:
+            return False
+        if not msg.is_error_frame:
+            m = cs.decode(msg.arbitration_id, msg.data, msg.is_remote_frame, msg.is_extended_id)
+            if not isinstance(m, cs.DecodeError):
+                axis = by_node.get(m.node_id)
+                if axis is not None:
+                    send(axis.handle(m))
+        return True
+
     while not stop_event.is_set():
         now = clock()
         remaining = next_tick - now
         if remaining > 0.0:
-            try:
-                msg = bus.recv(timeout=remaining)
-            except Exception:
-                msg = None
-                time.sleep(min(remaining, 0.001))
-            if msg is not None and not msg.is_error_frame:
-                m = cs.decode(msg.arbitration_id, msg.data, msg.is_remote_frame, msg.is_extended_id)
-                if not isinstance(m, cs.DecodeError):
-                    axis = by_node.get(m.node_id)
-                    if axis is not None:
-                        send(axis.handle(m))
+            serve_one(remaining)
             continue
+        # Before stepping, every frame already received: after a stall of this thread (a busy
+        # host) the commands that queued meanwhile feed the watchdogs and set the set-points
+        # before the stall's time is judged, and the backlog cannot grow tick after tick.
+        drained = 0
+        while drained < MAX_DRAIN_FRAMES and serve_one(0.0):
+            drained += 1
+        now = clock()
         dt = now - last
         last = now
         late = remaining <= -tick_s

@@ -257,6 +257,17 @@ def desk_daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path
         assert proc.terminate(10.0) == 0, proc.log()
 
 
+def _daemon_state(desk_daemon: tuple[Path, str, str]) -> str:
+    """The daemon's state, its reason and loop figures (for a failure message)."""
+    _, endpoint, prefix = desk_daemon
+    session = zenoh_session(endpoint, 30.0)
+    try:
+        st = zquery(session, f"{prefix}/status")
+    finally:
+        session.close()
+    return f"daemon: {st.get('state')} ({st.get('reason')}); loop {st.get('loop')}"
+
+
 def collect(
     desk_daemon: tuple[Path, str, str], *args: str, stdin: str | None = None, timeout_s: float = 180
 ) -> subprocess.CompletedProcess[str]:
@@ -285,7 +296,7 @@ def test_collect_auto_visits_spread_poses_and_solve_recovers_the_config(
     cfg, _, _ = desk_daemon
     out = tmp_path / "auto.csv"
     res = collect(desk_daemon, str(out), "--auto", "14")
-    assert res.returncode == 0, res.stdout + res.stderr
+    assert res.returncode == 0, res.stdout + res.stderr + _daemon_state(desk_daemon)
     assert "14 sample(s)" in res.stdout
     # an estimate up front, and at every pose how far along and how long is left
     assert re.search(r"visiting 14 poses: [0-9.]+ m at [0-9.]+ m/s, about \d+ (s|min);", res.stdout)
@@ -322,7 +333,7 @@ def test_collect_manual_records_the_pose_at_each_enter(
     _, endpoint, prefix = desk_daemon
     out = tmp_path / "manual.csv"
     res = collect(desk_daemon, str(out), stdin="\n\nq\n", timeout_s=60)
-    assert res.returncode == 0, res.stdout + res.stderr
+    assert res.returncode == 0, res.stdout + res.stderr + _daemon_state(desk_daemon)
     _, rows = read_rows(out)
     assert len(rows) == 2
     session = zenoh_session(endpoint)

@@ -476,3 +476,50 @@ def test_pose_into_a_closed_pipe_exits_quietly(daemon: Daemon) -> None:
     proc.stderr.close()
     assert code == exitcodes.BROKEN_PIPE
     assert err == ""
+
+
+def _fault_after_acceptance(
+    monkeypatch: pytest.MonkeyPatch, cmd_key: str, accepted: dict[str, Any], reason: str
+) -> None:
+    """The daemon accepts `cmd_key` (replying `accepted`), and its status then says FAULT."""
+    real = client.query
+
+    def query(session: Any, key: str, payload: Any, timeout_s: float) -> Any:
+        if key.endswith(cmd_key):
+            return accepted
+        if key.endswith("/status"):
+            return {"state": "FAULT", "reason": reason, "pretension": {"active": False}}
+        return real(session, key, payload, timeout_s)
+
+    monkeypatch.setattr(client, "query", query)
+
+
+def test_a_pretension_accepted_then_faulted_says_so_not_refused(
+    daemon: Daemon, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    reason = "stale_encoder: node 0 age 0.688 s > 0.5 s"
+    start = {"ok": True, "state": "PRETENSIONING", "tensions_n": [104.4], "speed_limited": True}
+    _fault_after_acceptance(monkeypatch, "cmd/pretension", start, reason)
+    code, out, err = run(capsys, "home", "0", "0", "2", "--pretension", *daemon.args())
+    assert code == exitcodes.REFUSED
+    assert out.startswith("pretension: the reels pull in torque control")
+    assert err == f"cablebot: accepted, then the pre-tension ended in FAULT: {reason}\n"
+
+
+def test_an_arm_accepted_then_faulted_says_so_not_refused(
+    daemon: Daemon, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    reason = "arming_timeout: node 2 not in closed loop after 2 s"
+    _fault_after_acceptance(monkeypatch, "cmd/arm", {"ok": True, "state": "ARMING"}, reason)
+    code, out, err = run(capsys, "arm", *daemon.args())
+    assert code == exitcodes.REFUSED
+    assert out == "arm: ok, state ARMING\n"
+    assert err == f"cablebot: accepted, then the arming ended in FAULT: {reason}\n"
+
+
+def test_an_arm_that_arms_exits_0_without_an_error_line(
+    daemon: Daemon, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = run(capsys, "arm", *daemon.args())
+    assert (code, err) == (0, "")
+    assert out.startswith("arm:")

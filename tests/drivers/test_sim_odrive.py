@@ -448,6 +448,44 @@ def test_a_stalled_simulator_does_not_mistake_queued_commands_for_silence() -> N
     assert axis.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL and axis.axis_error == 0
 
 
+def test_a_stall_with_the_backlog_drained_first_counts_from_the_last_frame() -> None:
+    # The serving loop handles the frames that queued during a stall of its thread before it
+    # steps over the stall: the host was alive, its frames only waited. The stall's time is not
+    # held against it, and the host's usual period (10 ms) keeps the axis fed afterwards.
+    axis = SimODriveAxis(0, watchdog_timeout_s=0.2)
+    arm(axis)
+    axis.handle(cs.SetInputPos(0, 0.0, 0.0, 0.0))  # the backlog, drained before the late step
+    axis.step(0.5)
+    for _ in range(20):
+        run(axis, 0.01)
+        assert axis.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL and axis.axis_error == 0
+        axis.handle(cs.SetInputPos(0, 0.0, 0.0, 0.0))
+    # and a host that goes silent after a stall is still caught within the watchdog time
+    run(axis, 0.2)
+    assert axis.axis_state == cs.AxisState.CLOSED_LOOP_CONTROL
+    run(axis, 0.01)
+    assert axis.axis_state == cs.AxisState.IDLE
+    assert axis.axis_error == cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+
+
+def test_a_late_step_past_the_watchdog_time_stops_the_axis_at_that_time() -> None:
+    # The host dies at 10 rev/s; the simulation thread then stalls 0.5 s (a busy host): the
+    # axis runs on for the watchdog time only, as the drive's own timer would stop it.
+    axis = SimODriveAxis(0, max_velocity_rps=10.0, max_accel_rps2=400.0, watchdog_timeout_s=0.2)
+    arm(axis)
+    for _ in range(50):  # far ahead: the axis runs at its velocity limit, 10 rev/s
+        axis.handle(cs.SetInputPos(0, 1000.0, 0.0, 0.0))
+        run(axis, 0.01)
+    axis.handle(cs.SetInputPos(0, 1000.0, 0.0, 0.0))  # the host's last frame
+    fed_at = axis.position_rev
+    assert axis.velocity_rps == pytest.approx(10.0)
+    run(axis, 0.05)
+    axis.step(0.5)
+    assert axis.axis_state == cs.AxisState.IDLE
+    assert axis.axis_error == cs.ODriveError.WATCHDOG_TIMER_EXPIRED
+    assert axis.position_rev - fed_at == pytest.approx(10.0 * 0.2, abs=0.02)
+
+
 def test_the_axis_own_frames_heard_back_do_not_feed_its_watchdog() -> None:
     # udp_multicast loops every frame back to its sender: the simulated node hears its own
     # encoder estimates and heartbeats, which must not count as a host that is alive.

@@ -500,7 +500,16 @@ def test_kill_9_mid_move_leaves_the_axes_idle_and_still_within_the_watchdog_time
         tap.wait_for(cs.EncoderEstimates, after_s=stopped_at + 0.2, timeout_s=5.0)
         rest = tap.latest(cs.EncoderEstimates, nodes, after_s=stopped_at + 0.1)
         assert all(m.vel_estimate_rps == 0.0 for m in rest.values())
-        travel = math.dist(_pose(cfg, _turns(at_kill)), _pose(cfg, _turns(rest)))
+        # The travel is counted from the kill as the bus saw it, the daemon's last command:
+        # each axis's last encoder estimate before that frame, in the order the frames went by
+        # (this process may read them late on a busy machine, so its clock at the kill can
+        # fall well after the estimate it last read).
+        frames = [m for _, m in list(tap.frames)]
+        last_cmd = max(i for i, m in enumerate(frames) if isinstance(m, cs.SetInputPos))
+        on_kill = {m.node_id: m for m in frames[:last_cmd] if isinstance(m, cs.EncoderEstimates)}
+        assert sorted(on_kill) == sorted(nodes), on_kill
+        assert all(abs(m.vel_estimate_rps) > 1.0 for m in on_kill.values()), on_kill
+        travel = math.dist(_pose(cfg, _turns(on_kill)), _pose(cfg, _turns(rest)))
         print(
             f"\nkill -9 at 2 m/s: all axes IDLE (WATCHDOG_TIMER_EXPIRED), velocity 0, "
             f"{idle_after:.3f} s after the kill (watchdog {watchdog_s} s, heartbeat "

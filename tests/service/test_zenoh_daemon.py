@@ -501,9 +501,10 @@ def test_cli_refusal_and_bad_input_exit_1_and_change_nothing(daemon: Daemon) -> 
     cli = daemon.cli("move", "500", "0", "2")
     assert cli.returncode == 1
     assert "refused" in cli.stderr and "outside" in cli.stderr
+    # arm on an armed robot is not an error: it says so, exits 0 and changes nothing
     cli = daemon.cli("arm")
-    assert cli.returncode == 1
-    assert "not allowed in HOLDING" in cli.stderr
+    assert cli.returncode == 0, cli.stderr
+    assert cli.stdout == "arm: already armed, state HOLDING\n"
     cli = daemon.cli("move", "nan", "0", "2")
     assert cli.returncode == 1
     assert "finite" in cli.stderr
