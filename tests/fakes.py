@@ -70,6 +70,8 @@ class FakeDriver:
         self.command_times: list[float] = []
         self.calls: list[str] = []
         self.follow = True
+        self.reading_age_s = 0.0
+        """How old every reading is when it is read (a late bus, a starved driver thread)."""
         """Commanded positions become the encoder positions at the next poll."""
         self.silent: set[int] = set()
         """Node ids that send nothing (encoder and heartbeat stop)."""
@@ -106,8 +108,8 @@ class FakeDriver:
                 new = self._pending_cmd[i]
                 r.velocity_rps = 0.0
                 r.position_rev = new
-            r.stamp_s = now
-            r.stamp_ns = int(now * 1e9)
+            r.stamp_s = now - self.reading_age_s
+            r.stamp_ns = int(r.stamp_s * 1e9)
             if r.node_id not in self.heartbeat_silent:
                 r.heartbeat_stamp_s = now
             r.axis_error = self.axis_error.get(r.node_id, 0)

@@ -373,6 +373,28 @@ def test_tracking_error_fault() -> None:
     _assert_fault_holds(rig, "tracking_error", rig.driver.commands[-1])
 
 
+def test_tracking_error_allows_what_the_set_point_moved_since_the_readings() -> None:
+    """Readings 0.1 s old show the effector where it was 0.1 s ago: at speed v the set-point
+    has moved on by v x 0.1 s since, which is no lag of the robot; beyond it is."""
+    rig = _armed_rig(tracking_max_m=0.02, stale_timeout_s=0.5)
+    rig.driver.reading_age_s = 0.1
+    rig.do(Move(_target(rig, 1.0)))
+    rig.until(lambda: _norm(rig.ctl.planner.velocity_mps) > 0.3, 2000)
+    rig.driver.follow = False  # from here the pose stays behind
+    stopped_at = rig.ctl.pose_m
+    rig.until(lambda: rig.ctl.state is State.FAULT, 5000)
+    assert rig.ctl.reason is not None and rig.ctl.reason.startswith("tracking_error:")
+    lag = _dist(rig.ctl.setpoint_m, stopped_at)
+    # The set-point flew at 0.3 m/s or more all along: the fault came only past the limit plus
+    # its travel over the readings' age (at least 0.03 m), not at the bare 0.02 m.
+    assert lag > 0.02 + 0.1 * 0.3 - 1e-3, lag
+    assert lag < 0.2, lag  # and it did come
+
+
+def _norm(v: Any) -> float:
+    return math.sqrt(sum(float(x) ** 2 for x in v))
+
+
 def test_one_lost_frame_is_counted_not_a_fault() -> None:
     rig = _armed_rig()  # faults.bus_error_timeout_s = 0.05 s: 25 ticks at 500 Hz
     rig.driver.fail_bus("ENOBUFS")
