@@ -5,6 +5,9 @@ what one serving run is (`_serve`: answer frames and step the nodes until the st
 set); this class starts it once in a daemon thread, stops and joins it, and makes the bank a
 context manager. The bank does not own the bus: the caller shuts it down after `stop()`.
 
+`take_queued` is the families' rule for a tick that falls due late: every frame already
+received is handled before the tick is stepped (a real drive handles each frame as it arrives).
+
 `add_bus_arguments` and `serve_process` are the shared part of the families' command lines
 (`python -m drivers.odrive.sim`, `python -m drivers.cia402.sim`): the bus options, and serving
 until SIGTERM/SIGINT (or `--duration-s`) with "READY <nodes>" on stdout once the bus is open.
@@ -22,6 +25,33 @@ from typing import TYPE_CHECKING, Any, Self
 
 if TYPE_CHECKING:
     import can
+
+
+MAX_QUEUED_FRAMES_PER_TICK = 10_000
+"""`take_queued` handles at most this many frames before a tick (a flooded bus cannot stop the
+simulated drives from stepping)."""
+
+
+def take_queued(bus: can.BusABC, handle: Callable[[can.Message], None]) -> int:
+    """Hand every frame already waiting on `bus` to `handle` without blocking (at most
+    `MAX_QUEUED_FRAMES_PER_TICK`); returns how many were taken.
+
+    A serving loop calls it when a tick is due, before stepping: a loop that is late on its
+    ticks (a loaded host, a slow physical plant) would otherwise step tick after tick without
+    reading the bus, and its drives would miss the host's set-points and feeds (an axis watchdog
+    expiring on a host that is sending). Receive errors end the drain; nothing raises.
+    """
+    taken = 0
+    while taken < MAX_QUEUED_FRAMES_PER_TICK:
+        try:
+            msg = bus.recv(timeout=0.0)
+        except Exception:  # a simulated node survives a broken bus
+            break
+        if msg is None:
+            break
+        taken += 1
+        handle(msg)
+    return taken
 
 
 class ThreadedSimBank:
