@@ -20,9 +20,12 @@ from controller.service.loop import Controller
 from controller.service.simulated import start_sim_bank
 from drivers.bus import open_bus
 from drivers.odrive.driver import ODriveReels
+from tests.conftest import slow_factor_value
 from tests.fakes import RecordingPublisher, make_config
 
 RATE_HZ = 250.0
+DEADLINE_SCALE = 4.0 * slow_factor_value()
+"""`PhysicalRig.wait` deadlines are the quiet-host figures times this (a loaded host, the VM)."""
 
 
 class PhysicalRig:
@@ -79,10 +82,13 @@ class PhysicalRig:
         self.sim_bus.shutdown()
 
     def wait(self, pred: Callable[[], bool], timeout_s: float, what: str) -> float:
-        """Poll `pred` until it holds (at most `timeout_s`); returns the seconds it took."""
+        """Poll `pred` until it holds (at most `timeout_s` times `DEADLINE_SCALE`: the
+        simulated plant runs slower than real time on a loaded host); returns the seconds it
+        took."""
         t0 = time.monotonic()
+        deadline_s = timeout_s * DEADLINE_SCALE
         while not pred():
-            if time.monotonic() - t0 > timeout_s:
+            if time.monotonic() - t0 > deadline_s:
                 raise AssertionError(f"timed out waiting for {what}: {self.ctl.status()}")
             time.sleep(0.005)
         return time.monotonic() - t0
