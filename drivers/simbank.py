@@ -5,8 +5,9 @@ what one serving run is (`_serve`: answer frames and step the nodes until the st
 set); this class starts it once in a daemon thread, stops and joins it, and makes the bank a
 context manager. The bank does not own the bus: the caller shuts it down after `stop()`.
 
-`take_queued` is the families' rule for a tick that falls due late: every frame already
-received is handled before the tick is stepped (a real drive handles each frame as it arrives).
+`take_queued` is the families' rule for a tick that falls due late: the frames already received
+are handled before the tick is stepped (a real drive handles each frame as it arrives), for at
+most one tick's time.
 
 `add_bus_arguments` and `serve_process` are the shared part of the families' command lines
 (`python -m drivers.odrive.sim`, `python -m drivers.cia402.sim`): the bus options, and serving
@@ -19,6 +20,7 @@ import argparse
 import math
 import signal
 import threading
+import time
 from collections.abc import Callable, Sequence
 from types import FrameType, TracebackType
 from typing import TYPE_CHECKING, Any, Self
@@ -27,22 +29,20 @@ if TYPE_CHECKING:
     import can
 
 
-MAX_QUEUED_FRAMES_PER_TICK = 10_000
-"""`take_queued` handles at most this many frames before a tick (a flooded bus cannot stop the
-simulated drives from stepping)."""
-
-
-def take_queued(bus: can.BusABC, handle: Callable[[can.Message], None]) -> int:
-    """Hand every frame already waiting on `bus` to `handle` without blocking (at most
-    `MAX_QUEUED_FRAMES_PER_TICK`); returns how many were taken.
+def take_queued(bus: can.BusABC, handle: Callable[[can.Message], None], budget_s: float) -> int:
+    """Hand the frames already waiting on `bus` to `handle` without blocking, for at most
+    `budget_s` seconds (one tick's time); returns how many were taken.
 
     A serving loop calls it when a tick is due, before stepping: a loop that is late on its
     ticks (a loaded host, a slow physical plant) would otherwise step tick after tick without
     reading the bus, and its drives would miss the host's set-points and feeds (an axis watchdog
-    expiring on a host that is sending). Receive errors end the drain; nothing raises.
+    expiring on a host that is sending). The budget keeps the reverse from happening: on a host
+    too slow for the traffic, handling and ticks alternate, so the drives still step and send
+    their heartbeats. Receive errors end the drain; nothing raises.
     """
     taken = 0
-    while taken < MAX_QUEUED_FRAMES_PER_TICK:
+    end_s = time.monotonic() + budget_s
+    while True:
         try:
             msg = bus.recv(timeout=0.0)
         except Exception:  # a simulated node survives a broken bus
@@ -51,6 +51,8 @@ def take_queued(bus: can.BusABC, handle: Callable[[can.Message], None]) -> int:
             break
         taken += 1
         handle(msg)
+        if time.monotonic() >= end_s:
+            break
     return taken
 
 

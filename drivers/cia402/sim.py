@@ -792,7 +792,7 @@ def run_sim(
             if msg is not None:
                 handle(msg)
             continue
-        take_queued(bus, handle)  # a late tick still hears the host first (drivers.simbank)
+        take_queued(bus, handle, tick_s)  # a late tick still hears the host first (drivers.simbank)
         dt = now - last
         last = now
         next_tick = next_tick + tick_s if remaining > -tick_s else now + tick_s
