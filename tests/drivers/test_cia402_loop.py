@@ -177,7 +177,12 @@ def test_estop_is_confirmed_by_every_drive(rig: Rig) -> None:
     assert rig.ctl.state is State.ESTOPPED
     rig.wait(lambda: rig.ctl.status()["estop"]["confirmed"], 2.0, "the e-stop confirmed")
     assert all(d.state.value != "Operation enabled" for d in rig.bank.drives)
-    assert rig.ctl.status()["estop"]["repeats"] == 0
+    # every drive obeyed the first Estop: a repeat may follow a heartbeat that came later than
+    # the confirmation window on a loaded host, never a drive heard still in closed loop
+    reasons = [str(reason) for _, reason, _ in rig.pub.states]
+    assert not [r for r in reasons if "still in closed loop" in r], reasons
+    if rig.ctl.status()["estop"]["repeats"]:
+        assert any("silent (no heartbeat since the Estop)" in r for r in reasons), reasons
 
 
 def test_silent_drive_gives_stale_fault(rig: Rig) -> None:
