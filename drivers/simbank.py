@@ -5,6 +5,10 @@ what one serving run is (`_serve`: answer frames and step the nodes until the st
 set); this class starts it once in a daemon thread, stops and joins it, and makes the bank a
 context manager. The bank does not own the bus: the caller shuts it down after `stop()`.
 
+`take_queued` is the families' rule for a tick that falls due late: the frames already received
+are handled before the tick is stepped (a real drive handles each frame as it arrives), for at
+most one tick's time.
+
 `add_bus_arguments` and `serve_process` are the shared part of the families' command lines
 (`python -m drivers.odrive.sim`, `python -m drivers.cia402.sim`): the bus options, and serving
 until SIGTERM/SIGINT (or `--duration-s`) with "READY <nodes>" on stdout once the bus is open.
@@ -16,12 +20,40 @@ import argparse
 import math
 import signal
 import threading
+import time
 from collections.abc import Callable, Sequence
 from types import FrameType, TracebackType
 from typing import TYPE_CHECKING, Any, Self
 
 if TYPE_CHECKING:
     import can
+
+
+def take_queued(bus: can.BusABC, handle: Callable[[can.Message], None], budget_s: float) -> int:
+    """Hand the frames already waiting on `bus` to `handle` without blocking, for at most
+    `budget_s` seconds (one tick's time); returns how many were taken.
+
+    A serving loop calls it when a tick is due, before stepping: a loop that is late on its
+    ticks (a loaded host, a slow physical plant) would otherwise step tick after tick without
+    reading the bus, and its drives would miss the host's set-points and feeds (an axis watchdog
+    expiring on a host that is sending). The budget keeps the reverse from happening: on a host
+    too slow for the traffic, handling and ticks alternate, so the drives still step and send
+    their heartbeats. Receive errors end the drain; nothing raises.
+    """
+    taken = 0
+    end_s = time.monotonic() + budget_s
+    while True:
+        try:
+            msg = bus.recv(timeout=0.0)
+        except Exception:  # a simulated node survives a broken bus
+            break
+        if msg is None:
+            break
+        taken += 1
+        handle(msg)
+        if time.monotonic() >= end_s:
+            break
+    return taken
 
 
 class ThreadedSimBank:

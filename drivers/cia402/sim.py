@@ -58,7 +58,13 @@ from canopen.sdo.exceptions import SdoAbortedError
 from drivers.cia402.profile import DriveState
 from drivers.odrive.sim import DEFAULT_POS_GAIN, MAX_SUBSTEP_S
 from drivers.registry import SimSettings
-from drivers.simbank import ThreadedSimBank, add_bus_arguments, floats_arg, serve_process
+from drivers.simbank import (
+    ThreadedSimBank,
+    add_bus_arguments,
+    floats_arg,
+    serve_process,
+    take_queued,
+)
 
 EDS_PATH = Path(__file__).with_name("cia402.eds")
 DEFAULT_COUNTS_PER_REV = 131072
@@ -766,6 +772,11 @@ def run_sim(
             with contextlib.suppress(Exception):  # a simulated drive survives a broken bus
                 bus.send(msg, timeout=0.01)
 
+    def handle(msg: can.Message) -> None:
+        if not (msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame):
+            for d in drives:
+                send(d.handle(msg.arbitration_id, msg.data, msg.timestamp))
+
     clock = time.monotonic
     last = clock()
     next_tick = last
@@ -778,15 +789,10 @@ def run_sim(
             except Exception:
                 msg = None
                 time.sleep(min(remaining, 0.001))
-            if (
-                msg is not None
-                and not msg.is_error_frame
-                and not msg.is_extended_id
-                and not msg.is_remote_frame
-            ):
-                for d in drives:
-                    send(d.handle(msg.arbitration_id, msg.data, msg.timestamp))
+            if msg is not None:
+                handle(msg)
             continue
+        take_queued(bus, handle, tick_s)  # a late tick still hears the host first (drivers.simbank)
         dt = now - last
         last = now
         next_tick = next_tick + tick_s if remaining > -tick_s else now + tick_s

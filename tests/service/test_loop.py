@@ -1139,3 +1139,24 @@ def test_estop_with_a_silent_node_is_reported() -> None:
     rig.tick(int(0.3 * RATE_HZ))
     assert f"node {silent} silent" in str(rig.ctl.reason)
     assert rig.ctl.status()["estop"]["unconfirmed_nodes"] == [silent]
+
+
+def test_a_state_and_its_reason_are_published_before_the_controller_reports_them() -> None:
+    """Whoever reads `state`/`reason` (another thread) finds them already published: at each
+    publication the controller still reports what it reported before."""
+    cfg = make_config()
+    clock = FakeClock()
+    driver = FakeDriver([r.node_id for r in cfg.reels], clock, power_up_turns(cfg))
+    seen: list[tuple[str, str | None, str, str | None]] = []
+
+    class Pub(RecordingPublisher):
+        def publish_state(self, state: str, reason: str | None, stamp_ns: int) -> None:
+            seen.append((state, reason, ctl.state.value, ctl.reason))
+            super().publish_state(state, reason, stamp_ns)
+
+    ctl = Controller(cfg, driver, Pub(), clock=clock)
+    ctl.submit(Estop())
+    ctl.tick(clock.advance(0.004))
+    assert ctl.state is State.ESTOPPED
+    assert [s[:2] for s in seen] == [("ESTOPPED", ctl.reason)]
+    assert all(s[2:] != s[:2] for s in seen), seen

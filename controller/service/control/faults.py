@@ -21,24 +21,28 @@ class FaultHandling(ControllerState):
             return
         check_transition(self.state, new)
         old = self.state
-        self.state = new
-        self.reason = reason
-        self.state_stamp_ns = self._wall_ns()
+        stamp_ns = self._wall_ns()
         if new is State.FAULT or new is State.ESTOPPED:
             log.error("state %s -> %s: %s", old.value, new.value, reason)
         else:
             log.info("state %s -> %s%s", old.value, new.value, f": {reason}" if reason else "")
-        try:
-            self.publisher.publish_state(new.value, reason, self.state_stamp_ns)
-        except Exception:
-            log.exception("publish_state failed")
+        self._publish_state(new, reason, stamp_ns)
+        # Recorded once published: whoever reads `state` and `reason` (another thread, the
+        # status query) finds them already on the state key, never ahead of it.
+        self.state = new
+        self.reason = reason
+        self.state_stamp_ns = stamp_ns
 
     def _set_reason(self, reason: str) -> None:
-        """Change the reason of the current state and publish it (same state, new reason)."""
-        self.reason = reason
+        """Change the reason of the current state and publish it (same state, new reason);
+        `reason` is recorded once published, as in a state change."""
         log.error("state %s: %s", self.state.value, reason)
+        self._publish_state(self.state, reason, self._wall_ns())
+        self.reason = reason
+
+    def _publish_state(self, state: State, reason: str | None, stamp_ns: int) -> None:
         try:
-            self.publisher.publish_state(self.state.value, reason, self._wall_ns())
+            self.publisher.publish_state(state.value, reason, stamp_ns)
         except Exception:
             log.exception("publish_state failed")
 

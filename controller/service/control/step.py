@@ -200,11 +200,13 @@ class ControlStep(CommandExecution):
                 f"node {r.node_id} ({r.state_name}"
                 f"{'' if r.fault is None else ', ' + r.fault}"
                 f"{', no encoder' if r.stamp_s < self._arm_start_s else ''}"
-                f"{'' if r.status_fresh() else ', no answer since the arm'})"
+                f"{'' if r.status_fresh() else ', no answer since the arm'}"
+                f"{'' if r.heartbeat_stamp_s >= self._arm_start_s else ', no heartbeat since it'})"
                 for r in readings
                 if not (r.ready and r.status_fresh())
                 or r.fault is not None
                 or r.stamp_s < self._arm_start_s
+                or r.heartbeat_stamp_s < self._arm_start_s
             ]
             why = ", ".join(bad) if bad else "no valid pose"
             self._fault(f"arm_timeout: {why}")
