@@ -12,7 +12,7 @@ OK: Final = 0
 """Done."""
 REFUSED: Final = 1
 """The daemon refused the command (its reason is printed), the input (numbers, a path or
-configuration file) is invalid, `run` could not start (Zenoh, bus), or the robot stopped
+configuration file) is invalid, `run` or `sim` could not start (Zenoh, bus), or the robot stopped
 (FAULT/ESTOPPED/DISARMED) while `--wait`ed on."""
 USAGE: Final = 2
 """Usage error (argparse: unknown option, missing argument, bad `--connect`); for `run`, `sim`
@@ -33,7 +33,8 @@ TABLE: Final[tuple[tuple[int, str], ...]] = (
     (OK, "done"),
     (
         REFUSED,
-        "refused by the daemon (its reason is printed), invalid input, or `run` could not start;"
+        "refused by the daemon (its reason is printed), invalid input, or `run` or `sim` could not"
+        " start (Zenoh, bus);"
         " a `--wait`ed motion ended in FAULT, ESTOPPED or DISARMED",
     ),
     (

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from controller.cli import exitcodes, main
 from tests.daemon_procs import CABLEBOT, Proc, udp_bus, write_config
 
 
@@ -49,3 +50,19 @@ def test_the_sim_process_stays_at_normal_priority_without_loop_realtime(tmp_path
         assert fifo_threads(sim.p.pid) == []
     finally:
         assert sim.terminate() == 0, sim.log()
+
+
+def test_sim_without_the_bus_says_so_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A SocketCAN interface this machine lacks: one clean line and exit 1 (as `run`), no
+    traceback."""
+    cfg, _info = write_config(
+        tmp_path, {"interface": "socketcan", "channel": "nocan-sim9", "bitrate": 1_000_000}
+    )
+    rc = main(["sim", "--config", str(cfg)])
+    err = capsys.readouterr().err
+    assert rc == exitcodes.REFUSED, err
+    assert "Traceback" not in err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "start-up failed" in lines[0] and "nocan-sim9" in lines[0], err
