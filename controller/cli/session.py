@@ -175,7 +175,8 @@ def live_prefixes(session: Any, timeout_s: float = LIVELINESS_TIMEOUT_S) -> list
     return sorted(found)
 
 
-def _absent_message(args: argparse.Namespace, exc: DaemonAbsent) -> str:
+def absent_message(args: argparse.Namespace, exc: DaemonAbsent) -> str:
+    """The line for "no daemon answered on --prefix", naming the live prefixes (`exc.live`)."""
     text = f"no cablebot daemon answered on {args.prefix} via {args.connect} ({exc})"
     others = [p for p in exc.live if p != args.prefix.rstrip("/")]
     if others:
@@ -207,7 +208,7 @@ def run_with_session(args: argparse.Namespace, body: Callable[[Any], int]) -> in
         print(f"cablebot: {exc}", file=sys.stderr)
         return exitcodes.USAGE
     except DaemonAbsent as exc:
-        print(f"cablebot: {_absent_message(args, exc)}", file=sys.stderr)
+        print(f"cablebot: {absent_message(args, exc)}", file=sys.stderr)
         return exitcodes.NO_DAEMON
     except Failed as exc:
         print(f"cablebot: accepted, then {exc}", file=sys.stderr)
