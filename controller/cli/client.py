@@ -400,13 +400,22 @@ def cmd_path(args: argparse.Namespace) -> int:
         return EXIT_REFUSED
     points = [[float(v) for v in p] for p in payload["points_m"]]
     if len(points) > MAX_PATH_POINTS_SENT:
-        return _stream_path(args, payload.get("speed_mps"), points)
+        return _stream_path(
+            args, payload.get("speed_mps"), points, append=payload.get("append") is True
+        )
     return _motion(args, "path", payload, points)
 
 
-def _stream_path(args: argparse.Namespace, speed: float | None, points: list[list[float]]) -> int:
+def _stream_path(
+    args: argparse.Namespace,
+    speed: float | None,
+    points: list[list[float]],
+    *,
+    append: bool = False,
+) -> int:
     """Stream a long path (`pathstream.stream_points`), then with --wait follow it to its end
-    as `_motion` does; Ctrl-C brakes to a hold (`_interrupted`)."""
+    as `_motion` does; Ctrl-C brakes to a hold (`_interrupted`). With `append` (the file's
+    `"append": true`) the first chunk too is appended to the path in progress."""
     from controller.cli.pathstream import StreamRefused, stream_points
 
     def body(session: Any) -> int:
@@ -418,8 +427,8 @@ def _stream_path(args: argparse.Namespace, speed: float | None, points: list[lis
             )
         line = StatusLine(sys.stdout, enabled=is_tty(sys.stdout) and not args.json)
 
-        def send(pts: list[list[float]], append: bool) -> dict[str, Any]:
-            payload: dict[str, Any] = {"points_m": pts, "append": append}
+        def send(pts: list[list[float]], more: bool) -> dict[str, Any]:
+            payload: dict[str, Any] = {"points_m": pts, "append": more or append}
             if speed is not None:
                 payload["speed_mps"] = speed
             reply: dict[str, Any] = query(session, _key(args, "cmd/path"), payload, args.timeout)

@@ -8,6 +8,7 @@ import os
 import queue
 import signal
 import time
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -132,3 +133,32 @@ def test_wait_timeout_says_the_motion_goes_on() -> None:
     args = argparse.Namespace(json=True, wait_timeout=0.05, timeout=5.0)
     with pytest.raises(client.WaitTimeout, match=r"goes on with the motion.*cablebot stop"):
         client._wait_arrival(args, "move", poses, [[1.0, 0.0, 2.0]])
+
+
+@pytest.mark.parametrize("n_points", [3, client.MAX_PATH_POINTS_SENT + 5])
+def test_path_file_append_is_sent_as_an_append(
+    n_points: int, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`{"points_m": ..., "append": true}`: the first `path` command sent appends, short or
+    streamed."""
+    from controller.cli import pathstream
+
+    payloads: list[Any] = []
+
+    def fake_query(session: Any, key: str, payload: Any, timeout_s: float) -> Any:
+        if key.endswith("cmd/path"):
+            payloads.append(payload)
+        return {"ok": True, "state": "HOLDING"}
+
+    def one_chunk(points: Any, send: Any, *_a: Any, **_k: Any) -> Any:
+        send(points[:2], False)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(client, "query", fake_query)
+    monkeypatch.setattr(client, "_run", lambda args, body: body(_FakeSession()))
+    monkeypatch.setattr(pathstream, "stream_points", one_chunk)
+    f = tmp_path / "more.json"
+    pts = [[0.1 * (i % 7), 0.0, 2.0] for i in range(n_points)]
+    f.write_text(json.dumps({"points_m": pts, "append": True}))
+    main(["path", str(f)])
+    assert payloads and payloads[0]["append"] is True, payloads
