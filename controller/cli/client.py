@@ -58,6 +58,7 @@ from controller.cli.session import (
     live_prefixes,
     normalize_endpoint,
     open_session,
+    positive_count,
     query,
     run_with_session,
 )
@@ -779,7 +780,9 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     """Register pose, status, move, path, stop, estop, arm, disarm, reset, home."""
     p = sub.add_parser("pose", help="follow the published pose")
     add_connection_arguments(p)
-    p.add_argument("--count", type=int, default=None, metavar="N", help="stop after N lines")
+    p.add_argument(
+        "--count", type=positive_count, default=None, metavar="N", help="stop after N lines"
+    )
     p.add_argument(
         "--rate",
         type=float,
