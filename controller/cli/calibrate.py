@@ -34,7 +34,15 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO, Any
 
-from controller.cli.client import ARRIVED_TOL_M, EXIT_OK, EXIT_REFUSED, _key, _run
+from controller.cli.client import (
+    ARRIVED_TOL_M,
+    EXIT_OK,
+    EXIT_REFUSED,
+    _interrupted,
+    _key,
+    _run,
+    signals_interrupt,
+)
 from controller.cli.formats import format_pose
 from controller.cli.session import (
     DaemonAbsent,
@@ -380,24 +388,28 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
                     f"{_duration(total_s)}; samples go to {args.out}",
                     flush=True,
                 )
-                t0 = time.monotonic()
-                here: Sequence[float] = start_m
-                for i, target in enumerate(targets, start=1):
-                    payload: dict[str, Any] = {"position_m": list(target)}
-                    if args.speed is not None:
-                        payload["speed_mps"] = args.speed
-                    _, left_s = auto_estimate_s(
-                        here, targets[i - 1 :], speed_mps, accel_mps2, args.settle_s
-                    )
-                    here = target
-                    print(
-                        f"pose {i}/{len(targets)} ({_duration(time.monotonic() - t0)} in, about "
-                        f"{_duration(left_s)} left): move to "
-                        f"x={target[0]:+.4f} y={target[1]:+.4f} z={target[2]:+.4f} m",
-                        flush=True,
-                    )
-                    query(session, _key(args, "cmd/move"), payload, args.timeout)
-                    record(target)
+                try:
+                    with signals_interrupt():  # SIGTERM, SIGHUP: as Ctrl-C
+                        t0 = time.monotonic()
+                        here: Sequence[float] = start_m
+                        for i, target in enumerate(targets, start=1):
+                            payload: dict[str, Any] = {"position_m": list(target)}
+                            if args.speed is not None:
+                                payload["speed_mps"] = args.speed
+                            _, left_s = auto_estimate_s(
+                                here, targets[i - 1 :], speed_mps, accel_mps2, args.settle_s
+                            )
+                            here = target
+                            print(
+                                f"pose {i}/{len(targets)} ({_duration(time.monotonic() - t0)} in,"
+                                f" about {_duration(left_s)} left): move to "
+                                f"x={target[0]:+.4f} y={target[1]:+.4f} z={target[2]:+.4f} m",
+                                flush=True,
+                            )
+                            query(session, _key(args, "cmd/move"), payload, args.timeout)
+                            record(target)
+                except KeyboardInterrupt:  # the robot moves: brake to a hold, as `move --wait`
+                    return _interrupted(session, args)
             else:
                 print(
                     "drive the robot to a pose (move, jog, or by hand while disarmed), wait, "

@@ -17,10 +17,12 @@ import io
 import json
 import math
 import queue
+import signal
 import sys
+import threading
 import time
-from collections.abc import Sequence
-from contextlib import suppress
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager, suppress
 from typing import Any
 
 from controller.cli import add_xyz_arguments, exitcodes, xyz_from_args
@@ -56,6 +58,7 @@ from controller.cli.session import (
     live_prefixes,
     normalize_endpoint,
     open_session,
+    positive_count,
     query,
     run_with_session,
 )
@@ -355,8 +358,22 @@ def _pretension(args: argparse.Namespace, payload: dict[str, Any]) -> int:
     return _run(args, body)
 
 
+def _bad_wait_timeout(args: argparse.Namespace) -> bool:
+    """True (and the reason printed) when `--wait-timeout` is not a number of seconds > 0."""
+    if math.isfinite(args.wait_timeout) and args.wait_timeout > 0.0:
+        return False
+    print(
+        f"cablebot {args.command}: --wait-timeout must be a number of seconds > 0,"
+        f" got {args.wait_timeout:g}",
+        file=sys.stderr,
+    )
+    return True
+
+
 def cmd_move(args: argparse.Namespace) -> int:
     """move X Y Z [--speed V] [--wait]: command a straight move (and follow it)."""
+    if _bad_wait_timeout(args):
+        return EXIT_USAGE
     try:
         target = _vec3(xyz_from_args(args), "move")
         payload: dict[str, Any] = {"position_m": target}
@@ -372,6 +389,8 @@ def cmd_move(args: argparse.Namespace) -> int:
 def cmd_path(args: argparse.Namespace) -> int:
     """path FILE [--speed V] [--wait]: command a multi-point path; a file longer than one
     command carries is streamed (`controller.cli.pathstream`)."""
+    if _bad_wait_timeout(args):
+        return EXIT_USAGE
     try:
         payload = load_path_file(args.file, stream=True)
         speed = _speed(args.speed)
@@ -382,13 +401,22 @@ def cmd_path(args: argparse.Namespace) -> int:
         return EXIT_REFUSED
     points = [[float(v) for v in p] for p in payload["points_m"]]
     if len(points) > MAX_PATH_POINTS_SENT:
-        return _stream_path(args, payload.get("speed_mps"), points)
+        return _stream_path(
+            args, payload.get("speed_mps"), points, append=payload.get("append") is True
+        )
     return _motion(args, "path", payload, points)
 
 
-def _stream_path(args: argparse.Namespace, speed: float | None, points: list[list[float]]) -> int:
+def _stream_path(
+    args: argparse.Namespace,
+    speed: float | None,
+    points: list[list[float]],
+    *,
+    append: bool = False,
+) -> int:
     """Stream a long path (`pathstream.stream_points`), then with --wait follow it to its end
-    as `_motion` does; Ctrl-C brakes to a hold (`_interrupted`)."""
+    as `_motion` does; Ctrl-C brakes to a hold (`_interrupted`). With `append` (the file's
+    `"append": true`) the first chunk too is appended to the path in progress."""
     from controller.cli.pathstream import StreamRefused, stream_points
 
     def body(session: Any) -> int:
@@ -400,8 +428,8 @@ def _stream_path(args: argparse.Namespace, speed: float | None, points: list[lis
             )
         line = StatusLine(sys.stdout, enabled=is_tty(sys.stdout) and not args.json)
 
-        def send(pts: list[list[float]], append: bool) -> dict[str, Any]:
-            payload: dict[str, Any] = {"points_m": pts, "append": append}
+        def send(pts: list[list[float]], more: bool) -> dict[str, Any]:
+            payload: dict[str, Any] = {"points_m": pts, "append": more or append}
             if speed is not None:
                 payload["speed_mps"] = speed
             reply: dict[str, Any] = query(session, _key(args, "cmd/path"), payload, args.timeout)
@@ -418,41 +446,47 @@ def _stream_path(args: argparse.Namespace, speed: float | None, points: list[lis
 
         t0 = time.monotonic()
         try:
-            try:
-                prog = stream_points(
-                    points, send, status, line.show, refused=Refused, before_last=drain
-                )
-            except StreamRefused as exc:
-                line.clear()
-                raise Refused(str(exc)) from None
-            line.clear()
-            summary = {
-                "points": prog.sent,
-                "commands": prog.commands,
-                "retries": prog.retries,
-                "queued_points": prog.queued_points,
-                "queued_s": prog.queued_s,
-                "elapsed_s": time.monotonic() - t0,
-            }
-            if args.json:
-                print(json.dumps({"ok": True, "streamed": summary}), flush=True)
-            else:
-                print(
-                    f"path: {prog.sent} points sent in {prog.commands} commands "
-                    f"({summary['elapsed_s']:.1f} s); {prog.queued_points} queued",
-                    flush=True,
-                )
-            if not args.wait:
-                return EXIT_OK
-            moving = status().get("state") == "MOVING"
-            tail = points[-MAX_PATH_POINTS_SENT:]
-            return _wait_arrival(args, "path", poses, tail, seen_moving=not moving)
+            with signals_interrupt(_waits_for_motion(args)):
+                return _stream(send, status, drain, line, poses, t0)
         except KeyboardInterrupt:
             line.clear()
             return _interrupted(session, args)
         finally:
             if sub is not None:
                 sub.undeclare()
+
+    def _stream(
+        send: Any, status: Any, drain: Any, line: StatusLine, poses: queue.Queue[bytes], t0: float
+    ) -> int:
+        try:
+            prog = stream_points(
+                points, send, status, line.show, refused=Refused, before_last=drain
+            )
+        except StreamRefused as exc:
+            line.clear()
+            raise Refused(str(exc)) from None
+        line.clear()
+        summary = {
+            "points": prog.sent,
+            "commands": prog.commands,
+            "retries": prog.retries,
+            "queued_points": prog.queued_points,
+            "queued_s": prog.queued_s,
+            "elapsed_s": time.monotonic() - t0,
+        }
+        if args.json:
+            print(json.dumps({"ok": True, "streamed": summary}), flush=True)
+        else:
+            print(
+                f"path: {prog.sent} points sent in {prog.commands} commands "
+                f"({summary['elapsed_s']:.1f} s); {prog.queued_points} queued",
+                flush=True,
+            )
+        if not args.wait:
+            return EXIT_OK
+        moving = status().get("state") == "MOVING"
+        tail = points[-MAX_PATH_POINTS_SENT:]
+        return _wait_arrival(args, "path", poses, tail, seen_moving=not moving)
 
     return _run(args, body)
 
@@ -468,23 +502,57 @@ def _motion(
                 _key(args, "pose"), lambda s: poses.put(s.payload.to_bytes())
             )
         try:
-            reply = query(session, _key(args, f"cmd/{verb}"), payload, args.timeout)
-            _print_reply(verb, reply, args)
-            if not args.wait:
-                return EXIT_OK
-            # The daemon replies once the motion has started (MOVING). Poses published before it
-            # took the command may already be in the queue, HOLDING where a path also ends: they
-            # must not count as arrival. Unless the motion is already over, wait to see it move.
-            status = query(session, _key(args, "status"), None, args.timeout)
-            moving = isinstance(status, dict) and status.get("state") == "MOVING"
-            return _wait_arrival(args, verb, poses, points, seen_moving=not moving)
+            with signals_interrupt(_waits_for_motion(args)):
+                return _send_and_wait(session, poses)
         except KeyboardInterrupt:
             return _interrupted(session, args)
         finally:
             if sub is not None:
                 sub.undeclare()
 
+    def _send_and_wait(session: Any, poses: queue.Queue[bytes]) -> int:
+        reply = query(session, _key(args, f"cmd/{verb}"), payload, args.timeout)
+        _print_reply(verb, reply, args)
+        if not args.wait:
+            return EXIT_OK
+        # The daemon replies once the motion has started (MOVING). Poses published before it
+        # took the command may already be in the queue, HOLDING where a path also ends: they
+        # must not count as arrival. Unless the motion is already over, wait to see it move.
+        status = query(session, _key(args, "status"), None, args.timeout)
+        moving = isinstance(status, dict) and status.get("state") == "MOVING"
+        return _wait_arrival(args, verb, poses, points, seen_moving=not moving)
+
     return _run(args, body)
+
+
+WAIT_SIGNALS: tuple[signal.Signals, ...] = tuple(
+    getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)
+)
+"""Signals that, while a motion is waited on, count as Ctrl-C (the terminal closed, `kill`)."""
+
+
+def _raise_interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def signals_interrupt(enabled: bool = True) -> Iterator[None]:
+    """Within the block SIGTERM and SIGHUP raise KeyboardInterrupt (as Ctrl-C does), so a
+    waited-on motion is stopped however the CLI is ended; the previous handlers come back
+    after. A no-op when not `enabled` or off the main thread. Raises nothing itself."""
+    if not enabled or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {sig: signal.signal(sig, _raise_interrupt) for sig in WAIT_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def _waits_for_motion(args: argparse.Namespace) -> bool:
+    return bool(getattr(args, "wait", False)) and not getattr(args, "detach", False)
 
 
 INTERRUPT_STOP_TEXT = "interrupted: braking to a hold"
@@ -545,7 +613,10 @@ def _wait_arrival(
             now = time.monotonic()
             if now >= deadline:
                 where = "" if last is None else f"; last {format_pose(last)}"
-                raise WaitTimeout(f"not at the target after {args.wait_timeout:g} s{where}")
+                raise WaitTimeout(
+                    f"not at the target after {args.wait_timeout:g} s{where}; the robot goes on"
+                    " with the motion (`cablebot stop` stops it)"
+                )
             try:
                 data = poses.get(timeout=min(0.5, deadline - now))
             except queue.Empty:
@@ -709,7 +780,9 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     """Register pose, status, move, path, stop, estop, arm, disarm, reset, home."""
     p = sub.add_parser("pose", help="follow the published pose")
     add_connection_arguments(p)
-    p.add_argument("--count", type=int, default=None, metavar="N", help="stop after N lines")
+    p.add_argument(
+        "--count", type=positive_count, default=None, metavar="N", help="stop after N lines"
+    )
     p.add_argument(
         "--rate",
         type=float,

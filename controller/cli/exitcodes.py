@@ -12,7 +12,7 @@ OK: Final = 0
 """Done."""
 REFUSED: Final = 1
 """The daemon refused the command (its reason is printed), the input (numbers, a path or
-configuration file) is invalid, `run` could not start (Zenoh, bus), or the robot stopped
+configuration file) is invalid, `run` or `sim` could not start (Zenoh, bus), or the robot stopped
 (FAULT/ESTOPPED/DISARMED) while `--wait`ed on."""
 USAGE: Final = 2
 """Usage error (argparse: unknown option, missing argument, bad `--connect`); for `run`, `sim`
@@ -23,7 +23,8 @@ time."""
 WAIT_TIMEOUT: Final = 4
 """`--wait`: the robot did not reach the end point within `--wait-timeout`."""
 INTERRUPTED: Final = 130
-"""Ctrl-C (SIGINT)."""
+"""Ctrl-C (SIGINT); while a motion is waited on (`--wait`, `calibrate collect --auto`) also
+SIGTERM or SIGHUP, after sending `stop`."""
 BROKEN_PIPE: Final = 141
 """The reader of the output went away (`cablebot pose | head`): stopped quietly, as a process
 killed by SIGPIPE would be."""
@@ -32,7 +33,8 @@ TABLE: Final[tuple[tuple[int, str], ...]] = (
     (OK, "done"),
     (
         REFUSED,
-        "refused by the daemon (its reason is printed), invalid input, or `run` could not start;"
+        "refused by the daemon (its reason is printed), invalid input, or `run` or `sim` could not"
+        " start (Zenoh, bus);"
         " a `--wait`ed motion ended in FAULT, ESTOPPED or DISARMED",
     ),
     (
@@ -45,7 +47,11 @@ TABLE: Final[tuple[tuple[int, str], ...]] = (
         "no daemon answered (nothing listening, wrong `--prefix`, no reply or pose in time)",
     ),
     (WAIT_TIMEOUT, "`--wait`: not at the end point within `--wait-timeout`"),
-    (INTERRUPTED, "interrupted (Ctrl-C)"),
+    (
+        INTERRUPTED,
+        "interrupted (Ctrl-C; while a motion is waited on, also SIGTERM or SIGHUP): the robot"
+        " brakes to a hold unless `--detach`",
+    ),
     (BROKEN_PIPE, "the output's reader went away (e.g. `head` closed the pipe); nothing printed"),
 )
 """(code, meaning) rows, in the order of the table in docs/operating.md."""

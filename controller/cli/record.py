@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import queue
 import signal
 import sys
@@ -376,10 +377,17 @@ def positive_number(text: str) -> float:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    """Entry point of `cablebot record`: 0 when the file was written, 1 bad input, 2 a bad
-    `--connect`, 3 no daemon."""
+    """Entry point of `cablebot record`: 0 when the file was written, 1 bad input (or FILE
+    exists without `--force`), 2 a bad `--connect`, 3 no daemon alive on `--prefix`."""
     from controller.cli.client import EXIT_ABSENT, EXIT_OK, EXIT_REFUSED, EXIT_USAGE
-    from controller.cli.session import DaemonAbsent, UsageError, normalize_endpoint, open_session
+    from controller.cli.session import (
+        DaemonAbsent,
+        UsageError,
+        absent_message,
+        live_prefixes,
+        normalize_endpoint,
+        open_session,
+    )
 
     try:
         args.connect = normalize_endpoint(args.connect)
@@ -387,6 +395,9 @@ def cmd_record(args: argparse.Namespace) -> int:
         print(f"cablebot record: {exc}", file=sys.stderr)
         return EXIT_USAGE
 
+    if os.path.exists(args.file) and not args.force:
+        print(f"cablebot record: {args.file} exists; --force to overwrite it", file=sys.stderr)
+        return EXIT_REFUSED
     prefix = args.prefix.rstrip("/")
     config_summary: dict[str, Any] | None = None
     config_text: bytes | None = None
@@ -408,6 +419,11 @@ def cmd_record(args: argparse.Namespace) -> int:
     rec: McapRecorder | None = None
     try:
         with open_session(args.connect, config_file=args.zenoh_config) as session:
+            live = live_prefixes(session)
+            if prefix not in live:
+                absent = DaemonAbsent(f"no daemon alive on {prefix}")
+                absent.live = tuple(live)
+                raise absent
             try:
                 out = open(args.file, "wb")  # noqa: SIM115 (closed in the finally below)
             except OSError as exc:
@@ -437,7 +453,7 @@ def cmd_record(args: argparse.Namespace) -> int:
                 finally:
                     out.close()
     except DaemonAbsent as exc:
-        print(f"cablebot record: no cablebot daemon answered ({exc})", file=sys.stderr)
+        print(f"cablebot record: {absent_message(args, exc)}", file=sys.stderr)
         return EXIT_ABSENT
     except UsageError as exc:  # a --zenoh-config file Zenoh rejects
         print(f"cablebot record: {exc}", file=sys.stderr)
@@ -546,7 +562,8 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         ),
     )
     add_connection_arguments(p)
-    p.add_argument("file", metavar="FILE.mcap", help="the file to write (replaced)")
+    p.add_argument("file", metavar="FILE.mcap", help="the file to write")
+    p.add_argument("--force", action="store_true", help="overwrite FILE.mcap if it exists")
     p.add_argument(
         "--duration", type=positive_number, default=None, metavar="S", help="stop after S s"
     )

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import sys
 from collections.abc import Callable, Iterator
@@ -175,7 +176,8 @@ def live_prefixes(session: Any, timeout_s: float = LIVELINESS_TIMEOUT_S) -> list
     return sorted(found)
 
 
-def _absent_message(args: argparse.Namespace, exc: DaemonAbsent) -> str:
+def absent_message(args: argparse.Namespace, exc: DaemonAbsent) -> str:
+    """The line for "no daemon answered on --prefix", naming the live prefixes (`exc.live`)."""
     text = f"no cablebot daemon answered on {args.prefix} via {args.connect} ({exc})"
     others = [p for p in exc.live if p != args.prefix.rstrip("/")]
     if others:
@@ -207,7 +209,7 @@ def run_with_session(args: argparse.Namespace, body: Callable[[Any], int]) -> in
         print(f"cablebot: {exc}", file=sys.stderr)
         return exitcodes.USAGE
     except DaemonAbsent as exc:
-        print(f"cablebot: {_absent_message(args, exc)}", file=sys.stderr)
+        print(f"cablebot: {absent_message(args, exc)}", file=sys.stderr)
         return exitcodes.NO_DAEMON
     except Failed as exc:
         print(f"cablebot: accepted, then {exc}", file=sys.stderr)
@@ -223,6 +225,40 @@ def run_with_session(args: argparse.Namespace, body: Callable[[Any], int]) -> in
         return exitcodes.WAIT_TIMEOUT
     except KeyboardInterrupt:
         return exitcodes.INTERRUPTED
+
+
+def positive_seconds(text: str) -> float:
+    """argparse type: a finite number of seconds > 0; raises ArgumentTypeError otherwise."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text}")
+    return value
+
+
+def positive_count(text: str) -> int:
+    """argparse type: a whole number >= 1; raises ArgumentTypeError otherwise."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text}")
+    return value
+
+
+def tcp_port(text: str) -> int:
+    """argparse type: a TCP port, 0 (any free port) to 65535; raises ArgumentTypeError
+    otherwise."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 0 (any) to 65535, got {text}")
+    return value
 
 
 def add_connection_arguments(p: argparse.ArgumentParser) -> None:
@@ -246,7 +282,7 @@ def add_connection_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--timeout",
-        type=float,
+        type=positive_seconds,
         default=5.0,
         metavar="S",
         help="seconds to wait for a reply or a sample (default 5)",

@@ -23,6 +23,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from controller.cli import exitcodes
 from controller.service.simulated import start_sim_bank
 
 log = logging.getLogger("cablebot.sim")
@@ -35,6 +36,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from controller.service.runner import SWITCH_INTERVAL_S, TIMER_SLACK_NS, set_timer_slack
     from controller.service.simulated import schedule_sim_thread
     from drivers import registry
+    from drivers.base import DriverError
     from drivers.bus import open_bus
 
     setup_logging(args.log_level, "%(levelname)s %(name)s: %(message)s")
@@ -43,6 +45,13 @@ def cmd_sim(args: argparse.Namespace) -> int:
     except (ConfigError, OSError) as exc:
         log.error("configuration: %s", exc)
         return 2
+    b = cfg.bus
+    title = registry.family(cfg.drive.kind).title
+    try:
+        bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
+    except (DriverError, OSError) as exc:  # as `cablebot run`: one line, could not start
+        log.error("start-up failed: %s", exc)
+        return exitcodes.REFUSED
     stop = threading.Event()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
@@ -50,9 +59,6 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
-    b = cfg.bus
-    title = registry.family(cfg.drive.kind).title
-    bus = open_bus(b.interface, b.channel, b.bitrate, **dict(b.options))
     try:
         # The scheduling of the daemon's loop (runner.start_loop): the serving thread
         # inherits the timer slack; a short GIL switch interval; SCHED_FIFO once started.

@@ -849,7 +849,7 @@ def _serve(
 
 def register(sub: argparse._SubParsersAction[Any]) -> None:
     """Register `cablebot view`."""
-    from controller.cli.session import add_connection_arguments
+    from controller.cli.session import add_connection_arguments, tcp_port
 
     p = sub.add_parser(
         "view",
@@ -864,7 +864,10 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     add_connection_arguments(p)
     p.add_argument("--host", default=DEFAULT_HOST, help=f"address to serve on ({DEFAULT_HOST})")
     p.add_argument(
-        "--port", type=int, default=DEFAULT_PORT, help=f"WebSocket port ({DEFAULT_PORT}; 0 = any)"
+        "--port",
+        type=tcp_port,
+        default=DEFAULT_PORT,
+        help=f"WebSocket port ({DEFAULT_PORT}; 0 = any)",
     )
     p.add_argument(
         "--config", default=None, metavar="FILE", help="robot TOML, if the status carries none"

@@ -424,3 +424,53 @@ def test_solve_defaults_to_the_built_in_robot(
         ["calibrate", "solve", str(path), "--write", str(tmp_path / "n.toml")], capsys
     )
     assert code == 1 and "--write edits the robot file given with --config" in err
+
+
+class _NoSub:
+    def undeclare(self) -> None:
+        pass
+
+
+class _FakeSession:
+    def declare_subscriber(self, key: str, handler: Any) -> _NoSub:
+        return _NoSub()
+
+
+def test_ctrl_c_during_collect_auto_brakes_to_a_hold(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C while `collect --auto` drives the robot sends `stop`, says so and exits 130
+    (a fake session: the first move is taken, then Ctrl-C comes while waiting for the pose)."""
+    from controller.cli import calibrate, client
+
+    sent: list[str] = []
+    status = {
+        "state": "HOLDING",
+        "pose": {"position_m": [0.0, 0.0, 0.4]},
+        "config": {"name": "desk", "reels": [{"node_id": n} for n in range(4)]},
+    }
+
+    def fake_query(session: Any, key: str, payload: Any, timeout_s: float) -> Any:
+        sent.append(key.rsplit("/", 2)[-1] if "cmd/" not in key else key.split("cmd/")[1])
+        if key.endswith("/status"):
+            return status
+        if key.endswith("cmd/stop"):
+            return {"ok": True, "state": "STOPPING"}
+        return {"ok": True}
+
+    def ctrl_c(*_a: Any, **_k: Any) -> Any:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(calibrate, "query", fake_query)
+    monkeypatch.setattr(client, "query", fake_query)
+    monkeypatch.setattr(calibrate, "auto_poses", lambda *a: [(0.1, 0.0, 0.4), (0.2, 0.0, 0.4)])
+    monkeypatch.setattr(calibrate, "auto_speed_mps", lambda *a: (0.2, 0.5))
+    monkeypatch.setattr(calibrate, "wait_still", ctrl_c)
+    monkeypatch.setattr(calibrate, "_run", lambda args, body: body(_FakeSession()))
+    code, out, err = run_cli(
+        ["calibrate", "collect", str(tmp_path / "s.csv"), "--auto", "2"], capsys
+    )
+    assert code == exitcodes.INTERRUPTED, (out, err)
+    assert "interrupted: braking to a hold" in err
+    assert sent[-1] == "stop", sent
+    assert "move" in sent

@@ -296,6 +296,37 @@ def test_record_without_daemon_exits_no_daemon(tmp_path: Path) -> None:
     assert not (tmp_path / "x.mcap").exists()
 
 
+def _record_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [*CABLEBOT, "record", *args],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+
+
+def test_record_on_a_prefix_no_daemon_lives_on_exits_no_daemon(
+    robot: tuple[Daemon, Path], tmp_path: Path
+) -> None:
+    d, _cfg = robot
+    out = tmp_path / "nope.mcap"
+    cp = _record_cli(str(out), "--connect", d.endpoint, "--prefix", "cablebot/nope")
+    assert cp.returncode == exitcodes.NO_DAEMON, cp.stdout + cp.stderr
+    assert d.prefix in cp.stderr  # names the live prefix
+    assert not out.exists()
+
+
+def test_record_refuses_to_overwrite_without_force(tmp_path: Path) -> None:
+    out = tmp_path / "kept.mcap"
+    out.write_bytes(b"keep me")
+    cp = _record_cli(str(out), "--connect", f"tcp/127.0.0.1:{free_tcp_port()}")
+    assert cp.returncode == exitcodes.REFUSED, cp.stdout + cp.stderr
+    assert "--force" in cp.stderr
+    assert out.read_bytes() == b"keep me"
+
+
 # ------------------------------------------------------------------------------ replay
 
 

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import os
+import subprocess
 from pathlib import Path
 
 import pytest
 
+from controller.cli import exitcodes
 from tests.daemon_procs import CABLEBOT, Proc, udp_bus, write_config
 
 
@@ -49,3 +51,23 @@ def test_the_sim_process_stays_at_normal_priority_without_loop_realtime(tmp_path
         assert fifo_threads(sim.p.pid) == []
     finally:
         assert sim.terminate() == 0, sim.log()
+
+
+def test_sim_without_the_bus_says_so_in_one_line(tmp_path: Path) -> None:
+    """A SocketCAN interface this machine lacks: one clean line and exit 1 (as `run`), no
+    traceback (its own process: `sim` sets up the process's logging)."""
+    cfg, _info = write_config(
+        tmp_path, {"interface": "socketcan", "channel": "nocan-sim9", "bitrate": 1_000_000}
+    )
+    cp = subprocess.run(
+        [*CABLEBOT, "sim", "--config", str(cfg)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert cp.returncode == exitcodes.REFUSED, cp.stderr
+    assert "Traceback" not in cp.stderr
+    lines = [ln for ln in cp.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, cp.stderr
+    assert "start-up failed" in lines[0] and "nocan-sim9" in lines[0], cp.stderr

@@ -44,3 +44,21 @@ def test_version(capsys: pytest.CaptureFixture[str]) -> None:
     out, _ = capsys.readouterr()
     assert out == f"cablebot {version()}\n"
     assert version()[0].isdigit()
+
+
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (("pose", "--count", "0"), "--count: must be at least 1"),
+        (("pose", "--count", "-3"), "--count: must be at least 1"),
+        (("status", "--timeout", "0"), "--timeout: must be a number of seconds > 0"),
+        (("status", "--timeout", "nan"), "--timeout: must be a number of seconds > 0"),
+        (("view", "--port", "99999"), "--port: a port is 0 (any) to 65535"),
+        (("view", "--port", "-1"), "--port: a port is 0 (any) to 65535"),
+    ],
+)
+def test_out_of_range_numbers_are_usage_errors(
+    capsys: pytest.CaptureFixture[str], argv: tuple[str, ...], says: str
+) -> None:
+    err = usage_error(capsys, *argv)
+    assert says in err.splitlines()[-1], err

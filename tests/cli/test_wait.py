@@ -4,9 +4,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import queue
+import signal
+import time
+from pathlib import Path
+from typing import Any
 
-from controller.cli import client
+import pytest
+
+from controller.cli import client, exitcodes, main
 
 
 def _sample(seq: int, state: str, x: float) -> bytes:
@@ -46,3 +53,112 @@ def test_a_motion_already_over_is_arrival_at_once() -> None:
     rc = client._wait_arrival(_args(), "move", poses, [[20.0, 0.0, 2.0]], seen_moving=True)
     assert rc == client.EXIT_OK
     assert poses.qsize() == 1
+
+
+class _NoSub:
+    def undeclare(self) -> None:
+        pass
+
+
+class _FakeSession:
+    def declare_subscriber(self, key: str, handler: Any) -> _NoSub:
+        return _NoSub()
+
+
+def _fake_daemon(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """client's session and queries faked: returns the list of keys queried."""
+    sent: list[str] = []
+
+    def fake_query(session: Any, key: str, payload: Any, timeout_s: float) -> Any:
+        sent.append(key.split("/", 2)[-1])
+        if key.endswith("/status"):
+            return {"state": "MOVING"}
+        return {"ok": True, "state": "MOVING"}
+
+    monkeypatch.setattr(client, "query", fake_query)
+    monkeypatch.setattr(client, "_run", lambda args, body: body(_FakeSession()))
+    return sent
+
+
+@pytest.mark.parametrize("signame", ["SIGTERM", "SIGHUP"])
+def test_sigterm_or_sighup_during_move_wait_brakes_to_a_hold(
+    signame: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The terminal closed or `kill` while a move is waited on: stop is sent, exit 130, and
+    the signal's previous handler is back afterwards."""
+    sig = getattr(signal, signame)
+    sent = _fake_daemon(monkeypatch)
+
+    def killed_while_waiting(*_a: Any, **_k: Any) -> int:
+        os.kill(os.getpid(), sig)
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline:  # the handler raises here
+            time.sleep(0.01)
+        raise AssertionError("no KeyboardInterrupt from the signal")
+
+    monkeypatch.setattr(client, "_wait_arrival", killed_while_waiting)
+    before = signal.getsignal(sig)
+    rc = main(["move", "1", "0", "2", "--wait"])
+    err = capsys.readouterr().err
+    assert rc == exitcodes.INTERRUPTED, err
+    assert "interrupted: braking to a hold" in err
+    assert sent[-1] == "cmd/stop", sent
+    assert signal.getsignal(sig) == before
+
+
+def test_detached_wait_leaves_sigterm_alone(monkeypatch: pytest.MonkeyPatch) -> None:
+    _fake_daemon(monkeypatch)
+    seen: list[Any] = []
+    monkeypatch.setattr(
+        client, "_wait_arrival", lambda *a, **k: seen.append(signal.getsignal(signal.SIGTERM)) or 0
+    )
+    before = signal.getsignal(signal.SIGTERM)
+    assert main(["move", "1", "0", "2", "--wait", "--detach"]) == 0
+    assert seen == [before]
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan"])
+def test_wait_timeout_not_positive_is_refused_before_sending(
+    value: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    sent = _fake_daemon(monkeypatch)
+    rc = main(["move", "1", "0", "2", "--wait", "--wait-timeout", value])
+    assert rc == exitcodes.USAGE
+    assert "--wait-timeout must be a number of seconds > 0" in capsys.readouterr().err
+    assert sent == []
+
+
+def test_wait_timeout_says_the_motion_goes_on() -> None:
+    poses: queue.Queue[bytes] = queue.Queue()
+    args = argparse.Namespace(json=True, wait_timeout=0.05, timeout=5.0)
+    with pytest.raises(client.WaitTimeout, match=r"goes on with the motion.*cablebot stop"):
+        client._wait_arrival(args, "move", poses, [[1.0, 0.0, 2.0]])
+
+
+@pytest.mark.parametrize("n_points", [3, client.MAX_PATH_POINTS_SENT + 5])
+def test_path_file_append_is_sent_as_an_append(
+    n_points: int, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`{"points_m": ..., "append": true}`: the first `path` command sent appends, short or
+    streamed."""
+    from controller.cli import pathstream
+
+    payloads: list[Any] = []
+
+    def fake_query(session: Any, key: str, payload: Any, timeout_s: float) -> Any:
+        if key.endswith("cmd/path"):
+            payloads.append(payload)
+        return {"ok": True, "state": "HOLDING"}
+
+    def one_chunk(points: Any, send: Any, *_a: Any, **_k: Any) -> Any:
+        send(points[:2], False)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(client, "query", fake_query)
+    monkeypatch.setattr(client, "_run", lambda args, body: body(_FakeSession()))
+    monkeypatch.setattr(pathstream, "stream_points", one_chunk)
+    f = tmp_path / "more.json"
+    pts = [[0.1 * (i % 7), 0.0, 2.0] for i in range(n_points)]
+    f.write_text(json.dumps({"points_m": pts, "append": True}))
+    main(["path", str(f)])
+    assert payloads and payloads[0]["append"] is True, payloads
