@@ -407,7 +407,11 @@ class FaultConfig:
     residual_max_m: float = key(
         0.02, "fault if the FPK residual (cable inconsistency) exceeds this"
     )
-    tracking_max_m: float = key(0.25, "fault if measured pose and set-point differ by more")
+    tracking_max_m: float = key(
+        0.25,
+        "fault if measured pose and set-point differ by more (plus the set-point's speed times "
+        "the age of the oldest encoder reading: the pose is where the effector was then)",
+    )
     arm_timeout_s: float = key(2.0, "time allowed for every axis to reach closed loop")
     bus_error_timeout_s: float = key(
         0.05,
