@@ -230,9 +230,12 @@ def ensure_state(d: Daemon, state: str) -> None:
     if state == "DISARMED":
         assert d.query("cmd/disarm")[0] == "ok"
     elif state == "HOLDING":
-        if d.status()["state"] == "MOVING":
+        # Read again: a motion that was ending (a streamed set-point arriving) may have come to
+        # its hold since, and `arm` on an armed robot is refused.
+        now = d.status()["state"]
+        if now == "MOVING":
             assert d.query("cmd/stop")[0] == "ok"
-        else:
+        elif now != "HOLDING":
             assert d.query("cmd/arm")[0] == "ok"
     deadline = time.monotonic() + 15.0
     while d.status()["state"] != state:
