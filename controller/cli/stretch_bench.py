@@ -34,11 +34,14 @@ def stretch_cost_us(cfg: Any | None = None, calls: int = 500, repeats: int = 5) 
     Keys: ``ipk_rigid`` (``kinematics.ipk_point``), ``ipk_stretch`` (IPK, statics solve and
     paid-out lengths), ``fpk_rigid`` (``kinematics.fpk``), ``fpk_stretch_rest`` (the last pose
     is the answer), ``fpk_stretch_moving`` (the pose moved 1 mm since the last call),
-    ``fpk_stretch_fast`` (8 mm: 2 m/s at 250 Hz), ``fpk_stretch_fresh`` (8 mm with nothing
-    cached: the statics solve and its derivative, the most a warm call does),
-    ``fpk_stretch_measured`` (measured tensions), plus ``statics`` (one tension solve) for
-    scale. `cfg` is a `RobotConfig` with `[payload]` (default the built-in robot, its cables
-    at EA 2e5 N). Raises ValueError for a config without `[payload]`.
+    ``fpk_stretch_fast`` (8 mm: 2 m/s at 250 Hz), each handed the set-point 2 mm ahead and its
+    planned tensions as the loop does; ``fpk_stretch_refresh`` (8 mm with nothing cached: the
+    tension derivative taken at the set-point, the most a call of the armed loop does),
+    ``fpk_stretch_no_setpoint`` (8 mm, nothing cached and no set-point, as while disarmed:
+    a statics solve and its derivative), ``fpk_stretch_measured`` (measured tensions), plus
+    ``statics`` (one tension solve) for scale. `cfg` is a `RobotConfig` with `[payload]`
+    (default the built-in robot, its cables at EA 2e5 N). Raises ValueError for a config
+    without `[payload]`.
     """
     from controller.core import kinematics
     from controller.service.cables import CableModel
@@ -58,17 +61,37 @@ def stretch_cost_us(cfg: Any | None = None, calls: int = 500, repeats: int = 5) 
     assert stretch is not None
     geom = cfg.geometry
     pu = cfg.homing.power_up_position_m or (0.0, 0.0, 1.0)
-    path = [(float(pu[0]) + 0.001 * k, float(pu[1]), float(pu[2])) for k in range(calls + 1)]
+    # Two paths along x, points 1 mm and 8 mm apart (8 mm: 2 m/s at 250 Hz); the loop's
+    # set-point leads the measured pose by `lead` (the drives' lag): 2 mm.
+    lead = 0.002
+
+    def along(step_m: float) -> list[tuple[float, float, float]]:
+        return [(float(pu[0]) + step_m * k, float(pu[1]), float(pu[2])) for k in range(calls + 1)]
+
+    def ahead(
+        p: tuple[float, float, float],
+    ) -> tuple[tuple[float, float, float], tuple[float, ...]]:
+        s = (p[0] + lead, p[1], p[2])
+        return s, check.solve(s).tensions_n
+
+    path, path8 = along(0.001), along(0.008)
     geo = [kinematics.ipk_point(geom, p) for p in path]
     planned = [check.solve(p).tensions_n for p in path]
     paid = [stretch.paid_out_m(g, t) for g, t in zip(geo, planned, strict=True)]
-    path8 = [(p[0] + 0.007 * k, p[1], p[2]) for k, p in enumerate(path)]  # 8 mm apart
     paid8 = [stretch.ipk(p)[0] for p in path8]
+    at_rest = list(zip(path, planned, strict=True))
+    sp1 = [ahead(p) for p in path]
+    sp8 = [ahead(p) for p in path8]
 
-    def fresh(paid_m: tuple[float, ...], guess_m: tuple[float, float, float]) -> object:
+    def refresh(i: int) -> object:
         assert stretch is not None
         stretch.reset()
-        return stretch.fpk(paid_m, guess_m)
+        return stretch.fpk(paid8[i + 1], path8[i], sp8[i + 1])
+
+    def no_setpoint(i: int) -> object:
+        assert stretch is not None
+        stretch.reset()
+        return stretch.fpk(paid8[i + 1], path8[i])
 
     out = {
         "ipk_rigid": _best_us(lambda i: kinematics.ipk_point(geom, path[i]), calls, repeats),
@@ -81,10 +104,17 @@ def stretch_cost_us(cfg: Any | None = None, calls: int = 500, repeats: int = 5) 
             repeats,
         ),
         "fpk_rigid": _best_us(lambda i: kinematics.fpk(geom, geo[i]), calls, repeats),
-        "fpk_stretch_rest": _best_us(lambda i: stretch.fpk(paid[i], path[i]), calls, repeats),
-        "fpk_stretch_moving": _best_us(lambda i: stretch.fpk(paid[i + 1], path[i]), calls, repeats),
-        "fpk_stretch_fast": _best_us(lambda i: stretch.fpk(paid8[i + 1], path8[i]), calls, repeats),
-        "fpk_stretch_fresh": _best_us(lambda i: fresh(paid8[i + 1], path8[i]), calls, repeats),
+        "fpk_stretch_rest": _best_us(
+            lambda i: stretch.fpk(paid[i], path[i], at_rest[i]), calls, repeats
+        ),
+        "fpk_stretch_moving": _best_us(
+            lambda i: stretch.fpk(paid[i + 1], path[i], sp1[i + 1]), calls, repeats
+        ),
+        "fpk_stretch_fast": _best_us(
+            lambda i: stretch.fpk(paid8[i + 1], path8[i], sp8[i + 1]), calls, repeats
+        ),
+        "fpk_stretch_refresh": _best_us(refresh, calls, repeats),
+        "fpk_stretch_no_setpoint": _best_us(no_setpoint, calls, repeats),
         "fpk_stretch_measured": _best_us(
             lambda i: stretch.fpk_measured(paid[i], planned[i]), calls, repeats
         ),

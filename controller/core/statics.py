@@ -472,6 +472,9 @@ class CableStatics:
         lo, hi = self.t_min_n, self.t_max_n
         n0, n1, n2, n3 = nv
         flat_nv = 1e-12 * max(abs(n0), abs(n1), abs(n2), abs(n3))
+        fast = self._one_pair(tensions_n, nv, rows, flat_nv)
+        if fast is not None:
+            return fast
         big = hi
         best_r = best_f = flat = math.inf
         lines: list[tuple[float, int, float, bool]] = []  # (distance, cable, sigma, rising)
@@ -545,6 +548,66 @@ class CableStatics:
             assert col is not None
             cols.append(col)
         return tuple([(cols[0][i], cols[1][i], cols[2][i]) for i in range(4)])
+
+    def _one_pair(
+        self,
+        tensions_n: Sequence[float],
+        nv: list[float],
+        rows: list[tuple[float, float, float]],
+        flat_nv: float,
+    ) -> tuple[tuple[float, float, float], ...] | None:
+        """``_derivative``'s usual case for four cables, without its candidate lists: one
+        rising and one falling line lowest by more than the tolerance and no flat line near
+        them bind on both sides.  None when that is not the case (``_derivative`` then
+        decides)."""
+        lo, hi = self.t_min_n, self.t_max_n
+        big = hi
+        br = bf = second_r = second_f = flat = math.inf
+        ir = jf = -1
+        sig_r = sig_f = 0.0
+        for i in range(4):
+            ti = float(tensions_n[i])
+            if ti > big:
+                big = ti
+            elif -ti > big:
+                big = -ti
+            ni = nv[i]
+            d_lo = ti - lo
+            d_hi = hi - ti
+            if -flat_nv <= ni <= flat_nv:
+                flat = min(flat, d_lo, d_hi)
+                continue
+            if ni > 0.0:
+                dr, gr, df, gf = d_lo, 1.0, d_hi, -1.0
+            else:
+                dr, gr, df, gf = d_hi, -1.0, d_lo, 1.0
+            if dr < br:
+                second_r, br, ir, sig_r = br, dr, i, gr
+            elif dr < second_r:
+                second_r = dr
+            if df < bf:
+                second_f, bf, jf, sig_f = bf, df, i, gf
+            elif df < second_f:
+                second_f = df
+        tol = 1e-9 * (big + hi)
+        if not (ir >= 0 and second_r > br + tol and second_f > bf + tol):
+            return None
+        if not flat > max(br, bf) + tol:
+            return None
+        cn = sig_r * nv[ir] - sig_f * nv[jf]
+        if cn == 0.0:
+            return None
+        xr = rows[ir]
+        xf = rows[jf]
+        m0 = -(sig_r * xr[0] - sig_f * xf[0]) / cn
+        m1 = -(sig_r * xr[1] - sig_f * xf[1]) / cn
+        m2 = -(sig_r * xr[2] - sig_f * xf[2]) / cn
+        return tuple(
+            [
+                (rows[i][0] + m0 * nv[i], rows[i][1] + m1 * nv[i], rows[i][2] + m2 * nv[i])
+                for i in range(4)
+            ]
+        )
 
     def _solve_lp(self, u: list[tuple[float, float, float]], w: float) -> list[float]:
         um = np.array(u, dtype=np.float64).T  # (3, N)
@@ -664,38 +727,48 @@ def _maxmin_lambda(tp: list[float], s: list[float], lo: float, hi: float) -> flo
     up to rounding unless a flat line binds; the slack keeps a nearly flat line from turning
     the rounding of the maximum into a large error in lambda).
     """
-    ra: list[float] = []
-    fa: list[float] = []
-    rs: list[float] = []
+    # Per-tick path (every tension solve of four cables): indexed lists and plain loops.
+    n = len(tp)
+    ra = [0.0] * n
+    fa = [0.0] * n
+    rs = [0.0] * n
     big = hi
-    for ti, si in zip(tp, s, strict=True):
+    for i in range(n):
+        ti = tp[i]
+        si = s[i]
         if si >= 0.0:
-            ra.append(ti - lo)
-            fa.append(hi - ti)
-            rs.append(si)
+            ra[i] = ti - lo
+            fa[i] = hi - ti
+            rs[i] = si
         else:
-            ra.append(hi - ti)
-            fa.append(ti - lo)
-            rs.append(-si)
-        if abs(ti) > big:
-            big = abs(ti)
+            ra[i] = hi - ti
+            fa[i] = ti - lo
+            rs[i] = -si
+        if ti > big:
+            big = ti
+        elif -ti > big:
+            big = -ti
     best = math.inf
-    for a, r in zip(ra, rs, strict=True):
-        for b, f in zip(fa, rs, strict=True):
+    for i in range(n):
+        a = ra[i]
+        r = rs[i]
+        for j in range(n):
+            f = rs[j]
             den = r + f
             if den > 0.0:
-                v = (a * f + b * r) / den
+                v = (a * f + fa[j] * r) / den
                 if v < best:
                     best = v
     floor = best - _SLACK * (big + hi)
     lam_lo = -math.inf
     lam_hi = math.inf
-    for a, b, r in zip(ra, fa, rs, strict=True):
+    for i in range(n):
+        r = rs[i]
         if r > 0.0:
-            x = (floor - a) / r
+            x = (floor - ra[i]) / r
             if x > lam_lo:
                 lam_lo = x
-            x = (b - floor) / r
+            x = (fa[i] - floor) / r
             if x < lam_hi:
                 lam_hi = x
     return 0.5 * (lam_lo + lam_hi)

@@ -35,7 +35,10 @@ and the dynamic loads of a move are not modelled (``docs/cable-stretch.md``).
   soft cables: on the paper robot with EA 2e5 N near (0, 0, 6) m it stays below 20 um while
   the pose moves 8 mm per call (2 m/s at 250 Hz), 10 um at 4 mm, and below 2 um at rest
   (``tests/core/test_stretch.py``).
-  Warm-started from the last pose a tick earlier, one pass and at most one statics solve.
+  Warm-started from the last pose a tick earlier, one pass and at most one statics solve; the
+  loop also hands in its set-point and the tensions it planned there (solved anyway for the
+  tension check), which linearise the pass while the pose is within ``PLANNED_REUSE_M``: then
+  the call solves no statics, only the tension derivative every ``JACOBIAN_REUSE_M``.
 * FPK with measured tensions (``fpk_measured``): the geometric lengths follow directly from the
   paid-out ones and the tensions; one rigid FPK, no iteration.
 
@@ -60,7 +63,9 @@ __all__ = [
     "MAX_ITERATIONS",
     "MAX_PASSES",
     "MAX_STEP_M",
+    "PLANNED_REUSE_M",
     "RELINEARISE_M",
+    "STALL_TOL_M",
     "STEP_TOL_M",
     "TENSIONS_REUSE_M",
     "CableStretch",
@@ -68,9 +73,13 @@ __all__ = [
     "StretchFpk",
 ]
 
-STEP_TOL_M = 1e-7
-"""A pass has converged when its Gauss-Newton step is shorter than this (the step is taken:
-near the solution the next would be shorter than 1e-12 m)."""
+STEP_TOL_M = 1e-5
+"""A pass has converged when its Gauss-Newton step is shorter than this, and the step is taken:
+the steps shrink quadratically (each about 0.03 / m times the square of the one before on the
+paper robot, ``tests/core/test_stretch.py``), so the next would be shorter than 1e-11 m."""
+STALL_TOL_M = 1e-4
+"""A step shorter than this that no longer lowers the residual ends the pass too (lengths no
+pose meets exactly: the rounding of the residual, not the pose, moves then)."""
 MAX_ITERATIONS = 30
 """Most Gauss-Newton steps of one pass of the FPK (no statics solve in a step)."""
 MAX_PASSES = 20
@@ -89,6 +98,12 @@ FD_STEP_M = 1e-5
 """Finite-difference step of the tension derivative where statics has no analytic one (more
 than four cables, a degenerate pose): forward differences, one statics solve per axis."""
 JACOBIAN_REUSE_M = 0.05
+PLANNED_REUSE_M = 0.025
+"""Tensions handed in with a point (the loop's set-point and the tensions it planned there)
+linearise the first pass when the warm start is within this distance of that point: no
+statics solve in the FPK (``CableStretch.fpk``'s `planned`).  The warm start is the last
+pose, a tick behind (8 mm at 2 m/s and 250 Hz, plus the set-point's lead); the pass's end,
+not the warm start, decides whether the linearisation holds (``RELINEARISE_M``)."""
 """A tension derivative is reused by later solves within this distance of where it was
 taken."""
 COLD_START_STRAINS = (0.0, 1e-3, 3e-3, 1e-2, 3e-2, 0.1)
@@ -270,6 +285,25 @@ class CableStretch:
         self._lin_at, self._lin_t, self._dt = p, t, d
         return t, d
 
+    def _adopt(
+        self, p: tuple[float, float, float], t: tuple[float, ...]
+    ) -> tuple[tuple[float, ...], tuple[tuple[float, float, float], ...]]:
+        """Tensions `t` planned at `p` (by the caller, with this model's tension rule) as the
+        FPK's linearisation, with the derivative kept while within ``JACOBIAN_REUSE_M`` of
+        where it was taken, else taken at `p` from those tensions (no statics solve).  Raises
+        ``StretchError`` where statics has no derivative there."""
+        d = self._dt
+        if d is None or math.dist(self._jac_at, p) > JACOBIAN_REUSE_M:
+            try:
+                d = self.check.statics.tension_derivative(p, t)
+                if d is None:
+                    d = self._fd_tension_jacobian(p, t)
+            except StaticsError as exc:
+                raise StretchError(f"no cable tensions at {_fmt(p)}: {exc}") from None
+            self._jac_at = p
+        self._lin_at, self._lin_t, self._dt = p, t, d
+        return t, d
+
     def _fd_tension_jacobian(
         self, p: tuple[float, float, float], t0: Sequence[float]
     ) -> tuple[tuple[float, float, float], ...]:
@@ -297,10 +331,18 @@ class CableStretch:
             break
         return (float(g[0]), float(g[1]), float(g[2]))
 
-    def fpk(self, paid_m: Sequence[float], guess_m: Sequence[float] | None = None) -> StretchFpk:
+    def fpk(
+        self,
+        paid_m: Sequence[float],
+        guess_m: Sequence[float] | None = None,
+        planned: tuple[Sequence[float], Sequence[float]] | None = None,
+    ) -> StretchFpk:
         """The pose whose planned tensions stretch the cables paid out by `paid_m` to reach
         it (module docstring), warm-started from `guess_m` (the last pose; None: the rigid FPK
-        of the paid-out lengths).
+        of the paid-out lengths).  `planned` is (a point, the tensions this model's tension
+        rule plans there): the loop's set-point and its tensions, already solved for the
+        tension check; within ``PLANNED_REUSE_M`` of the warm start they linearise the first
+        pass, so the call solves no statics (at most the tension derivative there).
 
         Each pass linearises the tensions about a point P0, ``t(P) = t(P0) + T' (P - P0)``
         (``t(P0)`` by statics, reused while the warm start is within ``TENSIONS_REUSE_M`` of
@@ -330,12 +372,25 @@ class CableStretch:
             p = (float(guess_m[0]), float(guess_m[1]), float(guess_m[2]))
             if not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
                 raise KinematicsError(f"guess must be finite, got {tuple(guess_m)!r}")
+        at: tuple[float, float, float] | None = None
+        at_t: tuple[float, ...] = ()
+        if planned is not None and len(planned[1]) == n:
+            a = planned[0]
+            at = (float(a[0]), float(a[1]), float(a[2]))
+            at_t = tuple([float(v) for v in planned[1]])
+            s = sum(at_t)
+            if not (math.dist(at, p) <= PLANNED_REUSE_M and s - s == 0.0):  # far, or not finite
+                at = None
         total = 0
         prev_move = math.inf
         best: tuple[float, tuple[float, float, float], tuple[float, ...]] | None = None
         for k in range(MAX_PASSES):
             pe, te, dt = self._lin_at, self._lin_t, self._dt
-            if k > 0 or dt is None or math.dist(pe, p) > TENSIONS_REUSE_M:
+            if k == 0 and at is not None:
+                if at != pe or dt is None:
+                    te, dt = self._adopt(at, at_t)
+                    pe = at
+            elif k > 0 or dt is None or math.dist(pe, p) > TENSIONS_REUSE_M:
                 # A later pass is a Newton step on the full equations: its tension derivative
                 # is taken where it linearises.
                 te, dt = self._linearise(p, k > 0)
@@ -431,9 +486,10 @@ class CableStretch:
                 raise StretchError(f"the cables do not fix the pose at {_fmt((x, y, z))}")
             sx, sy, sz = step
             size = math.sqrt(sx * sx + sy * sy + sz * sz)
-            if size <= STEP_TOL_M or (ss >= prev_ss and size <= 1e3 * STEP_TOL_M):
-                # The last step is far below a micrometre: take it (its residual is smaller
-                # still than the one reported, computed before it).
+            if size <= STEP_TOL_M or (ss >= prev_ss and size <= STALL_TOL_M):
+                # Take the last step; the residual and tensions reported are the end's.
+                q = (x + sx, y + sy, z + sz)
+                ex, ey, ez = q[0] - x0, q[1] - y0, q[2] - z0
                 t = tuple(
                     [
                         v
@@ -442,7 +498,7 @@ class CableStretch:
                         for i in range(n)
                     ]
                 )
-                return (x + sx, y + sy, z + sz), ss, t, it
+                return q, self._sum_squares(q, t, paid), t, it
             if size > MAX_STEP_M:  # far from the solution: no longer than the model holds
                 f = MAX_STEP_M / size
                 sx, sy, sz = sx * f, sy * f, sz * f

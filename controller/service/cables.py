@@ -88,11 +88,14 @@ class CableModel:
         lengths_m: Sequence[float],
         guess_m: Sequence[float] | None,
         measured_n: Sequence[float | None] | None = None,
+        planned: tuple[Sequence[float], Sequence[float]] | None = None,
     ) -> tuple[tuple[float, float, float], float]:
         """(pose, RMS residual in metres) of the reel lengths `lengths_m`: the rigid FPK, or
         with stretch the pose its tensions explain, warm-started from `guess_m` (the last pose;
         a failed warm start is retried cold).  With `measured` and a fresh measured tension on
         every cable (`measured_n`), those stretch the cables instead of the planned ones.
+        `planned` (the set-point and the tensions planned there) spares the FPK a statics solve
+        when the pose is close to it (``CableStretch.fpk``).
 
         Raises ``KinematicsError`` (``StretchError`` included) when no pose explains them.
         """
@@ -106,7 +109,7 @@ class CableModel:
             return m.position_m, m.residual_m
         if guess_m is not None and all(map(math.isfinite, guess_m)):
             try:
-                r = s.fpk(lengths_m, guess_m)
+                r = s.fpk(lengths_m, guess_m, planned)
                 return r.position_m, r.residual_m
             except StretchError:
                 pass

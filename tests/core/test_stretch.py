@@ -3,6 +3,7 @@ physical plant's equilibrium), and the pose of paid-out lengths (FPK with stretc
 
 from __future__ import annotations
 
+import itertools
 import math
 import tomllib
 from pathlib import Path
@@ -232,3 +233,71 @@ def test_a_warm_call_makes_at_most_one_statics_solve(monkeypatch: pytest.MonkeyP
         assert math.dist(res.position_m, p) < 2e-5
         last = res.position_m
     assert worst == 1
+
+
+def test_the_set_points_tensions_spare_the_fpk_every_statics_solve(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The loop hands the FPK the set-point and the tensions it planned there (solved for the
+    tension check): close under the anchors with soft cables, 8 mm a call and the set-point
+    2 mm ahead, the FPK solves no statics at all and takes the tension derivative only every
+    `JACOBIAN_REUSE_M`, within the accuracy of its own solves."""
+    from controller.core.statics import CableStatics
+    from controller.core.stretch import JACOBIAN_REUSE_M
+
+    m = model(2e5)
+    path = [(0.008 * k, 0.002 * k, 6.0 - 0.001 * k) for k in range(80)]  # 8 mm a call, 0.65 m
+    paid = [m.ipk(p)[0] for p in path]
+    ahead = []
+    for a, b in zip(path[1:], [*path[2:], path[-1]], strict=True):
+        sp = (a[0] + 0.25 * (b[0] - a[0]), a[1] + 0.25 * (b[1] - a[1]), a[2] + 0.25 * (b[2] - a[2]))
+        ahead.append((sp, m.tensions_n(sp)))
+    solves = [0]
+    derivatives = [0]
+    solve4 = CableStatics._solve4_parts
+    derivative = CableStatics.tension_derivative
+
+    def counting_solve(self: CableStatics, *a: Any) -> Any:
+        solves[0] += 1
+        return solve4(self, *a)
+
+    def counting_derivative(self: CableStatics, *a: Any) -> Any:
+        derivatives[0] += 1
+        return derivative(self, *a)
+
+    monkeypatch.setattr(CableStatics, "_solve4_parts", counting_solve)
+    monkeypatch.setattr(CableStatics, "tension_derivative", counting_derivative)
+    last = path[0]
+    for p, lengths, planned in zip(path[1:], paid[1:], ahead, strict=True):
+        res = m.fpk(lengths, guess_m=last, planned=planned)
+        assert math.dist(res.position_m, p) < 2e-5
+        last = res.position_m
+    assert solves[0] == 0
+    travel_m = sum(math.dist(a, b) for a, b in itertools.pairwise(path))
+    assert 1 <= derivatives[0] <= travel_m / JACOBIAN_REUSE_M + 2
+
+
+def test_planned_tensions_far_away_or_not_finite_are_not_used() -> None:
+    """Tensions handed in with a point farther than `PLANNED_REUSE_M` from the warm start, not
+    finite, or of the wrong count change nothing: the FPK solves the statics itself."""
+    from controller.core.stretch import PLANNED_REUSE_M
+
+    p = (20.0, 10.0, 2.0)
+    guess = (20.004, 9.997, 2.002)
+    paid = model(2e5).ipk(p)[0]
+    plain = model(2e5).fpk(paid, guess_m=guess)
+    far = (guess[0] + 1.5 * PLANNED_REUSE_M, guess[1], guess[2])
+    m = model(2e5)
+    wrong = [
+        (far, m.tensions_n(far)),  # far: its tensions are right, but for another place
+        (guess, (math.nan, 1.0, 1.0, 1.0)),
+        (guess, (100.0, 100.0, 100.0)),
+    ]
+    for planned in wrong:
+        m = model(2e5)
+        res = m.fpk(paid, guess_m=guess, planned=planned)
+        assert math.dist(res.position_m, plain.position_m) < 1e-9, planned
+    # close by and right: the same pose
+    sp = (p[0] + 0.002, p[1], p[2])
+    res = model(2e5).fpk(paid, guess_m=guess, planned=(sp, m.tensions_n(sp)))
+    assert math.dist(res.position_m, p) < 1e-6

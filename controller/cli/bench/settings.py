@@ -194,6 +194,8 @@ STRETCH_KEYS = (
     "fpk_stretch_rest",
     "fpk_stretch_moving",
     "fpk_stretch_fast",
+    "fpk_stretch_refresh",
+    "fpk_stretch_no_setpoint",
     "fpk_stretch_measured",
     "statics",
 )

@@ -135,8 +135,13 @@ class ControlStep(CommandExecution):
             # New encoder data (at 1 kHz with 2 ms broadcasts, every other tick has none):
             # solve; otherwise the pose of the same lengths is the one already solved.
             try:
+                at = self._planned_at
+                planned = self.planned_tensions_n
                 pose, residual = self.cables.pose(
-                    lengths, pose, self.measured_tensions_n if self._measure else None
+                    lengths,
+                    pose,
+                    self.measured_tensions_n if self._measure else None,
+                    None if at is None or planned is None else (at, planned),
                 )
             except kinematics.KinematicsError as exc:
                 self.pose_valid = False
