@@ -32,16 +32,16 @@ def stretch_cost_us(cfg: Any | None = None, calls: int = 500, repeats: int = 5) 
     """Microseconds per call of the loop's IPK and FPK with rigid and stretching cables.
 
     Keys: ``ipk_rigid`` (``kinematics.ipk_point``), ``ipk_stretch`` (IPK, statics solve and
-    paid-out lengths), ``fpk_rigid`` (``kinematics.fpk``), ``fpk_stretch_rest`` (the last pose
-    is the answer), ``fpk_stretch_moving`` (the pose moved 1 mm since the last call),
-    ``fpk_stretch_fast`` (8 mm: 2 m/s at 250 Hz), each handed the set-point 2 mm ahead and its
-    planned tensions as the loop does; ``fpk_stretch_refresh`` (8 mm with nothing cached: the
-    tension derivative taken at the set-point, the most a call of the armed loop does),
-    ``fpk_stretch_no_setpoint`` (8 mm, nothing cached and no set-point, as while disarmed:
-    a statics solve and its derivative), ``fpk_stretch_measured`` (measured tensions), plus
-    ``statics`` (one tension solve) for scale. `cfg` is a `RobotConfig` with `[payload]`
-    (default the built-in robot, its cables at EA 2e5 N). Raises ValueError for a config
-    without `[payload]`.
+    paid-out lengths), ``ipk_stretch_derivative`` (the same with the tension derivative, which
+    the loop's plan asks for every 5 cm and hands to the FPK), ``fpk_rigid``
+    (``kinematics.fpk``), ``fpk_stretch_rest`` (the last pose is the answer),
+    ``fpk_stretch_moving`` (the pose moved 1 mm since the last call), ``fpk_stretch_fast``
+    (8 mm: 2 m/s at 250 Hz), each handed the set-point 2 mm ahead, its planned tensions and
+    the plan's derivative as the loop does; ``fpk_stretch_no_setpoint`` (8 mm, nothing cached
+    and no set-point, as while disarmed: a statics solve and its derivative in the FPK),
+    ``fpk_stretch_measured`` (measured tensions), plus ``statics`` (one tension solve) for
+    scale. `cfg` is a `RobotConfig` with `[payload]` (default the built-in robot, its cables
+    at EA 2e5 N). Raises ValueError for a config without `[payload]`.
     """
     from controller.core import kinematics
     from controller.service.cables import CableModel
@@ -82,11 +82,25 @@ def stretch_cost_us(cfg: Any | None = None, calls: int = 500, repeats: int = 5) 
     at_rest = list(zip(path, planned, strict=True))
     sp1 = [ahead(p) for p in path]
     sp8 = [ahead(p) for p in path8]
+    # The derivatives the loop's plan hands over every 5 cm (their solve is the IPK's cost).
+    d1 = [check.solve(s, derivative=True).derivative for s, _ in sp1]
+    d8 = [check.solve(s, derivative=True).derivative for s, _ in sp8]
 
-    def refresh(i: int) -> object:
+    def as_loop(
+        paid_m: tuple[float, ...],
+        last: tuple[float, float, float],
+        sp: tuple[tuple[float, float, float], tuple[float, ...]],
+        d: Any,
+    ) -> object:
         assert stretch is not None
-        stretch.reset()
-        return stretch.fpk(paid8[i + 1], path8[i], sp8[i + 1])
+        if stretch.wants_derivative(sp[0]):
+            stretch.take_derivative(sp[0], d)
+        return stretch.fpk(paid_m, last, sp)
+
+    def ipk(p: tuple[float, float, float], derivative: bool) -> object:
+        return model.commanded_lengths_m(
+            kinematics.ipk_point(geom, p), check.solve(p, derivative).tensions_n
+        )
 
     def no_setpoint(i: int) -> object:
         assert stretch is not None
@@ -96,24 +110,18 @@ def stretch_cost_us(cfg: Any | None = None, calls: int = 500, repeats: int = 5) 
     out = {
         "ipk_rigid": _best_us(lambda i: kinematics.ipk_point(geom, path[i]), calls, repeats),
         "statics": _best_us(lambda i: check.solve(path[i]), calls, repeats),
-        "ipk_stretch": _best_us(
-            lambda i: model.commanded_lengths_m(
-                kinematics.ipk_point(geom, path[i]), check.solve(path[i]).tensions_n
-            ),
-            calls,
-            repeats,
-        ),
+        "ipk_stretch": _best_us(lambda i: ipk(path[i], False), calls, repeats),
+        "ipk_stretch_derivative": _best_us(lambda i: ipk(path[i], True), calls, repeats),
         "fpk_rigid": _best_us(lambda i: kinematics.fpk(geom, geo[i]), calls, repeats),
         "fpk_stretch_rest": _best_us(
-            lambda i: stretch.fpk(paid[i], path[i], at_rest[i]), calls, repeats
+            lambda i: as_loop(paid[i], path[i], at_rest[i], d1[i]), calls, repeats
         ),
         "fpk_stretch_moving": _best_us(
-            lambda i: stretch.fpk(paid[i + 1], path[i], sp1[i + 1]), calls, repeats
+            lambda i: as_loop(paid[i + 1], path[i], sp1[i + 1], d1[i + 1]), calls, repeats
         ),
         "fpk_stretch_fast": _best_us(
-            lambda i: stretch.fpk(paid8[i + 1], path8[i], sp8[i + 1]), calls, repeats
+            lambda i: as_loop(paid8[i + 1], path8[i], sp8[i + 1], d8[i + 1]), calls, repeats
         ),
-        "fpk_stretch_refresh": _best_us(refresh, calls, repeats),
         "fpk_stretch_no_setpoint": _best_us(no_setpoint, calls, repeats),
         "fpk_stretch_measured": _best_us(
             lambda i: stretch.fpk_measured(paid[i], planned[i]), calls, repeats

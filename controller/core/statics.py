@@ -129,7 +129,9 @@ class Tensions:
     distance of any tension to either limit (negative when infeasible).  ``limiting_cable``:
     0-based index of the cable at that smallest distance (when infeasible, the cable that cannot
     be kept in range), ``limiting_bound`` which limit it is nearest to or beyond.  ``method``:
-    ``"unique"`` (N = 3), ``"closed-form"`` (N = 4) or ``"lp"`` (N > 4).
+    ``"unique"`` (N = 3), ``"closed-form"`` (N = 4) or ``"lp"`` (N > 4).  ``derivative``:
+    d t_i / d P (one row per cable, N/m) when asked of ``CableStatics.solve`` and it has one
+    (``tension_derivative``), else None.
     """
 
     tensions_n: tuple[float, ...]
@@ -140,6 +142,7 @@ class Tensions:
     t_min_n: float
     t_max_n: float
     method: str
+    derivative: tuple[tuple[float, float, float], ...] | None = None
 
     def reason(self) -> str | None:
         """None when feasible, else why: the cable (1-based), its tension and the limit."""
@@ -265,8 +268,10 @@ class CableStatics:
             )
         return units
 
-    def solve(self, point_m: Sequence[float], mass_kg: float) -> Tensions:
-        """The equilibrium tensions farthest from the limits for a mass ``mass_kg`` at P.
+    def solve(self, point_m: Sequence[float], mass_kg: float, derivative: bool = False) -> Tensions:
+        """The equilibrium tensions farthest from the limits for a mass ``mass_kg`` at P; with
+        `derivative`, also their derivative with respect to P (``tension_derivative``, sharing
+        the solve's cable directions and null vector: about two thirds of a solve more).
 
         Raises ``StaticsInputError`` (bad point or mass), ``SingularConfiguration`` (see the
         module docstring), ``SolverUnavailable`` (N > 4 without scipy) and ``StaticsError``
@@ -275,18 +280,25 @@ class CableStatics:
         m = _check_mass(mass_kg)
         u = self._units(point_m)
         w = m * G_MPS2
+        nv: list[float] | None = None
         if self.n_cables == 3:
             t = self._solve3(u, w)
             method = "unique"
         elif self.n_cables == 4:
-            t = self._solve4(u, w)
+            t, nv = self._solve4_parts(u, w)
             method = "closed-form"
         else:
             t = self._solve_lp(u, w)
             method = "lp"
-        return self._result(t, method)
+        d = self._derivative(point_m, u, t, nv) if derivative and self.n_cables <= 4 else None
+        return self._result(t, method, d)
 
-    def _result(self, t: list[float], method: str) -> Tensions:
+    def _result(
+        self,
+        t: list[float],
+        method: str,
+        derivative: tuple[tuple[float, float, float], ...] | None = None,
+    ) -> Tensions:
         lo, hi = self.t_min_n, self.t_max_n
         margin = math.inf
         limiting = 0
@@ -309,6 +321,7 @@ class CableStatics:
             t_min_n=lo,
             t_max_n=hi,
             method=method,
+            derivative=derivative,
         )
 
     @staticmethod
@@ -932,9 +945,10 @@ class TensionCheck:
         self.margin_n = m
         self.max_source = max_source
 
-    def solve(self, point_m: Sequence[float]) -> Tensions:
-        """The payload's tension distribution at P (``CableStatics.solve``); raises as it does."""
-        return self.statics.solve(point_m, self.mass_kg)
+    def solve(self, point_m: Sequence[float], derivative: bool = False) -> Tensions:
+        """The payload's tension distribution at P (``CableStatics.solve``, with its derivative
+        when asked); raises as it does."""
+        return self.statics.solve(point_m, self.mass_kg, derivative)
 
     def reason(self, result: Tensions) -> str | None:
         """None if `result` passes, else why: the cable (1-based), its tension and the bound."""

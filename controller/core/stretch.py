@@ -285,6 +285,28 @@ class CableStretch:
         self._lin_at, self._lin_t, self._dt = p, t, d
         return t, d
 
+    def wants_derivative(self, position_m: Sequence[float]) -> bool:
+        """True when the FPK near `position_m` (a set-point being planned) would take the
+        tension derivative again: none kept, or the one kept is farther than
+        ``JACOBIAN_REUSE_M``.  The loop then asks the statics solve it makes there for the
+        derivative too and hands it over (``take_derivative``).  Raises nothing."""
+        if self.rigid or self._dt is None:
+            return not self.rigid
+        return not math.dist(self._jac_at, position_m) <= JACOBIAN_REUSE_M
+
+    def take_derivative(
+        self,
+        position_m: Sequence[float],
+        derivative: Sequence[tuple[float, float, float]] | None,
+    ) -> None:
+        """Keep `derivative` (d t_i / d P of the planned tensions at `position_m`, N/m, from
+        ``CableStatics.solve(..., derivative=True)``) for the FPK's next calls; None (no
+        analytic one there) or a wrong count keeps what was kept.  Raises nothing."""
+        if derivative is None or len(derivative) != self.n:
+            return
+        self._dt = tuple((float(g[0]), float(g[1]), float(g[2])) for g in derivative)
+        self._jac_at = (float(position_m[0]), float(position_m[1]), float(position_m[2]))
+
     def _adopt(
         self, p: tuple[float, float, float], t: tuple[float, ...]
     ) -> tuple[tuple[float, ...], tuple[tuple[float, float, float], ...]]:

@@ -83,6 +83,24 @@ class CableModel:
             raise StretchError("cable stretch: no planned tensions for the set-point")
         return s.paid_out_m(lengths_m, tensions_n)
 
+    def wants_derivative(self, setpoint_m: Sequence[float]) -> bool:
+        """True when the statics solve planning `setpoint_m`'s tensions should also give their
+        derivative, for the FPK (``CableStretch.wants_derivative``; never with rigid cables).
+        Raises nothing."""
+        s = self.stretch
+        return s is not None and s.wants_derivative(setpoint_m)
+
+    def take_derivative(
+        self,
+        setpoint_m: Sequence[float],
+        derivative: Sequence[tuple[float, float, float]] | None,
+    ) -> None:
+        """Hand the FPK the derivative of the tensions planned at `setpoint_m` (per tick, when
+        `wants_derivative` asked for it).  Raises nothing."""
+        s = self.stretch
+        if s is not None:
+            s.take_derivative(setpoint_m, derivative)
+
     def pose(
         self,
         lengths_m: Sequence[float],

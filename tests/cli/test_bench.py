@@ -53,11 +53,11 @@ NEW_SECTION_KEYS = {
     "stretch_us": {
         "ipk_rigid",
         "ipk_stretch",
+        "ipk_stretch_derivative",
         "fpk_rigid",
         "fpk_stretch_rest",
         "fpk_stretch_moving",
         "fpk_stretch_fast",
-        "fpk_stretch_refresh",
         "fpk_stretch_no_setpoint",
         "fpk_stretch_measured",
         "statics",

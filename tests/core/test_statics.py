@@ -751,6 +751,28 @@ def test_tension_derivative_is_the_statics_derivative(
     assert both[0] == t and both[1] == d
 
 
+@FAST
+@given(layout_and_point(3, 4), masses, limits)
+def test_solve_gives_the_derivative_when_asked(
+    lp: tuple[NDArray[np.float64], NDArray[np.float64]],
+    mass: float,
+    lim: tuple[float, float],
+) -> None:
+    """`solve(..., derivative=True)` (the loop's plan for the stretch FPK) is the solve and
+    `tension_derivative` in one call, and gives no derivative unless asked."""
+    anchors, p = lp
+    s = CableStatics(anchors, *lim)
+    try:
+        plain = s.solve(p, mass)
+        asked = s.solve(p, mass, derivative=True)
+    except SingularConfiguration:
+        assume(False)
+        raise
+    assert plain.derivative is None
+    assert asked.tensions_n == plain.tensions_n and asked.margin_n == plain.margin_n
+    assert asked.derivative == s.tension_derivative(p, plain.tensions_n)
+
+
 def test_tension_derivative_on_the_paper_robot() -> None:
     """Close under the anchors the tensions change fast: the analytic derivative there."""
     s = CableStatics(PAPER, 5.0, 2000.0)

@@ -301,3 +301,45 @@ def test_planned_tensions_far_away_or_not_finite_are_not_used() -> None:
     sp = (p[0] + 0.002, p[1], p[2])
     res = model(2e5).fpk(paid, guess_m=guess, planned=(sp, m.tensions_n(sp)))
     assert math.dist(res.position_m, p) < 1e-6
+
+
+def test_the_plans_derivative_spares_the_fpk_its_own(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The loop asks the statics solve of a new set-point for the tension derivative when the
+    FPK would need one there (`wants_derivative`) and hands it over: then the FPK takes no
+    derivative of its own, and the poses keep their accuracy."""
+    from controller.core.statics import CableStatics
+    from controller.core.stretch import JACOBIAN_REUSE_M
+
+    m = model(2e5)
+    path = [(0.008 * k, 0.002 * k, 6.0 - 0.001 * k) for k in range(80)]
+    paid = [m.ipk(p)[0] for p in path]
+    own = [0]
+    derivative = CableStatics.tension_derivative
+
+    def counting(self: CableStatics, *a: Any) -> Any:
+        own[0] += 1
+        return derivative(self, *a)
+
+    monkeypatch.setattr(CableStatics, "tension_derivative", counting)
+    last = path[0]
+    handed = 0
+    for k in range(1, len(path)):
+        a, b = path[k], path[min(k + 1, len(path) - 1)]
+        sp = (a[0] + 0.25 * (b[0] - a[0]), a[1] + 0.25 * (b[1] - a[1]), a[2] + 0.25 * (b[2] - a[2]))
+        want = m.wants_derivative(sp)
+        plan = m.check.solve(sp, want)
+        if want:
+            assert plan.derivative is not None
+            m.take_derivative(sp, plan.derivative)
+            handed += 1
+        res = m.fpk(paid[k], guess_m=last, planned=(sp, plan.tensions_n))
+        assert math.dist(res.position_m, path[k]) < 2e-5
+        last = res.position_m
+    assert own[0] == 0
+    travel_m = sum(math.dist(a, b) for a, b in itertools.pairwise(path))
+    assert 1 <= handed <= travel_m / JACOBIAN_REUSE_M + 2
+    assert not model(2e5).rigid and model(2e5).wants_derivative(path[0])  # none kept yet
+    rigid = model([None] * 4)
+    assert not rigid.wants_derivative(path[0])
+    rigid.take_derivative(path[0], [(0.0, 0.0, 0.0)] * 4)  # kept nowhere, harmless
+    assert not rigid.wants_derivative(path[0])

@@ -190,11 +190,11 @@ TARGET_STRETCH_US = 50.0
 STRETCH_KEYS = (
     "ipk_rigid",
     "ipk_stretch",
+    "ipk_stretch_derivative",
     "fpk_rigid",
     "fpk_stretch_rest",
     "fpk_stretch_moving",
     "fpk_stretch_fast",
-    "fpk_stretch_refresh",
     "fpk_stretch_no_setpoint",
     "fpk_stretch_measured",
     "statics",

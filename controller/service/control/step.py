@@ -294,13 +294,17 @@ class ControlStep(CommandExecution):
         """The tensions that hold the payload at set-point `sp`; _Fault if they break the
         tension rule (limits and margin). A held set-point is solved once."""
         assert self.tension is not None
+        # The FPK's tension derivative (cable stretch) comes with this solve, every 5 cm.
+        want = self.cables.wants_derivative(sp)
         try:
-            res = self.tension.solve(sp)
+            res = self.tension.solve(sp, want)
         except StaticsError as exc:
             raise _Fault(f"tension: set-point {_fmt(sp)}: {exc}") from None
         reason = self.tension.reason(res)
         if reason is not None:
             raise _Fault(f"tension: set-point {_fmt(sp)}: {reason}")
+        if want:
+            self.cables.take_derivative(sp, res.derivative)
         self.planned_tensions_n = res.tensions_n
         self.planned_margin_n = res.margin_n
         self._planned_at = sp
