@@ -301,3 +301,12 @@ def test_stock_path_names_a_failed_send_the_same_way() -> None:
     assert d.stats.bus_errors == 3  # RPDO1, RPDO2, SYNC: every frame tried
     assert d.stats.last_error is not None and d.stats.last_error.startswith("send 0x080: OSError")
     bus.shutdown()
+
+
+def test_bench_socketpair_figures_measure_both_drivers() -> None:
+    """`bench_vcan --socketpair` (the host's fast-path cost per frame) runs both drivers."""
+    from controller.cli.bench_vcan import socketpair_figures
+
+    got = socketpair_figures(1, 20, 3)
+    assert set(got) == {"odrive", "cia402"}
+    assert all(0.0 < v < 1e5 for fig in got.values() for v in fig.values())
