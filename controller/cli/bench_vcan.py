@@ -16,15 +16,29 @@ ratios of one run with the two paths interleaved round by round:
   machine, as the baseline of `loop_compute_p50_s`: `controller.cli.bench.compute.bench_compute`
   (the `compute_per_tick` section of `cablebot bench`; CPU time of `Controller.tick` at 1 kHz,
   moving, on a driver that hands in readings from memory), p50 and p99 in seconds.
+
+* `cia402`: the same receive and send figures for `CiA402Reels` (four drives), its own "fast"
+  and "stock" rounds interleaved the same way: `rx_us_per_frame` drains a burst of TPDO1 (90 %)
+  and heartbeat (10 %) frames of 4 drives (TPDOs decoded by the driver, heartbeats handed to
+  canopen), with a `command()` before each `poll()` as in the loop's rhythm (not timed);
+  `tx_us_per_frame` is `command()` per sent frame (4 RPDO1, 4 RPDO2 and the SYNC per tick).
+  The drives are taken as holding the mapping `configure` writes (no SDO exchange).
+
+`--socketpair` measures instead, on any Linux host (no AF_CAN needed), the fast path's CPU per
+received and sent frame for both drivers with an AF_UNIX datagram pair standing in for the CAN
+socket: the same `recvmmsg`/`sendmmsg` and the same decoding (`socketpair_figures`).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
+import socket
 import statistics
+import struct
 import sys
 import tempfile
 import threading
@@ -37,11 +51,18 @@ import can
 
 from controller.cli.bench.compute import bench_compute
 from drivers.bus import open_bus
+from drivers.cia402.driver import CiA402Reels
+from drivers.cia402.sdo_config import local_mapping
 from drivers.odrive import cansimple as cs
 from drivers.odrive.driver import ODriveReels
 from drivers.socketcan_fast import FastSocketCan, socket_of
 
 NODES = (0, 1, 2, 3)
+CIA402_NODES = (1, 2, 3, 4)
+CIA402_CPR = 4096
+CIA402_FRAMES_PER_TICK = 2 * len(CIA402_NODES) + 1
+_TPDO1 = struct.Struct("<Hih")  # statusword, position actual, torque actual
+_SW_OPERATION_ENABLED = 0x0237
 MODES = ("stock", "fast")
 NO_TRANSPORT_TICKS = 2000
 """Ticks of the no-transport baseline (`bench_compute`; a few seconds under the emulated VM)."""
@@ -235,6 +256,196 @@ def io_figures(channel: str, rounds: int, frames: int, ticks: int) -> dict[str, 
 
 
 # --------------------------------------------------------------------------------------------
+# The CiA 402 driver's receive and send paths
+
+
+def _cia402_burst(n: int) -> list[cs.Frame]:
+    out: list[cs.Frame] = []
+    for i in range(n):
+        node = CIA402_NODES[i % 4]
+        if i % 10:
+            out.append((0x180 + node, _TPDO1.pack(_SW_OPERATION_ENABLED, i, 0), False))
+        else:
+            out.append((0x700 + node, b"\x05", False))  # heartbeat: OPERATIONAL
+    return out
+
+
+def _cia402_driver(bus: can.BusABC, mode: str, fast: FastSocketCan | None = None) -> CiA402Reels:
+    driver = CiA402Reels(
+        bus,
+        CIA402_NODES,
+        counts_per_rev=CIA402_CPR,
+        period_s=0.002,
+        max_frames_per_poll=4096,
+        fast_path=fast if fast is not None else mode == "fast",
+    )
+    if driver.fast_path != (mode == "fast"):
+        raise RuntimeError(f"the {mode} path is not available on this bus")
+    # The drives hold the mapping `configure` writes: taken without the SDO exchange, which
+    # is not what is measured (and takes seconds in the emulated VM).
+    for n in CIA402_NODES:
+        d = driver._by_node[n]
+        driver._use_mapping(d, *local_mapping(d.node, n, velocity_offset=True, torque=True))
+    return driver
+
+
+def cia402_rx_round(
+    channel: str, sender: FastSocketCan, mode: str, frames: int
+) -> tuple[float, int]:
+    """One CiA 402 receive round: queue `frames` TPDO and heartbeat frames on `channel`, drain
+    them through the `mode` path (a `command()` before each `poll()`, not timed); returns (CPU
+    seconds of the polls, frames taken). Raises RuntimeError if frames were lost or a frame was
+    not taken cleanly."""
+    bus = open_bus("socketcan", channel)
+    try:
+        driver = _cia402_driver(bus, mode)
+        positions = [0.0, 1.0, 2.0, 3.0]
+        if sender.send_frames(_cia402_burst(frames)) is not None:
+            raise RuntimeError("the sender could not queue the burst")
+        handled = 0
+        deadline = time.monotonic() + 30.0
+        cpu = 0.0
+        while handled < frames and time.monotonic() < deadline:
+            driver.command(positions)
+            t0 = time.thread_time()
+            got = driver.poll()
+            cpu += time.thread_time() - t0
+            handled += got
+        s = driver.stats
+        if handled != frames or s.decode_errors or s.dropped or s.bus_errors:
+            raise RuntimeError(f"cia402 {mode}: took {handled}/{frames} frames, stats {s}")
+        return cpu, handled
+    finally:
+        bus.shutdown()
+
+
+def cia402_tx_round(channel: str, mode: str, ticks: int) -> tuple[float, int]:
+    """One CiA 402 send round: `ticks` calls of `command()` for 4 drives (RPDOs and SYNC);
+    (CPU seconds, frames sent). Raises RuntimeError if a frame was not sent."""
+    bus = open_bus("socketcan", channel)
+    try:
+        driver = _cia402_driver(bus, mode)
+        positions = [0.0, 1.0, 2.0, 3.0]
+        ff = [0.1, 0.1, 0.1, 0.1]
+        t0 = time.thread_time()
+        for i in range(ticks):
+            positions[0] = i * 1e-4
+            driver.command(positions, ff)
+        cpu = time.thread_time() - t0
+        want = CIA402_FRAMES_PER_TICK * ticks
+        if driver.stats.frames_tx != want or driver.stats.bus_errors:
+            raise RuntimeError(f"cia402 {mode}: sent {driver.stats.frames_tx}/{want} frames")
+        return cpu, want
+    finally:
+        bus.shutdown()
+
+
+def cia402_io_figures(channel: str, rounds: int, frames: int, ticks: int) -> dict[str, Any]:
+    """`io_figures` for the CiA 402 driver: per-frame CPU of its receive and send paths, stock
+    and fast interleaved round by round after one warm-up round each (the median round, and
+    the ratios of the medians and of the sums over the rounds). Raises RuntimeError as
+    `cia402_rx_round` / `cia402_tx_round`."""
+    rx: dict[str, list[float]] = {m: [] for m in MODES}
+    tx: dict[str, list[float]] = {m: [] for m in MODES}
+    send_bus = open_bus("socketcan", channel)
+    try:
+        sock = socket_of(send_bus)
+        if sock is None:
+            raise RuntimeError(f"{channel} did not open as a SocketCAN bus")
+        sender = FastSocketCan(sock)
+        for r in range(rounds + 1):
+            for mode in MODES if r % 2 else tuple(reversed(MODES)):
+                cpu, n = cia402_rx_round(channel, sender, mode, frames)
+                if r:
+                    rx[mode].append(cpu / n)
+    finally:
+        send_bus.shutdown()
+    for r in range(rounds + 1):
+        for mode in MODES if r % 2 else tuple(reversed(MODES)):
+            cpu_t, n_t = cia402_tx_round(channel, mode, ticks)
+            if r:
+                tx[mode].append(cpu_t / n_t)
+    out: dict[str, Any] = {
+        m: {
+            "rx_us_per_frame": statistics.median(rx[m]) * 1e6,
+            "tx_us_per_frame": statistics.median(tx[m]) * 1e6,
+            "rx_rounds_us_per_frame": [round(v * 1e6, 2) for v in rx[m]],
+            "tx_rounds_us_per_frame": [round(v * 1e6, 2) for v in tx[m]],
+            "rx_frames_per_round": frames,
+            "tx_frames_per_round": CIA402_FRAMES_PER_TICK * ticks,
+        }
+        for m in MODES
+    }
+    out["ratio_stock_over_fast"] = {
+        k: out["stock"][k] / out["fast"][k]
+        for k in ("rx_us_per_frame", "tx_us_per_frame")
+        if out["fast"][k] > 0
+    }
+    out["ratio_of_sums_stock_over_fast"] = {
+        f"{k}_us_per_frame": sum(d["stock"]) / sum(d["fast"])
+        for k, d in (("rx", rx), ("tx", tx))
+        if sum(d["fast"]) > 0
+    }
+    return out
+
+
+def socketpair_figures(rounds: int, frames: int, ticks: int) -> dict[str, dict[str, float]]:
+    """The fast path's CPU per frame with an AF_UNIX datagram pair standing in for the CAN
+    socket, for the ODrive and the CiA 402 driver: `poll()` per received frame (a burst of
+    `frames`) and `command()` per sent frame (`ticks` calls, the peer drained between calls,
+    not timed); medians over `rounds` after a warm-up round. Raises RuntimeError if a frame
+    was lost."""
+    out: dict[str, dict[str, float]] = {}
+    for family in ("odrive", "cia402"):
+        rx: list[float] = []
+        tx: list[float] = []
+        for r in range(rounds + 1):
+            peer, mine = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+            bus = can.Bus(interface="virtual", channel=f"bench-socketpair-{family}-{r}")
+            try:
+                peer.setblocking(False)
+                fast = FastSocketCan(mine)
+                driver: ODriveReels | CiA402Reels
+                if family == "odrive":
+                    driver = ODriveReels(bus, NODES, max_frames_per_poll=4096, fast_path=fast)
+                    burst = _burst(frames)
+                else:
+                    driver = _cia402_driver(bus, "fast", fast)
+                    burst = _cia402_burst(frames)
+                if FastSocketCan(peer).send_frames(burst) is not None:
+                    raise RuntimeError("the peer could not queue the burst")
+                positions = [0.0, 1.0, 2.0, 3.0]
+                t0 = time.thread_time()
+                got = driver.poll()
+                rx_cpu = time.thread_time() - t0
+                if got != frames or driver.stats.decode_errors or driver.stats.dropped:
+                    raise RuntimeError(f"{family}: took {got}/{frames}, {driver.stats}")
+                tx_cpu = 0.0
+                sent0 = driver.stats.frames_tx
+                for i in range(ticks):
+                    positions[0] = i * 1e-4
+                    t0 = time.thread_time()
+                    driver.command(positions, [0.1] * 4)
+                    tx_cpu += time.thread_time() - t0
+                    with contextlib.suppress(BlockingIOError):
+                        while peer.recv(64):
+                            pass
+                sent = driver.stats.frames_tx - sent0
+                if r:
+                    rx.append(rx_cpu / got)
+                    tx.append(tx_cpu / max(sent, 1))
+            finally:
+                bus.shutdown()
+                peer.close()
+                mine.close()
+        out[family] = {
+            "rx_us_per_frame": statistics.median(rx) * 1e6,
+            "tx_us_per_frame": statistics.median(tx) * 1e6,
+        }
+    return out
+
+
+# --------------------------------------------------------------------------------------------
 # The control step at 500 Hz with simulated ODrives in another process
 
 
@@ -343,14 +554,23 @@ def _progress(text: str) -> None:
 
 
 def run_io_bench(
-    channel: str, out: Path | None, rounds: int, frames: int, ticks: int, seconds: float
+    channel: str,
+    out: Path | None,
+    rounds: int,
+    frames: int,
+    ticks: int,
+    seconds: float,
+    cia402_ticks: int = 50,
 ) -> dict[str, Any]:
-    """All SocketCAN figures, stock and fast, and the no-transport baseline; written as JSON to
-    `out` when given. Raises RuntimeError as `io_figures`, BenchError if the baseline's robot
-    does not fly its path."""
+    """All SocketCAN figures, stock and fast (ODrive, then CiA 402 with `cia402_ticks` per send
+    round), and the no-transport baseline; written as JSON to `out` when given. Raises
+    RuntimeError as `io_figures`, BenchError if the baseline's robot does not fly its path."""
     _progress(f"receive and send paths on {channel}: {rounds} rounds")
     figures = io_figures(channel, rounds, frames, ticks)
     _progress(json.dumps(figures))
+    _progress(f"the CiA 402 driver's receive and send paths: {rounds} rounds")
+    cia402 = cia402_io_figures(channel, rounds, frames, cia402_ticks)
+    _progress(json.dumps(cia402))
     with tempfile.TemporaryDirectory(prefix="cablebot-bench-vcan-") as tmp:
         for mode in ("stock", "fast", "fast", "stock"):
             _progress(f"the control step at 500 Hz, {mode} path, {seconds:g} s")
@@ -375,6 +595,7 @@ def run_io_bench(
         "machine": f"{platform.machine()} {platform.release()}, {os.cpu_count()} CPU(s)",
         "under_vm": os.environ.get("CABLEBOT_UNDER_VM") == "1",
         **figures,
+        "cia402": cia402,
         "ratio_stock_over_fast": {
             k: figures["stock"][k] / figures["fast"][k]
             for k in ("rx_us_per_frame", "tx_us_per_frame", "loop_compute_p50_s")
@@ -395,9 +616,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--frames", type=int, default=120)
     p.add_argument("--ticks", type=int, default=100)
     p.add_argument("--seconds", type=float, default=20.0)
+    p.add_argument("--cia402-ticks", type=int, default=50)
+    p.add_argument(
+        "--socketpair",
+        action="store_true",
+        help="only the fast path's cost per frame on this host, an AF_UNIX pair for the socket",
+    )
     args = p.parse_args(argv)
+    if args.socketpair:
+        print(json.dumps(socketpair_figures(30, args.frames, args.ticks), indent=2))
+        return 0
     result = run_io_bench(
-        args.channel, args.out, args.rounds, args.frames, args.ticks, args.seconds
+        args.channel,
+        args.out,
+        args.rounds,
+        args.frames,
+        args.ticks,
+        args.seconds,
+        args.cia402_ticks,
     )
     print(json.dumps(result, indent=2))
     return 0

@@ -13,14 +13,24 @@ OPERATIONAL. canopen's `PdoMap.save()` writes the PDO parameters in the order Ci
 (disable, mapping count 0, entries, count, enable).
 
 The bus belongs to the control loop's thread: no canopen Notifier reads it. `poll()` drains it
-without blocking (at most `max_frames_per_poll` frames) and hands each frame on: TPDOs of our
-drives are decoded here with one precompiled struct per PDO (derived from canopen's mapping of
-it, so the per-tick path does no per-variable work); everything else goes to canopen through
-`network.notify` (heartbeats to its NMT master, EMCY to its EMCY consumer, SDO answers to its
-SDO client). canopen's SDO client waits for its answers on a queue that the receive path
-fills, so while `configure` runs a temporary receive thread is the bus's only reader (the loop
-thread is blocked in `configure` meanwhile); it is joined before `configure` returns. Every
-frame leaves through canopen's `network.send_message`, bounded by `send_timeout_s`.
+without blocking (at most `max_frames_per_poll` frames) and hands each frame on as (id, data,
+stamp): TPDOs of our drives are decoded here with one precompiled struct per PDO (derived from
+canopen's mapping of it, so the per-tick path does no per-variable work); everything else goes
+to canopen through `network.notify` (heartbeats to its NMT master, EMCY to its EMCY consumer,
+SDO answers to its SDO client). canopen's SDO client waits for its answers on a queue that the
+receive path fills, so while `configure` runs a temporary receive thread is the bus's only
+reader, through python-can's `recv` (the loop thread is blocked in `configure` meanwhile, and
+`poll` reads nothing until it returns); it is joined before `configure` returns. SDO requests
+and NMT commands leave through canopen's `network.send_message`, bounded by `send_timeout_s`.
+
+The SocketCAN fast path (`drivers.socketcan_fast`, the default on a python-can SocketCAN bus,
+`fast_path`): `poll()` takes the frames off the bus's kernel socket in batches (`recvmmsg`, no
+`can.Message` per frame), and a cycle's RPDOs and SYNC leave in one `sendmmsg`. Kernel filters
+pass only our drives' TPDO1 (0x180 + n), EMCY (0x080 + n), SDO answers (0x580 + n) and
+heartbeats (0x700 + n), and error frames: other nodes' and other hosts' frames never reach
+Python (they are not counted as `unknown_cob_id` or `not_for_host`), and frames the kernel
+dropped from a full receive queue (a loop stall) are counted as dropped, kind "rx_overrun".
+Every other interface keeps python-can's path: one `recv` and one `send` per frame.
 
 Cyclic operation: each `command()` writes every drive's RPDOs and then produces one SYNC (the
 driver is the SYNC producer, at the loop rate); the drives apply the set-points and answer
@@ -73,6 +83,7 @@ from typing import Any
 import can
 import canopen
 from canopen.nmt import NMT_STATES
+from canopen.pdo import PdoMap
 
 from drivers.base import AxisReading, BusError, BusStats
 from drivers.cia402 import profile
@@ -88,6 +99,7 @@ from drivers.cia402.sdo_config import (
     pdo_struct,
 )
 from drivers.registry import LoopSettings
+from drivers.socketcan_fast import FastSocketCan, open_fast_path
 
 EDS_PATH = Path(__file__).with_name("cia402.eds")
 """The object dictionary shipped with cablebot (the simulated drive's, standard objects only)."""
@@ -116,6 +128,24 @@ class DriveStatus:
     emcy_text: str | None
 
 
+_SYNC_FRAME = (SYNC_COB_ID, b"", False)
+
+
+def kernel_filters(node_ids: Iterable[int]) -> list[tuple[int, int]]:
+    """The fast path's kernel receive filters for drives `node_ids`: (id, mask) pairs passing
+    their TPDO1, EMCY, SDO answers and heartbeats. Raises nothing."""
+    return [(base + n, 0x7FF) for n in node_ids for base in (0x180, 0x080, 0x580, 0x700)]
+
+
+def send_failure(stats: BusStats, can_id: int, exc: BaseException) -> str:
+    """Count one frame that could not be sent (`stats.bus_errors`, `last_error`) and name it:
+    "send 0x<id>: <exception type>: <exception>". Raises nothing."""
+    text = f"send 0x{can_id:03X}: {type(exc).__name__}: {exc}"
+    stats.bus_errors += 1
+    stats.last_error = text
+    return text
+
+
 class _LoopNetwork(canopen.Network):
     """canopen's network on a bus owned by the loop thread: sends bounded and counted."""
 
@@ -133,10 +163,7 @@ class _LoopNetwork(canopen.Network):
             with self.send_lock:
                 self.bus.send(msg, timeout=self._send_timeout_s)  # type: ignore[union-attr]
         except Exception as exc:  # CanError, OSError, or anything an interface raises
-            text = f"send 0x{can_id:03X}: {type(exc).__name__}: {exc}"
-            self._stats.bus_errors += 1
-            self._stats.last_error = text
-            raise BusError(text) from exc
+            raise BusError(send_failure(self._stats, can_id, exc)) from exc
         self._stats.frames_tx += 1
 
 
@@ -164,6 +191,7 @@ class CiA402Reels(CiA402Receive):
         send_timeout_s: float = DEFAULT_SEND_TIMEOUT_S,
         clock: Callable[[], float] = time.monotonic,
         wall_clock_ns: Callable[[], int] = time.time_ns,
+        fast_path: bool | FastSocketCan = True,
     ) -> None:
         """Set up the drives `node_ids` (1..127, unique, at least one); nothing is sent yet.
 
@@ -174,8 +202,13 @@ class CiA402Reels(CiA402Receive):
         (default: `counts_per_rev`, i.e. increments per second). `velocity_offset`: map the
         feed-forward (RPDO2); `torque`: map torque actual into TPDO1. `heartbeat_period_s`:
         each drive's heartbeat producer time. `sdo_timeout_s`: wait for each SDO answer.
+        `fast_path`: on a python-can SocketCAN bus, receive and send the cyclic traffic through
+        the bus's kernel socket directly (module docstring; kernel filters set at once); False
+        keeps python-can's path (every other interface always does); a `FastSocketCan` is used
+        as given (tests, the benchmark).
         Raises ValueError on bad node ids or a non-finite or non-positive number, and on a
-        period or heartbeat the drives cannot represent; OSError if the EDS cannot be read.
+        period or heartbeat the drives cannot represent; OSError if the EDS cannot be read or
+        a SocketCAN socket refuses the fast path's options.
         """
         ids = tuple(int(n) for n in node_ids)
         if not ids:
@@ -247,6 +280,19 @@ class CiA402Reels(CiA402Receive):
         `estop`): only statuswords answering it or a later one tell the drives' state since."""
         self._cycled_since_poll = False
         self._configuring = False
+        self._tx_frames: list[tuple[int, bytes, bool]] = []
+        self._fast: FastSocketCan | None = (
+            fast_path
+            if isinstance(fast_path, FastSocketCan)
+            else open_fast_path(bus, kernel_filters(ids), send_timeout_s=send_timeout_s)
+            if fast_path
+            else None
+        )
+
+    @property
+    def fast_path(self) -> bool:
+        """True when this driver uses the SocketCAN fast path (`drivers.socketcan_fast`)."""
+        return self._fast is not None
 
     # --- start-up ---------------------------------------------------------------------------
 
@@ -275,7 +321,8 @@ class CiA402Reels(CiA402Receive):
             self._configuring = False
 
     def _pump(self, stop: threading.Event) -> None:
-        """While `configure` runs: the bus's only reader, feeding every frame to `_handle`."""
+        """While `configure` runs: the bus's only reader (python-can's `recv`, on either path),
+        feeding every frame to `_handle`."""
         recv = self._bus.recv
         while not stop.is_set():
             try:
@@ -299,6 +346,12 @@ class CiA402Reels(CiA402Receive):
             velocity_offset=self._velocity_offset,
             torque=self._torque,
         )
+        self._use_mapping(d, rpdo1, rpdo2, tpdo1)
+
+    def _use_mapping(
+        self, d: DriveRecord, rpdo1: PdoMap, rpdo2: PdoMap | None, tpdo1: PdoMap
+    ) -> None:
+        """Take drive `d` as configured with these PDOs: precompile their structs."""
         d.rpdo1, d.rpdo1_cob = pdo_struct(rpdo1), rpdo1.cob_id or 0
         if rpdo2 is not None:
             d.rpdo2, d.rpdo2_cob = pdo_struct(rpdo2), rpdo2.cob_id or 0
@@ -320,22 +373,14 @@ class CiA402Reels(CiA402Receive):
 
         When no cycle was sent since the previous poll (the loop sent no set-points), also
         sends one (held set-points and SYNC), at most every half period. Returns the number of
-        frames taken off the bus. Never raises: bad frames, unknown senders and bus errors are
-        counted in `stats`.
+        frames taken off the bus (0 while `configure` runs in another thread: its SDO pump reads
+        the bus then). Never raises: bad frames, unknown senders and bus errors are counted in
+        `stats`.
         """
-        recv = self._bus.recv
-        handle = self._handle
-        handled = 0
-        while handled < self._max_frames:
-            try:
-                msg = recv(0.0)
-            except Exception as exc:  # a receive error must never escape into the loop
-                self._stats.count_bus_error(f"receive: {type(exc).__name__}: {exc}")
-                break
-            if msg is None:
-                break
-            handled += 1
-            handle(msg)
+        if self._configuring:
+            return 0  # the `configure` pump is the bus's only reader meanwhile
+        fast = self._fast
+        handled = self._drain_bus() if fast is None else self._drain_fast(fast)
         self._stats.frames_rx += handled
         if (
             not self._cycled_since_poll
@@ -383,12 +428,13 @@ class CiA402Reels(CiA402Receive):
     # --- transmit ---------------------------------------------------------------------------
 
     def _cycle(self) -> None:
-        """Write every configured drive's RPDOs, then produce one SYNC.
+        """Write every configured drive's RPDOs, then produce one SYNC (one system call on the
+        fast path).
 
         Raises BusError naming every failed frame, after trying all of them.
         """
-        failures: list[str] = []
-        send = self._network.send_message
+        frames = self._tx_frames
+        frames.clear()
         goal = self._goal
         enabled = DriveState.OPERATION_ENABLED
         for d in self._drives:
@@ -403,28 +449,48 @@ class CiA402Reels(CiA402Receive):
                 if d.actual_counts is not None:
                     d.target_counts = d.actual_counts
                 d.ff_units = 0
-            try:
-                send(d.rpdo1_cob, d.rpdo1.pack(cw, d.target_counts))
-            except BusError as exc:
-                failures.append(f"node {d.node_id} RPDO1: {exc}")
+            frames.append((d.rpdo1_cob, d.rpdo1.pack(cw, d.target_counts), False))
             rpdo2 = d.rpdo2
             if rpdo2 is not None:
-                try:
-                    send(d.rpdo2_cob, rpdo2.pack(d.ff_units))
-                except BusError as exc:
-                    failures.append(f"node {d.node_id} RPDO2: {exc}")
-        try:
-            self._network.sync.transmit()
-        except BusError as exc:
-            failures.append(f"SYNC: {exc}")
-            self._last_sync_s = self._clock()
-        else:
-            self._last_sync_s = sent_s = self._clock()
+                frames.append((d.rpdo2_cob, rpdo2.pack(d.ff_units), False))
+        frames.append(_SYNC_FRAME)
+        failed = self._send_frames(frames)
+        self._last_sync_s = sent_s = self._clock()
+        if not failed or failed[-1][0] != len(frames) - 1:  # the SYNC went out
             self._sync_times[self._syncs_sent % SYNC_RING] = sent_s
             self._syncs_sent += 1
         self._cycled_since_poll = True
-        if failures:
-            raise BusError("; ".join(failures))
+        if failed:
+            raise BusError("; ".join(f"{self._frame_name(frames[i][0])}: {t}" for i, t in failed))
+
+    def _send_frames(self, frames: Sequence[tuple[int, bytes, bool]]) -> list[tuple[int, str]]:
+        """Send `frames` in order, every one tried; (index, failure text) of those that failed
+        (counted in `stats` by `send_failure`). Raises nothing."""
+        fast = self._fast
+        if fast is None:
+            failed: list[tuple[int, str]] = []
+            send = self._network.send_message
+            for i, (can_id, data, _remote) in enumerate(frames):
+                try:
+                    send(can_id, data)
+                except BusError as exc:
+                    failed.append((i, str(exc)))
+            return failed
+        errors = fast.send_frames(frames)
+        if errors is None:
+            self._stats.frames_tx += len(frames)
+            return []
+        self._stats.frames_tx += len(frames) - len(errors)
+        return [(i, send_failure(self._stats, frames[i][0], exc)) for i, exc in errors]
+
+    def _frame_name(self, can_id: int) -> str:
+        """What a cycle's frame `can_id` is, for a failure message: "node 3 RPDO1", "SYNC"."""
+        for d in self._drives:
+            if can_id == d.rpdo1_cob:
+                return f"node {d.node_id} RPDO1"
+            if d.rpdo2 is not None and can_id == d.rpdo2_cob:
+                return f"node {d.node_id} RPDO2"
+        return "SYNC" if can_id == SYNC_COB_ID else f"0x{can_id:03X}"
 
     def command(
         self, positions_rev: Sequence[float], velocity_ff_rps: Sequence[float] | None = None

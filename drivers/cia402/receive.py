@@ -1,10 +1,12 @@
-"""The receive side of `drivers.cia402.driver.CiA402Reels`: each frame `poll` takes off the bus
-handed on (TPDOs decoded here, heartbeats, EMCY and SDO answers to canopen), the callbacks that
-canopen calls back with heartbeats and EMCY, and the readings' state fields derived from them
-(see the driver module's docstring for the rules).
+"""The receive side of `drivers.cia402.driver.CiA402Reels`: the frames a `poll` drains (through
+python-can, or the SocketCAN fast path) and the `configure` pump reads, each handed off by one
+method on (id, data, stamp), TPDO decoding, the callbacks that canopen calls back with heartbeats
+and EMCY, and the readings' state fields derived from them (see the driver module's docstring
+for the rules).
 
 `CiA402Receive` is a mixin: `CiA402Reels` owns the state it works on (declared below) and calls
-these methods from the loop thread only; `DriveRecord` is the driver's record of one drive.
+these methods from the loop thread only (or the `configure` pump, the bus's only reader while it
+runs); `DriveRecord` is the driver's record of one drive.
 """
 
 from __future__ import annotations
@@ -22,6 +24,13 @@ from canopen.nmt import NMT_STATES
 from drivers.base import AxisReading, BusStats
 from drivers.cia402 import profile
 from drivers.cia402.profile import DriveState
+from drivers.socketcan_fast import (
+    CAN_EFF_FLAG,
+    CAN_ERR_FLAG,
+    CAN_ERR_MASK,
+    CAN_RTR_FLAG,
+    FastSocketCan,
+)
 
 NMT_OPERATIONAL = 5
 NMT_BOOT_UP = 0
@@ -89,10 +98,24 @@ class DriveRecord:
         self.tpdo1 = struct.Struct("<")
 
 
+def flagged_id(msg: can.Message) -> int:
+    """`msg`'s id as SocketCAN carries it: with the EFF, RTR and ERR flags."""
+    can_id: int = msg.arbitration_id
+    if msg.is_extended_id:
+        can_id |= CAN_EFF_FLAG
+    if msg.is_remote_frame:
+        can_id |= CAN_RTR_FLAG
+    if msg.is_error_frame:
+        can_id |= CAN_ERR_FLAG
+    return can_id
+
+
 class CiA402Receive:
     """The receive path of `CiA402Reels` (a mixin: the driver owns the state below)."""
 
     counts_per_rev: float
+    _bus: can.BusABC
+    _max_frames: int
     _stats: BusStats
     _network: canopen.Network
     _clock: Callable[[], float]
@@ -108,40 +131,94 @@ class CiA402Receive:
     _sync_times: array[float]
     _command_sync: int
 
+    def _drain_bus(self) -> int:
+        """python-can's receive path (every interface but SocketCAN): one Message per frame, at
+        most `max_frames_per_poll`."""
+        recv = self._bus.recv
+        take = self._take
+        handled = 0
+        while handled < self._max_frames:
+            try:
+                msg = recv(0.0)
+            except Exception as exc:  # a receive error must never escape into the loop
+                self._stats.count_bus_error(f"receive: {type(exc).__name__}: {exc}")
+                break
+            if msg is None:
+                break
+            handled += 1
+            take(flagged_id(msg), msg.data, msg.timestamp)
+        return handled
+
+    def _drain_fast(self, fast: FastSocketCan) -> int:
+        """The SocketCAN fast path: batches straight off the kernel socket, no Message objects,
+        until the kernel has no more or `max_frames_per_poll` were taken."""
+        take = self._take
+        frame = fast.frame
+        handled = 0
+        limit = self._max_frames
+        drops = fast.kernel_drops
+        while handled < limit:
+            try:
+                n = fast.recv_batch(limit - handled)
+            except Exception as exc:  # a receive error must never escape into the loop
+                self._stats.count_bus_error(f"receive: {type(exc).__name__}: {exc}")
+                break
+            if n == 0:
+                break
+            for i in range(n):
+                can_id, length, data, stamp = frame(i)
+                take(can_id, data[:length], stamp)
+            handled += n
+        if fast.kernel_drops != drops:
+            # The socket's receive queue overflowed while the loop did not poll (a stall): the
+            # oldest frames are lost. Counted as dropped frames of kind "rx_overrun".
+            lost = fast.kernel_drops - drops
+            self._stats.dropped += lost
+            errs = self._stats.errors_by_kind
+            errs["rx_overrun"] = errs.get("rx_overrun", 0) + lost
+        return handled
+
     def _handle(self, msg: can.Message) -> None:
-        if msg.is_error_frame:
+        """Hand one python-can Message off (the `configure` pump's reads)."""
+        self._take(flagged_id(msg), msg.data, msg.timestamp)
+
+    def _take(self, can_id: int, data: bytes | bytearray, stamp: float) -> None:
+        """Hand one received frame off: `can_id` with SocketCAN's EFF/RTR/ERR flags, its data,
+        its wall-clock receive time. TPDOs of our drives are decoded here; heartbeats, EMCY
+        and (while configuring) SDO answers go to canopen; the rest is counted."""
+        d = self._tpdo_by_cob.get(can_id)  # a flagged id (error, extended, remote) never matches
+        if d is not None:
+            self._on_tpdo(d, data)
+            return
+        if can_id & CAN_ERR_FLAG:
             # SocketCAN error frame: bus-off, controller or protocol trouble.
-            self._stats.count_bus_error(f"CAN error frame 0x{msg.arbitration_id:x}")
+            self._stats.count_bus_error(f"CAN error frame 0x{can_id & CAN_ERR_MASK:x}")
             self._stats.count("error_frame")
             return
-        if msg.is_extended_id:
+        if can_id & CAN_EFF_FLAG:
             self._stats.count("extended_id", decode_error=True)
             return
-        arb = msg.arbitration_id
-        d = self._tpdo_by_cob.get(arb)
-        if d is not None and not msg.is_remote_frame:
-            self._on_tpdo(d, msg.data)
-            return
-        if arb in self._host_cob_ids or msg.is_remote_frame:
+        if can_id in self._host_cob_ids or can_id & CAN_RTR_FLAG:
             self._stats.count("not_for_host")
             return
-        if arb in self._sdo_answer_ids:
+        if can_id in self._sdo_answer_ids:
             if not self._configuring:  # nobody waits for it: not queued for later
                 self._stats.count("sdo_unsolicited")
                 return
-        elif arb not in self._canopen_cob_ids:
+        elif can_id not in self._canopen_cob_ids:
             self._stats.count("unknown_cob_id")
             return
         try:
-            self._network.notify(arb, msg.data, msg.timestamp)
+            # canopen's heartbeat, EMCY and SDO consumers only read the payload: bytes serve.
+            self._network.notify(can_id, data, stamp)  # type: ignore[arg-type]
         except Exception as exc:  # canopen raises on malformed heartbeat/EMCY payloads
             kind = "length" if isinstance(exc, struct.error) else "bad_frame"
             self._stats.count(kind, decode_error=True)
-            owner = self._by_node.get(arb & 0x7F)
+            owner = self._by_node.get(can_id & 0x7F)
             if owner is not None:
                 owner.bad_frames += 1
 
-    def _on_tpdo(self, d: DriveRecord, data: bytearray) -> None:
+    def _on_tpdo(self, d: DriveRecord, data: bytes | bytearray) -> None:
         layout = d.tpdo1
         if len(data) != layout.size:
             d.bad_frames += 1

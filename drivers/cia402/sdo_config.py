@@ -19,6 +19,10 @@ from drivers.base import DriverError
 from drivers.cia402 import profile
 
 SYNC_COB_ID = 0x80
+RPDO1_OBJECTS = (0x6040, 0x607A)
+"""RPDO1: controlword, target position."""
+RPDO2_OBJECTS = (0x60B1,)
+"""RPDO2: velocity offset (the velocity feed-forward)."""
 _MODE_DISPLAY_WAIT_S = 0.2
 
 _FORMATS = {
@@ -78,19 +82,18 @@ def configure_node(
         write(node.sdo[0x60C2][1], value)
         write(node.sdo[0x60C2][2], index)
         step = "RPDO1"
-        rpdo1 = set_pdo(node.rpdo[1], 0x200 + n, [0x6040, 0x607A], rtr=True)
+        rpdo1 = set_pdo(node.rpdo[1], 0x200 + n, RPDO1_OBJECTS, rtr=True)
         step = "RPDO2"
         rpdo2 = None
         if velocity_offset:
-            rpdo2 = set_pdo(node.rpdo[2], 0x300 + n, [0x60B1], rtr=True)
+            rpdo2 = set_pdo(node.rpdo[2], 0x300 + n, RPDO2_OBJECTS, rtr=True)
         else:
             disable_pdo(node.rpdo[2])
         for i in (3, 4):
             step = f"RPDO{i}"
             disable_pdo(node.rpdo[i])
         step = "TPDO1"
-        tpdo_objects = [0x6041, 0x6064] + ([0x6077] if torque else [])
-        tpdo1 = set_pdo(node.tpdo[1], 0x180 + n, tpdo_objects, rtr=False)
+        tpdo1 = set_pdo(node.tpdo[1], 0x180 + n, tpdo1_objects(torque), rtr=False)
         for i in (2, 3, 4):
             step = f"TPDO{i}"
             disable_pdo(node.tpdo[i])
@@ -100,6 +103,24 @@ def configure_node(
         node.nmt.state = "OPERATIONAL"
     except (SdoError, DriverError, KeyError) as exc:
         raise ConfigureError(f"node {n}: {step}: {type(exc).__name__}: {exc}") from exc
+    return rpdo1, rpdo2, tpdo1
+
+
+def tpdo1_objects(torque: bool) -> tuple[int, ...]:
+    """TPDO1: statusword, position actual, and torque actual with `torque`."""
+    return (0x6041, 0x6064, 0x6077) if torque else (0x6041, 0x6064)
+
+
+def local_mapping(
+    node: canopen.RemoteNode, n: int, *, velocity_offset: bool, torque: bool
+) -> tuple[PdoMap, PdoMap | None, PdoMap]:
+    """The RPDO1, RPDO2 (None with no `velocity_offset`) and TPDO1 that `configure_node` writes
+    to drive `n`, mapped in `node`'s local copy only (nothing is sent): for drives known to hold
+    that mapping already (the benchmark). Raises ConfigureError if the dictionary lacks an
+    object."""
+    rpdo1 = map_pdo(node.rpdo[1], 0x200 + n, RPDO1_OBJECTS, rtr=True)
+    rpdo2 = map_pdo(node.rpdo[2], 0x300 + n, RPDO2_OBJECTS, rtr=True) if velocity_offset else None
+    tpdo1 = map_pdo(node.tpdo[1], 0x180 + n, tpdo1_objects(torque), rtr=False)
     return rpdo1, rpdo2, tpdo1
 
 
@@ -134,6 +155,14 @@ def set_pdo(pdo: PdoMap, cob_id: int, objects: Sequence[int], *, rtr: bool) -> P
     if not cob & PDO_NOT_VALID and cob & 0x7FF != cob_id:
         # A valid PDO keeps its COB-ID: disable it under its own before moving it.
         write(cob_var, cob | PDO_NOT_VALID)
+    map_pdo(pdo, cob_id, objects, rtr=rtr)
+    pdo.save()
+    return pdo
+
+
+def map_pdo(pdo: PdoMap, cob_id: int, objects: Sequence[int], *, rtr: bool) -> PdoMap:
+    """Map `objects` into the local copy of `pdo`, synchronous (type 1), at `cob_id`, enabled;
+    nothing is sent. Raises ConfigureError if the dictionary lacks an object."""
     pdo.clear()
     for index in objects:
         if pdo.add_variable(index) is None:
@@ -142,7 +171,6 @@ def set_pdo(pdo: PdoMap, cob_id: int, objects: Sequence[int], *, rtr: bool) -> P
     pdo.trans_type = 1
     pdo.rtr_allowed = rtr
     pdo.enabled = True
-    pdo.save()
     return pdo
 
 

@@ -146,7 +146,8 @@ class _ENOBUFSOnce:
             self.done += 1
             ctypes.set_errno(errno.ENOBUFS)
             return -1
-        sent = self.real(fd, address, min(n, self.fail_at - self.done), flags)  # type: ignore[operator]
+        todo = n if self.done > self.fail_at else min(n, self.fail_at - self.done)
+        sent = self.real(fd, address, todo, flags)  # type: ignore[operator]
         self.done += sent
         return int(sent)
 
@@ -172,6 +173,8 @@ def test_driver_counts_enobufs_per_frame_and_sends_the_rest(
     b.setblocking(False)
     got = [sf.CAN_FRAME.unpack(b.recv(64))[0] for _ in range(3)]
     assert got == [cs.arbitration_id(n, cs.SET_INPUT_POS) for n in (0, 1, 3)]
+    with pytest.raises(BlockingIOError):
+        b.recv(64)  # nothing beyond the tick's frames
 
 
 def test_driver_polls_readings_error_frames_and_foreign_frames(

@@ -3,7 +3,8 @@
 The same scenarios as tests/test_daemon.py on a real kernel CAN interface: ODrive nodes (arm,
 move 1 m, arrive within 1 mm, SIGTERM exits 0 within 2 s) and CiA 402 drives from
 config/cia402-sim.toml (SDO set-up at start, arm, move 0.2 m, arrive within 1 mm, e-stop
-confirmed by every drive, SIGTERM). Marked `vcan`: run by `make test-vcan` (natively or in the
+confirmed by every drive, SIGTERM). Both drivers run on the SocketCAN fast path (the daemon
+says so). Marked `vcan`: run by `make test-vcan` (natively or in the
 virtme-ng VM, where deadlines are scaled by the `slow_factor` fixture).
 """
 
@@ -87,6 +88,14 @@ def test_cia402_daemon_sim_observer_over_vcan(
         base=CIA402_SIM,
         drive=drive,
     )
+    # The CiA 402 driver reads and writes vcan0 through the SocketCAN fast path too.
     run_three_processes(
-        cfg, info, slow=slow_factor, kind="cia402", move_m=0.2, speed_mps=0.3, estop=True
+        cfg,
+        info,
+        slow=slow_factor,
+        kind="cia402",
+        move_m=0.2,
+        speed_mps=0.3,
+        estop=True,
+        daemon_says=f"SocketCAN fast path on {vcan_channel}",
     )

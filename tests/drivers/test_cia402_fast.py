@@ -1,0 +1,312 @@
+"""The CiA 402 driver on the SocketCAN fast path, on the host.
+
+The host has no AF_CAN: an AF_UNIX datagram socket pair stands in for the CAN socket (the same
+16-byte `can_frame` datagrams through the same `recvmmsg`/`sendmmsg`), while the start-up SDO
+exchange runs over a python-can `virtual` bus with the simulated drives, as `configure` reads
+through python-can's `recv` on either path. The kernel filters, error frames from a real
+interface and the daemon run in the vcan suite (tests/drivers/test_cia402_vcan.py).
+"""
+
+from __future__ import annotations
+
+import errno
+import socket
+import struct
+import time
+import uuid
+from collections.abc import Iterator
+
+import can
+import pytest
+
+from drivers import socketcan_fast as sf
+from drivers.base import NEVER_S, BusError
+from drivers.bus import open_bus
+from drivers.cia402 import CiA402Reels, profile
+from drivers.cia402.driver import kernel_filters
+from drivers.cia402.profile import Goal
+from drivers.cia402.sdo_config import local_mapping
+from drivers.cia402.sim import SimCiA402Bank
+from tests.drivers.test_socketcan_fast import _ENOBUFSOnce
+
+NODES = (1, 2, 3, 4)
+CPR = 4096
+PERIOD_S = 0.002
+TPDO = struct.Struct("<Hih")  # statusword, position actual, torque actual
+SW_OPERATION_ENABLED = 0x0237
+
+
+def _raw(can_id: int, data: bytes) -> bytes:
+    return sf.CAN_FRAME.pack(can_id, len(data), data)
+
+
+class FastRig:
+    """A driver whose cyclic traffic runs on `peer` (the other end of its fast socket), set up
+    by SDO with simulated drives on a virtual bus that are stopped once it is configured."""
+
+    def __init__(self) -> None:
+        self.peer, mine = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.peer.setblocking(False)
+        self.mine = mine
+        channel = f"test-cia402-fast-{uuid.uuid4().hex}"
+        self.sim_bus = open_bus("virtual", channel)
+        self.bus = open_bus("virtual", channel)
+        self.fast = sf.FastSocketCan(mine)
+        self.driver = CiA402Reels(
+            self.bus, NODES, counts_per_rev=CPR, period_s=PERIOD_S, fast_path=self.fast
+        )
+        bank = SimCiA402Bank(
+            self.sim_bus, NODES, initial_position_rev=[0.0] * 4, counts_per_rev=CPR
+        ).start()
+        try:
+            self.driver.configure()
+        finally:
+            assert bank.stop(timeout_s=2.0)
+
+    def sent(self) -> list[tuple[int, bytes]]:
+        """The frames the driver sent on its fast socket since the last call."""
+        out = []
+        while True:
+            try:
+                raw = self.peer.recv(64)
+            except BlockingIOError:
+                return out
+            can_id, length, data = sf.CAN_FRAME.unpack(raw)
+            out.append((can_id, data[:length]))
+
+    def close(self) -> None:
+        for bus in (self.sim_bus, self.bus):
+            bus.shutdown()
+        self.peer.close()
+        self.mine.close()
+
+
+@pytest.fixture
+def rig() -> Iterator[FastRig]:
+    r = FastRig()
+    yield r
+    r.close()
+
+
+def test_kernel_filters_pass_tpdo1_emcy_sdo_answers_and_heartbeats() -> None:
+    got = kernel_filters((1, 127))
+    assert sorted(got) == sorted(
+        (c, 0x7FF) for c in (0x181, 0x081, 0x581, 0x701, 0x1FF, 0x0FF, 0x5FF, 0x77F)
+    )
+    assert len(sf.can_filters_for(got)) == 8 * 8
+
+
+def test_not_socketcan_keeps_python_can() -> None:
+    bus = open_bus("virtual", f"test-cia402-fast-{uuid.uuid4().hex}")
+    try:
+        assert not CiA402Reels(bus, NODES, counts_per_rev=CPR, period_s=PERIOD_S).fast_path
+        assert not CiA402Reels(
+            bus, NODES, counts_per_rev=CPR, period_s=PERIOD_S, fast_path=False
+        ).fast_path
+    finally:
+        bus.shutdown()
+
+
+def test_configure_reads_through_python_can_and_poll_through_the_fast_socket(
+    rig: FastRig,
+) -> None:
+    """The SDO set-up ran over the virtual bus (python-can's recv); nothing went out on the fast
+    socket until the first cycle, which leaves there."""
+    d = rig.driver
+    assert d.fast_path
+    assert all(d.drive_status(n).configured for n in NODES)
+    assert rig.fast.send_calls == 0 and rig.fast.recv_calls == 0
+    d.poll()  # no cycle since the last poll: runs one with the held set-points
+    assert rig.fast.recv_calls == 1 and rig.fast.send_calls == 1
+    assert len(rig.sent()) == 2 * len(NODES) + 1
+
+
+def test_poll_hands_every_kind_of_frame_off(rig: FastRig) -> None:
+    """TPDOs are decoded by the driver; heartbeats and EMCY reach canopen's consumers; error
+    frames, extended ids, remote frames, unknown ids and unsolicited SDO answers are counted."""
+    d = rig.driver
+    d.command([0.0] * 4)  # the loop's rhythm: this poll runs no cycle of its own
+    rig.sent()
+    stats0 = d.stats.snapshot()
+    t0 = time.monotonic()
+    plan = [
+        _raw(0x182, TPDO.pack(SW_OPERATION_ENABLED, 2048, -7)),
+        _raw(0x702, b"\x05"),  # heartbeat: OPERATIONAL
+        _raw(0x083, struct.pack("<HB5s", 0x2310, 0x03, bytes(5))),  # EMCY: over-current
+        _raw(sf.CAN_ERR_FLAG | 0x40, bytes(8)),
+        _raw(sf.CAN_EFF_FLAG | 0x182, b"\x01"),
+        sf.CAN_FRAME.pack(sf.CAN_RTR_FLAG | 0x202, 8, b""),
+        _raw(0x185, TPDO.pack(0, 0, 0)),  # a node not ours (no kernel filter on this socket)
+        _raw(0x582, bytes(8)),  # an SDO answer nobody asked for
+        _raw(0x182, b"\x01\x02"),  # a TPDO of the wrong length
+    ]
+    for raw in plan:
+        rig.peer.send(raw)
+    assert d.poll() == len(plan)
+    r = d.reading(2)
+    assert r.position_rev == 0.5
+    assert t0 <= r.stamp_s <= time.monotonic()
+    assert r.heartbeat_stamp_s > NEVER_S
+    st = d.drive_status(2)
+    assert st.statusword == SW_OPERATION_ENABLED and st.torque_permille == -7
+    assert st.nmt_state == "OPERATIONAL"
+    assert r.ready and r.state_name == "Operation enabled"
+    assert d.drive_status(3).emcy_code == 0x2310
+    s = d.stats
+    assert s.frames_rx - stats0.frames_rx == len(plan)
+    assert s.bus_errors == 1 and s.last_error == "CAN error frame 0x40"
+    kinds = {k: v - stats0.errors_by_kind.get(k, 0) for k, v in s.errors_by_kind.items()}
+    assert {k: v for k, v in kinds.items() if v} == {
+        "error_frame": 1,
+        "extended_id": 1,
+        "not_for_host": 1,
+        "unknown_cob_id": 1,
+        "sdo_unsolicited": 1,
+        "length": 1,
+    }
+    assert d.bad_frames(2) == 1
+    assert d.poll() == 0
+
+
+def test_a_cycle_leaves_in_one_system_call_byte_exact(rig: FastRig) -> None:
+    """command(): every drive's RPDO1 (controlword, target) and RPDO2 (velocity offset), then
+    the SYNC, in one sendmmsg."""
+    d = rig.driver
+    calls = rig.fast.send_calls
+    tx0 = d.stats.frames_tx
+    d.command([0.25, -0.5, 1.0, 2.0], [0.5, 0.0, -1.0, 0.0])
+    assert rig.fast.send_calls == calls + 1
+    assert d.stats.frames_tx - tx0 == 9
+    cw = profile.controlword_for(Goal.DISABLED, None, False)
+    want: list[tuple[int, bytes]] = []
+    for n, p in zip(NODES, [0.25, -0.5, 1.0, 2.0], strict=True):
+        # Not in Operation enabled and no position actual heard yet: the target as commanded,
+        # no feed-forward.
+        want.append((0x200 + n, struct.pack("<Hi", cw, round(p * CPR))))
+        want.append((0x300 + n, struct.pack("<i", 0)))
+    want.append((0x080, b""))
+    assert rig.sent() == want
+
+
+def test_a_failed_frame_is_counted_named_and_the_rest_still_sent(rig: FastRig) -> None:
+    """ENOBUFS on node 2's RPDO1: named as the stock path names a failed send, counted once;
+    the other eight frames (the SYNC too) went out."""
+    d = rig.driver
+    real = rig.fast._sendmmsg
+    rig.fast._sendmmsg = _ENOBUFSOnce(real, fail_at=2)  # type: ignore[method-assign]
+    syncs = d._syncs_sent
+    errors0, tx0 = d.stats.bus_errors, d.stats.frames_tx
+    with pytest.raises(BusError, match=r"^node 2 RPDO1: send 0x202: OSError: .*No buffer space"):
+        d.command([0.0] * 4)
+    assert d.stats.bus_errors - errors0 == 1
+    assert (d.stats.last_error or "").startswith("send 0x202: OSError:")
+    assert d.stats.frames_tx - tx0 == 8
+    assert d._syncs_sent == syncs + 1
+    sent = [c for c, _ in rig.sent()]
+    assert 0x202 not in sent and sent[-1] == 0x080 and len(sent) == 8
+    # A SYNC that fails is no SYNC: no TPDO answers it.
+    rig.fast._sendmmsg = _ENOBUFSOnce(real, fail_at=8)  # type: ignore[method-assign]
+    with pytest.raises(BusError, match=r"^SYNC: send 0x080: OSError"):
+        d.command([0.0] * 4)
+    assert d._syncs_sent == syncs + 1
+    assert [c for c, _ in rig.sent()] == [0x201, 0x301, 0x202, 0x302, 0x203, 0x303, 0x204, 0x304]
+
+
+def test_a_full_socket_buffer_fails_every_frame_not_sent(rig: FastRig) -> None:
+    """The peer never reads: the frames that find no room are each named, then the loop sees
+    one BusError listing them."""
+    d = rig.driver
+    rig.fast._send_timeout_s = 0.001
+    failed = None
+    for _ in range(100_000):
+        try:
+            d.command([0.0] * 4)
+        except BusError as exc:
+            failed = str(exc)
+            break
+    assert failed is not None, "the socket buffer never filled"
+    assert "Transmit buffer full" in failed
+    assert d.stats.bus_errors == failed.count("; ") + 1
+
+
+def test_poll_reads_nothing_while_configure_pumps(rig: FastRig) -> None:
+    """While configure's SDO pump runs, it alone reads the bus: poll leaves the frames."""
+    d = rig.driver
+    rig.peer.send(_raw(0x701, b"\x05"))
+    d._configuring = True
+    try:
+        assert d.poll() == 0
+    finally:
+        d._configuring = False
+    d.command([0.0] * 4)
+    assert d.poll() == 1
+    assert d.reading(1).heartbeat_stamp_s > NEVER_S
+
+
+def test_kernel_drops_are_counted_as_rx_overrun(
+    rig: FastRig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    d = rig.driver
+    real = rig.fast.recv_batch
+
+    def overflowing(max_frames: int) -> int:
+        rig.fast.kernel_drops += 5
+        monkeypatch.setattr(rig.fast, "recv_batch", real)
+        return real(max_frames)
+
+    monkeypatch.setattr(rig.fast, "recv_batch", overflowing)
+    dropped = d.stats.dropped
+    d.command([0.0] * 4)
+    d.poll()
+    assert d.stats.dropped - dropped == 5
+    assert d.stats.errors_by_kind["rx_overrun"] == 5
+
+
+def test_receive_error_is_counted_never_raised(
+    rig: FastRig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    d = rig.driver
+
+    def down(max_frames: int) -> int:
+        raise OSError(errno.ENETDOWN, "Network is down")
+
+    monkeypatch.setattr(rig.fast, "recv_batch", down)
+    d.command([0.0] * 4)
+    errors = d.stats.bus_errors
+    assert d.poll() == 0
+    assert d.stats.bus_errors == errors + 1
+    assert "Network is down" in (d.stats.last_error or "")
+
+
+def test_stock_path_names_a_failed_send_the_same_way() -> None:
+    """One naming rule for both paths: "<frame>: send 0x<id>: <type>: <error>"."""
+
+    class Refusing(can.BusABC):
+        def __init__(self) -> None:
+            super().__init__(channel="refusing")
+
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            raise OSError(errno.ENOBUFS, "No buffer space available")
+
+        def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:
+            return None, False
+
+    bus = Refusing()
+    d = CiA402Reels(bus, (2,), counts_per_rev=CPR, period_s=PERIOD_S)
+    assert not d.fast_path
+    drive = d._by_node[2]  # configured as if by SDO, without a drive to answer
+    d._use_mapping(drive, *local_mapping(drive.node, 2, velocity_offset=True, torque=True))
+    with pytest.raises(BusError, match=r"^node 2 RPDO1: send 0x202: OSError: .*No buffer space"):
+        d.command([0.0])
+    assert d.stats.bus_errors == 3  # RPDO1, RPDO2, SYNC: every frame tried
+    assert d.stats.last_error is not None and d.stats.last_error.startswith("send 0x080: OSError")
+    bus.shutdown()
+
+
+def test_bench_socketpair_figures_measure_both_drivers() -> None:
+    """`bench_vcan --socketpair` (the host's fast-path cost per frame) runs both drivers."""
+    from controller.cli.bench_vcan import socketpair_figures
+
+    got = socketpair_figures(1, 20, 3)
+    assert set(got) == {"odrive", "cia402"}
+    assert all(0.0 < v < 1e5 for fig in got.values() for v in fig.values())
