@@ -17,9 +17,11 @@ frame, and its send path a `select` and a `send` per frame. `FastSocketCan` uses
   (CAN_RAW_ERR_FILTER, every class) still arrive; own frames are never echoed back
   (CAN_RAW_RECV_OWN_MSGS off).
 
-Linux only (glibc's or musl's `recvmmsg`/`sendmmsg` through ctypes). `open_fast_path(bus, ...)`
-returns None for any bus that is not a python-can SocketCAN bus on an AF_CAN socket, so a
-caller simply keeps python-can's path there.
+Linux only (glibc's or musl's `recvmmsg`/`sendmmsg` through ctypes), classic CAN only (16-byte
+`can_frame` slots). `open_fast_path(bus, ...)` returns None for any bus that is not a python-can
+SocketCAN bus on an AF_CAN socket, and for one opened for CAN FD (`fd=True`: its socket receives
+72-byte `canfd_frame`s, which a slot would cut to their first 8 data bytes), so a caller simply
+keeps python-can's path there.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ _SOL_CAN_RAW: Final = 101  # SOL_CAN_BASE + CAN_RAW
 _CAN_RAW_FILTER: Final = 1
 _CAN_RAW_ERR_FILTER: Final = 2
 _CAN_RAW_RECV_OWN_MSGS: Final = 4
+_CAN_RAW_FD_FRAMES: Final = 5
 _SOL_SOCKET: Final = socket.SOL_SOCKET
 _SO_TIMESTAMPNS: Final = 35  # SO_TIMESTAMPNS_OLD (asm-generic, x86, ARM): a native timespec
 _SO_RXQ_OVFL: Final = 40
@@ -316,6 +319,14 @@ def socket_of(bus: object) -> socket.socket | None:
     return sock
 
 
+def _receives_fd_frames(sock: socket.socket) -> bool:
+    """True if `sock` (a SocketCAN raw socket) has CAN FD frames switched on. Raises nothing."""
+    try:
+        return bool(sock.getsockopt(_SOL_CAN_RAW, _CAN_RAW_FD_FRAMES))
+    except OSError:  # a kernel without CAN FD: classic frames only
+        return False
+
+
 def open_fast_path(
     bus: object,
     filters: Sequence[tuple[int, int]] | None,
@@ -323,11 +334,11 @@ def open_fast_path(
     send_timeout_s: float = 0.005,
 ) -> FastSocketCan | None:
     """A `FastSocketCan` on `bus`'s socket with kernel `filters` (see `FastSocketCan`), or None
-    when `bus` is not a python-can SocketCAN bus or this system cannot run the fast path (the
-    caller then keeps python-can's path). Raises ValueError on a bad filter, OSError if the
-    socket refuses an option."""
+    when `bus` is not a python-can SocketCAN bus, receives CAN FD frames, or this system cannot
+    run the fast path (the caller then keeps python-can's path). Raises ValueError on a bad
+    filter, OSError if the socket refuses an option."""
     sock = socket_of(bus)
-    if sock is None:
+    if sock is None or _receives_fd_frames(sock):
         return None
     try:
         fast = FastSocketCan(sock, send_timeout_s=send_timeout_s)

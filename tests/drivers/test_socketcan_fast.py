@@ -12,6 +12,7 @@ import errno
 import socket
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import can
 import pytest
@@ -234,6 +235,42 @@ def test_not_socketcan_keeps_python_can() -> None:
         assert not ODriveReels(bus, (0,)).fast_path
     finally:
         bus.shutdown()
+
+
+class _CanRawStandIn(socket.socket):
+    """An AF_UNIX datagram socket answering the CAN_RAW options as a SocketCAN raw socket
+    would: accepts the ones the fast path sets, reports CAN FD frames on or off (`fd`)."""
+
+    fd = False
+
+    def getsockopt(self, level: int, option: int, *args: int) -> Any:
+        if level == sf._SOL_CAN_RAW and option == sf._CAN_RAW_FD_FRAMES:
+            return int(self.fd)
+        return super().getsockopt(level, option, *args)
+
+    def setsockopt(self, level: int, option: int, *args: Any) -> None:
+        if level != sf._SOL_CAN_RAW:
+            super().setsockopt(level, option, *args)
+
+
+@pytest.mark.parametrize("fd", [False, True], ids=["classic", "fd"])
+def test_a_can_fd_socket_keeps_python_can(fd: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A bus opened for CAN FD receives 72-byte frames, which the fast path's 16-byte slots
+    would cut to 8 data bytes (a 12-byte frame would pass as a well-formed 8-byte one): both
+    drivers keep python-can's path there, and take the fast path on a classic socket."""
+    from drivers.cia402 import CiA402Reels
+
+    sock = _CanRawStandIn(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.fd = fd
+    monkeypatch.setattr(sf, "socket_of", lambda bus: sock)
+    bus = can.Bus(interface="virtual", channel="fast-fd")
+    try:
+        assert (sf.open_fast_path(bus, [(0, 0x7E0)]) is None) is fd
+        assert ODriveReels(bus, (0,)).fast_path is not fd
+        assert CiA402Reels(bus, (1,), counts_per_rev=4096, period_s=0.002).fast_path is not fd
+    finally:
+        bus.shutdown()
+        sock.close()
 
 
 def test_receive_error_is_counted_never_raised(

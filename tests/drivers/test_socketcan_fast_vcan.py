@@ -187,3 +187,18 @@ def test_receive_queue_overrun_is_counted(
     s = driver.stats
     assert s.errors_by_kind.get("rx_overrun", 0) == 501 - taken == s.dropped > 0
     assert s.bus_errors == 0
+
+
+def test_a_can_fd_bus_keeps_python_can(vcan_channel: str) -> None:
+    """A bus opened for CAN FD receives 72-byte frames, which the fast path's 16-byte slots
+    would cut to 8 data bytes: both drivers keep python-can's path on it."""
+    from drivers.cia402 import CiA402Reels
+
+    bus = open_bus("socketcan", vcan_channel, fd=True)
+    try:
+        assert sf.socket_of(bus) is not None
+        assert sf.open_fast_path(bus, [(0, 0x7E0)]) is None
+        assert not ODriveReels(bus, NODES).fast_path
+        assert not CiA402Reels(bus, (44,), counts_per_rev=4096, period_s=0.002).fast_path
+    finally:
+        bus.shutdown()
