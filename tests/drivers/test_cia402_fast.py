@@ -262,6 +262,49 @@ def test_kernel_drops_are_counted_as_rx_overrun(
     assert d.stats.errors_by_kind["rx_overrun"] == 5
 
 
+def test_kernel_drops_are_read_from_the_sockets_drop_counter() -> None:
+    """The receive queue overflows while the loop does not poll: the drop count the kernel hands
+    over with the next frame (SO_RXQ_OVFL, in `recvmmsg`'s ancillary data) is counted as
+    dropped, kind "rx_overrun", and the frames kept still read. A loopback UDP socket stands in
+    for the CAN socket: it reports its drops the same way (the CAN socket's in the vcan suite)."""
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    bus = open_bus("virtual", f"test-cia402-fast-{uuid.uuid4().hex}")
+    try:
+        rx.bind(("127.0.0.1", 0))
+        tx.bind(("127.0.0.1", 0))
+        rx.connect(tx.getsockname())  # the driver's cycles go to `tx`, never read
+        rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # the kernel's minimum
+        d = CiA402Reels(
+            bus, NODES, counts_per_rev=CPR, period_s=PERIOD_S, fast_path=sf.FastSocketCan(rx)
+        )
+        for n in NODES:  # configured as if by SDO, without drives to answer
+            drive = d._by_node[n]
+            d._use_mapping(drive, *local_mapping(drive.node, n, velocity_offset=True, torque=True))
+        for i in range(500):
+            tx.sendto(_raw(0x181, TPDO.pack(SW_OPERATION_ENABLED, i, 0)), rx.getsockname())
+        taken = 0
+        deadline = time.monotonic() + 10.0
+        while taken == 0 and time.monotonic() < deadline:
+            d.command([0.0] * 4)
+            taken += d.poll()
+        assert 0 < taken < 500
+        # The kernel hands the count over with the next frame it queues.
+        tx.sendto(_raw(0x181, TPDO.pack(SW_OPERATION_ENABLED, 500, 0)), rx.getsockname())
+        deadline = time.monotonic() + 10.0
+        while d.reading(1).position_rev != 500 / CPR and time.monotonic() < deadline:
+            d.command([0.0] * 4)
+            taken += d.poll()
+        assert d.reading(1).position_rev == 500 / CPR
+        s = d.stats
+        assert s.errors_by_kind.get("rx_overrun", 0) == 501 - taken == s.dropped > 0, s
+        assert s.decode_errors == 0 and s.bus_errors == 0, s
+    finally:
+        bus.shutdown()
+        rx.close()
+        tx.close()
+
+
 def test_receive_error_is_counted_never_raised(
     rig: FastRig, monkeypatch: pytest.MonkeyPatch
 ) -> None:
