@@ -60,6 +60,15 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from controller.core.tension_math import (
+    RANK_TOL,
+    SLACK,
+    TRIPLES4,
+    det3,
+    maxmin_lambda,
+    triple_solve,
+)
+
 __all__ = [
     "ANCHOR_TOL_M",
     "G_MPS2",
@@ -84,11 +93,6 @@ G_MPS2 = 9.80665
 ANCHOR_TOL_M = 1e-9
 """P closer than this to an anchor has no cable direction."""
 
-RANK_TOL = 1e-9
-"""Smallest ``sqrt(det(U U^T))`` (unit columns, dimensionless) accepted as spanning space.
-
-Below it the tensions would exceed about 1e9 times the weight."""
-
 UP_TOL = 1e-12
 """A cable whose unit vector rises by at most this pulls no weight up."""
 
@@ -97,10 +101,6 @@ SINGULAR_ROW = -1
 
 SINGULAR_MARGIN_N = -1.0e300
 """``margin`` of a batch row with no distribution: finite, below any real margin."""
-
-# N = 4: lambda is chosen among the lines within this fraction of the largest intercept of the
-# optimum (see _maxmin_lambda); the margin given up is at most that, ~1e-12 relative.
-_SLACK = 1e-12
 
 _BATCH_CHUNK = 65536  # rows per vectorised chunk: bounds the temporaries (~30 MB for N = 4)
 
@@ -201,24 +201,6 @@ def _anchor_array(anchors_m: ArrayLike) -> NDArray[np.float64]:
         raise StaticsInputError("anchors_m has a non-finite coordinate")
     a.setflags(write=False)
     return a
-
-
-def _det3(
-    ax: float,
-    ay: float,
-    az: float,
-    bx: float,
-    by: float,
-    bz: float,
-    cx: float,
-    cy: float,
-    cz: float,
-) -> float:
-    return ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
-
-
-# For N = 4: the triple left when cable j is removed, in ascending order.
-_TRIPLES4 = ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2))
 
 
 class CableStatics:
@@ -327,7 +309,7 @@ class CableStatics:
     @staticmethod
     def _solve3(u: list[tuple[float, float, float]], w: float) -> list[float]:
         (ax, ay, az), (bx, by, bz), (cx, cy, cz) = u
-        det = _det3(ax, ay, az, bx, by, bz, cx, cy, cz)
+        det = det3(ax, ay, az, bx, by, bz, cx, cy, cz)
         if not abs(det) >= RANK_TOL:
             raise SingularConfiguration(
                 "the three cable directions are coplanar (det = "
@@ -353,11 +335,11 @@ class CableStatics:
         tp = [0.0, 0.0, 0.0, 0.0]
         n = [0.0, 0.0, 0.0, 0.0]
         nn = 0.0
-        for j, (a, b, c) in enumerate(_TRIPLES4):
+        for j, (a, b, c) in enumerate(TRIPLES4):
             ax, ay, az = u[a]
             bx, by, bz = u[b]
             cx, cy, cz = u[c]
-            d = _det3(ax, ay, az, bx, by, bz, cx, cy, cz)
+            d = det3(ax, ay, az, bx, by, bz, cx, cy, cz)
             n[j] = -d if j & 1 else d
             nn += d * d
             # D_j^2 t^(j) = D_j * (Cramer numerators)
@@ -373,7 +355,7 @@ class CableStatics:
         scale = w / nn
         tp = [x * scale for x in tp]
         s = [x / norm for x in n]
-        lam = _maxmin_lambda(tp, s, self.t_min_n, self.t_max_n)
+        lam = maxmin_lambda(tp, s, self.t_min_n, self.t_max_n)
         return [tp[i] + lam * s[i] for i in range(4)], n
 
     def solve_with_derivative(
@@ -410,7 +392,7 @@ class CableStatics:
         Analytic for three and four cables: differentiating ``U(P) t = m g e_z`` gives
         ``U T' = G`` with ``G = sum_i t_i (I - u_i u_i^T) / L_i``; for four cables the
         distribution also keeps its two binding distances to the limits equal (the rising and
-        the falling line of ``_maxmin_lambda`` that cross at its optimum), which fixes the
+        the falling line of ``maxmin_lambda`` that cross at its optimum), which fixes the
         null-space part.  Where the binding pair changes (a kink of the distribution) this is
         the derivative on the side the tensions `tensions_n` belong to.  Returns None for more
         than four cables (a linear program: no closed form here) and where no line pair binds
@@ -449,7 +431,7 @@ class CableStatics:
             g23 -= k * uy * uz
         gc = ((g11, g12, g13), (g12, g22, g23), (g13, g23, g33))  # columns (symmetric)
         if nc == 3:
-            x = _triple_solve(u, (0, 1, 2), gc)
+            x = triple_solve(u, (0, 1, 2), gc)
             if x is None:
                 raise SingularConfiguration(
                     "the three cable directions are coplanar: they cannot balance the weight"
@@ -458,18 +440,18 @@ class CableStatics:
         # Four cables: a particular solution on the best-conditioned triple, plus mu n.
         if nv is None:
             nv = []
-            for q, (a, b, c) in enumerate(_TRIPLES4):
+            for q, (a, b, c) in enumerate(TRIPLES4):
                 ax, ay, az = u[a]
                 bx, by, bz = u[b]
                 cx, cy, cz = u[c]
-                d = _det3(ax, ay, az, bx, by, bz, cx, cy, cz)
+                d = det3(ax, ay, az, bx, by, bz, cx, cy, cz)
                 nv.append(-d if q & 1 else d)
         j = 0
         for q in range(1, 4):
             if abs(nv[q]) > abs(nv[j]):
                 j = q
-        triple = _TRIPLES4[j]
-        xt = _triple_solve(u, triple, gc)
+        triple = TRIPLES4[j]
+        xt = triple_solve(u, triple, gc)
         if xt is None:
             raise SingularConfiguration(
                 "the four cable directions do not span space: they cannot balance the weight"
@@ -698,95 +680,6 @@ class CableStatics:
         return t, ok
 
 
-def _triple_solve(
-    u: Sequence[tuple[float, float, float]],
-    triple: tuple[int, int, int],
-    cols: tuple[tuple[float, float, float], ...],
-) -> tuple[tuple[float, float, float], ...] | None:
-    """x with ``sum_{i in triple} u_i x_i[k] = cols[k]`` for each k (Cramer: row i of the
-    inverse of [u_a u_b u_c] is the cross product of the other two over the determinant), one
-    row (x[k] for k = 0..2) per cable of the triple; None when the triple is coplanar."""
-    a, b, c = triple
-    ax, ay, az = u[a]
-    bx, by, bz = u[b]
-    cx, cy, cz = u[c]
-    det = _det3(ax, ay, az, bx, by, bz, cx, cy, cz)
-    if not abs(det) >= RANK_TOL:
-        return None
-    inv = 1.0 / det
-    ra = ((by * cz - bz * cy) * inv, (bz * cx - bx * cz) * inv, (bx * cy - by * cx) * inv)
-    rb = ((cy * az - cz * ay) * inv, (cz * ax - cx * az) * inv, (cx * ay - cy * ax) * inv)
-    rc = ((ay * bz - az * by) * inv, (az * bx - ax * bz) * inv, (ax * by - ay * bx) * inv)
-    out = []
-    for r in (ra, rb, rc):
-        out.append(
-            (
-                r[0] * cols[0][0] + r[1] * cols[0][1] + r[2] * cols[0][2],
-                r[0] * cols[1][0] + r[1] * cols[1][1] + r[2] * cols[1][2],
-                r[0] * cols[2][0] + r[1] * cols[2][1] + r[2] * cols[2][2],
-            )
-        )
-    return tuple(out)
-
-
-def _maxmin_lambda(tp: list[float], s: list[float], lo: float, hi: float) -> float:
-    """lambda maximising min_i min(tp_i + lambda s_i - lo, hi - tp_i - lambda s_i) (|s| = 1).
-
-    Cable i contributes a rising line (intercept a_i, slope |s_i|) and a falling one
-    (intercept b_i, slope |s_i|): (tp_i - lo, hi - tp_i) when s_i >= 0, the other way round
-    when s_i < 0.  The maximum of the lower envelope is the least crossing value of a rising
-    and a falling line (a flat line, s_i = 0, enters through its pairs with sloped lines), and
-    lambda is the middle of the interval where every line is within ``_SLACK`` of it (a point
-    up to rounding unless a flat line binds; the slack keeps a nearly flat line from turning
-    the rounding of the maximum into a large error in lambda).
-    """
-    # Per-tick path (every tension solve of four cables): indexed lists and plain loops.
-    n = len(tp)
-    ra = [0.0] * n
-    fa = [0.0] * n
-    rs = [0.0] * n
-    big = hi
-    for i in range(n):
-        ti = tp[i]
-        si = s[i]
-        if si >= 0.0:
-            ra[i] = ti - lo
-            fa[i] = hi - ti
-            rs[i] = si
-        else:
-            ra[i] = hi - ti
-            fa[i] = ti - lo
-            rs[i] = -si
-        if ti > big:
-            big = ti
-        elif -ti > big:
-            big = -ti
-    best = math.inf
-    for i in range(n):
-        a = ra[i]
-        r = rs[i]
-        for j in range(n):
-            f = rs[j]
-            den = r + f
-            if den > 0.0:
-                v = (a * f + fa[j] * r) / den
-                if v < best:
-                    best = v
-    floor = best - _SLACK * (big + hi)
-    lam_lo = -math.inf
-    lam_hi = math.inf
-    for i in range(n):
-        r = rs[i]
-        if r > 0.0:
-            x = (floor - ra[i]) / r
-            if x > lam_lo:
-                lam_lo = x
-            x = (fa[i] - floor) / r
-            if x < lam_hi:
-                lam_hi = x
-    return 0.5 * (lam_lo + lam_hi)
-
-
 def _lp_maxmin(um: NDArray[np.float64], w: float, lo: float, hi: float) -> NDArray[np.float64]:
     """Max-min tensions for N > 4 by linear programming, in units of the weight ``w``."""
     try:
@@ -867,7 +760,7 @@ def _batch_closed(
         cz = ux[:, :, None] * uy[:, None, :] - uy[:, :, None] * ux[:, None, :]  # (M, 4, 4)
         tp = np.zeros((rows, 4))
         n = np.empty((rows, 4))
-        for j, (a, b, c) in enumerate(_TRIPLES4):
+        for j, (a, b, c) in enumerate(TRIPLES4):
             d = (
                 ux[:, a] * (uy[:, b] * uz[:, c] - uz[:, b] * uy[:, c])
                 - uy[:, a] * (ux[:, b] * uz[:, c] - uz[:, b] * ux[:, c])
@@ -897,7 +790,7 @@ def _batch_closed(
         pos = r > 0.0
         r_safe = np.where(pos, r, 1.0)
         big = np.maximum(np.abs(tp).max(axis=1), hi)
-        floor = (best - _SLACK * (big + hi))[:, None]
+        floor = (best - SLACK * (big + hi))[:, None]
         lam_lo = np.where(pos, (floor - ra) / r_safe, -np.inf).max(axis=1)
         lam_hi = np.where(pos, (fa - floor) / r_safe, np.inf).min(axis=1)
         lam = 0.5 * (lam_lo + lam_hi)
