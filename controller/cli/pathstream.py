@@ -5,7 +5,8 @@ Zenoh calls are handed in, so this runs without them).
 `Pacer` decides when the next chunk goes: the first points go as a `path` command, the rest as
 chunks with `"append": true`, each sent while the daemon's queue holds less than
 `LOW_WATER_S` of motion. The queue's depth comes from each reply's `queued_s` and, between
-sends, from `status`'s `path` section polled every `POLL_S`. A refusal because the queue is
+sends, from `status`'s `path` section, polled when the queue should have drained to the mark
+(every `POLL_S` to `MAX_POLL_S`). A refusal because the queue is
 full (`QUEUE_FULL`: the daemon's `[limits] max_queued_points`) is waited out and the chunk
 sent again; any other refusal (the path was stopped or replaced, a point outside the limits)
 is the caller's to report, and so is the robot leaving HOLDING/MOVING (`RobotLeft`).
@@ -28,7 +29,10 @@ from controller.core.motion import QUEUE_FULL
 LOW_WATER_S = 3.0
 """Send the next chunk while the daemon's queue holds less than this much motion (s)."""
 POLL_S = 0.1
-"""How often the queue's depth is asked for (`status`) while it is deep enough."""
+"""The shortest wait between two status polls while the queue is deep enough (s)."""
+MAX_POLL_S = 0.5
+"""The longest wait between two status polls (s): how stale the progress line and the robot's
+state may get while a deep queue drains to the low-water mark."""
 MOTION_STATES = frozenset({"HOLDING", "MOVING"})
 """The states in which a stream goes on (HOLDING: the path ran dry; an append continues it)."""
 
@@ -115,10 +119,12 @@ class Pacer:
         return p.queue_full or p.queued_s >= self.low_water_s
 
     def poll(self) -> dict[str, Any]:
-        """Sleep `POLL_S`, then read the daemon's status and take its queue's depth; returns
-        the status. Raises RobotLeft when the robot is not HOLDING or MOVING; lets `status`'s
+        """Sleep until the queue should have drained to the low-water mark (from `POLL_S` to
+        `MAX_POLL_S`), then read the daemon's status and take its queue's depth; returns the
+        status. Raises RobotLeft when the robot is not HOLDING or MOVING; lets `status`'s
         errors (the daemon absent) through."""
-        self.sleep(POLL_S)
+        # queued_s is a lower bound on the time the queue takes to fly: never a late wake-up.
+        self.sleep(min(MAX_POLL_S, max(POLL_S, self.progress.queued_s - self.low_water_s)))
         st = self.status()
         if st.get("state") not in MOTION_STATES:
             raise RobotLeft(st)

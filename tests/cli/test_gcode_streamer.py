@@ -13,6 +13,7 @@ from controller.cli.client import Refused, WaitTimeout
 from controller.cli.gcode import Streamer
 from controller.cli.pathstream import (
     LOW_WATER_S,
+    MAX_POLL_S,
     POLL_S,
     StreamProgress,
     StreamRefused,
@@ -288,3 +289,24 @@ def test_gcode_and_path_streams_end_in_the_same_states(state: str) -> None:
     for d in (by_gcode, by_path):
         assert d.polls >= 1
         assert d.sent == ([(4000, False), (10, True)] if state == "HOLDING" else [(4000, False)])
+
+
+def test_a_deep_queue_is_polled_until_it_drains_to_the_mark_not_ten_times_a_second() -> None:
+    """A chunk of 40 s of motion: both streamers poll status about every `MAX_POLL_S` while
+    it drains (not every `POLL_S`: each poll costs the daemon a status), and send the next
+    chunk as the queue reaches the low-water mark, not later."""
+    for run in (_by_gcode, _by_path):
+        d = QueueDaemon(1e-3)
+        naps: list[float] = []
+        sleep = d.sleep
+
+        def nap(s: float, sleep: Any = sleep, naps: list[float] = naps) -> None:
+            naps.append(s)
+            sleep(s)
+
+        d.sleep = nap  # type: ignore[method-assign]
+        run(d, [40_000, 10])
+        assert d.sent == [(40_000, False), (10, True)]
+        assert LOW_WATER_S - POLL_S <= d.at_send[0] < LOW_WATER_S
+        assert max(naps) <= MAX_POLL_S and d.polls == len(naps)
+        assert (40.0 - LOW_WATER_S) / MAX_POLL_S <= d.polls < (40.0 - LOW_WATER_S) / MAX_POLL_S + 5
