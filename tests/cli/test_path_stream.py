@@ -198,6 +198,9 @@ def test_a_long_file_streams_through_the_daemon_without_a_stop(tmp_path: Path) -
         # no stop before its end: MOVING throughout (a dry queue would hold), never at rest
         assert all(p["state"] == "MOVING" for p in samples[first : last + 1])
         assert max(p["queued_points"] for p in samples) > MAX_PATH_POINTS_SENT
+        # paced at the low-water mark (a chunk's worth of slack), not filled to the daemon's bound
+        mark_points = LOW_WATER_S * SPEED_MPS / SPACING_M
+        assert max(p["queued_points"] for p in samples) <= mark_points + 2 * MAX_PATH_POINTS_SENT
         window = 10  # 0.1 s of poses at 100 Hz
         speeds = []
         for i in range(first, last + 1 - window):
