@@ -173,6 +173,7 @@ def stream_points(
     clock: Callable[[], float] = time.monotonic,
     sleep: Callable[[float], None] = time.sleep,
     before_last: Callable[[], None] | None = None,
+    append_first: bool = False,
 ) -> StreamProgress:
     """Send `points` as a path and then appended chunks of at most `chunk` points, paced by a
     `Pacer` (each append when less than `low_water_s` of motion is queued); `show(text, now)`
@@ -180,7 +181,9 @@ def stream_points(
 
     `refused` is the exception `send` raises for a refusal; one for a full queue is waited
     out (polling `status`) and the chunk sent again. `before_last` runs just before the last
-    chunk is sent. Returns the final progress. Raises StreamRefused for any other refusal
+    chunk is sent. With `append_first` the first chunk too is an append (`send` makes it one:
+    a file's `"append": true`), its full-queue refusals waited out as the others'. Returns the
+    final progress. Raises StreamRefused for any other refusal
     (with how far it got) or when the robot leaves HOLDING/MOVING; lets `status`'s and
     `send`'s other errors (the daemon absent) through.
     """
@@ -200,7 +203,7 @@ def stream_points(
         more = prog.sent > 0
         before = before_last if prog.sent + len(part) >= n else None
         try:
-            pacer.send(partial(_attempt, send, part, more, before), more)
+            pacer.send(partial(_attempt, send, part, more, before), more or append_first)
         except RobotLeft as exc:
             raise StreamRefused(f"{exc}: stopped after {prog.sent}/{n} points") from None
         except refused as exc:
