@@ -222,9 +222,10 @@ def chunk_points(max_points: int, decode_limit_bytes: int) -> int:
     return max(1, min(max_points, (decode_limit_bytes - 256) // _POINT_JSON_MAX))
 
 
-POLL_S = 0.2
-"""How often the streamer asks the daemon's status while it waits for rest (each query costs
-the daemon a status snapshot: not more often than a person needs)."""
+REST_POLL_S = 0.2
+"""How often the streamer asks the daemon's status while it waits for rest, and how often a
+dwell calls `on_wait` (each query costs the daemon a status snapshot: not more often than a
+person needs; the pace of appends is `pathstream.Pacer`'s)."""
 
 
 class RobotLink(Protocol):
@@ -301,7 +302,7 @@ class Streamer:
             end = self.clock() + step.duration_s
             while (left := end - self.clock()) > 0.0:
                 self.on_wait()
-                self.sleep(min(left, POLL_S))
+                self.sleep(min(left, REST_POLL_S))
         elif isinstance(step, Disarm):
             self.robot.command("disarm")
         elif isinstance(step, Estop):
@@ -328,7 +329,7 @@ class Streamer:
                 if state == "HOLDING":
                     break
                 self.on_wait()
-                self.sleep(POLL_S)
+                self.sleep(REST_POLL_S)
         self.fresh = True
 
 
