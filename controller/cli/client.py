@@ -460,7 +460,13 @@ def _stream_path(
     ) -> int:
         try:
             prog = stream_points(
-                points, send, status, line.show, refused=Refused, before_last=drain
+                points,
+                send,
+                status,
+                line.show,
+                refused=Refused,
+                before_last=drain,
+                append_first=append,
             )
         except StreamRefused as exc:
             line.clear()

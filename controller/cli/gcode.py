@@ -22,6 +22,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 from controller.cli import exitcodes
+from controller.cli.pathstream import MOTION_STATES, Pacer, RobotLeft
 from controller.core.gcode import GcodeError, Line, parse_lines
 from controller.core.gcode_job import (
     INCH_M,
@@ -221,11 +222,10 @@ def chunk_points(max_points: int, decode_limit_bytes: int) -> int:
     return max(1, min(max_points, (decode_limit_bytes - 256) // _POINT_JSON_MAX))
 
 
-QUEUE_FULL_TEXT = "path queue full"
-"""How the daemon words a refused append while its queue is full (then the append waits)."""
-POLL_S = 0.2
-"""How often the streamer asks the daemon's status while it waits for room or for rest (each
-query costs the daemon a status snapshot: not more often than a person needs)."""
+REST_POLL_S = 0.2
+"""How often the streamer asks the daemon's status while it waits for rest, and how often a
+dwell calls `on_wait` (each query costs the daemon a status snapshot: not more often than a
+person needs; the pace of appends is `pathstream.Pacer`'s)."""
 
 
 class RobotLink(Protocol):
@@ -243,10 +243,12 @@ class RobotLink(Protocol):
 
 class Streamer:
     """Sends a job's steps (`gcode_job.chunks`) to the daemon in order: the first chunk (and
-    the first after a wait) as a path, the others as appends, waiting while the queue is full;
-    each wait (G4, M400, M114, M18/M84) lets the robot come to rest first. Counts the lines and
-    moves sent. Raises client.Refused when the daemon refuses a chunk or the robot leaves the
-    motion states during the job, client.DaemonAbsent when it stops answering."""
+    the first after a wait) as a path, the others as appends paced by the daemon's queue as
+    every stream is (`pathstream.Pacer`: sent while less than `LOW_WATER_S` of motion is
+    queued, a full queue waited out); each wait (G4, M400, M114, M18/M84) lets the robot come
+    to rest first. Counts the lines and moves sent. Raises client.Refused when the daemon
+    refuses a chunk or the robot leaves the motion states during the job,
+    client.DaemonAbsent when it stops answering."""
 
     def __init__(
         self,
@@ -255,33 +257,40 @@ class Streamer:
         clock: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
     ) -> None:
+        from controller.cli.client import Refused
+
         self.robot = robot
         self.clock = clock
         self.sleep = sleep
         self.on_wait: Callable[[], None] = lambda: None
         """Called at every poll while the streamer waits (for room, for rest, in a dwell)."""
+        self.pacer = Pacer(robot.status, refused=Refused, sleep=sleep, on_poll=self._waiting)
         self.fresh = True
         self.line = 0
         self.moves = 0
         self.chunks = 0
-        self.full_waits = 0
+
+    @property
+    def full_waits(self) -> int:
+        """Chunks refused for a full queue and sent again."""
+        return self.pacer.progress.retries
+
+    def _waiting(self) -> None:
+        self.on_wait()
 
     def send(self, step: Step) -> str | None:
-        """Send one step; returns the M114 report of a `Sync` that has one (after the rest)."""
+        """Send one step; returns the M114 report of a `Sync` that has one (after the rest).
+        Raises client.Refused (a refused chunk, the robot gone from the motion states)."""
         from controller.cli.client import Refused
 
         if isinstance(step, Chunk):
-            while True:
-                try:
-                    self.robot.path(step.points_m, step.speed_mps, append=not self.fresh)
-                    break
-                except Refused as exc:
-                    if self.fresh or QUEUE_FULL_TEXT not in str(exc):
-                        raise
-                    self.full_waits += 1
-                    self._check_moving()
-                    self.on_wait()
-                    self.sleep(POLL_S)
+            append = not self.fresh
+            try:
+                self.pacer.send(
+                    lambda: self.robot.path(step.points_m, step.speed_mps, append=append), append
+                )
+            except RobotLeft as exc:
+                raise Refused(_gone(exc.status, self.line)) from None
             self.fresh = False
             self.chunks += 1
             self.line = step.last_line
@@ -293,7 +302,7 @@ class Streamer:
             end = self.clock() + step.duration_s
             while (left := end - self.clock()) > 0.0:
                 self.on_wait()
-                self.sleep(min(left, POLL_S))
+                self.sleep(min(left, REST_POLL_S))
         elif isinstance(step, Disarm):
             self.robot.command("disarm")
         elif isinstance(step, Estop):
@@ -302,16 +311,9 @@ class Streamer:
             return step.report
         return None
 
-    def _check_moving(self) -> None:
-        from controller.cli.client import Refused
-
-        st = self.robot.status()
-        if st.get("state") != "MOVING":
-            raise Refused(_gone(st, self.line))
-
     def rest(self, deadline_s: float = math.inf) -> None:
         """Wait until the robot rests at the end of what was sent (HOLDING); the next chunk
-        then starts a path. Raises client.Refused if it goes to another state, and
+        then starts a path. Raises client.Refused if it leaves the motion states, and
         client.WaitTimeout if it still moves at `deadline_s` (of `clock`)."""
         from controller.cli.client import Refused, WaitTimeout
 
@@ -321,12 +323,13 @@ class Streamer:
                     raise WaitTimeout(f"the job is still running (line {self.line})")
                 st = self.robot.status()
                 state = st.get("state")
+                if state not in MOTION_STATES:
+                    raise Refused(_gone(st, self.line))
+                self.pacer.progress.take(st.get("path"))
                 if state == "HOLDING":
                     break
-                if state != "MOVING":
-                    raise Refused(_gone(st, self.line))
                 self.on_wait()
-                self.sleep(POLL_S)
+                self.sleep(REST_POLL_S)
         self.fresh = True
 
 

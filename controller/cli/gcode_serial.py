@@ -8,7 +8,8 @@ sends goes through `controller.core.gcode_protocol.LineProtocol` (line numbers, 
 `Resend:`, `M105`/`M115`), then `controller.core.gcode_job.Interpreter`; its motions gather
 into chunks sent to the daemon by the same `Streamer` as `cablebot gcode FILE`, a chunk going
 out when it holds `CHUNK_POINTS` points, at a wait, or when the host pauses for `IDLE_S`.
-`ok` goes back once a line is queued (a full daemon queue delays it: the host's flow control).
+`ok` goes back once a line is queued (a chunk waits while the daemon has `LOW_WATER_S` of motion
+queued or its queue is full, `pathstream.Pacer`: that delay is the host's flow control).
 During a wait (`G4`, `M400`, `M114`) the host hears `echo:busy: processing` every 2 s.
 
 Unlike a file, a stream cannot be checked whole before its first move: the daemon checks every

@@ -109,6 +109,24 @@ def test_a_full_queue_is_waited_out_and_other_refusals_end_the_stream() -> None:
         )
 
 
+def test_a_file_appended_to_a_full_queue_waits_it_out() -> None:
+    """A file with `"append": true` whose first chunk meets a full queue (the path in
+    progress) waits it out and sends it again, as any other append."""
+    fake = FakeDaemon(seconds_per_point=1e-3, max_points=2500)
+    fake.queued = 2500
+    prog = stream_points(
+        _points(3000),
+        lambda pts, more: fake.send(pts, True),
+        fake.status,
+        lambda t, n: None,
+        refused=Refused,
+        sleep=lambda s: None,
+        append_first=True,
+    )
+    assert prog.sent == 3000 and fake.full_refusals > 0 and prog.retries == fake.full_refusals
+    assert fake.sent[0] == (1000, True)
+
+
 def test_a_long_file_loads_for_streaming_only(tmp_path: Path) -> None:
     f = tmp_path / "long.csv"
     f.write_text("".join(f"{0.001 * k},0,2\n" for k in range(2500)))
@@ -198,6 +216,9 @@ def test_a_long_file_streams_through_the_daemon_without_a_stop(tmp_path: Path) -
         # no stop before its end: MOVING throughout (a dry queue would hold), never at rest
         assert all(p["state"] == "MOVING" for p in samples[first : last + 1])
         assert max(p["queued_points"] for p in samples) > MAX_PATH_POINTS_SENT
+        # paced at the low-water mark (a chunk's worth of slack), not filled to the daemon's bound
+        mark_points = LOW_WATER_S * SPEED_MPS / SPACING_M
+        assert max(p["queued_points"] for p in samples) <= mark_points + 2 * MAX_PATH_POINTS_SENT
         window = 10  # 0.1 s of poses at 100 Hz
         speeds = []
         for i in range(first, last + 1 - window):
