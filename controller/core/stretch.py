@@ -37,8 +37,9 @@ and the dynamic loads of a move are not modelled (``docs/cable-stretch.md``).
   (``tests/core/test_stretch.py``).
   Warm-started from the last pose a tick earlier, one pass and at most one statics solve; the
   loop also hands in its set-point and the tensions it planned there (solved anyway for the
-  tension check), which linearise the pass while the pose is within ``PLANNED_REUSE_M``: then
-  the call solves no statics, only the tension derivative every ``JACOBIAN_REUSE_M``.
+  tension check), which linearise the pass while the pose is within ``PLANNED_REUSE_M``, and
+  the derivative its solve there takes when ``wants_derivative`` says the FPK needs one
+  (``take_derivative``): then the call solves no statics and takes no derivative.
 * FPK with measured tensions (``fpk_measured``): the geometric lengths follow directly from the
   paid-out ones and the tensions; one rigid FPK, no iteration.
 
