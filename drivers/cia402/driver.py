@@ -476,7 +476,10 @@ class CiA402Reels(CiA402Receive):
                 except BusError as exc:
                     failed.append((i, str(exc)))
             return failed
-        errors = fast.send_frames(frames)
+        try:
+            errors = fast.send_frames(frames)
+        except Exception as exc:  # not a frame's failure: none of them is known to be sent
+            return [(i, send_failure(self._stats, f[0], exc)) for i, f in enumerate(frames)]
         if errors is None:
             self._stats.frames_tx += len(frames)
             return []

@@ -321,7 +321,15 @@ class ODriveReels(ODriveReceive, ODriveTorqueMode):
 
     def _send_fast(self, fast: FastSocketCan, frames: Sequence[cs.Frame], what: str) -> None:
         """`_send_all` on the SocketCAN fast path: the frames in one system call."""
-        failed = fast.send_frames(frames)
+        try:
+            failed = fast.send_frames(frames)
+        except Exception as exc:  # not a frame's failure: none of them is known to be sent
+            texts = []
+            for arb_id, _data, _remote in frames:
+                text = f"send {what} to node {arb_id >> 5}: {type(exc).__name__}: {exc}"
+                self._stats.count_bus_error(text)
+                texts.append(text)
+            raise BusError("; ".join(texts)) from exc
         if failed is None:
             self._stats.frames_tx += len(frames)
             return

@@ -353,3 +353,29 @@ def test_bench_socketpair_figures_measure_both_drivers() -> None:
     got = socketpair_figures(1, 20, 3)
     assert set(got) == {"odrive", "cia402"}
     assert all(0.0 < v < 1e5 for fig in got.values() for v in fig.values())
+
+
+def test_an_unexpected_send_error_is_a_bus_error_naming_every_frame(
+    rig: FastRig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Whatever the fast send raises (select's ValueError on a descriptor >= 1024, say), every
+    frame of the cycle is named as failed: `estop` raises BusError, `poll` nothing."""
+    d = rig.driver
+
+    def odd(frames: object) -> None:
+        raise ValueError("filedescriptor out of range in select()")
+
+    monkeypatch.setattr(rig.fast, "send_frames", odd)
+    errors0, tx0 = d.stats.bus_errors, d.stats.frames_tx
+    syncs = d._syncs_sent
+    with pytest.raises(BusError) as info:
+        d.estop()
+    text = str(info.value)
+    assert text.startswith("node 1 RPDO1: send 0x201: ValueError: filedescriptor out of range")
+    assert text.count("ValueError") == 2 * len(NODES) + 1 and "SYNC: send 0x080" in text
+    assert d.stats.bus_errors - errors0 == 2 * len(NODES) + 1
+    assert d.stats.frames_tx == tx0 and d._syncs_sent == syncs
+    assert d.poll() == 0  # the estop's cycle was this poll's
+    d._last_sync_s -= 1.0  # the next poll is due a held-set-point cycle, which fails
+    assert d.poll() == 0  # counted, not raised
+    assert d.stats.bus_errors - errors0 == 2 * (2 * len(NODES) + 1)

@@ -288,3 +288,30 @@ def test_receive_error_is_counted_never_raised(
     assert driver.poll() == 0
     assert driver.stats.bus_errors == 1
     assert "Network is down" in (driver.stats.last_error or "")
+
+
+def test_an_unexpected_send_error_is_a_bus_error_naming_every_frame(
+    pair: tuple[socket.socket, socket.socket], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Whatever the fast send raises (select's ValueError on a descriptor >= 1024, say), the
+    driver raises BusError naming every frame of the call as failed, as python-can's path does;
+    `estop` raises nothing else and a poll's encoder RTR never escapes."""
+    a, _b = pair
+    bus = can.Bus(interface="virtual", channel=f"fast-odd-{id(a)}")
+    driver = ODriveReels(bus, (1, 2), encoder_rtr=True, fast_path=sf.FastSocketCan(a))
+    fast = driver._fast
+    assert fast is not None
+
+    def odd(frames: object) -> None:
+        raise ValueError("filedescriptor out of range in select()")
+
+    monkeypatch.setattr(fast, "send_frames", odd)
+    with pytest.raises(BusError) as info:
+        driver.estop()
+    text = str(info.value)
+    assert "Estop to node 1: ValueError: filedescriptor out of range" in text
+    assert "Estop to node 2: ValueError" in text
+    assert driver.stats.bus_errors == 2 and driver.stats.frames_tx == 0
+    assert driver.poll() == 0  # the RTR round fails: counted, not raised
+    assert driver.stats.bus_errors == 4
+    bus.shutdown()
