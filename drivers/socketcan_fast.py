@@ -11,8 +11,10 @@ frame, and its send path a `select` and a `send` per frame. `FastSocketCan` uses
   more (EAGAIN), never with a `select` per frame.
 * send: the tick's frames are packed into a preallocated array and handed to `sendmmsg(2)`: one
   system call for all of them (CAN_RAW takes one frame per message; `sendmmsg` is the fewest
-  calls the kernel allows). A full device queue (`ENOBUFS`) or socket buffer fails the frames
-  not sent, each named, as python-can's send does.
+  calls the kernel allows). A full socket buffer is waited for, up to the send timeout for the
+  whole call (python-can waits up to it per frame); a full device queue (`ENOBUFS`), or a socket
+  buffer still full at the deadline, fails the frames not sent, each named, as python-can's send
+  does.
 * kernel receive filters (CAN_RAW_FILTER) pass only the ids the driver asks for; error frames
   (CAN_RAW_ERR_FILTER, every class) still arrive; own frames are never echoed back
   (CAN_RAW_RECV_OWN_MSGS off).
@@ -30,11 +32,13 @@ import contextlib
 import ctypes
 import ctypes.util
 import errno
+import math
 import os
 import select
 import socket
 import struct
 import sys
+import time
 from collections.abc import Sequence
 from typing import Any, Final
 
@@ -197,6 +201,10 @@ class FastSocketCan:
         self._sock = sock
         self._fd = sock.fileno()
         self._send_timeout_s = send_timeout_s
+        self._send_deadline_s: float | None = None
+        # poll, not select: any descriptor number (select refuses those >= 1024).
+        self._room = select.poll()
+        self._room.register(self._fd, select.POLLOUT)
         sock.setsockopt(_SOL_SOCKET, _SO_TIMESTAMPNS, 1)
         with contextlib.suppress(OSError):  # not every socket family counts drops
             sock.setsockopt(_SOL_SOCKET, _SO_RXQ_OVFL, 1)
@@ -261,9 +269,11 @@ class FastSocketCan:
 
         Returns None when every frame went out, else (index, error) for each frame that did not
         (the others were still tried): ENOBUFS when the interface's queue is full, "transmit
-        buffer full" (EAGAIN) when the socket buffer stayed full for the send timeout.
-        Raises ValueError (sending nothing) on an id outside 11 bits or data over 8 bytes.
+        buffer full" (EAGAIN) when the socket buffer had no room before the call's deadline (the
+        send timeout after its first wait for room; after it, a frame finding no room fails at
+        once). Raises ValueError (sending nothing) on an id outside 11 bits or data over 8 bytes.
         """
+        self._send_deadline_s = None
         failures: list[tuple[int, OSError]] | None = None
         for start in range(0, len(frames), self.batch):
             chunk = frames[start : start + self.batch]
@@ -288,7 +298,6 @@ class FastSocketCan:
         n = len(frames)
         failed: list[tuple[int, OSError]] = []
         i = 0
-        waited = False
         while i < n:
             self.send_calls += 1
             sent: int = self._sendmmsg(self._fd, tx.address + i * _MMSG_SIZE, n - i, _MSG_DONTWAIT)
@@ -298,15 +307,25 @@ class FastSocketCan:
             err = ctypes.get_errno() if sent < 0 else errno.EIO
             if err == errno.EINTR:
                 continue
-            if err in (errno.EAGAIN, errno.EWOULDBLOCK) and not waited:
-                # The socket's send buffer is full: wait once for room, as python-can does.
-                waited = True
-                if select.select([], [self._sock], [], self._send_timeout_s)[1]:
-                    continue
-            text = "Transmit buffer full" if err in (errno.EAGAIN, errno.EWOULDBLOCK) else None
-            failed.append((i, OSError(err, text or os.strerror(err))))
+            full = err in (errno.EAGAIN, errno.EWOULDBLOCK)
+            if full and self._wait_for_room():
+                continue
+            failed.append((i, OSError(err, "Transmit buffer full" if full else os.strerror(err))))
             i += 1
         return failed
+
+    def _wait_for_room(self) -> bool:
+        """Wait for room in the socket's send buffer until the `send_frames` call's deadline
+        (its first wait sets it, `send_timeout_s` ahead). True if there is room (or the socket
+        has an error to report), False once the deadline has passed. Raises nothing."""
+        now_s = time.monotonic()
+        deadline_s = self._send_deadline_s
+        if deadline_s is None:
+            deadline_s = self._send_deadline_s = now_s + self._send_timeout_s
+        left_s = deadline_s - now_s
+        if left_s <= 0.0:
+            return False
+        return bool(self._room.poll(math.ceil(left_s * 1000.0)))
 
 
 def socket_of(bus: object) -> socket.socket | None:

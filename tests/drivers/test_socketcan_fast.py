@@ -315,3 +315,52 @@ def test_an_unexpected_send_error_is_a_bus_error_naming_every_frame(
     assert driver.poll() == 0  # the RTR round fails: counted, not raised
     assert driver.stats.bus_errors == 4
     bus.shutdown()
+
+
+class _BrieflyFull:
+    """A sendmmsg stand-in: the socket buffer is full for the first `times` attempts (EAGAIN),
+    then the real call."""
+
+    def __init__(self, real: object, times: int) -> None:
+        self.real = real
+        self.left = times
+
+    def __call__(self, fd: int, address: int, n: int, flags: int) -> int:
+        if self.left > 0:
+            self.left -= 1
+            ctypes.set_errno(errno.EAGAIN)
+            return -1
+        return int(self.real(fd, address, n, flags))  # type: ignore[operator]
+
+
+def test_a_briefly_full_socket_buffer_loses_no_frame(
+    pair: tuple[socket.socket, socket.socket],
+) -> None:
+    """The buffer is full at several attempts of one call: the call keeps waiting for room
+    while its send timeout lasts, so every frame goes out, in order."""
+    a, b = pair
+    fast = sf.FastSocketCan(a, send_timeout_s=5.0)
+    fast._sendmmsg = _BrieflyFull(fast._sendmmsg, times=3)  # type: ignore[method-assign]
+    frames = [(0x10 + i, bytes([i]), False) for i in range(4)]
+    assert fast.send_frames(frames) is None
+    b.setblocking(False)
+    assert [sf.CAN_FRAME.unpack(b.recv(64))[0] for _ in frames] == [0x10, 0x11, 0x12, 0x13]
+
+
+def test_a_full_socket_buffer_waits_once_per_call_then_fails_the_rest(
+    pair: tuple[socket.socket, socket.socket],
+) -> None:
+    """The peer never reads: one call waits at most about its send timeout in all (not one per
+    frame), then names every frame not sent."""
+    a, _b = pair
+    fast = sf.FastSocketCan(a, send_timeout_s=0.2)
+    a.setblocking(False)
+    with pytest.raises(BlockingIOError):
+        while True:  # fill the peer's queue
+            a.send(_raw(0x10, b""))
+    t0 = time.monotonic()
+    failures = fast.send_frames([(0x10 + i, b"", False) for i in range(20)])
+    elapsed = time.monotonic() - t0
+    assert failures is not None and [i for i, _ in failures] == list(range(20))
+    assert all(e.errno == errno.EAGAIN and "Transmit buffer full" in str(e) for _, e in failures)
+    assert 0.15 < elapsed < 2.0  # one deadline: 20 per-frame waits would take 4 s
