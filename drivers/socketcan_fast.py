@@ -58,6 +58,8 @@ _CAN_RAW_FD_FRAMES: Final = 5
 _SOL_SOCKET: Final = socket.SOL_SOCKET
 _SO_TIMESTAMPNS: Final = 35  # SO_TIMESTAMPNS_OLD (asm-generic, x86, ARM): a native timespec
 _SO_RXQ_OVFL: Final = 40
+_SO_MEMINFO: Final = 55
+_SK_MEMINFO: Final = struct.Struct("=9I")  # SK_MEMINFO_VARS u32s; the last is SK_MEMINFO_DROPS
 
 #: struct can_frame (linux/can.h): id with flags, length, 3 padding bytes, 8 data bytes.
 CAN_FRAME: Final = struct.Struct("=IB3x8s")
@@ -212,9 +214,10 @@ class FastSocketCan:
         self._rx = _MsgArray(batch, _CTRL_SIZE)
         self._tx = _MsgArray(batch, 0)
         self._rx_ctrl_bytes = batch * _CTRL_SIZE
-        self._drops_seen = 0
+        self._drops_seen = _socket_drops(sock)
         self.kernel_drops = 0
-        """Frames the kernel dropped because this socket's receive queue was full (total)."""
+        """Frames the kernel dropped because this socket's receive queue was full since this
+        fast path was set up (total)."""
         self.send_calls = 0
         """System calls made to send (for the benchmark)."""
         self.recv_calls = 0
@@ -246,9 +249,22 @@ class FastSocketCan:
             kind_off = (got - 1) * _CTRL_SIZE + _TS_SPACE
             _len, level, ctype, drops = _CMSG_U32.unpack_from(rx.control_view, kind_off)
             if level == _SOL_SOCKET and ctype == _SO_RXQ_OVFL and drops != self._drops_seen:
-                self.kernel_drops += (drops - self._drops_seen) & 0xFFFFFFFF
-                self._drops_seen = drops
+                self._count_drops(drops)
         return got
+
+    def _count_drops(self, drops: int) -> None:
+        """Take the socket's cumulative drop count `drops` (a u32 that wraps) into
+        `kernel_drops`. Frames queued before the last count seen carry older (smaller) counts:
+        the signed 32-bit difference ignores them. Without a starting count (SO_MEMINFO
+        refused) the first count seen is the start. Raises nothing."""
+        seen = self._drops_seen
+        if seen is None:
+            self._drops_seen = drops
+            return
+        delta = ((drops - seen + 0x80000000) & 0xFFFFFFFF) - 0x80000000
+        if delta > 0:
+            self.kernel_drops += delta
+            self._drops_seen = drops
 
     def frame(self, i: int) -> tuple[int, int, bytes, float]:
         """Frame `i` of the last `recv_batch`: (can_id with the EFF/RTR/ERR flags, length,
@@ -326,6 +342,19 @@ class FastSocketCan:
         if left_s <= 0.0:
             return False
         return bool(self._room.poll(math.ceil(left_s * 1000.0)))
+
+
+def _socket_drops(sock: socket.socket) -> int | None:
+    """The frames `sock`'s receive queue has dropped so far (SO_MEMINFO's SK_MEMINFO_DROPS, the
+    counter SO_RXQ_OVFL reports), or None if the socket does not tell. Raises nothing."""
+    try:
+        raw = sock.getsockopt(_SOL_SOCKET, _SO_MEMINFO, _SK_MEMINFO.size)
+    except OSError:
+        return None
+    if len(raw) < _SK_MEMINFO.size:
+        return None
+    drops: int = _SK_MEMINFO.unpack_from(raw)[-1]
+    return drops
 
 
 def socket_of(bus: object) -> socket.socket | None:

@@ -364,3 +364,46 @@ def test_a_full_socket_buffer_waits_once_per_call_then_fails_the_rest(
     assert failures is not None and [i for i, _ in failures] == list(range(20))
     assert all(e.errno == errno.EAGAIN and "Transmit buffer full" in str(e) for _, e in failures)
     assert 0.15 < elapsed < 2.0  # one deadline: 20 per-frame waits would take 4 s
+
+
+def _overflow(tx: socket.socket, rx: socket.socket, first: int) -> None:
+    """Send 500 frames to `rx`, far more than its queue holds."""
+    for i in range(500):
+        tx.sendto(_raw(0x100, (first + i).to_bytes(4, "little")), rx.getsockname())
+
+
+def test_drops_before_the_fast_path_existed_are_not_counted() -> None:
+    """Drops from before the fast path was set up are no loop stall: its count starts at the
+    socket's drop counter then, and frames already queued with older counts (the socket counted
+    drops before) add nothing; a later overflow counts exactly the frames lost. A loopback UDP
+    socket stands in for the CAN socket: it reports its drops the same way."""
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        rx.bind(("127.0.0.1", 0))
+        tx.bind(("127.0.0.1", 0))
+        rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # the kernel's minimum
+        rx.setsockopt(socket.SOL_SOCKET, sf._SO_RXQ_OVFL, 1)  # queued frames carry counts
+        rx.setblocking(False)
+        _overflow(tx, rx, 0)
+        with pytest.raises(BlockingIOError):
+            while True:
+                rx.recv(64)
+        _overflow(tx, rx, 1000)  # queued with the count of the first overflow, more dropped
+        fast = sf.FastSocketCan(rx)
+        frames = []
+        while n := fast.recv_batch(64):
+            frames += [int.from_bytes(fast.frame(i)[2][:4], "little") for i in range(n)]
+        assert frames and fast.kernel_drops == 0
+        _overflow(tx, rx, 2000)
+        while n := fast.recv_batch(64):
+            frames += [int.from_bytes(fast.frame(i)[2][:4], "little") for i in range(n)]
+        tx.sendto(_raw(0x100, (3000).to_bytes(4, "little")), rx.getsockname())
+        while n := fast.recv_batch(64):
+            frames += [int.from_bytes(fast.frame(i)[2][:4], "little") for i in range(n)]
+        after = [f for f in frames if f >= 2000]
+        assert after[-1] == 3000
+        assert fast.kernel_drops == 501 - len(after) > 0
+    finally:
+        rx.close()
+        tx.close()
