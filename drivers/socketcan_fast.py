@@ -379,12 +379,19 @@ def open_fast_path(
     bus: object,
     filters: Sequence[tuple[int, int]] | None,
     *,
+    fast_path: bool | FastSocketCan = True,
     send_timeout_s: float = 0.005,
 ) -> FastSocketCan | None:
-    """A `FastSocketCan` on `bus`'s socket with kernel `filters` (see `FastSocketCan`), or None
-    when `bus` is not a python-can SocketCAN bus, receives CAN FD frames, or this system cannot
-    run the fast path (the caller then keeps python-can's path). Raises ValueError on a bad
-    filter, OSError if the socket refuses an option."""
+    """The fast path a driver asked for with `fast_path` (its constructor's argument): a
+    `FastSocketCan` given is used as it is (tests, the benchmark); False is None (python-can's
+    path); True is a `FastSocketCan` on `bus`'s socket with kernel `filters` (see
+    `FastSocketCan`), or None when `bus` is not a python-can SocketCAN bus, receives CAN FD
+    frames, or this system cannot run the fast path (the caller then keeps python-can's path).
+    Raises ValueError on a bad filter, OSError if the socket refuses an option."""
+    if isinstance(fast_path, FastSocketCan):
+        return fast_path
+    if not fast_path:
+        return None
     sock = socket_of(bus)
     if sock is None or _receives_fd_frames(sock):
         return None

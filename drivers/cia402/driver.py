@@ -138,12 +138,9 @@ def kernel_filters(node_ids: Iterable[int]) -> list[tuple[int, int]]:
 
 
 def send_failure(stats: BusStats, can_id: int, exc: BaseException) -> str:
-    """Count one frame that could not be sent (`stats.bus_errors`, `last_error`) and name it:
-    "send 0x<id>: <exception type>: <exception>". Raises nothing."""
-    text = f"send 0x{can_id:03X}: {type(exc).__name__}: {exc}"
-    stats.bus_errors += 1
-    stats.last_error = text
-    return text
+    """Count one frame `can_id` that could not be sent and name it "send 0x<id>: ..."
+    (`BusStats.count_send_failure`). Raises nothing."""
+    return stats.count_send_failure(f"0x{can_id:03X}", exc)
 
 
 class _LoopNetwork(canopen.Network):
@@ -281,12 +278,8 @@ class CiA402Reels(CiA402Receive):
         self._cycled_since_poll = False
         self._configuring = False
         self._tx_frames: list[tuple[int, bytes, bool]] = []
-        self._fast: FastSocketCan | None = (
-            fast_path
-            if isinstance(fast_path, FastSocketCan)
-            else open_fast_path(bus, kernel_filters(ids), send_timeout_s=send_timeout_s)
-            if fast_path
-            else None
+        self._fast = open_fast_path(
+            bus, kernel_filters(ids), fast_path=fast_path, send_timeout_s=send_timeout_s
         )
 
     @property

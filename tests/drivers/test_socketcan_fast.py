@@ -166,11 +166,12 @@ def test_driver_counts_enobufs_per_frame_and_sends_the_rest(
     fast = driver._fast
     assert fast is not None and driver.fast_path
     fast._sendmmsg = _ENOBUFSOnce(fast._sendmmsg, fail_at=2)  # type: ignore[method-assign]
-    with pytest.raises(BusError, match=r"Set_Input_Pos to node 2: ENOBUFS"):
+    text = "send Set_Input_Pos to node 2: ENOBUFS: No buffer space available"
+    with pytest.raises(BusError, match=f"^{text}$"):
         driver.command([0.0, 1.0, 2.0, 3.0])
     assert driver.stats.frames_tx == 3
     assert driver.stats.bus_errors == 1
-    assert "ENOBUFS" in (driver.stats.last_error or "")
+    assert driver.stats.last_error == text
     b.setblocking(False)
     got = [sf.CAN_FRAME.unpack(b.recv(64))[0] for _ in range(3)]
     assert got == [cs.arbitration_id(n, cs.SET_INPUT_POS) for n in (0, 1, 3)]
@@ -407,3 +408,41 @@ def test_drops_before_the_fast_path_existed_are_not_counted() -> None:
     finally:
         rx.close()
         tx.close()
+
+
+def test_both_paths_name_a_failed_send_the_same_way() -> None:
+    """python-can's path names an OS error as the fast path does: by its errno name."""
+
+    class Refusing(can.BusABC):
+        def __init__(self) -> None:
+            super().__init__(channel="refusing")
+
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            raise OSError(errno.ENOBUFS, "No buffer space available")
+
+        def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:
+            return None, False
+
+    bus = Refusing()
+    d = ODriveReels(bus, (2,))
+    assert not d.fast_path
+    text = "send Set_Input_Pos to node 2: ENOBUFS: No buffer space available"
+    with pytest.raises(BusError, match=f"^{text}$"):
+        d.command([0.0])
+    assert d.stats.last_error == text
+    bus.shutdown()
+
+
+def test_open_fast_path_takes_the_drivers_choice(
+    pair: tuple[socket.socket, socket.socket],
+) -> None:
+    """The constructors' `fast_path` goes to `open_fast_path` as given: a `FastSocketCan` is
+    used as it is, False keeps python-can's path."""
+    fast = sf.FastSocketCan(pair[0])
+    bus = can.Bus(interface="virtual", channel="fast-choice")
+    try:
+        assert sf.open_fast_path(bus, [(0, 0x7E0)], fast_path=fast) is fast
+        assert sf.open_fast_path(bus, [(0, 0x7E0)], fast_path=False) is None
+        assert sf.open_fast_path(bus, [(0, 0x7E0)], fast_path=True) is None  # not SocketCAN
+    finally:
+        bus.shutdown()
