@@ -106,6 +106,14 @@ class FastPathUnavailable(OSError):
     """This system cannot run the fast path (no Linux libc with recvmmsg/sendmmsg)."""
 
 
+class FastPathClosed(OSError):
+    """The bus's socket was closed (`bus.shutdown()`): the fast path no longer receives or sends
+    (its old descriptor number may name another file by now). errno EBADF."""
+
+    def __init__(self) -> None:
+        super().__init__(errno.EBADF, "the bus's socket is closed (the bus was shut down)")
+
+
 def _libc() -> Any:
     """The C library with `recvmmsg` and `sendmmsg` bound; raises FastPathUnavailable."""
     if not sys.platform.startswith("linux"):
@@ -178,7 +186,8 @@ class FastSocketCan:
     """Direct receive and send on a python-can SocketCAN bus's kernel socket.
 
     Not thread-safe: one thread (the control loop) calls every method. The python-can bus keeps
-    owning the socket (open and shut it down through python-can).
+    owning the socket (open and shut it down through python-can); once it is closed every
+    receive and send raises `FastPathClosed`.
     """
 
     def __init__(
@@ -229,8 +238,11 @@ class FastSocketCan:
         """Take up to min(`max_frames`, `batch`) pending frames off the socket in one system call,
         without waiting; return how many (0 = none pending). Read them with `frame(i)`.
 
-        Raises OSError for a receive error other than "nothing pending" (e.g. ENETDOWN).
+        Raises FastPathClosed once the socket is closed, OSError for a receive error other than
+        "nothing pending" (e.g. ENETDOWN).
         """
+        if self._sock.fileno() != self._fd:
+            raise FastPathClosed
         n = self.batch if max_frames > self.batch else max_frames
         if n <= 0:
             return 0
@@ -287,8 +299,11 @@ class FastSocketCan:
         (the others were still tried): ENOBUFS when the interface's queue is full, "transmit
         buffer full" (EAGAIN) when the socket buffer had no room before the call's deadline (the
         send timeout after its first wait for room; after it, a frame finding no room fails at
-        once). Raises ValueError (sending nothing) on an id outside 11 bits or data over 8 bytes.
+        once). Raises ValueError (sending nothing) on an id outside 11 bits or data over 8 bytes,
+        FastPathClosed (sending nothing) once the socket is closed.
         """
+        if self._sock.fileno() != self._fd:
+            raise FastPathClosed
         self._send_deadline_s = None
         failures: list[tuple[int, OSError]] | None = None
         for start in range(0, len(frames), self.batch):

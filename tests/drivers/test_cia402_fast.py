@@ -397,3 +397,17 @@ def test_an_error_frame_is_a_bus_error_not_a_dropped_frame(rig: FastRig) -> None
     assert s.bus_errors - before.bus_errors == 1 and s.last_error == "CAN error frame 0x40"
     assert s.errors_by_kind["error_frame"] - before.errors_by_kind.get("error_frame", 0) == 1
     assert (s.dropped, s.decode_errors) == (before.dropped, before.decode_errors)
+
+
+def test_a_closed_socket_is_a_named_bus_error(rig: FastRig) -> None:
+    """After the bus's socket is closed: poll counts the refused receive, estop raises BusError
+    naming every frame of its cycle."""
+    d = rig.driver
+    d.command([0.0] * 4)
+    rig.mine.close()
+    errors0 = d.stats.bus_errors
+    assert d.poll() == 0
+    assert d.stats.bus_errors == errors0 + 1 and "closed" in (d.stats.last_error or "")
+    with pytest.raises(BusError, match=r"^node 1 RPDO1: send 0x201: EBADF: .*closed"):
+        d.estop()
+    assert d.stats.bus_errors == errors0 + 1 + 2 * len(NODES) + 1

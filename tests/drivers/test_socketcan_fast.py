@@ -446,3 +446,38 @@ def test_open_fast_path_takes_the_drivers_choice(
         assert sf.open_fast_path(bus, [(0, 0x7E0)], fast_path=True) is None  # not SocketCAN
     finally:
         bus.shutdown()
+
+
+def test_a_closed_socket_is_refused_never_its_number_reused() -> None:
+    """After the bus's socket is closed (bus.shutdown()) the fast path refuses to receive or
+    send, by name, even when its old descriptor number now belongs to another socket; the
+    driver counts the refusals as bus errors and `estop` raises BusError."""
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    bus = can.Bus(interface="virtual", channel=f"fast-closed-{id(b)}")
+    driver = ODriveReels(bus, (1,), fast_path=sf.FastSocketCan(b))
+    fast = driver._fast
+    assert fast is not None
+    number = b.fileno()
+    b.close()
+    c, d = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    try:
+        assert number in (c.fileno(), d.fileno())  # the number now names another socket
+        for s in (c, d):
+            s.send(_raw(0x21, b"\x01"))  # a frame another socket is meant to read
+        calls = fast.recv_calls, fast.send_calls
+        with pytest.raises(sf.FastPathClosed, match="closed"):
+            fast.recv_batch(10)
+        with pytest.raises(sf.FastPathClosed, match="closed"):
+            fast.send_frames([(0x21, b"", False)])
+        assert (fast.recv_calls, fast.send_calls) == calls
+        assert driver.poll() == 0
+        assert driver.stats.bus_errors == 1 and "closed" in (driver.stats.last_error or "")
+        with pytest.raises(BusError, match=r"send Estop to node 1: EBADF: .*closed"):
+            driver.estop()
+        for s in (c, d):
+            s.setblocking(False)
+            assert sf.CAN_FRAME.unpack(s.recv(64))[0] == 0x21  # still there: not read
+    finally:
+        for s in (a, c, d):
+            s.close()
+        bus.shutdown()
