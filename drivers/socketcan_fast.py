@@ -10,11 +10,11 @@ frame, and its send path a `select` and a `send` per frame. `FastSocketCan` uses
   unpacks each frame with a precompiled struct (`frame`). Draining ends when the kernel has no
   more (EAGAIN), never with a `select` per frame.
 * send: the tick's frames are packed into a preallocated array and handed to `sendmmsg(2)`: one
-  system call for all of them (CAN_RAW takes one frame per message; `sendmmsg` is the fewest
-  calls the kernel allows). A full socket buffer is waited for, up to the send timeout for the
-  whole call (python-can waits up to it per frame); a full device queue (`ENOBUFS`), or a socket
-  buffer still full at the deadline, fails the frames not sent, each named, as python-can's send
-  does.
+  system call per `batch` frames (64 by default; CAN_RAW takes one frame per message, and
+  `sendmmsg` is the fewest calls the kernel allows). A full socket buffer is waited for, up to
+  the send timeout for the whole call (python-can waits up to it per frame); a full device
+  queue (`ENOBUFS`), or a socket buffer still full at the deadline, fails the frames not sent,
+  each named, as python-can's send does.
 * kernel receive filters (CAN_RAW_FILTER) pass only the ids the driver asks for; error frames
   (CAN_RAW_ERR_FILTER, every class) still arrive; own frames are never echoed back
   (CAN_RAW_RECV_OWN_MSGS off).

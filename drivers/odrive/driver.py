@@ -315,7 +315,7 @@ class ODriveReels(ODriveReceive, ODriveTorqueMode):
             raise BusError("; ".join(failures))
 
     def _send_fast(self, fast: FastSocketCan, frames: Sequence[cs.Frame], what: str) -> None:
-        """`_send_all` on the SocketCAN fast path: the frames in one system call."""
+        """`_send_all` on the SocketCAN fast path: one system call per 64 frames."""
         failed: Sequence[tuple[int, BaseException]] | None
         try:
             failed = fast.send_frames(frames)
