@@ -8,6 +8,7 @@ can depend on this module without pulling in python-can.
 
 from __future__ import annotations
 
+import errno
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -125,8 +126,10 @@ class BusStats:
     messages the driver does not use); `commands_heard` counts host-to-drive commands heard on
     the bus (cablebot's own, echoed back by udp_multicast, or another master's): traffic, not
     loss; `errors_by_kind` breaks all three down by name (e.g.
-    "length", "non_finite", "unknown_command", "unknown_node"). `bus_errors`/`last_error` count
-    and describe failed sends (and receive-side OS errors).
+    "length", "non_finite", "unknown_command", "unknown_node"; "rx_overrun" for frames the
+    kernel dropped from a full receive queue, "error_frame" for SocketCAN error frames, which are
+    bus errors, not dropped frames). `bus_errors`/`last_error` count and describe failed sends,
+    error frames and receive-side OS errors.
     """
 
     frames_rx: int = 0
@@ -161,6 +164,35 @@ class BusStats:
         """Count one failed send (or receive-side OS error) described by `text`."""
         self.bus_errors += 1
         self.last_error = text
+
+    def count_send_failure(self, what: str, exc: BaseException) -> str:
+        """Count one frame that could not be sent (`what`: the frame, e.g. "0x202" or
+        "Estop to node 1") and return its name, the one wording of every drive family and send
+        path: "send <what>: <errno name>: <error>" for an OS error with an errno (e.g.
+        "ENOBUFS: No buffer space available"), else "send <what>: <exception type>:
+        <exception>". Raises nothing."""
+        if isinstance(exc, OSError) and exc.errno:
+            cause = f"{errno.errorcode.get(exc.errno, type(exc).__name__)}: {exc.strerror}"
+        else:
+            cause = f"{type(exc).__name__}: {exc}"
+        text = f"send {what}: {cause}"
+        self.count_bus_error(text)
+        return text
+
+    def count_error_frame(self, error_id: int) -> None:
+        """Count one SocketCAN error frame (`error_id`: its id without the flag, the error
+        class bits): a bus error (bus-off, controller or protocol trouble; the loop faults when
+        they persist), kind "error_frame", not a dropped data frame. Raises nothing."""
+        self.count_bus_error(f"CAN error frame 0x{error_id:x}")
+        self.errors_by_kind["error_frame"] = self.errors_by_kind.get("error_frame", 0) + 1
+
+    def count_rx_overrun(self, lost: int) -> None:
+        """Count `lost` frames the kernel dropped because the receive queue was full (the loop
+        did not poll in time): dropped frames of kind "rx_overrun", not bus errors (the
+        stale-reading rules judge the stall). Raises nothing."""
+        if lost > 0:
+            self.dropped += lost
+            self.errors_by_kind["rx_overrun"] = self.errors_by_kind.get("rx_overrun", 0) + lost
 
     def snapshot(self) -> BusStats:
         """Return an independent copy of these counters."""

@@ -10,9 +10,11 @@ frame, and its send path a `select` and a `send` per frame. `FastSocketCan` uses
   unpacks each frame with a precompiled struct (`frame`). Draining ends when the kernel has no
   more (EAGAIN), never with a `select` per frame.
 * send: the tick's frames are packed into a preallocated array and handed to `sendmmsg(2)`: one
-  system call for all of them (CAN_RAW takes one frame per message; `sendmmsg` is the fewest
-  calls the kernel allows). A full device queue (`ENOBUFS`) or socket buffer fails the frames
-  not sent, each named, as python-can's send does.
+  system call per `batch` frames (64 by default; CAN_RAW takes one frame per message, and
+  `sendmmsg` is the fewest calls the kernel allows). A full socket buffer is waited for, up to
+  the send timeout for the whole call (python-can waits up to it per frame); a full device
+  queue (`ENOBUFS`), or a socket buffer still full at the deadline, fails the frames not sent,
+  each named, as python-can's send does.
 * kernel receive filters (CAN_RAW_FILTER) pass only the ids the driver asks for; error frames
   (CAN_RAW_ERR_FILTER, every class) still arrive; own frames are never echoed back
   (CAN_RAW_RECV_OWN_MSGS off).
@@ -30,11 +32,13 @@ import contextlib
 import ctypes
 import ctypes.util
 import errno
+import math
 import os
 import select
 import socket
 import struct
 import sys
+import time
 from collections.abc import Sequence
 from typing import Any, Final
 
@@ -54,6 +58,8 @@ _CAN_RAW_FD_FRAMES: Final = 5
 _SOL_SOCKET: Final = socket.SOL_SOCKET
 _SO_TIMESTAMPNS: Final = 35  # SO_TIMESTAMPNS_OLD (asm-generic, x86, ARM): a native timespec
 _SO_RXQ_OVFL: Final = 40
+_SO_MEMINFO: Final = 55
+_SK_MEMINFO: Final = struct.Struct("=9I")  # SK_MEMINFO_VARS u32s; the last is SK_MEMINFO_DROPS
 
 #: struct can_frame (linux/can.h): id with flags, length, 3 padding bytes, 8 data bytes.
 CAN_FRAME: Final = struct.Struct("=IB3x8s")
@@ -98,6 +104,14 @@ _MMSG_SIZE: Final = ctypes.sizeof(_MMsgHdr)
 
 class FastPathUnavailable(OSError):
     """This system cannot run the fast path (no Linux libc with recvmmsg/sendmmsg)."""
+
+
+class FastPathClosed(OSError):
+    """The bus's socket was closed (`bus.shutdown()`): the fast path no longer receives or sends
+    (its old descriptor number may name another file by now). errno EBADF."""
+
+    def __init__(self) -> None:
+        super().__init__(errno.EBADF, "the bus's socket is closed (the bus was shut down)")
 
 
 def _libc() -> Any:
@@ -172,7 +186,8 @@ class FastSocketCan:
     """Direct receive and send on a python-can SocketCAN bus's kernel socket.
 
     Not thread-safe: one thread (the control loop) calls every method. The python-can bus keeps
-    owning the socket (open and shut it down through python-can).
+    owning the socket (open and shut it down through python-can); once it is closed every
+    receive and send raises `FastPathClosed`.
     """
 
     def __init__(
@@ -197,6 +212,10 @@ class FastSocketCan:
         self._sock = sock
         self._fd = sock.fileno()
         self._send_timeout_s = send_timeout_s
+        self._send_deadline_s: float | None = None
+        # poll, not select: any descriptor number (select refuses those >= 1024).
+        self._room = select.poll()
+        self._room.register(self._fd, select.POLLOUT)
         sock.setsockopt(_SOL_SOCKET, _SO_TIMESTAMPNS, 1)
         with contextlib.suppress(OSError):  # not every socket family counts drops
             sock.setsockopt(_SOL_SOCKET, _SO_RXQ_OVFL, 1)
@@ -204,9 +223,10 @@ class FastSocketCan:
         self._rx = _MsgArray(batch, _CTRL_SIZE)
         self._tx = _MsgArray(batch, 0)
         self._rx_ctrl_bytes = batch * _CTRL_SIZE
-        self._drops_seen = 0
+        self._drops_seen = _socket_drops(sock)
         self.kernel_drops = 0
-        """Frames the kernel dropped because this socket's receive queue was full (total)."""
+        """Frames the kernel dropped because this socket's receive queue was full since this
+        fast path was set up (total)."""
         self.send_calls = 0
         """System calls made to send (for the benchmark)."""
         self.recv_calls = 0
@@ -218,8 +238,11 @@ class FastSocketCan:
         """Take up to min(`max_frames`, `batch`) pending frames off the socket in one system call,
         without waiting; return how many (0 = none pending). Read them with `frame(i)`.
 
-        Raises OSError for a receive error other than "nothing pending" (e.g. ENETDOWN).
+        Raises FastPathClosed once the socket is closed, OSError for a receive error other than
+        "nothing pending" (e.g. ENETDOWN).
         """
+        if self._sock.fileno() != self._fd:
+            raise FastPathClosed
         n = self.batch if max_frames > self.batch else max_frames
         if n <= 0:
             return 0
@@ -238,9 +261,22 @@ class FastSocketCan:
             kind_off = (got - 1) * _CTRL_SIZE + _TS_SPACE
             _len, level, ctype, drops = _CMSG_U32.unpack_from(rx.control_view, kind_off)
             if level == _SOL_SOCKET and ctype == _SO_RXQ_OVFL and drops != self._drops_seen:
-                self.kernel_drops += (drops - self._drops_seen) & 0xFFFFFFFF
-                self._drops_seen = drops
+                self._count_drops(drops)
         return got
+
+    def _count_drops(self, drops: int) -> None:
+        """Take the socket's cumulative drop count `drops` (a u32 that wraps) into
+        `kernel_drops`. Frames queued before the last count seen carry older (smaller) counts:
+        the signed 32-bit difference ignores them. Without a starting count (SO_MEMINFO
+        refused) the first count seen is the start. Raises nothing."""
+        seen = self._drops_seen
+        if seen is None:
+            self._drops_seen = drops
+            return
+        delta = ((drops - seen + 0x80000000) & 0xFFFFFFFF) - 0x80000000
+        if delta > 0:
+            self.kernel_drops += delta
+            self._drops_seen = drops
 
     def frame(self, i: int) -> tuple[int, int, bytes, float]:
         """Frame `i` of the last `recv_batch`: (can_id with the EFF/RTR/ERR flags, length,
@@ -261,9 +297,14 @@ class FastSocketCan:
 
         Returns None when every frame went out, else (index, error) for each frame that did not
         (the others were still tried): ENOBUFS when the interface's queue is full, "transmit
-        buffer full" (EAGAIN) when the socket buffer stayed full for the send timeout.
-        Raises ValueError (sending nothing) on an id outside 11 bits or data over 8 bytes.
+        buffer full" (EAGAIN) when the socket buffer had no room before the call's deadline (the
+        send timeout after its first wait for room; after it, a frame finding no room fails at
+        once). Raises ValueError (sending nothing) on an id outside 11 bits or data over 8 bytes,
+        FastPathClosed (sending nothing) once the socket is closed.
         """
+        if self._sock.fileno() != self._fd:
+            raise FastPathClosed
+        self._send_deadline_s = None
         failures: list[tuple[int, OSError]] | None = None
         for start in range(0, len(frames), self.batch):
             chunk = frames[start : start + self.batch]
@@ -288,7 +329,6 @@ class FastSocketCan:
         n = len(frames)
         failed: list[tuple[int, OSError]] = []
         i = 0
-        waited = False
         while i < n:
             self.send_calls += 1
             sent: int = self._sendmmsg(self._fd, tx.address + i * _MMSG_SIZE, n - i, _MSG_DONTWAIT)
@@ -298,15 +338,38 @@ class FastSocketCan:
             err = ctypes.get_errno() if sent < 0 else errno.EIO
             if err == errno.EINTR:
                 continue
-            if err in (errno.EAGAIN, errno.EWOULDBLOCK) and not waited:
-                # The socket's send buffer is full: wait once for room, as python-can does.
-                waited = True
-                if select.select([], [self._sock], [], self._send_timeout_s)[1]:
-                    continue
-            text = "Transmit buffer full" if err in (errno.EAGAIN, errno.EWOULDBLOCK) else None
-            failed.append((i, OSError(err, text or os.strerror(err))))
+            full = err in (errno.EAGAIN, errno.EWOULDBLOCK)
+            if full and self._wait_for_room():
+                continue
+            failed.append((i, OSError(err, "Transmit buffer full" if full else os.strerror(err))))
             i += 1
         return failed
+
+    def _wait_for_room(self) -> bool:
+        """Wait for room in the socket's send buffer until the `send_frames` call's deadline
+        (its first wait sets it, `send_timeout_s` ahead). True if there is room (or the socket
+        has an error to report), False once the deadline has passed. Raises nothing."""
+        now_s = time.monotonic()
+        deadline_s = self._send_deadline_s
+        if deadline_s is None:
+            deadline_s = self._send_deadline_s = now_s + self._send_timeout_s
+        left_s = deadline_s - now_s
+        if left_s <= 0.0:
+            return False
+        return bool(self._room.poll(math.ceil(left_s * 1000.0)))
+
+
+def _socket_drops(sock: socket.socket) -> int | None:
+    """The frames `sock`'s receive queue has dropped so far (SO_MEMINFO's SK_MEMINFO_DROPS, the
+    counter SO_RXQ_OVFL reports), or None if the socket does not tell. Raises nothing."""
+    try:
+        raw = sock.getsockopt(_SOL_SOCKET, _SO_MEMINFO, _SK_MEMINFO.size)
+    except OSError:
+        return None
+    if len(raw) < _SK_MEMINFO.size:
+        return None
+    drops: int = _SK_MEMINFO.unpack_from(raw)[-1]
+    return drops
 
 
 def socket_of(bus: object) -> socket.socket | None:
@@ -331,12 +394,19 @@ def open_fast_path(
     bus: object,
     filters: Sequence[tuple[int, int]] | None,
     *,
+    fast_path: bool | FastSocketCan = True,
     send_timeout_s: float = 0.005,
 ) -> FastSocketCan | None:
-    """A `FastSocketCan` on `bus`'s socket with kernel `filters` (see `FastSocketCan`), or None
-    when `bus` is not a python-can SocketCAN bus, receives CAN FD frames, or this system cannot
-    run the fast path (the caller then keeps python-can's path). Raises ValueError on a bad
-    filter, OSError if the socket refuses an option."""
+    """The fast path a driver asked for with `fast_path` (its constructor's argument): a
+    `FastSocketCan` given is used as it is (tests, the benchmark); False is None (python-can's
+    path); True is a `FastSocketCan` on `bus`'s socket with kernel `filters` (see
+    `FastSocketCan`), or None when `bus` is not a python-can SocketCAN bus, receives CAN FD
+    frames, or this system cannot run the fast path (the caller then keeps python-can's path).
+    Raises ValueError on a bad filter, OSError if the socket refuses an option."""
+    if isinstance(fast_path, FastSocketCan):
+        return fast_path
+    if not fast_path:
+        return None
     sock = socket_of(bus)
     if sock is None or _receives_fd_frames(sock):
         return None

@@ -25,7 +25,8 @@ and NMT commands leave through canopen's `network.send_message`, bounded by `sen
 
 The SocketCAN fast path (`drivers.socketcan_fast`, the default on a python-can SocketCAN bus,
 `fast_path`): `poll()` takes the frames off the bus's kernel socket in batches (`recvmmsg`, no
-`can.Message` per frame), and a cycle's RPDOs and SYNC leave in one `sendmmsg`. Kernel filters
+`can.Message` per frame), and a cycle's RPDOs and SYNC leave in one `sendmmsg` per 64 frames
+(one call for up to 31 drives with both RPDOs, two RPDOs and the SYNC). Kernel filters
 pass only our drives' TPDO1 (0x180 + n), EMCY (0x080 + n), SDO answers (0x580 + n) and
 heartbeats (0x700 + n), and error frames: other nodes' and other hosts' frames never reach
 Python (they are not counted as `unknown_cob_id` or `not_for_host`), and frames the kernel
@@ -44,8 +45,10 @@ drive is not in Operation enabled its target position is its actual position, so
 holds the reel where it is.
 
 Readings: `position_rev` = position actual / `counts_per_rev`; `velocity_rps` estimated from
-successive positions over the times of the SYNCs they answer; stamps at frame arrival;
-`heartbeat_stamp_s` from the NMT heartbeat (a silent drive's stamp ages); `ready` = Operation
+successive positions over the times of the SYNCs they answer; `stamp_s`/`stamp_ns` (TPDO) and
+`heartbeat_stamp_s` (NMT heartbeat; a silent drive's stamp ages) are the driver's clocks when
+`poll` handles the frame, not its arrival: a frame that waited in the receive queue is stamped
+when it is read; `ready` = Operation
 enabled; `fault` = a name built from the statusword's Fault bit and the last EMCY (code and
 text), or the drive's NMT restart; `state_name` = the CiA 402 state. The loop reads only those;
 the raw numbers are kept for diagnostics: `axis_state` 8 while Operation enabled, else 1 (0
@@ -138,12 +141,9 @@ def kernel_filters(node_ids: Iterable[int]) -> list[tuple[int, int]]:
 
 
 def send_failure(stats: BusStats, can_id: int, exc: BaseException) -> str:
-    """Count one frame that could not be sent (`stats.bus_errors`, `last_error`) and name it:
-    "send 0x<id>: <exception type>: <exception>". Raises nothing."""
-    text = f"send 0x{can_id:03X}: {type(exc).__name__}: {exc}"
-    stats.bus_errors += 1
-    stats.last_error = text
-    return text
+    """Count one frame `can_id` that could not be sent and name it "send 0x<id>: ..."
+    (`BusStats.count_send_failure`). Raises nothing."""
+    return stats.count_send_failure(f"0x{can_id:03X}", exc)
 
 
 class _LoopNetwork(canopen.Network):
@@ -281,12 +281,8 @@ class CiA402Reels(CiA402Receive):
         self._cycled_since_poll = False
         self._configuring = False
         self._tx_frames: list[tuple[int, bytes, bool]] = []
-        self._fast: FastSocketCan | None = (
-            fast_path
-            if isinstance(fast_path, FastSocketCan)
-            else open_fast_path(bus, kernel_filters(ids), send_timeout_s=send_timeout_s)
-            if fast_path
-            else None
+        self._fast = open_fast_path(
+            bus, kernel_filters(ids), fast_path=fast_path, send_timeout_s=send_timeout_s
         )
 
     @property
@@ -373,9 +369,9 @@ class CiA402Reels(CiA402Receive):
 
         When no cycle was sent since the previous poll (the loop sent no set-points), also
         sends one (held set-points and SYNC), at most every half period. Returns the number of
-        frames taken off the bus (0 while `configure` runs in another thread: its SDO pump reads
-        the bus then). Never raises: bad frames, unknown senders and bus errors are counted in
-        `stats`.
+        frames taken off the bus (0, reading nothing, if called while `configure` is under way:
+        its SDO pump is the bus's only reader until it returns). Never raises: bad frames,
+        unknown senders and bus errors are counted in `stats`.
         """
         if self._configuring:
             return 0  # the `configure` pump is the bus's only reader meanwhile
@@ -428,8 +424,8 @@ class CiA402Reels(CiA402Receive):
     # --- transmit ---------------------------------------------------------------------------
 
     def _cycle(self) -> None:
-        """Write every configured drive's RPDOs, then produce one SYNC (one system call on the
-        fast path).
+        """Write every configured drive's RPDOs, then produce one SYNC (on the fast path one
+        system call per 64 frames).
 
         Raises BusError naming every failed frame, after trying all of them.
         """
@@ -476,7 +472,10 @@ class CiA402Reels(CiA402Receive):
                 except BusError as exc:
                     failed.append((i, str(exc)))
             return failed
-        errors = fast.send_frames(frames)
+        try:
+            errors = fast.send_frames(frames)
+        except Exception as exc:  # not a frame's failure: none of them is known to be sent
+            return [(i, send_failure(self._stats, f[0], exc)) for i, f in enumerate(frames)]
         if errors is None:
             self._stats.frames_tx += len(frames)
             return []

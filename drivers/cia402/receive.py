@@ -170,12 +170,7 @@ class CiA402Receive:
                 take(can_id, data[:length], stamp)
             handled += n
         if fast.kernel_drops != drops:
-            # The socket's receive queue overflowed while the loop did not poll (a stall): the
-            # oldest frames are lost. Counted as dropped frames of kind "rx_overrun".
-            lost = fast.kernel_drops - drops
-            self._stats.dropped += lost
-            errs = self._stats.errors_by_kind
-            errs["rx_overrun"] = errs.get("rx_overrun", 0) + lost
+            self._stats.count_rx_overrun(fast.kernel_drops - drops)
         return handled
 
     def _handle(self, msg: can.Message) -> None:
@@ -191,9 +186,7 @@ class CiA402Receive:
             self._on_tpdo(d, data)
             return
         if can_id & CAN_ERR_FLAG:
-            # SocketCAN error frame: bus-off, controller or protocol trouble.
-            self._stats.count_bus_error(f"CAN error frame 0x{can_id & CAN_ERR_MASK:x}")
-            self._stats.count("error_frame")
+            self._stats.count_error_frame(can_id & CAN_ERR_MASK)
             return
         if can_id & CAN_EFF_FLAG:
             self._stats.count("extended_id", decode_error=True)

@@ -51,7 +51,6 @@ in `drivers.odrive.torque`: mixins of `ODriveReels`.
 from __future__ import annotations
 
 import contextlib
-import errno
 import logging
 import math
 import time
@@ -181,12 +180,8 @@ class ODriveReels(ODriveReceive, ODriveTorqueMode):
         self._last_decode_error: dict[int, cs.DecodeError] = {}
         self._last_get_error: dict[int, cs.GetError] = {}
         # Kernel filter: every CANSimple message of our nodes (id = node << 5 | command).
-        self._fast: FastSocketCan | None = (
-            fast_path
-            if isinstance(fast_path, FastSocketCan)
-            else open_fast_path(bus, [(n << 5, 0x7E0) for n in ids], send_timeout_s=send_timeout_s)
-            if fast_path
-            else None
+        self._fast = open_fast_path(
+            bus, [(n << 5, 0x7E0) for n in ids], fast_path=fast_path, send_timeout_s=send_timeout_s
         )
 
     @property
@@ -311,26 +306,26 @@ class ODriveReels(ODriveReceive, ODriveTorqueMode):
             try:
                 bus.send(msg, timeout=timeout)
             except Exception as exc:  # CanError, OSError, or anything an interface raises
-                text = f"send {what} to node {arb_id >> 5}: {type(exc).__name__}: {exc}"
-                self._stats.count_bus_error(text)
-                failures.append(text)
+                failures.append(
+                    self._stats.count_send_failure(f"{what} to node {arb_id >> 5}", exc)
+                )
             else:
                 self._stats.frames_tx += 1
         if failures:
             raise BusError("; ".join(failures))
 
     def _send_fast(self, fast: FastSocketCan, frames: Sequence[cs.Frame], what: str) -> None:
-        """`_send_all` on the SocketCAN fast path: the frames in one system call."""
-        failed = fast.send_frames(frames)
+        """`_send_all` on the SocketCAN fast path: one system call per 64 frames."""
+        failed: Sequence[tuple[int, BaseException]] | None
+        try:
+            failed = fast.send_frames(frames)
+        except Exception as exc:  # not a frame's failure: none of them is known to be sent
+            failed = [(i, exc) for i in range(len(frames))]
         if failed is None:
             self._stats.frames_tx += len(frames)
             return
-        texts: list[str] = []
-        for i, exc in failed:
-            name = errno.errorcode.get(exc.errno or 0, "OSError")
-            text = f"send {what} to node {frames[i][0] >> 5}: {name}: {exc.strerror}"
-            self._stats.count_bus_error(text)
-            texts.append(text)
+        count = self._stats.count_send_failure
+        texts = [count(f"{what} to node {frames[i][0] >> 5}", exc) for i, exc in failed]
         self._stats.frames_tx += len(frames) - len(failed)
         raise BusError("; ".join(texts))
 

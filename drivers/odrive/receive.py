@@ -79,7 +79,7 @@ class ODriveReceive:
             if handled == limit:
                 limit = self._catch_up(handled, limit, msg.timestamp, wall_s)
             if msg.is_error_frame:
-                self._error_frame(msg.arbitration_id)
+                self._stats.count_error_frame(msg.arbitration_id)
                 continue
             take(
                 msg.arbitration_id,
@@ -115,7 +115,7 @@ class ODriveReceive:
                 if handled == limit:
                     limit = self._catch_up(handled, limit, stamp, wall_s)
                 if can_id & _ERR_FLAG:
-                    self._error_frame(can_id & _EFF_MASK)
+                    self._stats.count_error_frame(can_id & _EFF_MASK)
                     continue
                 if can_id & _EFF_FLAG:
                     take(
@@ -126,21 +126,8 @@ class ODriveReceive:
                 else:
                     take(can_id, data[:length], False, False, stamp, now_s, now_ns, wall_s)
         if fast.kernel_drops != drops:
-            # The socket's receive queue overflowed while the loop did not poll (a stall): the
-            # oldest frames are lost, the newest still arrive. Counted as dropped frames of
-            # kind "rx_overrun", not as a bus error: the stale-reading rules judge the stall.
-            lost = fast.kernel_drops - drops
-            self._stats.dropped += lost
-            errs = self._stats.errors_by_kind
-            errs["rx_overrun"] = errs.get("rx_overrun", 0) + lost
+            self._stats.count_rx_overrun(fast.kernel_drops - drops)
         return handled
-
-    def _error_frame(self, error_id: int) -> None:
-        # SocketCAN error frame: bus-off, controller or protocol trouble. A bus error for the
-        # loop (which faults when they persist), not a dropped data frame.
-        self._stats.count_bus_error(f"CAN error frame 0x{error_id:x}")
-        errs = self._stats.errors_by_kind
-        errs["error_frame"] = errs.get("error_frame", 0) + 1
 
     def _take(
         self,

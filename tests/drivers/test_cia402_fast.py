@@ -196,17 +196,19 @@ def test_a_failed_frame_is_counted_named_and_the_rest_still_sent(rig: FastRig) -
     rig.fast._sendmmsg = _ENOBUFSOnce(real, fail_at=2)  # type: ignore[method-assign]
     syncs = d._syncs_sent
     errors0, tx0 = d.stats.bus_errors, d.stats.frames_tx
-    with pytest.raises(BusError, match=r"^node 2 RPDO1: send 0x202: OSError: .*No buffer space"):
+    with pytest.raises(
+        BusError, match=r"^node 2 RPDO1: send 0x202: ENOBUFS: No buffer space available$"
+    ):
         d.command([0.0] * 4)
     assert d.stats.bus_errors - errors0 == 1
-    assert (d.stats.last_error or "").startswith("send 0x202: OSError:")
+    assert d.stats.last_error == "send 0x202: ENOBUFS: No buffer space available"
     assert d.stats.frames_tx - tx0 == 8
     assert d._syncs_sent == syncs + 1
     sent = [c for c, _ in rig.sent()]
     assert 0x202 not in sent and sent[-1] == 0x080 and len(sent) == 8
     # A SYNC that fails is no SYNC: no TPDO answers it.
     rig.fast._sendmmsg = _ENOBUFSOnce(real, fail_at=8)  # type: ignore[method-assign]
-    with pytest.raises(BusError, match=r"^SYNC: send 0x080: OSError"):
+    with pytest.raises(BusError, match=r"^SYNC: send 0x080: ENOBUFS: No buffer space available$"):
         d.command([0.0] * 4)
     assert d._syncs_sent == syncs + 1
     assert [c for c, _ in rig.sent()] == [0x201, 0x301, 0x202, 0x302, 0x203, 0x303, 0x204, 0x304]
@@ -322,7 +324,7 @@ def test_receive_error_is_counted_never_raised(
 
 
 def test_stock_path_names_a_failed_send_the_same_way() -> None:
-    """One naming rule for both paths: "<frame>: send 0x<id>: <type>: <error>"."""
+    """One naming rule for both paths: "<frame>: send 0x<id>: <errno name>: <error>"."""
 
     class Refusing(can.BusABC):
         def __init__(self) -> None:
@@ -339,10 +341,12 @@ def test_stock_path_names_a_failed_send_the_same_way() -> None:
     assert not d.fast_path
     drive = d._by_node[2]  # configured as if by SDO, without a drive to answer
     d._use_mapping(drive, *local_mapping(drive.node, 2, velocity_offset=True, torque=True))
-    with pytest.raises(BusError, match=r"^node 2 RPDO1: send 0x202: OSError: .*No buffer space"):
+    with pytest.raises(
+        BusError, match=r"^node 2 RPDO1: send 0x202: ENOBUFS: No buffer space available; "
+    ):
         d.command([0.0])
     assert d.stats.bus_errors == 3  # RPDO1, RPDO2, SYNC: every frame tried
-    assert d.stats.last_error is not None and d.stats.last_error.startswith("send 0x080: OSError")
+    assert d.stats.last_error == "send 0x080: ENOBUFS: No buffer space available"
     bus.shutdown()
 
 
@@ -353,3 +357,57 @@ def test_bench_socketpair_figures_measure_both_drivers() -> None:
     got = socketpair_figures(1, 20, 3)
     assert set(got) == {"odrive", "cia402"}
     assert all(0.0 < v < 1e5 for fig in got.values() for v in fig.values())
+
+
+def test_an_unexpected_send_error_is_a_bus_error_naming_every_frame(
+    rig: FastRig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Whatever the fast send raises (select's ValueError on a descriptor >= 1024, say), every
+    frame of the cycle is named as failed: `estop` raises BusError, `poll` nothing."""
+    d = rig.driver
+
+    def odd(frames: object) -> None:
+        raise ValueError("filedescriptor out of range in select()")
+
+    monkeypatch.setattr(rig.fast, "send_frames", odd)
+    errors0, tx0 = d.stats.bus_errors, d.stats.frames_tx
+    syncs = d._syncs_sent
+    with pytest.raises(BusError) as info:
+        d.estop()
+    text = str(info.value)
+    assert text.startswith("node 1 RPDO1: send 0x201: ValueError: filedescriptor out of range")
+    assert text.count("ValueError") == 2 * len(NODES) + 1 and "SYNC: send 0x080" in text
+    assert d.stats.bus_errors - errors0 == 2 * len(NODES) + 1
+    assert d.stats.frames_tx == tx0 and d._syncs_sent == syncs
+    assert d.poll() == 0  # the estop's cycle was this poll's
+    d._last_sync_s -= 1.0  # the next poll is due a held-set-point cycle, which fails
+    assert d.poll() == 0  # counted, not raised
+    assert d.stats.bus_errors - errors0 == 2 * (2 * len(NODES) + 1)
+
+
+def test_an_error_frame_is_a_bus_error_not_a_dropped_frame(rig: FastRig) -> None:
+    """The same error-frame rule as the ODrive driver's: a bus error, kind "error_frame", and
+    no dropped data frame."""
+    d = rig.driver
+    d.command([0.0] * 4)
+    before = d.stats.snapshot()
+    rig.peer.send(_raw(sf.CAN_ERR_FLAG | 0x40, bytes(8)))
+    assert d.poll() == 1
+    s = d.stats
+    assert s.bus_errors - before.bus_errors == 1 and s.last_error == "CAN error frame 0x40"
+    assert s.errors_by_kind["error_frame"] - before.errors_by_kind.get("error_frame", 0) == 1
+    assert (s.dropped, s.decode_errors) == (before.dropped, before.decode_errors)
+
+
+def test_a_closed_socket_is_a_named_bus_error(rig: FastRig) -> None:
+    """After the bus's socket is closed: poll counts the refused receive, estop raises BusError
+    naming every frame of its cycle."""
+    d = rig.driver
+    d.command([0.0] * 4)
+    rig.mine.close()
+    errors0 = d.stats.bus_errors
+    assert d.poll() == 0
+    assert d.stats.bus_errors == errors0 + 1 and "closed" in (d.stats.last_error or "")
+    with pytest.raises(BusError, match=r"^node 1 RPDO1: send 0x201: EBADF: .*closed"):
+        d.estop()
+    assert d.stats.bus_errors == errors0 + 1 + 2 * len(NODES) + 1

@@ -166,11 +166,12 @@ def test_driver_counts_enobufs_per_frame_and_sends_the_rest(
     fast = driver._fast
     assert fast is not None and driver.fast_path
     fast._sendmmsg = _ENOBUFSOnce(fast._sendmmsg, fail_at=2)  # type: ignore[method-assign]
-    with pytest.raises(BusError, match=r"Set_Input_Pos to node 2: ENOBUFS"):
+    text = "send Set_Input_Pos to node 2: ENOBUFS: No buffer space available"
+    with pytest.raises(BusError, match=f"^{text}$"):
         driver.command([0.0, 1.0, 2.0, 3.0])
     assert driver.stats.frames_tx == 3
     assert driver.stats.bus_errors == 1
-    assert "ENOBUFS" in (driver.stats.last_error or "")
+    assert driver.stats.last_error == text
     b.setblocking(False)
     got = [sf.CAN_FRAME.unpack(b.recv(64))[0] for _ in range(3)]
     assert got == [cs.arbitration_id(n, cs.SET_INPUT_POS) for n in (0, 1, 3)]
@@ -288,3 +289,195 @@ def test_receive_error_is_counted_never_raised(
     assert driver.poll() == 0
     assert driver.stats.bus_errors == 1
     assert "Network is down" in (driver.stats.last_error or "")
+
+
+def test_an_unexpected_send_error_is_a_bus_error_naming_every_frame(
+    pair: tuple[socket.socket, socket.socket], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Whatever the fast send raises (select's ValueError on a descriptor >= 1024, say), the
+    driver raises BusError naming every frame of the call as failed, as python-can's path does;
+    `estop` raises nothing else and a poll's encoder RTR never escapes."""
+    a, _b = pair
+    bus = can.Bus(interface="virtual", channel=f"fast-odd-{id(a)}")
+    driver = ODriveReels(bus, (1, 2), encoder_rtr=True, fast_path=sf.FastSocketCan(a))
+    fast = driver._fast
+    assert fast is not None
+
+    def odd(frames: object) -> None:
+        raise ValueError("filedescriptor out of range in select()")
+
+    monkeypatch.setattr(fast, "send_frames", odd)
+    with pytest.raises(BusError) as info:
+        driver.estop()
+    text = str(info.value)
+    assert "Estop to node 1: ValueError: filedescriptor out of range" in text
+    assert "Estop to node 2: ValueError" in text
+    assert driver.stats.bus_errors == 2 and driver.stats.frames_tx == 0
+    assert driver.poll() == 0  # the RTR round fails: counted, not raised
+    assert driver.stats.bus_errors == 4
+    bus.shutdown()
+
+
+class _BrieflyFull:
+    """A sendmmsg stand-in: the socket buffer is full for the first `times` attempts (EAGAIN),
+    then the real call."""
+
+    def __init__(self, real: object, times: int) -> None:
+        self.real = real
+        self.left = times
+
+    def __call__(self, fd: int, address: int, n: int, flags: int) -> int:
+        if self.left > 0:
+            self.left -= 1
+            ctypes.set_errno(errno.EAGAIN)
+            return -1
+        return int(self.real(fd, address, n, flags))  # type: ignore[operator]
+
+
+def test_a_briefly_full_socket_buffer_loses_no_frame(
+    pair: tuple[socket.socket, socket.socket],
+) -> None:
+    """The buffer is full at several attempts of one call: the call keeps waiting for room
+    while its send timeout lasts, so every frame goes out, in order."""
+    a, b = pair
+    fast = sf.FastSocketCan(a, send_timeout_s=5.0)
+    fast._sendmmsg = _BrieflyFull(fast._sendmmsg, times=3)  # type: ignore[method-assign]
+    frames = [(0x10 + i, bytes([i]), False) for i in range(4)]
+    assert fast.send_frames(frames) is None
+    b.setblocking(False)
+    assert [sf.CAN_FRAME.unpack(b.recv(64))[0] for _ in frames] == [0x10, 0x11, 0x12, 0x13]
+
+
+def test_a_full_socket_buffer_waits_once_per_call_then_fails_the_rest(
+    pair: tuple[socket.socket, socket.socket],
+) -> None:
+    """The peer never reads: one call waits at most about its send timeout in all (not one per
+    frame), then names every frame not sent."""
+    a, _b = pair
+    fast = sf.FastSocketCan(a, send_timeout_s=0.2)
+    a.setblocking(False)
+    with pytest.raises(BlockingIOError):
+        while True:  # fill the peer's queue
+            a.send(_raw(0x10, b""))
+    t0 = time.monotonic()
+    failures = fast.send_frames([(0x10 + i, b"", False) for i in range(20)])
+    elapsed = time.monotonic() - t0
+    assert failures is not None and [i for i, _ in failures] == list(range(20))
+    assert all(e.errno == errno.EAGAIN and "Transmit buffer full" in str(e) for _, e in failures)
+    assert 0.15 < elapsed < 2.0  # one deadline: 20 per-frame waits would take 4 s
+
+
+def _overflow(tx: socket.socket, rx: socket.socket, first: int) -> None:
+    """Send 500 frames to `rx`, far more than its queue holds."""
+    for i in range(500):
+        tx.sendto(_raw(0x100, (first + i).to_bytes(4, "little")), rx.getsockname())
+
+
+def test_drops_before_the_fast_path_existed_are_not_counted() -> None:
+    """Drops from before the fast path was set up are no loop stall: its count starts at the
+    socket's drop counter then, and frames already queued with older counts (the socket counted
+    drops before) add nothing; a later overflow counts exactly the frames lost. A loopback UDP
+    socket stands in for the CAN socket: it reports its drops the same way."""
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        rx.bind(("127.0.0.1", 0))
+        tx.bind(("127.0.0.1", 0))
+        rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # the kernel's minimum
+        rx.setsockopt(socket.SOL_SOCKET, sf._SO_RXQ_OVFL, 1)  # queued frames carry counts
+        rx.setblocking(False)
+        _overflow(tx, rx, 0)
+        with pytest.raises(BlockingIOError):
+            while True:
+                rx.recv(64)
+        _overflow(tx, rx, 1000)  # queued with the count of the first overflow, more dropped
+        fast = sf.FastSocketCan(rx)
+        frames = []
+        while n := fast.recv_batch(64):
+            frames += [int.from_bytes(fast.frame(i)[2][:4], "little") for i in range(n)]
+        assert frames and fast.kernel_drops == 0
+        _overflow(tx, rx, 2000)
+        while n := fast.recv_batch(64):
+            frames += [int.from_bytes(fast.frame(i)[2][:4], "little") for i in range(n)]
+        tx.sendto(_raw(0x100, (3000).to_bytes(4, "little")), rx.getsockname())
+        while n := fast.recv_batch(64):
+            frames += [int.from_bytes(fast.frame(i)[2][:4], "little") for i in range(n)]
+        after = [f for f in frames if f >= 2000]
+        assert after[-1] == 3000
+        assert fast.kernel_drops == 501 - len(after) > 0
+    finally:
+        rx.close()
+        tx.close()
+
+
+def test_both_paths_name_a_failed_send_the_same_way() -> None:
+    """python-can's path names an OS error as the fast path does: by its errno name."""
+
+    class Refusing(can.BusABC):
+        def __init__(self) -> None:
+            super().__init__(channel="refusing")
+
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            raise OSError(errno.ENOBUFS, "No buffer space available")
+
+        def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:
+            return None, False
+
+    bus = Refusing()
+    d = ODriveReels(bus, (2,))
+    assert not d.fast_path
+    text = "send Set_Input_Pos to node 2: ENOBUFS: No buffer space available"
+    with pytest.raises(BusError, match=f"^{text}$"):
+        d.command([0.0])
+    assert d.stats.last_error == text
+    bus.shutdown()
+
+
+def test_open_fast_path_takes_the_drivers_choice(
+    pair: tuple[socket.socket, socket.socket],
+) -> None:
+    """The constructors' `fast_path` goes to `open_fast_path` as given: a `FastSocketCan` is
+    used as it is, False keeps python-can's path."""
+    fast = sf.FastSocketCan(pair[0])
+    bus = can.Bus(interface="virtual", channel="fast-choice")
+    try:
+        assert sf.open_fast_path(bus, [(0, 0x7E0)], fast_path=fast) is fast
+        assert sf.open_fast_path(bus, [(0, 0x7E0)], fast_path=False) is None
+        assert sf.open_fast_path(bus, [(0, 0x7E0)], fast_path=True) is None  # not SocketCAN
+    finally:
+        bus.shutdown()
+
+
+def test_a_closed_socket_is_refused_never_its_number_reused() -> None:
+    """After the bus's socket is closed (bus.shutdown()) the fast path refuses to receive or
+    send, by name, even when its old descriptor number now belongs to another socket; the
+    driver counts the refusals as bus errors and `estop` raises BusError."""
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    bus = can.Bus(interface="virtual", channel=f"fast-closed-{id(b)}")
+    driver = ODriveReels(bus, (1,), fast_path=sf.FastSocketCan(b))
+    fast = driver._fast
+    assert fast is not None
+    number = b.fileno()
+    b.close()
+    c, d = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    try:
+        assert number in (c.fileno(), d.fileno())  # the number now names another socket
+        for s in (c, d):
+            s.send(_raw(0x21, b"\x01"))  # a frame another socket is meant to read
+        calls = fast.recv_calls, fast.send_calls
+        with pytest.raises(sf.FastPathClosed, match="closed"):
+            fast.recv_batch(10)
+        with pytest.raises(sf.FastPathClosed, match="closed"):
+            fast.send_frames([(0x21, b"", False)])
+        assert (fast.recv_calls, fast.send_calls) == calls
+        assert driver.poll() == 0
+        assert driver.stats.bus_errors == 1 and "closed" in (driver.stats.last_error or "")
+        with pytest.raises(BusError, match=r"send Estop to node 1: EBADF: .*closed"):
+            driver.estop()
+        for s in (c, d):
+            s.setblocking(False)
+            assert sf.CAN_FRAME.unpack(s.recv(64))[0] == 0x21  # still there: not read
+    finally:
+        for s in (a, c, d):
+            s.close()
+        bus.shutdown()
