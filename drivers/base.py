@@ -46,8 +46,9 @@ class AxisReading:
     velocity_rps: float = 0.0
     """Motor turns per second from Get_Encoder_Estimates (always finite)."""
     stamp_s: float = NEVER_S
-    """Clock time (time.monotonic() by default) when the encoder frame arrived on the bus (the
-    interface's receive timestamp, not when the loop read it); -inf = never."""
+    """Clock time (time.monotonic() by default) of the encoder reading: when its frame arrived
+    on the bus (ODrive: the interface's receive timestamp, not when the loop read it) or, for a
+    CiA 402 TPDO, when `poll` handled it; -inf = never."""
     stamp_ns: int = 0
     """time.time_ns() wall clock of the same arrival; 0 = never."""
     axis_state: int = 0
