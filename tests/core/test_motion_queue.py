@@ -457,3 +457,21 @@ def test_a_stop_or_a_new_path_at_any_moment_brakes_along_the_path(
         assert chk.trace[end][0] == rest  # where `rest_point_m` said
         for p, _ in chk.trace[: end + 1]:
             assert min(_dist_to_segment(p, a, b) for a, b in legs) <= jd + 1e-9
+
+
+def test_a_dropped_blend_keeps_the_next_corners_trim() -> None:
+    """A chunk of several points appended while the set-point flies the line to the old last
+    point: the blend there would leave it no room to brake and is dropped (a stop at the
+    corner), while the chunk's next corner keeps its blend. The line between them must end
+    where that blend begins: it used to run on to the corner and the set-point then jumped
+    3 cm back to the blend's start and stayed there, short of the end."""
+    pl = MotionPlanner(1.0, 2.0, junction_deviation_m=0.02)
+    pl.hold((0.0, 0.0, 1.0))
+    chk = Checker(pl, 0.002)
+    pl.follow_path([(0.0, 0.5, 1.0)])
+    for _ in range(244):
+        chk.tick()
+    pl.append_points([(0.0, 0.0, 1.5), (0.0, 0.0, 1.0)])
+    chk.run_until_still(20_000)
+    assert pl.blends_dropped == 1
+    assert pl.position_m == (0.0, 0.0, 1.0)

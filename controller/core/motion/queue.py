@@ -182,9 +182,12 @@ class _PathQueue(_State):
             arc.cap = 0.0
             arc.p0 = arc.end = old_end
             arc.vexit = 0.0
-            self._queued_m += line.seg - line.length
+            # The line starts at the corner again; its end keeps any trim a later blend made
+            # (a chunk of several points blends at each of them before this check).
+            grow = math.dist(old_end, line.p0)
+            self._queued_m += grow
             line.p0 = old_end
-            line.length = line.seg
+            line.length += grow
             self._retime(line)
 
     def _backward(self, fresh: int) -> None:
