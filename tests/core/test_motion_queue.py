@@ -354,7 +354,10 @@ def test_a_corner_appended_while_braking_for_it_becomes_a_stop(repeat_end: bool)
 def _dist_to_segment(p: Vec3, a: Vec3, b: Vec3) -> float:
     ab = sub(b, a)
     ap = sub(p, a)
-    t = max(0.0, min(1.0, sum(x * y for x, y in zip(ap, ab, strict=True)) / norm(ab) ** 2))
+    ab2 = norm(ab) ** 2
+    if ab2 == 0.0:  # a segment shorter than floats can square: its start
+        return math.dist(p, a)
+    t = max(0.0, min(1.0, sum(x * y for x, y in zip(ap, ab, strict=True)) / ab2))
     return math.dist(p, (a[0] + ab[0] * t, a[1] + ab[1] * t, a[2] + ab[2] * t))
 
 
