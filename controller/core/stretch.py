@@ -99,14 +99,14 @@ FD_STEP_M = 1e-5
 """Finite-difference step of the tension derivative where statics has no analytic one (more
 than four cables, a degenerate pose): forward differences, one statics solve per axis."""
 JACOBIAN_REUSE_M = 0.05
+"""A tension derivative is reused by later solves within this distance of where it was
+taken."""
 PLANNED_REUSE_M = 0.025
 """Tensions handed in with a point (the loop's set-point and the tensions it planned there)
 linearise the first pass when the warm start is within this distance of that point: no
 statics solve in the FPK (``CableStretch.fpk``'s `planned`).  The warm start is the last
 pose, a tick behind (8 mm at 2 m/s and 250 Hz, plus the set-point's lead); the pass's end,
 not the warm start, decides whether the linearisation holds (``RELINEARISE_M``)."""
-"""A tension derivative is reused by later solves within this distance of where it was
-taken."""
 COLD_START_STRAINS = (0.0, 1e-3, 3e-3, 1e-2, 3e-2, 0.1)
 """Strains tried in turn for the first pose of a cold FPK (see ``CableStretch._cold_start``)."""
 
