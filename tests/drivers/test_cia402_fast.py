@@ -53,7 +53,12 @@ class FastRig:
         self.bus = open_bus("virtual", channel)
         self.fast = sf.FastSocketCan(mine)
         self.driver = CiA402Reels(
-            self.bus, NODES, counts_per_rev=CPR, period_s=PERIOD_S, fast_path=self.fast
+            self.bus,
+            NODES,
+            counts_per_rev=CPR,
+            period_s=PERIOD_S,
+            fast_path=self.fast,
+            sdo_timeout_s=5.0,  # the simulated drives' thread may be starved on a busy machine
         )
         bank = SimCiA402Bank(
             self.sim_bus, NODES, initial_position_rev=[0.0] * 4, counts_per_rev=CPR
