@@ -216,6 +216,8 @@ class FastSocketCan:
         # poll, not select: any descriptor number (select refuses those >= 1024).
         self._room = select.poll()
         self._room.register(self._fd, select.POLLOUT)
+        self._pending = select.poll()
+        self._pending.register(self._fd, select.POLLIN)
         sock.setsockopt(_SOL_SOCKET, _SO_TIMESTAMPNS, 1)
         with contextlib.suppress(OSError):  # not every socket family counts drops
             sock.setsockopt(_SOL_SOCKET, _SO_RXQ_OVFL, 1)
@@ -263,6 +265,16 @@ class FastSocketCan:
             if level == _SOL_SOCKET and ctype == _SO_RXQ_OVFL and drops != self._drops_seen:
                 self._count_drops(drops)
         return got
+
+    def wait_readable(self, timeout_s: float) -> bool:
+        """Wait up to `timeout_s` (rounded up to whole milliseconds; 0 = do not wait) for a
+        frame to receive; True if one is pending (or the socket has an error to report), for a
+        serving loop that sleeps between frames. Raises FastPathClosed once the socket is
+        closed."""
+        if self._sock.fileno() != self._fd:
+            raise FastPathClosed
+        wait_ms = math.ceil(timeout_s * 1000.0) if timeout_s > 0.0 else 0
+        return bool(self._pending.poll(wait_ms))
 
     def _count_drops(self, drops: int) -> None:
         """Take the socket's cumulative drop count `drops` (a u32 that wraps) into

@@ -65,12 +65,21 @@ from drivers.simbank import (
     serve_process,
     take_queued,
 )
+from drivers.socketcan_fast import (
+    CAN_EFF_FLAG,
+    CAN_ERR_FLAG,
+    CAN_RTR_FLAG,
+    FastSocketCan,
+    open_fast_path,
+)
 
 EDS_PATH = Path(__file__).with_name("cia402.eds")
 DEFAULT_COUNTS_PER_REV = 131072
 """A 17-bit encoder."""
 Frame = tuple[int, bytes]
 """(COB-ID, data) of one standard data frame."""
+_FLAGGED = CAN_EFF_FLAG | CAN_RTR_FLAG | CAN_ERR_FLAG
+"""Frames no drive answers: extended ids, remote frames, error frames."""
 
 _MAX_SUBSTEPS = 10_000
 _REST_SNAP_REV = 1e-9
@@ -519,6 +528,19 @@ class SimCiA402Drive:
 
     # --- the bus side ---------------------------------------------------------------------
 
+    def hears(self, arb_id: int) -> bool:
+        """Whether a frame with standard id `arb_id` concerns this drive (its SYNC, one of its
+        RPDOs, what its canopen services listen to: SDO requests, NMT, LSS): a bank passes it
+        only the frames it hears, so each frame costs one drive, not all. True while its PDOs
+        are being rebuilt. Lock-free (the dictionaries read are replaced, never changed in
+        place, by the serving thread). Raises nothing."""
+        return (
+            arb_id == self._sync_cob
+            or arb_id in self._rpdos
+            or arb_id in self.network.subscribers
+            or self._pdo_dirty
+        )
+
     def handle(self, arb_id: int, data: bytes | bytearray, timestamp: float = 0.0) -> list[Frame]:
         """Take one received standard data frame; return the frames the drive answers with.
 
@@ -759,23 +781,61 @@ def run_sim(
     stop_event: threading.Event,
     *,
     tick_s: float = 0.001,
+    fast_path: bool | FastSocketCan = True,
 ) -> None:
     """Serve `drives` on `bus` until `stop_event` is set: answer frames, step every tick.
 
-    Receive and send errors are swallowed (a simulated drive keeps running). Returns within
-    about one tick after `stop_event` is set.
+    Each frame goes only to the drives that hear it (`SimCiA402Drive.hears`). On a python-can
+    SocketCAN bus (with `fast_path`; a `FastSocketCan` given is used as it is) frames come off
+    the kernel socket in batches and a batch's answers leave in one system call
+    (`drivers.socketcan_fast`, every frame received, none of the bank's own): the drives keep
+    up with a controller's bursts on a slow machine. (Read one `can.Message` at a time, they
+    fell behind there; the socket's full receive queue then dropped the tail of each burst,
+    which is the cycle's SYNC, and the drives stopped answering.) Every other bus: python-can's
+    `recv` and `send` per frame. Receive and send errors are swallowed (a simulated drive keeps
+    running). Returns within about one tick after `stop_event` is set.
     """
+    fast = open_fast_path(bus, None, fast_path=fast_path)
 
-    def send(frames: Iterable[Frame]) -> None:
+    def answer(arb_id: int, data: bytes | bytearray, stamp: float, out: list[Frame]) -> None:
+        for d in drives:
+            if d.hears(arb_id):
+                out.extend(d.handle(arb_id, data, stamp))
+
+    def send(frames: list[Frame]) -> None:
+        if not frames:
+            return
+        if fast is not None:
+            with contextlib.suppress(Exception):  # a simulated drive survives a broken bus
+                fast.send_frames([(arb_id, data, False) for arb_id, data in frames])
+            return
         for arb_id, data in frames:
             msg = can.Message(arbitration_id=arb_id, data=data, is_extended_id=False)
-            with contextlib.suppress(Exception):  # a simulated drive survives a broken bus
+            with contextlib.suppress(Exception):
                 bus.send(msg, timeout=0.01)
 
     def handle(msg: can.Message) -> None:
         if not (msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame):
-            for d in drives:
-                send(d.handle(msg.arbitration_id, msg.data, msg.timestamp))
+            out: list[Frame] = []
+            answer(msg.arbitration_id, msg.data, msg.timestamp, out)
+            send(out)
+
+    def take_batches(fast: FastSocketCan, budget_s: float) -> None:
+        """The frames pending on the fast socket, for at most `budget_s` (as `take_queued`)."""
+        end_s = time.monotonic() + budget_s
+        out: list[Frame] = []
+        while True:
+            try:
+                n = fast.recv_batch(fast.batch)
+            except Exception:  # closed or broken: the serving loop goes on ticking
+                break
+            for i in range(n):
+                can_id, length, data, stamp = fast.frame(i)
+                if not can_id & _FLAGGED:
+                    answer(can_id, data[:length], stamp, out)
+            if n == 0 or time.monotonic() >= end_s:
+                break
+        send(out)
 
     clock = time.monotonic
     last = clock()
@@ -784,6 +844,15 @@ def run_sim(
         now = clock()
         remaining = next_tick - now
         if remaining > 0.0:
+            if fast is not None:
+                try:
+                    pending = fast.wait_readable(remaining)
+                except Exception:
+                    pending = False
+                    time.sleep(min(remaining, 0.001))
+                if pending:
+                    take_batches(fast, tick_s)
+                continue
             try:
                 msg = bus.recv(timeout=remaining)
             except Exception:
@@ -792,12 +861,18 @@ def run_sim(
             if msg is not None:
                 handle(msg)
             continue
-        take_queued(bus, handle, tick_s)  # a late tick still hears the host first (drivers.simbank)
+        # A late tick still hears the host first (drivers.simbank.take_queued).
+        if fast is not None:
+            take_batches(fast, tick_s)
+        else:
+            take_queued(bus, handle, tick_s)
         dt = now - last
         last = now
         next_tick = next_tick + tick_s if remaining > -tick_s else now + tick_s
+        due: list[Frame] = []
         for d in drives:
-            send(d.step(dt))
+            due.extend(d.step(dt))
+        send(due)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import errno
 import socket
 import struct
+import threading
 import time
 import uuid
 from collections.abc import Iterator
@@ -416,3 +417,58 @@ def test_a_closed_socket_is_a_named_bus_error(rig: FastRig) -> None:
     with pytest.raises(BusError, match=r"^node 1 RPDO1: send 0x201: EBADF: .*closed"):
         d.estop()
     assert d.stats.bus_errors == errors0 + 1 + 2 * len(NODES) + 1
+
+
+def _recv_until(sock: socket.socket, want: int, timeout_s: float) -> list[tuple[int, bytes]]:
+    """At least `want` frames from `sock` (blocking, bounded by `timeout_s`)."""
+    out: list[tuple[int, bytes]] = []
+    sock.settimeout(timeout_s)
+    try:
+        while len(out) < want:
+            can_id, length, data = sf.CAN_FRAME.unpack(sock.recv(64))
+            out.append((can_id, data[:length]))
+    except TimeoutError:
+        pass
+    return out
+
+
+def test_the_simulated_drives_serve_a_fast_socket_in_batches() -> None:
+    """`run_sim` on the fast path: frames already queued are taken in one receive call and
+    answered in one send call; each goes only to the drive it concerns (no answer for a node
+    not served); error, extended and remote frames are ignored; NMT start then brings TPDOs."""
+    from drivers.cia402.sim import SimCiA402Drive, run_sim
+
+    peer, mine = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    fast = sf.FastSocketCan(mine)
+    bus = open_bus("virtual", f"test-cia402-fast-{uuid.uuid4().hex}")
+    drives = [SimCiA402Drive(n) for n in NODES]
+    sdo_upload_1000 = bytes([0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0])
+    for n in (*NODES, 9):
+        peer.send(_raw(0x600 + n, sdo_upload_1000))
+    peer.send(_raw(sf.CAN_ERR_FLAG | 0x40, bytes(8)))
+    peer.send(_raw(sf.CAN_EFF_FLAG | 0x601, sdo_upload_1000))
+    peer.send(sf.CAN_FRAME.pack(sf.CAN_RTR_FLAG | 0x602, 8, b""))
+    stop = threading.Event()
+    thread = threading.Thread(
+        target=run_sim, args=(bus, drives, stop), kwargs={"fast_path": fast}, daemon=True
+    )
+    thread.start()
+    try:
+        first = _recv_until(peer, 2 * len(NODES), 30.0)
+        # The queued requests were taken in one batch: their answers left in one send, with
+        # the boot-up messages the drives had pending.
+        assert fast.send_calls == 1
+        answers = [f for f in first if f[0] & 0x780 == 0x580]
+        assert sorted(c for c, _ in answers) == [0x580 + n for n in NODES]
+        assert all(data[0] == 0x43 for _, data in answers)  # expedited upload, 4 bytes
+        assert sorted(c for c, _ in first if c & 0x780 == 0x700) == [0x700 + n for n in NODES]
+        peer.send(_raw(0x000, b"\x01\x00"))  # NMT start, every node
+        tpdos = {c for c, _ in _recv_until(peer, 2 * len(NODES), 30.0) if c & 0x780 == 0x180}
+        assert sorted(tpdos) == [0x180 + n for n in NODES]  # (and TPDO2, also asynchronous)
+    finally:
+        stop.set()
+        thread.join(5.0)
+        bus.shutdown()
+        peer.close()
+        mine.close()
+    assert not thread.is_alive()

@@ -158,6 +158,51 @@ def test_sync_applies_rpdos_then_answers_with_tpdos() -> None:
     assert 9 <= len(tpdo2) <= 11
 
 
+def _configured(sync_cob: int) -> SimCiA402Drive:
+    drive = booted(counts_per_rev=CPR)
+    map_pdo(drive, 0x1400, 0x203, 1, [0x60400010, 0x607A0020])
+    map_pdo(drive, 0x1800, 0x183, 1, [0x60410010, 0x60640020])
+    sdo_write(drive, 0x1005, 0, sync_cob, "<I")
+    sdo_write(drive, 0x6060, 0, 8, "<b")
+    start(drive)
+    return drive
+
+
+def _observed(drive: SimCiA402Drive) -> tuple[object, ...]:
+    return (
+        drive.state,
+        drive.nmt_state,
+        drive.target_counts,
+        drive.velocity_offset_units,
+        drive.syncs_received,
+        drive.rpdos_applied,
+        drive.mode,
+        drive.statusword,
+        drive.position_rev,
+    )
+
+
+def test_a_drive_hears_its_frames_and_every_frame_it_does_not_hear_does_nothing() -> None:
+    """`hears` lets a bank skip a drive for a frame: it must be True for every frame that could
+    change the drive or draw an answer. Checked on every 11-bit id against a twin drive."""
+    drive, twin = _configured(0x085), _configured(0x085)
+    for heard in (0x085, 0x203, 0x600 + NODE, 0x000):
+        assert drive.hears(heard), hex(heard)
+    for other in (0x080, 0x204, 0x183, 0x700 + NODE, 0x601, 0x580 + NODE):
+        assert not drive.hears(other), hex(other)
+    before = _observed(twin)
+    payload = struct.pack("<Hi", 0x0F, 4096)
+    for arb_id in range(0x800):
+        if not drive.hears(arb_id):
+            assert twin.handle(arb_id, payload) == [], hex(arb_id)
+            assert twin.handle(arb_id, b"") == [], hex(arb_id)
+    assert _observed(twin) == before
+    twin.handle(0x203, payload)
+    drive.handle(0x203, payload)
+    assert twin.handle(0x085, b"") == drive.handle(0x085, b"") != []
+    assert _observed(twin) == _observed(drive)
+
+
 def test_state_machine_transitions() -> None:
     drive = SimCiA402Drive(NODE)
     cw(drive, 0x0F)  # enable from switch on disabled: not a transition

@@ -50,6 +50,9 @@ class _SlowDrive(SimCiA402Drive):
         self.steps += 1
         return []
 
+    def hears(self, arb_id: int) -> bool:
+        return True
+
     def handle(
         self, arb_id: int, data: bytes | bytearray, timestamp: float = 0.0
     ) -> list[tuple[int, bytes]]:
