@@ -23,7 +23,7 @@ reader, through python-can's `recv` (the loop thread is blocked in `configure` m
 `poll` reads nothing until it returns); it is joined before `configure` returns. SDO requests
 and NMT commands leave through canopen's `network.send_message`, bounded by `send_timeout_s`.
 
-The SocketCAN fast path (`drivers.socketcan_fast`, opt-in on a python-can SocketCAN bus,
+The SocketCAN fast path (`drivers.socketcan_fast`, the default on a python-can SocketCAN bus,
 `fast_path`): `poll()` takes the frames off the bus's kernel socket in batches (`recvmmsg`, no
 `can.Message` per frame), and a cycle's RPDOs and SYNC leave in one `sendmmsg` per 64 frames
 (one call for up to 31 drives with both RPDOs, two RPDOs and the SYNC). Kernel filters
@@ -191,7 +191,7 @@ class CiA402Reels(CiA402Receive):
         send_timeout_s: float = DEFAULT_SEND_TIMEOUT_S,
         clock: Callable[[], float] = time.monotonic,
         wall_clock_ns: Callable[[], int] = time.time_ns,
-        fast_path: bool | FastSocketCan = False,
+        fast_path: bool | FastSocketCan = True,
     ) -> None:
         """Set up the drives `node_ids` (1..127, unique, at least one); nothing is sent yet.
 
@@ -202,11 +202,10 @@ class CiA402Reels(CiA402Receive):
         (default: `counts_per_rev`, i.e. increments per second). `velocity_offset`: map the
         feed-forward (RPDO2); `torque`: map torque actual into TPDO1. `heartbeat_period_s`:
         each drive's heartbeat producer time. `sdo_timeout_s`: wait for each SDO answer.
-        `fast_path`: True on a python-can SocketCAN bus: receive and send the cyclic traffic
-        through the bus's kernel socket directly (module docstring; kernel filters set at
-        once); False (the default, for now: through the daemon under a loaded emulated VM a
-        drive's readings went stale at the end of a move) keeps python-can's path (every other
-        interface always does); a `FastSocketCan` is used as given (tests, the benchmark).
+        `fast_path`: on a python-can SocketCAN bus, receive and send the cyclic traffic through
+        the bus's kernel socket directly (module docstring; kernel filters set at once); False
+        keeps python-can's path (every other interface always does); a `FastSocketCan` is used
+        as given (tests, the benchmark).
         Raises ValueError on bad node ids or a non-finite or non-positive number, and on a
         period or heartbeat the drives cannot represent; OSError if the EDS cannot be read or
         a SocketCAN socket refuses the fast path's options.
