@@ -5,9 +5,11 @@ what one serving run is (`_serve`: answer frames and step the nodes until the st
 set); this class starts it once in a daemon thread, stops and joins it, and makes the bank a
 context manager. The bank does not own the bus: the caller shuts it down after `stop()`.
 
-`take_queued` is the families' rule for a tick that falls due late: the frames already received
-are handled before the tick is stepped (a real drive handles each frame as it arrives), for at
-most one tick's time.
+`SimLink` is a bank's side of its bus, for every family's serving loop: frames in (each handed
+on with SocketCAN's flags, its data and its time) and frames out, through python-can one frame
+at a time, or on SocketCAN through the fast path's batches. Its `serve` is also the families'
+rule for a tick that falls due late: the frames already received are handled before the tick is
+stepped (a real drive handles each frame as it arrives), within a time budget.
 
 `add_bus_arguments` and `serve_process` are the shared part of the families' command lines
 (`python -m drivers.odrive.sim`, `python -m drivers.cia402.sim`): the bus options, and serving
@@ -17,43 +19,131 @@ until SIGTERM/SIGINT (or `--duration-s`) with "READY <nodes>" on stdout once the
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import signal
 import threading
 import time
 from collections.abc import Callable, Sequence
 from types import FrameType, TracebackType
-from typing import TYPE_CHECKING, Any, Self
+from typing import Any, Self
 
-if TYPE_CHECKING:
-    import can
+import can
+
+from drivers.socketcan_fast import FastSocketCan, flagged_id, open_fast_path
+
+SimFrame = tuple[int, bytes, bool]
+"""A frame a simulated node sends: (11-bit id, data, is_remote)."""
 
 
-def take_queued(bus: can.BusABC, handle: Callable[[can.Message], None], budget_s: float) -> int:
-    """Hand the frames already waiting on `bus` to `handle` without blocking, for at most
-    `budget_s` seconds (one tick's time); returns how many were taken.
+class SimLink:
+    """A simulated bank's side of its bus: the frames it receives and sends.
 
-    A serving loop calls it when a tick is due, before stepping: a loop that is late on its
-    ticks (a loaded host, a slow physical plant) would otherwise step tick after tick without
-    reading the bus, and its drives would miss the host's set-points and feeds (an axis watchdog
-    expiring on a host that is sending). The budget keeps the reverse from happening: on a host
-    too slow for the traffic, handling and ticks alternate, so the drives still step and send
-    their heartbeats. Receive errors end the drain; nothing raises.
+    On every bus python-can's `recv` and `send`, one frame at a time. On a python-can SocketCAN
+    bus (with `fast_path`; a `FastSocketCan` given is used as it is) the fast path instead
+    (`drivers.socketcan_fast`): frames come off the kernel socket in batches, every one (no
+    kernel filter) but the bank's own, and a batch's answers leave in one system call. Reading
+    one `can.Message` at a time, a bank fell behind a controller's bursts on a slow machine (the
+    emulated VM under load), and its socket's full receive queue then dropped the tail of each
+    burst: for CiA 402 drives the cycle's SYNC, which they answer. Not thread-safe: the serving
+    thread calls every method.
     """
-    taken = 0
-    end_s = time.monotonic() + budget_s
-    while True:
+
+    def __init__(self, bus: can.BusABC, *, fast_path: bool | FastSocketCan = True) -> None:
+        """Use `bus` (owned by the caller). Raises OSError if a SocketCAN socket refuses the
+        fast path's options."""
+        self._bus = bus
+        self.fast = open_fast_path(bus, None, fast_path=fast_path)
+        """The fast path in use, or None (python-can's path)."""
+
+    def serve(
+        self,
+        handle: Callable[[int, bytes | bytearray, float], None],
+        wait_s: float,
+        budget_s: float,
+        max_frames: int = 10_000,
+    ) -> int:
+        """Wait up to `wait_s` (0: not at all) for a frame; then hand it and the frames received
+        after it to `handle(can_id, data, stamp)` (`can_id` with SocketCAN's EFF/RTR/ERR flags,
+        `stamp` the wall-clock receive time) until none is left, `budget_s` has passed since the
+        first, or `max_frames` were handed. Returns how many. A receive error ends it (the
+        serving loop goes on ticking); raises only what `handle` raises.
+        """
+        fast = self.fast
+        if fast is None:
+            return self._serve_stock(handle, wait_s, budget_s, max_frames)
         try:
-            msg = bus.recv(timeout=0.0)
-        except Exception:  # a simulated node survives a broken bus
-            break
-        if msg is None:
-            break
-        taken += 1
-        handle(msg)
-        if time.monotonic() >= end_s:
-            break
-    return taken
+            if not fast.wait_readable(wait_s):
+                return 0
+        except OSError:  # the bus was shut down under the serving loop
+            time.sleep(min(max(wait_s, 0.0), 0.001))
+            return 0
+        end_s = time.monotonic() + budget_s
+        handed = 0
+        frame = fast.frame
+        while handed < max_frames:
+            try:
+                n = fast.recv_batch(max_frames - handed)
+            except OSError:
+                break
+            for i in range(n):
+                can_id, length, data, stamp = frame(i)
+                handle(can_id, data[:length], stamp)
+            handed += n
+            if n == 0 or time.monotonic() >= end_s:
+                break
+        return handed
+
+    def _serve_stock(
+        self,
+        handle: Callable[[int, bytes | bytearray, float], None],
+        wait_s: float,
+        budget_s: float,
+        max_frames: int,
+    ) -> int:
+        recv = self._bus.recv
+        timeout_s = max(wait_s, 0.0)
+        end_s = math.inf
+        handed = 0
+        while handed < max_frames:
+            try:
+                msg = recv(timeout=timeout_s)
+            except Exception:  # a simulated node survives a broken bus
+                if handed == 0:
+                    time.sleep(min(timeout_s, 0.001))
+                break
+            if msg is None:
+                break
+            if handed == 0:
+                end_s = time.monotonic() + budget_s
+                timeout_s = 0.0
+            handed += 1
+            handle(flagged_id(msg), msg.data, msg.timestamp)
+            if time.monotonic() >= end_s:
+                break
+        return handed
+
+    def send(self, frames: Sequence[SimFrame]) -> None:
+        """Send `frames` in order (one system call on the fast path). A frame that cannot be
+        sent is dropped: a simulated node survives a broken bus. Raises nothing."""
+        if not frames:
+            return
+        fast = self.fast
+        if fast is not None:
+            with contextlib.suppress(Exception):
+                fast.send_frames(frames)
+            return
+        send = self._bus.send
+        for arb_id, data, remote in frames:
+            msg = can.Message(
+                arbitration_id=arb_id,
+                data=data,
+                is_extended_id=False,
+                is_remote_frame=remote,
+                dlc=8 if remote else len(data),
+            )
+            with contextlib.suppress(Exception):
+                send(msg, timeout=0.01)
 
 
 class ThreadedSimBank:

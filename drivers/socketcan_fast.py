@@ -40,7 +40,10 @@ import struct
 import sys
 import time
 from collections.abc import Sequence
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
+
+if TYPE_CHECKING:
+    import can
 
 CAN_EFF_FLAG: Final = 0x80000000
 CAN_RTR_FLAG: Final = 0x40000000
@@ -77,6 +80,19 @@ _MSG_DONTWAIT: Final = 0x40
 
 DEFAULT_BATCH: Final = 64
 """Frames one receive call can take (a 4-reel tick at 1 kHz brings 8 to 13)."""
+
+
+def flagged_id(msg: can.Message) -> int:
+    """`msg`'s id as SocketCAN carries it: with the EFF, RTR and ERR flags (python-can's
+    `Message` keeps them as attributes). Raises nothing."""
+    can_id: int = msg.arbitration_id
+    if msg.is_extended_id:
+        can_id |= CAN_EFF_FLAG
+    if msg.is_remote_frame:
+        can_id |= CAN_RTR_FLAG
+    if msg.is_error_frame:
+        can_id |= CAN_ERR_FLAG
+    return can_id
 
 
 class _IoVec(ctypes.Structure):

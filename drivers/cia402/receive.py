@@ -30,6 +30,7 @@ from drivers.socketcan_fast import (
     CAN_ERR_MASK,
     CAN_RTR_FLAG,
     FastSocketCan,
+    flagged_id,
 )
 
 NMT_OPERATIONAL = 5
@@ -96,18 +97,6 @@ class DriveRecord:
         self.rpdo2: struct.Struct | None = None
         self.rpdo2_cob = 0
         self.tpdo1 = struct.Struct("<")
-
-
-def flagged_id(msg: can.Message) -> int:
-    """`msg`'s id as SocketCAN carries it: with the EFF, RTR and ERR flags."""
-    can_id: int = msg.arbitration_id
-    if msg.is_extended_id:
-        can_id |= CAN_EFF_FLAG
-    if msg.is_remote_frame:
-        can_id |= CAN_RTR_FLAG
-    if msg.is_error_frame:
-        can_id |= CAN_ERR_FLAG
-    return can_id
 
 
 class CiA402Receive:

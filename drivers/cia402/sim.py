@@ -59,19 +59,14 @@ from drivers.cia402.profile import DriveState
 from drivers.odrive.sim import DEFAULT_POS_GAIN, MAX_SUBSTEP_S
 from drivers.registry import SimSettings
 from drivers.simbank import (
+    SimFrame,
+    SimLink,
     ThreadedSimBank,
     add_bus_arguments,
     floats_arg,
     serve_process,
-    take_queued,
 )
-from drivers.socketcan_fast import (
-    CAN_EFF_FLAG,
-    CAN_ERR_FLAG,
-    CAN_RTR_FLAG,
-    FastSocketCan,
-    open_fast_path,
-)
+from drivers.socketcan_fast import CAN_EFF_FLAG, CAN_ERR_FLAG, CAN_RTR_FLAG, FastSocketCan
 
 EDS_PATH = Path(__file__).with_name("cia402.eds")
 DEFAULT_COUNTS_PER_REV = 131072
@@ -785,57 +780,22 @@ def run_sim(
 ) -> None:
     """Serve `drives` on `bus` until `stop_event` is set: answer frames, step every tick.
 
-    Each frame goes only to the drives that hear it (`SimCiA402Drive.hears`). On a python-can
-    SocketCAN bus (with `fast_path`; a `FastSocketCan` given is used as it is) frames come off
-    the kernel socket in batches and a batch's answers leave in one system call
-    (`drivers.socketcan_fast`, every frame received, none of the bank's own): the drives keep
-    up with a controller's bursts on a slow machine. (Read one `can.Message` at a time, they
-    fell behind there; the socket's full receive queue then dropped the tail of each burst,
-    which is the cycle's SYNC, and the drives stopped answering.) Every other bus: python-can's
-    `recv` and `send` per frame. Receive and send errors are swallowed (a simulated drive keeps
-    running). Returns within about one tick after `stop_event` is set.
+    The bus is met through a `drivers.simbank.SimLink` (on SocketCAN, with `fast_path`, the fast
+    path's batches); each frame goes only to the drives that hear it (`SimCiA402Drive.hears`),
+    and the answers to what was received together leave together. A tick that falls due late
+    first takes the frames already received, for at most one tick's time. Receive and send
+    errors are swallowed (a simulated drive keeps running). Returns within about one tick
+    after `stop_event` is set.
     """
-    fast = open_fast_path(bus, None, fast_path=fast_path)
+    link = SimLink(bus, fast_path=fast_path)
+    out: list[SimFrame] = []
 
-    def answer(arb_id: int, data: bytes | bytearray, stamp: float, out: list[Frame]) -> None:
+    def handle(can_id: int, data: bytes | bytearray, stamp: float) -> None:
+        if can_id & _FLAGGED:
+            return  # extended, remote and error frames: no drive answers them
         for d in drives:
-            if d.hears(arb_id):
-                out.extend(d.handle(arb_id, data, stamp))
-
-    def send(frames: list[Frame]) -> None:
-        if not frames:
-            return
-        if fast is not None:
-            with contextlib.suppress(Exception):  # a simulated drive survives a broken bus
-                fast.send_frames([(arb_id, data, False) for arb_id, data in frames])
-            return
-        for arb_id, data in frames:
-            msg = can.Message(arbitration_id=arb_id, data=data, is_extended_id=False)
-            with contextlib.suppress(Exception):
-                bus.send(msg, timeout=0.01)
-
-    def handle(msg: can.Message) -> None:
-        if not (msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame):
-            out: list[Frame] = []
-            answer(msg.arbitration_id, msg.data, msg.timestamp, out)
-            send(out)
-
-    def take_batches(fast: FastSocketCan, budget_s: float) -> None:
-        """The frames pending on the fast socket, for at most `budget_s` (as `take_queued`)."""
-        end_s = time.monotonic() + budget_s
-        out: list[Frame] = []
-        while True:
-            try:
-                n = fast.recv_batch(fast.batch)
-            except Exception:  # closed or broken: the serving loop goes on ticking
-                break
-            for i in range(n):
-                can_id, length, data, stamp = fast.frame(i)
-                if not can_id & _FLAGGED:
-                    answer(can_id, data[:length], stamp, out)
-            if n == 0 or time.monotonic() >= end_s:
-                break
-        send(out)
+            if d.hears(can_id):
+                out.extend((c, f, False) for c, f in d.handle(can_id, data, stamp))
 
     clock = time.monotonic
     last = clock()
@@ -844,35 +804,18 @@ def run_sim(
         now = clock()
         remaining = next_tick - now
         if remaining > 0.0:
-            if fast is not None:
-                try:
-                    pending = fast.wait_readable(remaining)
-                except Exception:
-                    pending = False
-                    time.sleep(min(remaining, 0.001))
-                if pending:
-                    take_batches(fast, tick_s)
-                continue
-            try:
-                msg = bus.recv(timeout=remaining)
-            except Exception:
-                msg = None
-                time.sleep(min(remaining, 0.001))
-            if msg is not None:
-                handle(msg)
+            link.serve(handle, remaining, remaining)
+            link.send(out)
+            out.clear()
             continue
-        # A late tick still hears the host first (drivers.simbank.take_queued).
-        if fast is not None:
-            take_batches(fast, tick_s)
-        else:
-            take_queued(bus, handle, tick_s)
+        link.serve(handle, 0.0, tick_s)  # a late tick still hears the host first
         dt = now - last
         last = now
         next_tick = next_tick + tick_s if remaining > -tick_s else now + tick_s
-        due: list[Frame] = []
         for d in drives:
-            due.extend(d.step(dt))
-        send(due)
+            out.extend((c, f, False) for c, f in d.step(dt))
+        link.send(out)
+        out.clear()
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -71,13 +71,12 @@ the true position at `rate` rev/s).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
 import struct
 import sys
 import threading
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -85,7 +84,14 @@ import can
 
 from drivers.odrive import cansimple as cs
 from drivers.registry import SimSettings
-from drivers.simbank import ThreadedSimBank, add_bus_arguments, floats_arg, serve_process
+from drivers.simbank import SimLink, ThreadedSimBank, add_bus_arguments, floats_arg, serve_process
+from drivers.socketcan_fast import (
+    CAN_EFF_FLAG,
+    CAN_EFF_MASK,
+    CAN_ERR_FLAG,
+    CAN_RTR_FLAG,
+    FastSocketCan,
+)
 
 _NAN_ENCODER = struct.pack("<ff", math.nan, 0.0)
 
@@ -528,17 +534,6 @@ class SimStats:
         return self.simulated_s / self.busy_s if self.busy_s > 0.0 else math.inf
 
 
-def _to_can(frame: cs.Frame) -> can.Message:
-    arb_id, data, is_remote = frame
-    return can.Message(
-        arbitration_id=arb_id,
-        data=data,
-        is_extended_id=False,
-        is_remote_frame=is_remote,
-        dlc=8 if is_remote else len(data),
-    )
-
-
 def step_axes(axes: Sequence[SimODriveAxis], coupling: AxisCoupling | None, dt_s: float) -> None:
     """One tick of the simulated drives' motion, no frames: every axis advances `dt_s`, then
     the `coupling` (if any) steps with their positions and the torques of those in torque
@@ -571,8 +566,12 @@ def run_sim(
     tick_s: float = 0.001,
     coupling: AxisCoupling | None = None,
     stats: SimStats | None = None,
+    fast_path: bool | FastSocketCan = True,
 ) -> None:
     """Serve `axes` on `bus` until `stop_event` is set: answer commands, broadcast every tick.
+
+    The bus is met through a `drivers.simbank.SimLink` (on SocketCAN, with `fast_path`, the
+    fast path's batches): the answers to what was received together leave together.
 
     Every tick: move each axis, step the `coupling` (if any, with the torques of the axes in
     torque control) and hand each axis its torque (and an axis in torque control the turns the
@@ -592,40 +591,37 @@ def run_sim(
         for a in axes:
             a.coupled = True
 
-    def send(frames: Iterable[cs.Frame]) -> None:
-        for f in frames:
-            with contextlib.suppress(Exception):  # a simulated node survives a broken bus
-                bus.send(_to_can(f), timeout=0.01)
+    link = SimLink(bus, fast_path=fast_path)
+    out: list[cs.Frame] = []
 
-    def serve_one(timeout_s: float) -> bool:
-        """Receive and handle at most one frame; False when none came within `timeout_s`."""
-        try:
-            msg = bus.recv(timeout=timeout_s)
-        except Exception:
-            time.sleep(min(timeout_s, 0.001))
-            return False
-        if msg is None:
-            return False
-        if not msg.is_error_frame:
-            m = cs.decode(msg.arbitration_id, msg.data, msg.is_remote_frame, msg.is_extended_id)
-            if not isinstance(m, cs.DecodeError):
-                axis = by_node.get(m.node_id)
-                if axis is not None:
-                    send(axis.handle(m))
-        return True
+    def handle(can_id: int, data: bytes | bytearray, stamp: float) -> None:
+        if can_id & CAN_ERR_FLAG:
+            return
+        m = cs.decode(
+            can_id & CAN_EFF_MASK,
+            bytes(data),
+            bool(can_id & CAN_RTR_FLAG),
+            bool(can_id & CAN_EFF_FLAG),
+        )
+        if not isinstance(m, cs.DecodeError):
+            axis = by_node.get(m.node_id)
+            if axis is not None:
+                out.extend(axis.handle(m))
 
     while not stop_event.is_set():
         now = clock()
         remaining = next_tick - now
         if remaining > 0.0:
-            serve_one(remaining)
+            link.serve(handle, remaining, remaining)
+            link.send(out)
+            out.clear()
             continue
         # Before stepping, every frame already received: after a stall of this thread (a busy
         # host) the commands that queued meanwhile feed the watchdogs and set the set-points
         # before the stall's time is judged, and the backlog cannot grow tick after tick.
-        drained = 0
-        while drained < MAX_DRAIN_FRAMES and serve_one(0.0):
-            drained += 1
+        link.serve(handle, 0.0, math.inf, MAX_DRAIN_FRAMES)
+        link.send(out)
+        out.clear()
         now = clock()
         dt = now - last
         last = now
@@ -637,7 +633,9 @@ def run_sim(
             st.coupling_errors += 1
             st.last_coupling_error = f"{type(exc).__name__}: {exc}"
         for axis in axes:
-            send(axis.broadcasts(dt))
+            out.extend(axis.broadcasts(dt))
+        link.send(out)
+        out.clear()
         st.ticks += 1
         st.late_ticks += late
         st.simulated_s += dt
