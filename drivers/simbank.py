@@ -68,6 +68,13 @@ class SimLink:
         `stamp` the wall-clock receive time) until none is left, `budget_s` has passed since the
         first, or `max_frames` were handed. Returns how many. A receive error ends it (the
         serving loop goes on ticking); raises only what `handle` raises.
+
+        A serving loop calls it with no wait when a tick is due, before stepping: a loop late
+        on its ticks (a loaded host, a slow physical plant) would otherwise step tick after tick
+        without reading the bus, and its drives would miss the host's set-points and feeds (an
+        axis watchdog expiring on a host that is sending). The budget keeps the reverse from
+        happening: on a host too slow for the traffic, handling and ticks alternate, so the
+        drives still step and send their heartbeats.
         """
         fast = self.fast
         if fast is None:

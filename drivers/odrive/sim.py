@@ -597,12 +597,8 @@ def run_sim(
     def handle(can_id: int, data: bytes | bytearray, stamp: float) -> None:
         if can_id & CAN_ERR_FLAG:
             return
-        m = cs.decode(
-            can_id & CAN_EFF_MASK,
-            bytes(data),
-            bool(can_id & CAN_RTR_FLAG),
-            bool(can_id & CAN_EFF_FLAG),
-        )
+        remote, extended = bool(can_id & CAN_RTR_FLAG), bool(can_id & CAN_EFF_FLAG)
+        m = cs.decode(can_id & CAN_EFF_MASK, data, remote, extended)
         if not isinstance(m, cs.DecodeError):
             axis = by_node.get(m.node_id)
             if axis is not None:
