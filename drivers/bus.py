@@ -97,6 +97,19 @@ def open_bus(
     return bus
 
 
+def frame_message(arb_id: int, data: bytes, is_remote: bool) -> can.Message:
+    """The python-can `Message` of a standard-id frame (id, data, is_remote), as the drivers'
+    and simulators' encoders give it: a remote frame asks for 8 bytes. Raises nothing for a
+    frame they make (python-can raises ValueError on more than 8 data bytes)."""
+    return can.Message(
+        arbitration_id=arb_id,
+        data=data,
+        is_extended_id=False,
+        is_remote_frame=is_remote,
+        dlc=8 if is_remote else len(data),
+    )
+
+
 def enlarge_receive_buffer(bus: can.BusABC, size_bytes: int = UDP_RCVBUF_BYTES) -> int:
     """Ask for a `size_bytes` receive buffer on a udp_multicast bus's socket (see the module
     docstring); return the size the kernel granted (as getsockopt reports it), 0 if the bus

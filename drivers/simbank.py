@@ -30,6 +30,7 @@ from typing import Any, Self
 
 import can
 
+from drivers.bus import frame_message
 from drivers.socketcan_fast import FastSocketCan, flagged_id, open_fast_path
 
 SimFrame = tuple[int, bytes, bool]
@@ -142,15 +143,8 @@ class SimLink:
             return
         send = self._bus.send
         for arb_id, data, remote in frames:
-            msg = can.Message(
-                arbitration_id=arb_id,
-                data=data,
-                is_extended_id=False,
-                is_remote_frame=remote,
-                dlc=8 if remote else len(data),
-            )
             with contextlib.suppress(Exception):
-                send(msg, timeout=0.01)
+                send(frame_message(arb_id, data, remote), timeout=0.01)
 
 
 class ThreadedSimBank:

@@ -61,6 +61,7 @@ from typing import Any
 import can
 
 from drivers.base import AxisReading, BusError, BusStats
+from drivers.bus import frame_message
 from drivers.odrive import cansimple as cs
 from drivers.odrive.receive import ODriveReceive
 from drivers.odrive.torque import F32_MAX, ODriveTorqueMode, as_float
@@ -296,15 +297,8 @@ class ODriveReels(ODriveReceive, ODriveTorqueMode):
         bus = self._bus
         timeout = self._send_timeout_s
         for arb_id, data, is_remote in frames:
-            msg = can.Message(
-                arbitration_id=arb_id,
-                data=data,
-                is_extended_id=False,
-                is_remote_frame=is_remote,
-                dlc=8 if is_remote else len(data),
-            )
             try:
-                bus.send(msg, timeout=timeout)
+                bus.send(frame_message(arb_id, data, is_remote), timeout=timeout)
             except Exception as exc:  # CanError, OSError, or anything an interface raises
                 failures.append(
                     self._stats.count_send_failure(f"{what} to node {arb_id >> 5}", exc)
