@@ -420,7 +420,7 @@ def _stream_path(
     from controller.cli.pathstream import StreamRefused, stream_points
 
     def body(session: Any) -> int:
-        poses: queue.Queue[bytes] = queue.Queue()
+        poses: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # see `_wait_arrival`
         sub = None
         if args.wait:
             sub = session.declare_subscriber(
@@ -456,7 +456,12 @@ def _stream_path(
                 sub.undeclare()
 
     def _stream(
-        send: Any, status: Any, drain: Any, line: StatusLine, poses: queue.Queue[bytes], t0: float
+        send: Any,
+        status: Any,
+        drain: Any,
+        line: StatusLine,
+        poses: queue.SimpleQueue[bytes],
+        t0: float,
     ) -> int:
         try:
             prog = stream_points(
@@ -501,7 +506,7 @@ def _motion(
     args: argparse.Namespace, verb: str, payload: dict[str, Any], points: list[list[float]]
 ) -> int:
     def body(session: Any) -> int:
-        poses: queue.Queue[bytes] = queue.Queue()
+        poses: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # see `_wait_arrival`
         sub = None
         if args.wait:  # subscribe first so no sample after the reply is missed
             sub = session.declare_subscriber(
@@ -516,7 +521,7 @@ def _motion(
             if sub is not None:
                 sub.undeclare()
 
-    def _send_and_wait(session: Any, poses: queue.Queue[bytes]) -> int:
+    def _send_and_wait(session: Any, poses: queue.SimpleQueue[bytes]) -> int:
         reply = query(session, _key(args, f"cmd/{verb}"), payload, args.timeout)
         _print_reply(verb, reply, args)
         if not args.wait:
@@ -591,7 +596,7 @@ def _interrupted(session: Any, args: argparse.Namespace) -> int:
 def _wait_arrival(
     args: argparse.Namespace,
     verb: str,
-    poses: queue.Queue[bytes],
+    poses: queue.SimpleQueue[bytes],
     points: list[list[float]],
     *,
     seen_moving: bool = True,
@@ -624,6 +629,9 @@ def _wait_arrival(
                     " with the motion (`cablebot stop` stops it)"
                 )
             try:
+                # A SimpleQueue: Ctrl-C landing while `queue.Queue`'s condition re-takes its
+                # lock turned KeyboardInterrupt into "RuntimeError: release unlocked lock" (a
+                # traceback instead of braking); SimpleQueue's wait is interrupted cleanly.
                 data = poses.get(timeout=min(0.5, deadline - now))
             except queue.Empty:
                 if time.monotonic() - last_rx > args.timeout:
