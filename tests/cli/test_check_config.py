@@ -37,7 +37,7 @@ def test_desk_file_is_described(capsys: pytest.CaptureFixture[str]) -> None:
     ) in out
     # the desk file's own comment: anchor to the far bottom corner of the workspace is 1.54 m
     assert "cables     allowed 0.100..1.600 m; the workspace needs 0.122..1.559 m" in out
-    assert "loop       1000 Hz, pose published at 100 Hz" in out
+    assert "loop       500 Hz, pose published at 100 Hz" in out
     assert (
         "statics    payload 0.5 kg, cable tensions 0.5..20 N (maximum from"
         " limits.max_tension_n), commands 0.5 N inside"
@@ -61,7 +61,7 @@ def test_every_problem_is_printed_and_exit_is_1(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     text = (REPO / "config" / "desk.toml").read_text()
-    text = text.replace("rate_hz = 1000.0", 'rate_hz = "fast"')
+    text = text.replace("rate_hz = 500.0", 'rate_hz = "fast"')
     text = text.replace("max_speed_mps = 0.3", "max_speed_mps = -1")
     text = text.replace("[limits]", "[limits]\nmax_cabel_m = 3")
     bad = tmp_path / "bad.toml"

@@ -62,7 +62,7 @@ Shipped, all with the package (`cablebot init-config --example NAME`):
 
 * `config/paper-acre.toml`: the paper robot against `cablebot sim` over udp_multicast (Zenoh
   prefix `cablebot/paper-acre`);
-* `config/desk.toml`: a 1 m tabletop rig, ODrives on can0, 1 kHz;
+* `config/desk.toml`: a 1 m tabletop rig, ODrives on can0, 500 Hz;
 * `config/cia402-desk.toml`: the same rig on CiA 402 servo drives, nodes 1..4 on can0, 500 Hz;
 * `config/cia402-sim.toml`: that rig on simulated CiA 402 drives (`cablebot sim` and
   `cablebot run` over host-only udp_multicast);
