@@ -47,6 +47,23 @@ def test_desk_file_is_described(capsys: pytest.CaptureFixture[str]) -> None:
     assert lines[-1] == f"ok: {path} is valid"
 
 
+def test_config_option_names_the_file_as_for_every_other_verb(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    desk = str(REPO / "config" / "desk.toml")
+    code, out, err = run(capsys, "check-config", "--config", desk)
+    assert code == exitcodes.OK, err
+    assert out.splitlines()[-1] == f"ok: {desk} is valid"
+    code, out, _ = run(capsys, "check-config", desk, "--config", desk)
+    assert code == exitcodes.OK
+    paper = str(REPO / "config" / "paper-acre.toml")
+    code, out, err = run(capsys, "check-config", desk, "--config", paper)
+    assert code == exitcodes.USAGE and out == ""
+    assert f"two files, {desk} and --config {paper}: name one" in err
+    code, out, err = run(capsys, "check-config")
+    assert code == exitcodes.USAGE and "name the robot file" in err
+
+
 def test_json_description(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, _ = run(capsys, "check-config", str(REPO / "config" / "paper-acre.toml"), "--json")
     assert code == exitcodes.OK
