@@ -113,7 +113,7 @@ def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespa
 
 
 def _option_hints(parser: argparse.ArgumentParser, extras: list[str]) -> str:
-    """"; did you mean ..." for each unknown option among `extras` close to one of the
+    """ "; did you mean ..." for each unknown option among `extras` close to one of the
     parser's own options, or ""."""
     from controller.core.suggest import closest
 

@@ -1,4 +1,4 @@
-"""`cablebot check-config FILE` (or `--config FILE`) and `cablebot init-config --example NAME [OUT]`.
+"""`cablebot check-config FILE` (or `--config FILE`) and `cablebot init-config --example NAME`.
 
 `check-config` validates a robot file (every problem at once, as `load_config` reports them)
 and prints what it means: anchors, the footprint, the workspace box, the cable lengths the
@@ -346,8 +346,7 @@ def cmd_check_config(args: argparse.Namespace) -> int:
 
     if args.file is not None and args.config is not None and args.file != args.config:
         print(
-            f"cablebot check-config: two files, {args.file} and --config {args.config}: "
-            "name one",
+            f"cablebot check-config: two files, {args.file} and --config {args.config}: name one",
             file=sys.stderr,
         )
         return exitcodes.USAGE
