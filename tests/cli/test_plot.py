@@ -197,3 +197,27 @@ def test_the_speed_figure_draws_set_point_measured_and_requested(
     assert labels == ["measured (FPK poses)", "set-point", "requested"]
     requested = ax.get_lines()[2].get_ydata()
     assert np.allclose(requested, 0.3)
+
+
+@pytest.mark.parametrize(
+    ("content", "reason"),
+    [
+        (b"", "the file is empty (0 bytes)"),
+        (b"x,y,z\n0,0,2\n", "not an MCAP file (it does not start with MCAP's magic bytes)"),
+        (b"\x89MCAP0\r\n", "the file is cut off after 8 bytes, before its first record"),
+        (b"\x89MC", "the file is cut off after 3 bytes, before its first record"),
+    ],
+)
+def test_a_file_that_is_no_recording_is_named_with_its_reason(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], content: bytes, reason: str
+) -> None:
+    from controller.cli import exitcodes, main
+
+    path = tmp_path / "run.csv"
+    path.write_bytes(content)
+    assert main(["plot", str(path), "--out", str(tmp_path / "out")]) == exitcodes.REFUSED
+    err = capsys.readouterr().err
+    assert err == f"cablebot plot: cannot read {path}: not a cablebot recording: {reason}\n"
+    assert main(["replay", str(path)]) == exitcodes.REFUSED
+    err = capsys.readouterr().err
+    assert err == f"cablebot replay: cannot read {path}: not a cablebot recording: {reason}\n"
