@@ -216,6 +216,37 @@ def test_path_visits_points_and_stop_decelerates_to_hold() -> None:
     )
 
 
+def test_a_hold_a_stop_braked_to_carries_the_stop_as_its_reason() -> None:
+    """The HOLDING a `stop` braked to says so (a client waiting on the motion reads it); an
+    arrival does not, nor does a motion that replaced the braking."""
+    rig = Rig()
+    rig.arm()
+    rig.do(Move(_target(rig, 3.0)))
+    rig.tick(250)
+    rig.do(Stop())
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert rig.ctl.reason == "stopped by a `stop` command"
+    assert rig.pub.states[-1][:2] == ("HOLDING", "stopped by a `stop` command")
+    # arrival: no reason
+    rig.do(Move(_target(rig, 0.5)))
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert rig.ctl.reason is None and rig.pub.states[-1][:2] == ("HOLDING", None)
+    # a stop while holding changes nothing
+    rig.do(Stop())
+    rig.tick(5)
+    assert rig.ctl.reason is None and rig.pub.states[-1][:2] == ("HOLDING", None)
+    # a move taken while the stop brakes replaces the braking: its arrival is no stop
+    rig.do(Move(_target(rig, 3.0)))
+    rig.tick(250)
+    rig.do(Stop())
+    rig.tick(2)
+    back = _target(rig, 1.0)
+    rig.do(Move(back))
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert _dist(rig.ctl.setpoint_m, back) < 1e-9
+    assert rig.ctl.reason is None
+
+
 def test_streamed_setpoints_are_rate_limited() -> None:
     rig = Rig()
     rig.arm()

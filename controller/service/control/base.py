@@ -203,6 +203,9 @@ class ControllerState:
         self._estop_flag = False
         self._stream_target: tuple[Vec3, int] | None = None
         """The latest streamed set-point and the armed session (`_arm_epoch`) it arrived in."""
+        self._stop_brake: tuple[Vec3, str] | None = None
+        """Where a `stop` taken while MOVING brakes to and why: the HOLDING there carries the
+        reason (a motion that replaced the braking ends elsewhere and carries none)."""
         self._arm_epoch = 0
         """Counts `arm` commands taken: a set-point from an earlier session is discarded."""
         self.stream_refused = 0
