@@ -42,6 +42,7 @@ from controller.core.commands import Arm
 from controller.core.motion import BRAKE_ACCEL_SHARE
 from controller.core.states import State
 from controller.service.runner import start_loop
+from controller.service.stream_log import StreamLog
 
 log = logging.getLogger("cablebot.daemon")
 
@@ -537,8 +538,10 @@ def run_daemon(
         want_arm=auto_arm if auto_arm is not None else _auto_arm(cfg),
         status_every_s=status_every_s,
     )
+    stream_log = StreamLog(controller)
     next_status = time.monotonic() + status_every_s
     while not shutdown.is_set():
+        stream_log.step()
         if rt_report:
             log.info("loop thread: %s", "; ".join(rt_report))
             rt_report.clear()

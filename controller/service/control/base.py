@@ -211,6 +211,7 @@ class ControllerState:
         self.stream_refused = 0
         self.stream_last_refusal: str | None = None
         self.stream_discarded = 0
+        self.stream_last_discard: str | None = None
         """Set-points discarded because the state takes none (written by the submitting thread)."""
         self._velocity_cmd: tuple[Vec3, int] | None = None
         """The latest velocity sample and the armed session it arrived in (like a set-point)."""

@@ -115,8 +115,10 @@ class CommandExecution(Homing):
         state = self.state
         why = refusal(state, "setpoint")
         if why is not None:
-            self.stream_discarded += 1
-            return self._refusal_text(state, why)
+            text = self._refusal_text(state, why)
+            self.stream_last_discard = text
+            self.stream_discarded += 1  # after the reason: a reader of the count finds it
+            return text
         self._stream_target = (p, epoch)  # one reference assignment: atomic
         return None
 

@@ -63,6 +63,7 @@ class StatusReport(ControllerState):
                 "refused": self.stream_refused,
                 "last_refusal": self.stream_last_refusal,
                 "discarded": self.stream_discarded,
+                "last_discard": self.stream_last_discard,
             },
             "path": {
                 "queued_points": self.planner.queued_points,

@@ -244,8 +244,8 @@ class ControlStep(CommandExecution):
                 if self.state is State.HOLDING:
                     self._set_state(State.MOVING, "stream")
             else:
-                self.stream_refused += 1
                 self.stream_last_refusal = reason
+                self.stream_refused += 1  # after the reason: a reader of the count finds it
         vel = None if self._closing else self._velocity_cmd
         if vel is not None:
             self._velocity_cmd = None
