@@ -592,6 +592,24 @@ def test_pose_json_schema_and_no_nan() -> None:
     assert obj["cable_lengths_m"] == [None, 2.0] and obj["residual_m"] is None
 
 
+def test_status_dates_the_set_point_by_the_tick_that_computed_it() -> None:
+    """A status read between ticks (or answered late) gives the set-point with the wall time
+    of its tick, not of the read: a plot of the set-point's speed needs that time."""
+    rig = Rig()
+    assert rig.ctl.status()["setpoint_stamp_ns"] is None  # no set-point yet
+    rig.arm()
+    rig.do(Move(_target(rig, 1.0)))
+    rig.tick(100)
+    tick_ns = rig.clock.wall_ns()
+    sp = rig.ctl.setpoint_m
+    rig.clock.advance(0.0013)  # the status is read 1.3 ms after the tick
+    st = rig.ctl.status()
+    assert st["setpoint_m"] == list(sp)  # type: ignore[arg-type]
+    assert abs(st["setpoint_stamp_ns"] - tick_ns) <= 1, (st["setpoint_stamp_ns"], tick_ns)
+    rig.tick()
+    assert abs(rig.ctl.status()["setpoint_stamp_ns"] - rig.clock.wall_ns()) <= 1
+
+
 def test_published_poses_and_states() -> None:
     cfg = make_config(loop={"rate_hz": RATE_HZ, "publish_every": 5})
     rig = Rig(cfg)

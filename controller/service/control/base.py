@@ -238,6 +238,8 @@ class ControllerState:
         self.pose_stamp_ns = 0
         """Wall-clock arrival time of the newest encoder reading the pose came from."""
         self.setpoint_m: Vec3 | None = None
+        self._setpoint_tick_s: float | None = None
+        """The clock time of the tick that computed `setpoint_m` (written after it)."""
         """Set-point commanded on the last good tick (the hold set-point in FAULT)."""
         self.setpoint_lengths_m: tuple[float, ...] | None = None
         self.commanded_rev: list[float] | None = None

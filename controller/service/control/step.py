@@ -223,6 +223,7 @@ class ControlStep(CommandExecution):
         """Hold at `p`; _Fault if the payload cannot be held there (the tension rule)."""
         self.planner.hold(p)
         self.setpoint_m = p
+        self._setpoint_tick_s = self._last_tick_s
         self.setpoint_lengths_m = None
         if self.tension is not None:
             self._plan_tensions(p)
@@ -289,6 +290,7 @@ class ControlStep(CommandExecution):
         self.commanded_rev = rev
         self.commanded_ff_rps = ff
         self.setpoint_m = sp
+        self._setpoint_tick_s = self._last_tick_s  # after it: see `status`
         self.setpoint_lengths_m = lengths
         if self.state is State.MOVING and not self.planner.moving:
             self._set_state(State.HOLDING, self._stop_reason(sp))
