@@ -270,7 +270,11 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
         if zenoh:
             from controller.service import zenoh_io
 
-            iface = zenoh_io.ZenohInterface(cfg.zenoh, controller)
+            from controller.service.config import robot_description
+
+            iface = zenoh_io.ZenohInterface(
+                cfg.zenoh, controller, robot=robot_description(cfg) if cfg.text else None
+            )
             try:
                 iface.open()
             except Exception as exc:
