@@ -52,7 +52,7 @@ class DaemonRobot:
     config: RobotConfig
 
     def label(self) -> str:
-        """How messages name it: "robot 'desk' of the daemon on cablebot/desk (config/desk.toml)"."""
+        """How messages name it: "robot 'desk' of the daemon on cablebot/desk (desk.toml)"."""
         return f"robot {self.name!r} of the daemon on {self.prefix} ({self.source})"
 
 

@@ -269,7 +269,6 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
         iface = None
         if zenoh:
             from controller.service import zenoh_io
-
             from controller.service.config import robot_description
 
             iface = zenoh_io.ZenohInterface(
