@@ -51,10 +51,6 @@ class DaemonRobot:
     text: str
     config: RobotConfig
 
-    def label(self) -> str:
-        """How messages name it: "robot 'desk' of the daemon on cablebot/desk (desk.toml)"."""
-        return f"robot {self.name!r} of the daemon on {self.prefix} ({self.source})"
-
 
 def _drop_host_files(data: dict[str, Any]) -> dict[str, Any]:
     """`data` without the keys that name files on the daemon's machine."""
@@ -186,19 +182,29 @@ def check_agrees(robot: DaemonRobot, config: RobotConfig, path: str) -> None:
     """Refuse a robot file (`config`, read from `path`) that describes another robot than the
     daemon's. Raises RobotMismatch naming both robots and up to `MAX_DIFFERENCES` settings
     that differ (in `path`, at the daemon)."""
-    diffs = robot_differences(config, robot.config)
+    diffs = sorted(robot_differences(config, robot.config), key=_importance)
     if not diffs:
         return
-    shown = "; ".join(
-        f"{key}: {_value_text(mine)} in {path}, {_value_text(theirs)} at the daemon"
+    shown = ", ".join(
+        f"{key} ({_value_text(mine)} in --config, {_value_text(theirs)} at the daemon)"
         for key, mine, theirs in diffs[:MAX_DIFFERENCES]
     )
     more = len(diffs) - MAX_DIFFERENCES
     raise RobotMismatch(
-        f"--config {path} (robot {config.name!r}) is not the {robot.label()}: {shown}"
-        + (f"; and {more} more" if more > 0 else "")
+        f"--config {path} (robot {config.name!r}) is not the robot the daemon on"
+        f" {robot.prefix} runs ({robot.name!r}, from {robot.source}): they differ in {shown}"
+        + (f" and {more} more settings" if more > 0 else "")
         + ". The daemon's robot is the one that moves: leave out --config, or give its file"
     )
+
+
+_FIRST = ("name", "reels", "limits", "gcode", "payload", "tension", "homing")
+"""The settings a refusal names first: those that decide where and how the robot moves."""
+
+
+def _importance(diff: tuple[str, Any, Any]) -> int:
+    top = diff[0].split(".")[0].split("[")[0]
+    return _FIRST.index(top) if top in _FIRST else len(_FIRST)
 
 
 def daemon_robot(
@@ -214,3 +220,21 @@ def daemon_robot(
     if config_path is not None:
         check_agrees(robot, load_robot_file(config_path), config_path)
     return robot
+
+
+def check_config_with_daemon(
+    session: Any, prefix: str, timeout_s: float, config_path: str | None
+) -> None:
+    """For a verb that takes the robot from the daemon's status as it comes and a robot file
+    as a fallback (`view`, `record`): refuse a `config_path` that describes another robot than
+    the daemon on `prefix` runs. Nothing to check without a file, or while no daemon answers
+    (the verb waits for one).
+
+    Raises InputError (the file cannot be read), RobotMismatch, Refused (the daemon's
+    description cannot be used)."""
+    if config_path is None:
+        return
+    try:
+        daemon_robot(session, prefix, timeout_s, config_path)
+    except DaemonAbsent:
+        return

@@ -126,7 +126,8 @@ def check_loaded(path: str, lines: Sequence[Line], cfg: Any, start_m: Sequence[f
     rules = RobotRules.of(cfg)
     failure = check_job(job, rules.workspace, rules.tension, rules.tension_step_m)
     if failure is not None:
-        raise JobInputError(f"{path}: line {failure[0]}: refused: {failure[1]}")
+        likely = "".join(f"; {w}" for w in job_warnings(job, cfg))  # a file in metres, say
+        raise JobInputError(f"{path}: line {failure[0]}: refused: {failure[1]}{likely}")
     return job
 
 
