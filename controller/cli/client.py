@@ -892,8 +892,8 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
             default=None,
             metavar="V",
             help=(
-                f"speed in m/s, at least {MIN_SPEED_MPS:g}; above the robot's maximum it runs at"
-                " the maximum"
+                f"speed in m/s, at least {MIN_SPEED_MPS:g} and at most the robot's"
+                " limits.max_speed_mps (a higher one is refused)"
             ),
         )
         p.add_argument(

@@ -1,11 +1,14 @@
 """`cablebot gcode FILE|-`: run a G-code job (docs/gcode.md).
 
 - `cablebot gcode FILE --dry-run [--config FILE] [--from X Y Z] [--json]` plans the whole job
-  offline with the robot's limits on the daemon's planner and prints its duration, length,
-  moves, bounding box and what is not driven or unsupported.
-- `cablebot gcode FILE [--config FILE] [--wait]` checks the job from the robot's set-point and
-  streams it to the daemon as a path and appends, resting at the job's waits; a progress line
-  on a terminal; Ctrl-C stops the job and brakes to a hold.
+  offline with the robot's limits on the daemon's planner, from the robot's power-up pose (or
+  `--from`), and prints its duration, length, moves, bounding box and what is not driven or
+  unsupported.
+- `cablebot gcode FILE [--config FILE] [--wait]` takes the robot from the daemon
+  (`controller.cli.daemon_robot`; a `--config` must describe the same robot), checks the job
+  from the robot's set-point and streams it to the daemon as a path and appends, resting at the
+  job's waits; a progress line on a terminal; Ctrl-C, SIGTERM and SIGHUP stop the job and brake
+  to a hold.
 
 `FILE` may be gzipped (`.gz`); `-` reads standard input. Exit codes: `controller.cli.exitcodes`.
 """
