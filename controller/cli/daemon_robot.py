@@ -34,6 +34,10 @@ MAX_DIFFERENCES = 6
 """The most differences a refusal lists (then "and N more")."""
 
 
+class NoDescription(Refused):
+    """The daemon answers but serves no robot description (a daemon older than the client)."""
+
+
 class RobotMismatch(InputError):
     """A robot file given to a client describes another robot than the daemon runs; the
     message names both robots and what differs. Nothing was sent."""
@@ -100,15 +104,15 @@ def load_robot_file(path: str) -> RobotConfig:
 def fetch_robot(session: Any, prefix: str, timeout_s: float) -> DaemonRobot:
     """The robot the daemon on `prefix` runs, from its `<prefix>/robot` description.
 
-    Raises DaemonAbsent when no daemon answers, Refused when it serves no description (an
-    older daemon) or one that cannot be used (not a valid robot here).
+    Raises DaemonAbsent when no daemon answers, NoDescription (a Refused) when it serves no
+    description (an older daemon), Refused when its description cannot be used.
     """
     prefix = prefix.rstrip("/")
     try:
         reply = query(session, f"{prefix}/{ROBOT_KEY}", None, timeout_s)
     except DaemonAbsent:
         query(session, f"{prefix}/status", None, timeout_s)  # no daemon: DaemonAbsent
-        raise Refused(
+        raise NoDescription(
             f"the daemon on {prefix} serves no robot description ({prefix}/{ROBOT_KEY}): it is"
             " older than this client; update it"
         ) from None

@@ -111,12 +111,18 @@ def check_with_robot(
     of a whole path file (`path_refusal`, flown from the robot's set-point when it holds and
     the file does not append).
 
+    A daemon that serves no robot description (older than this client) is not pre-checked:
+    it checks each command itself, as it always did.
+
     Raises session.InputError with the reason, DaemonAbsent or Refused (`fetch_robot`).
     """
-    from controller.cli.daemon_robot import fetch_robot
+    from controller.cli.daemon_robot import NoDescription, fetch_robot
     from controller.cli.session import InputError, query
 
-    cfg = fetch_robot(session, prefix, timeout_s).config
+    try:
+        cfg = fetch_robot(session, prefix, timeout_s).config
+    except NoDescription:
+        return
     why = speed_refusal(speed_mps, float(cfg.limits.max_speed_mps), speed_option)
     if why is not None:
         raise InputError(why)
