@@ -11,14 +11,7 @@ from the drum over those turns is
 because every turn paid out empties the spool a little, so the metres per drum turn fall by
 ``spool_buildup_m_per_rev2`` per turn (Hangprinter's spool build-up: the radius grows linearly
 with the turns wound on; 0 = a plain drum). ``metres_per_rev`` is the metres per drum turn at the
-reference point.
-
-The same spool seen by its area: a radius falling linearly with the turns paid out is a radius
-whose square falls linearly with the cable paid out, ``r**2 = r_ref**2 - f * s`` with
-``f = spool_buildup_m_per_rev2 / (2 pi**2)`` (square ``2 pi r = metres_per_rev - b n`` and
-substitute ``s(n)``). ``f`` is RepRapFirmware's Hangprinter build-up factor (M666 Q, there in
-millimetres, times M666 O when several lines share one spool): the cross-section each metre of
-wound line adds to the spool's side face, divided by pi (`spool_buildup_from_factor`). A pulley block of mechanical advantage ``k`` turns ``s`` metres of spooled
+reference point. A pulley block of mechanical advantage ``k`` turns ``s`` metres of spooled
 cable into ``s / k`` metres of change in the anchor-to-effector length, so
 
     length_m = reference_length_m + s(n) / mechanical_advantage
@@ -28,6 +21,14 @@ homing sets it (`with_home`). With build-up, the spool's wound state at the refe
 fixed by ``reference_length_m`` (the length at which ``metres_per_rev`` holds), and homing moves
 only ``offset_rev``. The inverse solves the quadratic in closed form with the numerically stable
 root; it is valid while the metres per turn stay positive (the spool is not over-emptied).
+
+The same spool seen by its area: a radius falling linearly with the turns paid out is a radius
+whose square falls linearly with the cable paid out, ``r**2 = r_ref**2 - f * s`` with
+``f = spool_buildup_m_per_rev2 / (2 pi**2)`` (square ``2 pi r = metres_per_rev - b n`` and
+substitute ``s(n)``). ``f`` is RepRapFirmware's Hangprinter build-up factor (M666 Q, there in
+millimetres, times M666 O when several lines share one spool): the area each metre of wound
+line adds to the spool's side face, divided by pi (`spool_buildup_from_factor`). Its spool model
+is therefore this one, exactly.
 
 Torque and tension (ideal reel: no friction, no inertia). The work the motor does on the cable
 balances the work the cable's tension does on the effector: with the slope
