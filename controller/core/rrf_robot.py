@@ -299,13 +299,17 @@ def _limits(cfg: HangprinterConfig, remarks: list[str]) -> tuple[Entry, ...]:
         out.append(Entry("max_speed_mps", speed, "no M203 X Y Z: a cautious start"))
     else:
         speed = _r(f.value / 60000.0)
-        out.append(Entry("max_speed_mps", speed, f"{_from(f)} mm/min: the least"))
+        out.append(Entry("max_speed_mps", speed, f"{f.text} mm/min ({f.where}): the least"))
     acc = cfg.max_accel_mm_per_s2
     if acc.value is None:
         out.append(Entry("max_accel_mps2", CAUTIOUS_ACCEL_MPS2, "no M201 X Y Z: a cautious start"))
     else:
         out.append(
-            Entry("max_accel_mps2", _r(acc.value / 1000.0), f"{_from(acc)} mm/s²: the least")
+            Entry(
+                "max_accel_mps2",
+                _r(acc.value / 1000.0),
+                f"{acc.text} mm/s² ({acc.where}): the least",
+            )
         )
     out.append(
         Entry(
