@@ -39,8 +39,8 @@ def read_config_text(path: str) -> tuple[str, str | None]:
     """The text of the configuration file at `path` and a note when it was not UTF-8 (then
     it is read as Latin-1: only comments carry such bytes in a configuration).
 
-    Raises InputError when it cannot be read, is larger than `MAX_INPUT_BYTES` or holds NUL
-    bytes (a binary file)."""
+    Raises InputError when it cannot be read, is larger than `MAX_INPUT_BYTES`, is UTF-16 or
+    holds NUL bytes (a binary file)."""
     try:
         with open(path, "rb") as fh:
             raw = fh.read(MAX_INPUT_BYTES + 1)
@@ -48,6 +48,9 @@ def read_config_text(path: str) -> tuple[str, str | None]:
         raise InputError(f"{path}: cannot read: {exc.strerror or exc}") from None
     if len(raw) > MAX_INPUT_BYTES:
         raise InputError(f"{path}: larger than {MAX_INPUT_BYTES:,} bytes: not a config.g")
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise InputError(f"{path}: UTF-16 text: save it as UTF-8 (or ASCII) first")
+    raw = raw.removeprefix(b"\xef\xbb\xbf")  # a UTF-8 byte order mark
     if b"\0" in raw:
         raise InputError(f"{path}: a binary file, not a RepRapFirmware configuration")
     try:

@@ -367,6 +367,13 @@ def robot_draft(cfg: HangprinterConfig, *, name: str | None = None) -> RobotDraf
         )
     else:
         name_entry = Entry("name", DEFAULT_NAME, "no M550 name")
+    heights = [a.value[2] for a in cfg.anchors_mm]
+    if cfg.anchor_mode.value == 1 and heights[-1] < max(heights):
+        top = cfg.letters[heights.index(max(heights))]
+        remarks.append(
+            f"the last anchor ({cfg.letters[-1]}) is not the highest ({top} is): RepRapFirmware's "
+            "last-on-top mode takes it to be; the reels keep the configuration's order"
+        )
     payload = cfg.mover_mass_kg.value > 0.0
     flex = payload and cfg.flex_on
     if not payload:

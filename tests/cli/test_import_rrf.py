@@ -132,10 +132,13 @@ def test_files_that_are_not_a_configuration(
     binary.write_bytes(b"\x7fELF\0\0\x01" * 100)
     big = tmp_path / "big.g"
     big.write_bytes(b"; x\n" * (MAX_INPUT_BYTES // 4 + 1))
+    utf16 = tmp_path / "notepad.g"
+    utf16.write_bytes(HP4.encode("utf-16"))
     for path, shown in (
         (tmp_path / "missing.g", "cannot read: No such file or directory"),
         (tmp_path, "cannot read: Is a directory"),
         (binary, "a binary file, not a RepRapFirmware configuration"),
+        (utf16, "UTF-16 text: save it as UTF-8 (or ASCII) first"),
         (big, f"larger than {MAX_INPUT_BYTES:,} bytes: not a config.g"),
     ):
         code, out, err = run(capsys, "import-rrf", str(path))
@@ -151,6 +154,9 @@ def test_latin1_comments_are_read_with_a_note(
     _, out, err = run(capsys, "import-rrf", str(src))
     assert tomllib.loads(out)["limits"]["ceiling_z_m"] == 2.0
     assert f"import-rrf: note: {src}: not UTF-8 (byte 0xb0 on line 23): read as Latin-1" in err
+    src.write_bytes(b"\xef\xbb\xbf" + HP4.encode())  # a byte order mark is not a command
+    _, out, err = run(capsys, "import-rrf", str(src))
+    assert tomllib.loads(out)["name"] == "hp4-lab" and "note" not in err
 
 
 @needs_any_layout

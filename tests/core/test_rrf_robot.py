@@ -9,8 +9,10 @@ import math
 import tomllib
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from controller.core.rrf import HangprinterConfig, read_rrf
+from controller.core.rrf import HangprinterConfig, RrfError, read_rrf
 from controller.core.rrf_robot import (
     CABLE_RANGE_SPARE,
     DEFAULT_NAME,
@@ -19,7 +21,7 @@ from controller.core.rrf_robot import (
     robot_name,
     robot_toml,
 )
-from tests.core.test_rrf import ANCHORS_LINE, FIVE, HP4, HP4_ANCHORS_MM
+from tests.core.test_rrf import ANCHORS_LINE, FIVE, GARBAGE, HP4, HP4_ANCHORS_MM
 
 MICROSTEPS = 16
 """Any microstepping: RepRapFirmware's steps per motor turn are J x microsteps."""
@@ -246,3 +248,25 @@ def test_a_hostile_name_and_source_stay_inside_their_strings_and_comments() -> N
     assert data["name"] == "x-bus-1"
     assert text.splitlines()[1].startswith("# Hangprinter configuration evil name = 1.g:")
     assert set(data) == {"name", "bus", "drive", "limits", "homing", "gcode", "reels"}
+
+
+def test_a_last_anchor_below_another_is_remarked() -> None:
+    d = draft(ANCHORS_LINE.replace("D0:0:2299.83", "D0:0:-100").replace("-121.28", "2000"))
+    assert any("the last anchor (D) is not the highest (B is)" in r for r in d.remarks)
+    assert not any("is not the highest" in r for r in draft(HP4).remarks)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(GARBAGE, max_size=8), st.integers(0, 60))
+def test_any_readable_configuration_gives_a_toml_file_of_finite_numbers(
+    lines: list[str], at: int
+) -> None:
+    base = HP4.splitlines()
+    try:
+        cfg = read("\n".join(base[:at] + lines + base[at:]))
+    except RrfError:
+        return
+    d = robot_draft(cfg)
+    data = tomllib.loads(robot_toml(d, ["config.g"]))
+    assert all_finite(data)
+    assert len(data["reels"]) == cfg.n
