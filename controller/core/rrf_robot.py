@@ -255,12 +255,13 @@ def _where2(a: Value[Any], b: Value[Any]) -> str:
 
 
 def _max_cable_m(cfg: HangprinterConfig, floor_m: float) -> float:
-    """The longest line the workspace can need, with `CABLE_RANGE_SPARE`: the workspace lies in
-    the anchors' hull and, below the low anchors, in the prism down to the floor, so its farthest
-    point from any anchor is an anchor or an anchor's foot on the floor."""
+    """The longest line the workspace can need, with `CABLE_RANGE_SPARE`: any workspace lies in
+    the prism of the anchors' plan view between the floor and the highest anchor, whose
+    farthest point from an anchor is one of its corners."""
     points = [tuple(c / 1000.0 for c in a.value) for a in cfg.anchors_mm]
-    feet = [(p[0], p[1], floor_m) for p in points if p[2] > floor_m]
-    longest = max(math.dist(a, p) for a in points for p in points + feet)
+    top = max(max(p[2] for p in points), floor_m)
+    corners = [(p[0], p[1], z) for p in points for z in (floor_m, top)]
+    longest = max(math.dist(a, c) for a in points for c in corners)
     return math.ceil(longest * CABLE_RANGE_SPARE * 100.0) / 100.0
 
 
@@ -290,7 +291,8 @@ def _limits(cfg: HangprinterConfig, remarks: list[str]) -> tuple[Entry, ...]:
         Entry(
             "max_cable_m",
             _max_cable_m(cfg, floor),
-            f"{CABLE_RANGE_SPARE - 1:.0%} beyond the longest line the anchors' hull can need",
+            f"{CABLE_RANGE_SPARE - 1:.0%} beyond the longest line between the floor and the "
+            "highest anchor",
         )
     )
     f = cfg.max_feedrate_mm_per_min

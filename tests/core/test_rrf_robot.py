@@ -164,10 +164,11 @@ def test_limits_of_the_reference() -> None:
     assert lim["max_speed_mps"] == 0.6 and lim["max_cable_speed_mps"] == 0.6
     assert lim["max_accel_mps2"] == 10.0
     assert lim["min_tension_n"] == 0.0 and lim["max_tension_n"] == 70.0
-    # every line the anchors' hull and the prism below it can need fits, with the spare
+    # every line the anchors' plan view can need between the floor and the top anchor fits
     points = [tuple(c / 1000 for c in a) for a in HP4_ANCHORS_MM]
-    points += [(p[0], p[1], -0.01) for p in points if p[2] > -0.01]
-    longest = max(math.dist(p, q) for p in points for q in points)
+    corners = [(p[0], p[1], z) for p in points for z in (-0.01, 2.29983)]
+    longest = max(math.dist(p, q) for p in points for q in corners)
+    assert longest == pytest.approx(math.dist(points[0], corners[3]))  # A to above B
     assert longest * CABLE_RANGE_SPARE <= lim["max_cable_m"] < longest * CABLE_RANGE_SPARE + 0.01
     assert entries(d, "homing") == {"power_up_position_m": (0.0, 0.0, 0.0)}
     assert entries(d, "gcode") == {"dialect": "reprapfirmware"}
