@@ -720,6 +720,11 @@ class _Reader:
                 continue
             drivers.append(Value(d.value, d.where, d.text))
             directions.append(self.driver_dirs.get(d.value, Value(1)))
+        for axis, d in self.axis_drivers.items():
+            if MOTOR_AXES.index(axis) >= n:
+                self.unmapped.append(
+                    Unmapped(d.where, f"M584 {d.text}", f"not an anchor's motor (N{n})")
+                )
         used = {d.value for d in drivers}
         for driver, direction in self.driver_dirs.items():
             if driver not in used:

@@ -169,6 +169,8 @@ def test_driver_ids_are_read_as_written() -> None:
     assert [d.value for d in c.drivers] == [(1, 0), (0, 1), (2, 0), (3, 0)]
     assert [d.value for d in c.directions] == [-1, 1, 1, 1]
     assert any("several drivers on one axis" in str(u) for u in c.unmapped)
+    c = read(ANCHORS_LINE + "\nM584 X40.0 Y41.0 Z42.0 U43.0 V44.0")
+    assert "config.g:2 M584 V44.0: not an anchor's motor (N4)" in [str(u) for u in c.unmapped]
 
 
 BAD = [
