@@ -16,7 +16,7 @@ from typing import Any
 
 from controller.core.commands import MAX_PATH_POINTS
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
-from controller.core.reel import ReelModel, spool_buildup
+from controller.core.reel import ReelModel, spool_buildup, spool_buildup_from_factor
 from controller.core.scale import speed_scale_problem
 from controller.core.statics import TensionCheck
 from controller.core.workspace import Workspace, WorkspaceError
@@ -82,16 +82,22 @@ def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
         t.fail("direction", f"must be 1 or -1, got {direction}")
     ma = t.number("mechanical_advantage", _REEL_DEFAULTS["mechanical_advantage"], gt=0.0)
     buildup = 0.0
-    if t.has("spool_buildup_m_per_rev2") and (
-        t.has("cable_diameter_m") or t.has("turns_per_layer")
-    ):
+    by_diameter = t.has("cable_diameter_m") or t.has("turns_per_layer")
+    if t.has("spool_buildup_m_per_rev2") and by_diameter:
         t.fail_here(
             "give either spool_buildup_m_per_rev2 or cable_diameter_m/turns_per_layer, not both"
         )
-    elif t.has("cable_diameter_m") or t.has("turns_per_layer"):
+    elif t.has("spool_buildup_factor_m") and (by_diameter or t.has("spool_buildup_m_per_rev2")):
+        other = "cable_diameter_m/turns_per_layer" if by_diameter else "spool_buildup_m_per_rev2"
+        t.fail_here(f"give either spool_buildup_factor_m or {other}, not both")
+    elif by_diameter:
         d = t.number("cable_diameter_m", _REEL_DEFAULTS["cable_diameter_m"], ge=0.0)
         tpl = t.number("turns_per_layer", _REEL_DEFAULTS["turns_per_layer"], gt=0.0)
         buildup = spool_buildup(d, tpl)
+    elif t.has("spool_buildup_factor_m"):
+        factor_m = t.number("spool_buildup_factor_m", ge=0.0)
+        if math.isfinite(factor_m):  # else the problem is recorded: the reel is not built
+            buildup = spool_buildup_from_factor(factor_m)
     else:
         buildup = t.number(
             "spool_buildup_m_per_rev2", _REEL_DEFAULTS["spool_buildup_m_per_rev2"], ge=0.0
