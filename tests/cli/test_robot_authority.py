@@ -172,3 +172,19 @@ def test_a_speed_above_the_robots_maximum_is_refused_by_name(shop: tuple[Daemon,
         " most 2 (the unit is m/s)\n"
     )
     assert _counts(d) == counts  # refused before anything was sent
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_gcode_serial_stops_on_sigterm(shop: tuple[Daemon, Path], tmp_path: Path) -> None:
+    d, _ = shop
+    link = tmp_path / "tty"
+    cli = Proc(
+        [*CABLEBOT, "gcode", "--serial", str(link), "--connect", d.endpoint, "--prefix", d.prefix],
+        "serial",
+    )
+    cli.wait_line(f"gcode: serial port {link} -> /dev/pts/", 30.0)
+    cli.p.send_signal(signal.SIGTERM)
+    assert cli.p.wait(30.0) == exitcodes.INTERRUPTED, cli.log()
+    cli.wait_line("interrupted: braking to a hold", 10.0, stderr=True)
+    assert not link.exists()  # the link to the pseudo-terminal is removed
