@@ -245,6 +245,12 @@ def test_a_hold_a_stop_braked_to_carries_the_stop_as_its_reason() -> None:
     rig.until(lambda: rig.ctl.state is State.HOLDING)
     assert _dist(rig.ctl.setpoint_m, back) < 1e-9
     assert rig.ctl.reason is None
+    # the daemon's shutdown brakes a motion the same way, and says so
+    rig.do(Move(_target(rig, 3.0)))
+    rig.tick(250)
+    rig.ctl.begin_shutdown()
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert rig.ctl.reason == "stopped by the daemon's shutdown"
 
 
 def test_streamed_setpoints_are_rate_limited() -> None:

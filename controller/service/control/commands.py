@@ -289,7 +289,7 @@ class CommandExecution(Homing):
         elif self.state in ARMED_STATES:
             self.planner.stop()
             if self.state is State.MOVING:
-                why = "the daemon shuts down" if self._closing else "a `stop` command"
+                why = "the daemon's shutdown" if self._closing else "a `stop` command"
                 self._stop_brake = (self.planner.rest_point_m, f"stopped by {why}")
         return {"ok": True, "state": self.state.value}
 
