@@ -30,6 +30,12 @@ class BusError(DriverError):
     """
 
 
+class ArmRefused(DriverError):
+    """The driver cannot arm now and sent nothing (CiA 402: a restarted drive is being
+    configured again beside the loop); the message names the drives and why. Arming again
+    later can succeed."""
+
+
 @dataclass(slots=True)
 class AxisReading:
     """Latest known state of one reel motor (one drive axis).

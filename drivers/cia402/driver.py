@@ -22,6 +22,10 @@ receive path fills, so while `configure` runs a temporary receive thread is the 
 reader, through python-can's `recv` (the loop thread is blocked in `configure` meanwhile, and
 `poll` reads nothing until it returns); it is joined before `configure` returns. SDO requests
 and NMT commands leave through canopen's `network.send_message`, bounded by `send_timeout_s`.
+A drive that restarts (NMT boot-up) loses that set-up: `arm` then configures it again on a
+worker thread beside the loop (`drivers.cia402.reconfigure`), and refuses (`ArmRefused`) until
+it is done, while `poll` stays the bus's only reader and keeps cycling the other drives, so
+their SYNC and set-points never pause for the SDO exchanges.
 
 The SocketCAN fast path (`drivers.socketcan_fast`, the default on a python-can SocketCAN bus,
 `fast_path`): `poll()` takes the frames off the bus's kernel socket in batches (`recvmmsg`, no
@@ -88,7 +92,7 @@ import canopen
 from canopen.nmt import NMT_STATES
 from canopen.pdo import PdoMap
 
-from drivers.base import AxisReading, BusError, BusStats
+from drivers.base import ArmRefused, AxisReading, BusError, BusStats
 from drivers.cia402 import profile
 from drivers.cia402.profile import DriveState, Goal
 from drivers.cia402.receive import (
@@ -96,6 +100,7 @@ from drivers.cia402.receive import (
     CiA402Receive,
     DriveRecord,
 )
+from drivers.cia402.reconfigure import ConfigJob, PdoMapping
 from drivers.cia402.sdo_config import (
     SYNC_COB_ID,
     configure_node,
@@ -280,6 +285,11 @@ class CiA402Reels(CiA402Receive):
         `estop`): only statuswords answering it or a later one tell the drives' state since."""
         self._cycled_since_poll = False
         self._configuring = False
+        """True while the blocking `configure` runs (its pump is the bus's only reader)."""
+        self._sdo_expected = False
+        """True while SDO answers are awaited (`configure`, or a `ConfigJob`)."""
+        self._config_job: ConfigJob | None = None
+        self._config_failure: str | None = None
         self._tx_frames: list[tuple[int, bytes, bool]] = []
         self._fast = open_fast_path(
             bus, kernel_filters(ids), fast_path=fast_path, send_timeout_s=send_timeout_s
@@ -304,17 +314,22 @@ class CiA402Reels(CiA402Receive):
         todo = [self._by_node[n] for n in (self.node_ids if node_ids is None else node_ids)]
         if not todo:
             return
+        job = self._config_job
+        if job is not None:  # one SDO client per drive at a time: let the job end first
+            job.join(len(job.drives) * 40 * self._sdo_timeout_s)
+            self._take_config_job()
         stop = threading.Event()
         pump = threading.Thread(target=self._pump, args=(stop,), name="cia402-sdo", daemon=True)
-        self._configuring = True
+        self._configuring = self._sdo_expected = True
         pump.start()
         try:
             for d in todo:
-                self._configure_drive(d)
+                self._forget_tpdo(d)
+                self._use_mapping(d, *self._configure_mapping(d))
         finally:
             stop.set()
             pump.join(5.0)
-            self._configuring = False
+            self._configuring = self._sdo_expected = False
 
     def _pump(self, stop: threading.Event) -> None:
         """While `configure` runs: the bus's only reader (python-can's `recv`, on either path),
@@ -331,10 +346,15 @@ class CiA402Reels(CiA402Receive):
                 self._stats.frames_rx += 1
                 self._handle(msg)
 
-    def _configure_drive(self, d: DriveRecord) -> None:
+    def _forget_tpdo(self, d: DriveRecord) -> None:
+        """Drive `d` is about to be configured: out of the cycle, its TPDOs no longer decoded."""
         d.configured = False
         self._tpdo_by_cob = {c: x for c, x in self._tpdo_by_cob.items() if x is not d}
-        rpdo1, rpdo2, tpdo1 = configure_node(
+
+    def _configure_mapping(self, d: DriveRecord) -> PdoMapping:
+        """Configure drive `d` by SDO (blocking; any thread: it touches only canopen's node);
+        its PDO mappings. Raises ConfigureError naming the node and step."""
+        return configure_node(
             d.node,
             d.node_id,
             heartbeat_ms=self._heartbeat_ms,
@@ -342,7 +362,25 @@ class CiA402Reels(CiA402Receive):
             velocity_offset=self._velocity_offset,
             torque=self._torque,
         )
-        self._use_mapping(d, rpdo1, rpdo2, tpdo1)
+
+    def _take_config_job(self) -> None:
+        """The loop's thread takes over a finished `ConfigJob`: its drives configured (but one
+        that restarted again meanwhile), its failure kept for the next `arm`'s refusal."""
+        job = self._config_job
+        if job is None or not job.done():
+            return
+        self._config_job = None
+        self._sdo_expected = False
+        for d, mapping in job.results:
+            if not job.restarted_since(d):
+                self._use_mapping(d, *mapping)
+        self._config_failure = job.error
+
+    @property
+    def configuring(self) -> tuple[int, ...]:
+        """Node ids being configured beside the loop (after a restart) now; () if none."""
+        job = self._config_job
+        return () if job is None or job.done() else tuple(job.node_ids)
 
     def _use_mapping(
         self, d: DriveRecord, rpdo1: PdoMap, rpdo2: PdoMap | None, tpdo1: PdoMap
@@ -375,6 +413,8 @@ class CiA402Reels(CiA402Receive):
         """
         if self._configuring:
             return 0  # the `configure` pump is the bus's only reader meanwhile
+        if self._config_job is not None and self._config_job.done():
+            self._take_config_job()
         fast = self._fast
         handled = self._drain_bus() if fast is None else self._drain_fast(fast)
         self._stats.frames_rx += handled
@@ -551,14 +591,40 @@ class CiA402Reels(CiA402Receive):
     def arm(self) -> None:
         """Bring every drive to Operation enabled, holding where its reel is.
 
-        Configures (blocking, see `configure`) drives not configured yet or restarted since;
-        sends a fault reset edge to a faulted drive; the state machine then advances one
-        transition per cycle (confirmation: `ready`, axis_state 8). Raises ConfigureError if a
-        drive cannot be configured, BusError if a send fails.
+        Sends a fault reset edge to a faulted drive; the state machine then advances one
+        transition per cycle (confirmation: `ready`, axis_state 8). A drive not configured
+        (restarted since it was) is first configured again by SDO beside the loop (a
+        `ConfigJob` on a worker thread; `poll` keeps cycling the other drives meanwhile and
+        takes the job over when it is done): the arm is refused until then.
+
+        Raises ArmRefused, changing nothing else, while a drive is not configured (naming the
+        drives, and why the last try failed if it did); BusError if a send fails.
         """
-        pending = [d.node_id for d in self._drives if not d.configured]
+        self._take_config_job()
+        job = self._config_job
+        if job is not None:
+            raise ArmRefused(
+                f"node{'s' if len(job.drives) > 1 else ''} {_ids(job.node_ids)} still being "
+                "configured by SDO after a restart; arm again in a moment"
+            )
+        pending = [d for d in self._drives if not d.configured]
         if pending:
-            self.configure(pending)
+            for d in pending:
+                self._forget_tpdo(d)
+            self._sdo_expected = True
+            self._config_job = ConfigJob(pending, self._configure_mapping).start()
+            failed = self._config_failure
+            self._config_failure = None
+            why = (
+                "restarted (NMT boot-up) and lost its set-up"
+                if all(d.restarted for d in pending)
+                else "not configured yet"
+            )
+            raise ArmRefused(
+                f"node{'s' if len(pending) > 1 else ''} {_ids(d.node_id for d in pending)} "
+                f"{why}: being configured by SDO beside the loop; arm again in a moment"
+                + ("" if failed is None else f" (the last try failed: {failed})")
+            )
         fault_states = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
         for d in self._drives:
             d.fault_reset = d.state in fault_states
@@ -601,6 +667,11 @@ class CiA402Reels(CiA402Receive):
         """Run one cycle (held set-points, SYNC): every drive answers with its TPDO, read by
         the next `poll()`. Raises BusError if a send fails."""
         self._cycle()
+
+
+def _ids(node_ids: Iterable[int]) -> str:
+    """ "1, 3" for node ids 1 and 3."""
+    return ", ".join(str(n) for n in node_ids)
 
 
 _DRIVER_OPTIONS = frozenset(

@@ -49,6 +49,7 @@ class DriveRecord:
     __slots__ = (
         "actual_counts",
         "bad_frames",
+        "boots",
         "configured",
         "emcy",
         "fault_reset",
@@ -78,6 +79,8 @@ class DriveRecord:
         self.reading = AxisReading(node_id)
         self.configured = False
         self.restarted = False
+        self.boots = 0
+        """NMT boot-ups heard from the drive (a restart while it was being configured)."""
         self.statusword: int | None = None
         self.state: DriveState | None = None
         self.nmt_state: int | None = None
@@ -115,6 +118,7 @@ class CiA402Receive:
     _canopen_cob_ids: frozenset[int]
     _sdo_answer_ids: frozenset[int]
     _configuring: bool
+    _sdo_expected: bool
     _last_sync_s: float
     _syncs_sent: int
     _sync_times: array[float]
@@ -184,7 +188,7 @@ class CiA402Receive:
             self._stats.count("not_for_host")
             return
         if can_id in self._sdo_answer_ids:
-            if not self._configuring:  # nobody waits for it: not queued for later
+            if not self._sdo_expected:  # nobody waits for it: not queued for later
                 self._stats.count("sdo_unsolicited")
                 return
         elif can_id not in self._canopen_cob_ids:
@@ -247,6 +251,8 @@ class CiA402Receive:
             d.reading.heartbeat_stamp_s = now_s = self._clock()
             if not d.configured:  # no TPDOs: its status is its NMT state (and restart)
                 d.reading.status_stamp_s = now_s
+            if state == NMT_BOOT_UP:
+                d.boots += 1
             if state == NMT_BOOT_UP and d.configured:
                 # The drive restarted: its PDO set-up and mode are back to their defaults.
                 d.configured = False

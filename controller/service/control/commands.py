@@ -34,7 +34,7 @@ from controller.core.states import ARMED_STATES, State, refusal
 from controller.core.workspace import points_array
 from controller.service.control.base import TENSION_MAX_SAMPLES, Reply, _chain, _fmt, _Motion, log
 from controller.service.control.homing import Homing
-from drivers.base import AxisReading
+from drivers.base import ArmRefused, AxisReading
 
 _VERBS: Mapping[type, str] = {
     Move: "move",
@@ -297,6 +297,8 @@ class CommandExecution(Homing):
             raise CommandRefused("not homed: run `home` at a known pose first")
         try:
             self.driver.arm()
+        except ArmRefused as exc:  # e.g. a restarted drive being configured beside the loop
+            raise CommandRefused(f"not_ready: arm: {exc}") from None
         except Exception as exc:
             raise CommandRefused(f"bus_error: arm: {exc}") from None
         self._arm_start_s = now_s

@@ -1,0 +1,98 @@
+"""A restarted CiA 402 drive is configured again beside the loop: the SYNC and the other drives'
+set-points keep their rate while its SDO exchanges go on, and `arm` is refused by name until it
+is done. Simulated drives on a python-can `virtual` bus in one process (the rig of
+`test_cia402_driver`); a tap on the bus times the SYNCs.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Iterator
+
+import can
+import pytest
+
+from drivers.base import ArmRefused
+from tests.drivers.test_cia402_driver import Rig, poll_until
+
+
+@pytest.fixture
+def rig() -> Iterator[Rig]:
+    r = Rig()
+    yield r
+    r.close()
+
+
+def _sync_stamps(bus: can.BusABC) -> list[float]:
+    out = []
+    while (msg := bus.recv(0.0)) is not None:
+        if msg.arbitration_id == 0x080:
+            out.append(msg.timestamp)
+    return out
+
+
+def test_sync_keeps_its_rate_while_a_restarted_drive_is_configured() -> None:
+    rig = Rig(sdo_timeout_s=5.0)  # the held SDO answer comes within its timeout
+    try:
+        _sync_keeps_its_rate(rig)
+    finally:
+        rig.close()
+
+
+def _sync_keeps_its_rate(rig: Rig) -> None:
+    rig.armed()
+    drv = rig.driver
+    held = rig.bank.axis(4)
+    held.power_cycle()
+    r4 = drv.reading(4)
+    assert poll_until(drv, lambda: r4.fault is not None and r4.fault.startswith("restarted"))
+    drv.disarm()
+    # The drive answers no SDO for a second: on the loop's thread its configuration would
+    # stop every SYNC for that long (and fail at its first SDO timeout).
+    held.hold_sdo(True)
+    while rig.observer.recv(0.0) is not None:
+        pass
+    with pytest.raises(ArmRefused, match=r"node 4 restarted .* being configured by SDO"):
+        drv.arm()
+    assert drv.configuring == (4,)
+    with pytest.raises(ArmRefused, match=r"node 4 still being configured"):
+        drv.arm()  # a second arm meanwhile is refused too, and starts nothing new
+    held_s = 1.0
+    t_end = time.monotonic() + held_s
+    cycles = 0
+    while time.monotonic() < t_end:  # the loop: 100 Hz of polls and set-points
+        drv.poll()
+        drv.command([x.position_rev for x in drv.read()])
+        cycles += 1
+        time.sleep(0.01)
+    stamps = _sync_stamps(rig.observer)
+    assert drv.configuring == (4,) and not drv.drive_status(4).configured
+    # Every cycle's SYNC went out; no gap beyond what a busy machine's scheduler explains
+    # (the configuration would have held the loop for the whole second).
+    assert len(stamps) >= cycles >= 20
+    gaps = [b - a for a, b in itertools.pairwise(stamps)]
+    assert max(gaps) < 0.5 * held_s, max(gaps)
+    held.hold_sdo(False)
+    assert poll_until(drv, lambda: drv.configuring == () and drv.drive_status(4).configured)
+    drv.arm()
+    assert poll_until(drv, lambda: all(x.ready for x in rig.r)), [x.state_name for x in rig.r]
+    assert r4.fault is None
+
+
+def test_failed_configuration_is_named_by_the_next_arm(rig: Rig) -> None:
+    rig.start()
+    rig.bank.axis(2).power_cycle()
+    r2 = rig.driver.reading(2)
+    assert poll_until(rig.driver, lambda: r2.fault is not None)
+    rig.bank.axis(2).silence(True)
+    with pytest.raises(ArmRefused, match="node 2"):
+        rig.driver.arm()
+    # 0.3 s per SDO answer by default: the job fails at its first, beside the loop
+    assert poll_until(rig.driver, lambda: rig.driver.configuring == (), 10.0)
+    rig.bank.axis(2).silence(False)
+    with pytest.raises(ArmRefused, match=r"the last try failed: node 2: .*No SDO response"):
+        rig.driver.arm()
+    assert poll_until(rig.driver, lambda: rig.driver.configuring == ())
+    rig.driver.arm()
+    assert poll_until(rig.driver, lambda: all(x.ready for x in rig.r))
