@@ -154,6 +154,10 @@ class BusStats:
     """Polls that read past their frame cap to catch up with a backlog (after a loop stall)."""
     commands_heard: int = 0
     """Host-to-drive commands heard on the bus (own frames echoed back, or another master's)."""
+    conflicts: int = 0
+    """Frames heard that only a bus master sends and this host did not send (CiA 402: another
+    SYNC producer): two masters on one bus. The loop faults on it by name (`last_conflict`)."""
+    last_conflict: str | None = None
 
     def count(self, kind: str, *, decode_error: bool = False) -> None:
         """Count one received frame that was not taken, by `kind`: a decode error
@@ -193,6 +197,12 @@ class BusStats:
         self.count_bus_error(f"CAN error frame 0x{error_id:x}")
         self.errors_by_kind["error_frame"] = self.errors_by_kind.get("error_frame", 0) + 1
 
+    def count_conflict(self, text: str) -> None:
+        """Count one frame of another bus master (`text` names it). Raises nothing."""
+        self.conflicts += 1
+        self.last_conflict = text
+        self.errors_by_kind["another_master"] = self.errors_by_kind.get("another_master", 0) + 1
+
     def count_rx_overrun(self, lost: int) -> None:
         """Count `lost` frames the kernel dropped because the receive queue was full (the loop
         did not poll in time): dropped frames of kind "rx_overrun", not bus errors (the
@@ -215,6 +225,8 @@ class BusStats:
             self.untimed_frames,
             self.catch_up_polls,
             self.commands_heard,
+            self.conflicts,
+            self.last_conflict,
         )
 
 

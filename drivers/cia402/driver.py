@@ -32,9 +32,12 @@ The SocketCAN fast path (`drivers.socketcan_fast`, the default on a python-can S
 `can.Message` per frame), and a cycle's RPDOs and SYNC leave in one `sendmmsg` per 64 frames
 (one call for up to 31 drives with both RPDOs, two RPDOs and the SYNC). Kernel filters
 pass only our drives' TPDO1 (0x180 + n), EMCY (0x080 + n), SDO answers (0x580 + n) and
-heartbeats (0x700 + n), and error frames: other nodes' and other hosts' frames never reach
-Python (they are not counted as `unknown_cob_id` or `not_for_host`), and frames the kernel
-dropped from a full receive queue (a loop stall) are counted as dropped, kind "rx_overrun".
+heartbeats (0x700 + n), the SYNC (0x080) and error frames: other nodes' and other hosts' frames
+never reach Python (they are not counted as `unknown_cob_id` or `not_for_host`), and frames the
+kernel dropped from a full receive queue (a loop stall) are counted as dropped, kind
+"rx_overrun". A SYNC heard is another producer's (the fast path never hears its own frames; on a
+bus that echoes them, udp_multicast, no more are taken as ours than were sent): two masters on
+one bus, counted in `stats.conflicts` and named in `stats.last_conflict`; the loop faults on it.
 Every other interface keeps python-can's path: one `recv` and one `send` per frame.
 
 Cyclic operation: each `command()` writes every drive's RPDOs and then produces one SYNC (the
@@ -93,6 +96,7 @@ from canopen.nmt import NMT_STATES
 from canopen.pdo import PdoMap
 
 from drivers.base import ArmRefused, AxisReading, BusError, BusStats
+from drivers.bus import echoes_own_frames
 from drivers.cia402 import profile
 from drivers.cia402.profile import DriveState, Goal
 from drivers.cia402.receive import (
@@ -141,8 +145,11 @@ _SYNC_FRAME = (SYNC_COB_ID, b"", False)
 
 def kernel_filters(node_ids: Iterable[int]) -> list[tuple[int, int]]:
     """The fast path's kernel receive filters for drives `node_ids`: (id, mask) pairs passing
-    their TPDO1, EMCY, SDO answers and heartbeats. Raises nothing."""
-    return [(base + n, 0x7FF) for n in node_ids for base in (0x180, 0x080, 0x580, 0x700)]
+    the SYNC (another producer's: the fast path never hears its own frames) and the drives'
+    TPDO1, EMCY, SDO answers and heartbeats. Raises nothing."""
+    return [(SYNC_COB_ID, 0x7FF)] + [
+        (base + n, 0x7FF) for n in node_ids for base in (0x180, 0x080, 0x580, 0x700)
+    ]
 
 
 def send_failure(stats: BusStats, can_id: int, exc: BaseException) -> str:
@@ -272,7 +279,7 @@ class CiA402Reels(CiA402Receive):
         self._readings: tuple[AxisReading, ...] = tuple(d.reading for d in self._drives)
         self._tpdo_by_cob: dict[int, DriveRecord] = {}
         # Frames a host sends (ours echoed back, or another master's): never for us.
-        self._host_cob_ids: set[int] = {0x000, SYNC_COB_ID} | {0x600 + n for n in ids}
+        self._host_cob_ids: set[int] = {0x000} | {0x600 + n for n in ids}
         # What canopen gets: our drives' heartbeats and EMCY (SDO answers while configuring).
         self._canopen_cob_ids = frozenset({0x700 + n for n in ids} | {0x080 + n for n in ids})
         self._sdo_answer_ids = frozenset(0x580 + n for n in ids)
@@ -280,6 +287,9 @@ class CiA402Reels(CiA402Receive):
         self._last_sync_s = -math.inf
         self._syncs_sent = 0
         self._sync_times = array("d", [-math.inf]) * SYNC_RING
+        self._syncs_heard = 0
+        """SYNCs heard on a bus that echoes this host's own frames and taken as ours."""
+        self._sync_echoes = echoes_own_frames(bus)
         self._command_sync = 0
         """Index of the first SYNC after the last state-changing command (`arm`, `disarm`,
         `estop`): only statuswords answering it or a later one tell the drives' state since."""

@@ -24,6 +24,7 @@ from canopen.nmt import NMT_STATES
 from drivers.base import AxisReading, BusStats
 from drivers.cia402 import profile
 from drivers.cia402.profile import DriveState
+from drivers.cia402.sdo_config import SYNC_COB_ID
 from drivers.socketcan_fast import (
     CAN_EFF_FLAG,
     CAN_ERR_FLAG,
@@ -36,6 +37,10 @@ from drivers.socketcan_fast import (
 NMT_OPERATIONAL = 5
 NMT_BOOT_UP = 0
 
+ANOTHER_SYNC_PRODUCER = (
+    "another SYNC producer on the bus: a SYNC (0x080) this host did not send (two CANopen "
+    "masters on one bus: stop the other one)"
+)
 SYNC_RING = 4096
 """SYNCs whose send times are kept, to tell which SYNC a drive's TPDO answers."""
 MAX_ANSWER_DELAY_S = 1.0
@@ -121,6 +126,8 @@ class CiA402Receive:
     _sdo_expected: bool
     _last_sync_s: float
     _syncs_sent: int
+    _syncs_heard: int
+    _sync_echoes: bool
     _sync_times: array[float]
     _command_sync: int
 
@@ -184,6 +191,9 @@ class CiA402Receive:
         if can_id & CAN_EFF_FLAG:
             self._stats.count("extended_id", decode_error=True)
             return
+        if can_id == SYNC_COB_ID:
+            self._on_sync_heard()
+            return
         if can_id in self._host_cob_ids or can_id & CAN_RTR_FLAG:
             self._stats.count("not_for_host")
             return
@@ -203,6 +213,16 @@ class CiA402Receive:
             owner = self._by_node.get(can_id & 0x7F)
             if owner is not None:
                 owner.bad_frames += 1
+
+    def _on_sync_heard(self) -> None:
+        """A SYNC heard: this host's own, echoed back by a bus that echoes (udp_multicast: no
+        more of them than were sent), else another SYNC producer's: two masters on the bus,
+        counted as a conflict (`BusStats.conflicts`; the loop faults on it by name)."""
+        if self._sync_echoes and self._syncs_heard < self._syncs_sent:
+            self._syncs_heard += 1
+            self._stats.count("not_for_host")
+            return
+        self._stats.count_conflict(ANOTHER_SYNC_PRODUCER)
 
     def _on_tpdo(self, d: DriveRecord, data: bytes | bytearray) -> None:
         layout = d.tpdo1

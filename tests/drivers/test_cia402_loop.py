@@ -254,3 +254,18 @@ def test_a_restarted_drive_is_configured_beside_the_running_loop(patient_rig: Ri
     rig.bank.axis(3).hold_sdo(False)
     rig.wait(lambda: rig.driver.drive_status(3).configured, 5.0, "node 3 configured")
     assert rig.ctl.state is State.DISARMED
+
+
+def test_another_sync_producer_faults_the_loop_by_name_and_holds_off_the_arm(rig: Rig) -> None:
+    rig.arm()
+    other = open_bus("virtual", rig.cfg.bus.channel)
+    try:
+        other.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
+        rig.wait(lambda: rig.ctl.state is State.FAULT, 2.0, "FAULT")
+        assert str(rig.ctl.reason).startswith("bus_conflict: another SYNC producer"), rig.ctl.reason
+        rig.ctl.submit(Reset()).result(timeout=2.0)
+        with pytest.raises(Exception, match=r"bus_conflict: another SYNC producer .* s ago"):
+            rig.ctl.submit(Arm()).result(timeout=2.0)
+        assert rig.ctl.status()["bus"]["conflicts"] == 1
+    finally:
+        other.shutdown()

@@ -14,6 +14,10 @@ import can
 import pytest
 
 from drivers.base import ArmRefused
+from drivers.bus import open_bus
+from drivers.cia402 import CiA402Reels
+from drivers.cia402.sdo_config import local_mapping
+from tests.daemon_procs import udp_bus
 from tests.drivers.test_cia402_driver import Rig, poll_until
 
 
@@ -96,3 +100,40 @@ def test_failed_configuration_is_named_by_the_next_arm(rig: Rig) -> None:
     assert poll_until(rig.driver, lambda: rig.driver.configuring == ())
     rig.driver.arm()
     assert poll_until(rig.driver, lambda: all(x.ready for x in rig.r))
+
+
+def test_another_sync_producer_is_a_named_conflict_on_python_cans_path(rig: Rig) -> None:
+    rig.armed()
+    drv = rig.driver
+    for _ in range(20):  # our own SYNCs: a virtual bus does not hand them back
+        drv.poll()
+        drv.command([x.position_rev for x in drv.read()])
+    assert drv.stats.conflicts == 0
+    rig.observer.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
+    assert poll_until(drv, lambda: drv.stats.conflicts == 1, 2.0)
+    assert "another SYNC producer" in str(drv.stats.last_conflict)
+    assert drv.stats.snapshot().conflicts == 1
+
+
+def test_own_syncs_echoed_by_udp_multicast_are_not_a_conflict() -> None:
+    # udp_multicast hands a bus its own frames back: no more SYNCs than were sent are ours.
+    table = udp_bus()
+    mine = open_bus(table["interface"], table["channel"], **table["options"])
+    other = open_bus(table["interface"], table["channel"], **table["options"])
+    try:
+        drv = CiA402Reels(mine, (1,), counts_per_rev=4096, period_s=0.002)
+        d = drv._drives[0]
+        drv._use_mapping(d, *local_mapping(d.node, 1, velocity_offset=True, torque=True))
+        for _ in range(30):
+            drv.command([0.0])
+            drv.poll()
+        deadline = time.monotonic() + 5.0
+        while drv._syncs_heard < 30 and time.monotonic() < deadline:
+            drv.poll()
+            time.sleep(0.005)
+        assert drv._syncs_heard == 30 and drv.stats.conflicts == 0
+        other.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
+        assert poll_until(drv, lambda: drv.stats.conflicts == 1, 5.0)
+    finally:
+        mine.shutdown()
+        other.shutdown()

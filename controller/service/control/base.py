@@ -36,6 +36,8 @@ COMMAND_QUEUE_SIZE = 32
 ESTOP_CONFIRM_S = 0.2
 """Every axis must confirm leaving closed loop this soon after an e-stop (see
 `controller.service.loop`)."""
+CONFLICT_HOLDOFF_S = 2.0
+"""An arm is refused this long after another bus master was last heard (`BusStats.conflicts`)."""
 MAX_PLANNER_DT_PERIODS = 4.0
 """The planner advances at most this many loop periods per tick (see `controller.service.loop`)."""
 TENSION_SAMPLE_FRACTION = 0.01
@@ -249,6 +251,9 @@ class ControllerState:
         self._arm_rev: list[float] | None = None
         self._last_tick_s: float | None = None
         self._bus_errors_seen = driver.stats.bus_errors
+        self._conflicts_seen = driver.stats.conflicts
+        self._conflict_s: float | None = None
+        """When another bus master was last heard (None: never)."""
         self.seq = 0
         self.ticks = 0
         self.command_errors = 0

@@ -32,7 +32,15 @@ from controller.core.commands import (
 from controller.core.motion import QueueError, check_speed, dedupe_path
 from controller.core.states import ARMED_STATES, State, refusal
 from controller.core.workspace import points_array
-from controller.service.control.base import TENSION_MAX_SAMPLES, Reply, _chain, _fmt, _Motion, log
+from controller.service.control.base import (
+    CONFLICT_HOLDOFF_S,
+    TENSION_MAX_SAMPLES,
+    Reply,
+    _chain,
+    _fmt,
+    _Motion,
+    log,
+)
 from controller.service.control.homing import Homing
 from drivers.base import ArmRefused, AxisReading
 
@@ -295,6 +303,11 @@ class CommandExecution(Homing):
         not homed or when the bus fails."""
         if not self.homed:
             raise CommandRefused("not homed: run `home` at a known pose first")
+        since = self._conflict_s
+        if since is not None and now_s - since < CONFLICT_HOLDOFF_S:
+            raise CommandRefused(
+                f"bus_conflict: {self.driver.stats.last_conflict} (heard {now_s - since:.1f} s ago)"
+            )
         try:
             self.driver.arm()
         except ArmRefused as exc:  # e.g. a restarted drive being configured beside the loop

@@ -56,6 +56,8 @@ class ControlStep(CommandExecution):
                 self._bus_errors_persist(now_s, state)
             else:
                 self._bus_err_since_s = None
+            if drv.stats.conflicts != self._conflicts_seen:
+                self._check_conflicts(now_s, state)
             self._solve_pose(readings, now_s)
             if self._measure:
                 self._measure_tensions(readings, now_s, state)
