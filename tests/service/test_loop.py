@@ -824,6 +824,22 @@ def test_fpk_is_solved_only_when_the_encoder_lengths_change() -> None:
     assert rig.ctl.reason is not None and rig.ctl.reason.startswith("residual:")
 
 
+def test_a_residual_fault_names_the_reading_that_lags() -> None:
+    # A drive gone quiet mid-move: its reading stays while the others move on, and the residual
+    # passes its limit before that reading is stale. The fault says which node lags.
+    rig = _armed_rig(stale_timeout_s=0.05)
+    rig.driver.silent = {rig.driver.node_ids[2]}
+    rig.tick(10)  # 20 ms: not stale yet
+    rig.driver.follow = False
+    rig.driver.readings[1].position_rev += 2.0
+    rig.tick()
+    assert rig.ctl.state is State.FAULT
+    reason = str(rig.ctl.reason)
+    assert reason.startswith("residual:") and "slack or slipped cable" in reason, reason
+    node = rig.driver.node_ids[2]
+    assert f"; node {node}'s reading is 0.022 s old)" in reason, reason
+
+
 # ------------------------------------------------------------------------ streamed set-points
 
 

@@ -117,6 +117,7 @@ class ControlStep(CommandExecution):
             return
         stale = self._stale_s
         oldest_age_s = 0.0
+        oldest = readings[0]
         for r in readings:
             age_s = now_s - r.stamp_s
             if age_s > stale:
@@ -125,6 +126,7 @@ class ControlStep(CommandExecution):
                 return
             if age_s > oldest_age_s:
                 oldest_age_s = age_s
+                oldest = r
         pose = self.pose_m
         residual = self.residual_m
         if (
@@ -163,9 +165,16 @@ class ControlStep(CommandExecution):
             and self.state is not State.DISARMED
             and self._pretension is None  # slack cables are what a pre-tension takes up
         ):
+            # A drive gone quiet mid-move leaves its last reading while the others move on: the
+            # residual passes its limit before the reading is stale; say which one lags.
+            lag = (
+                f"; node {oldest.node_id}'s reading is {oldest_age_s:.3f} s old"
+                if oldest_age_s > 2.0 * self.period_s
+                else ""
+            )
             raise _Fault(
                 f"residual: {residual * 1e3:.1f} mm > {self._residual_max_m * 1e3:.1f} mm"
-                " (slack or slipped cable)"
+                f" (slack or slipped cable{lag})"
             )
         sp = self.setpoint_m
         if sp is not None and self.state in ARMED_STATES:
