@@ -174,6 +174,14 @@ def render(summary: dict[str, Any]) -> str:
                 f" ({', '.join(reasons)}){', all recovered' if ok else ''}"
             )
         lines.append(f"  client: {r['flights']}; link {r['link']}; tap {r['tap']}")
+        st = r["machine_stalls"]
+        lines.append(
+            f"  machine stalls seen (100 ms or more): {st['count']}, longest {st['longest_s']} s"
+        )
+        for e in r["excused"]:
+            lines.append(
+                f"  excused (a machine stall of {e['machine_stall_s']} s): {e['kind']}: {e['what']}"
+            )
         lines.append(f"  invariant violations: {len(r['violations'])}")
         lines.extend(
             f"    {v['t_s']:>7.1f} s  {v['kind']}: {v['text']}" for v in r["violations"][:40]

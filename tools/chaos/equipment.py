@@ -102,6 +102,7 @@ class Drives:
         self.axes = [bank.axis(n) for n in self.node_ids]
         self.reels = [r.reel for r in cfg.reels]
         self.counts_per_rev = float(cfg.drive.options.get("counts_per_rev", 1.0))
+        self._frame_offset_rev = [0.0] * len(self.axes)
 
     def true_turns(self) -> list[float]:
         """Every motor's true position (turns), in node order."""
@@ -112,10 +113,17 @@ class Drives:
         return np.array([r.length_m(t) for r, t in zip(self.reels, self.true_turns(), strict=True)])
 
     def encoder_offset_rev(self, i: int) -> float:
-        """How far drive `i`'s reported position is from its true one (a CiA 402 drive's
-        incremental encoder counts from 0 after a restart)."""
+        """How far the positions the daemon commands drive `i` are from its true ones: a CiA 402
+        drive's incremental encoder counts from 0 after a restart, and the daemon commands in
+        that new count once it has set the drive up again (`new_count`); until then, in the
+        old one."""
+        return self._frame_offset_rev[i]
+
+    def new_count(self, i: int) -> None:
+        """The daemon started setting drive `i` up again (its first SDO request): from now on it
+        commands in the drive's count since the restart."""
         a = self.axes[i]
-        return float(a.encoder_estimate_rev - a.position_rev)
+        self._frame_offset_rev[i] = float(a.encoder_estimate_rev - a.position_rev)
 
     def closed_loop(self) -> list[bool]:
         """Whether each drive follows set-points (ODrive closed loop; CiA 402 Operation
@@ -181,6 +189,7 @@ class Tap(threading.Thread):
         cfg: Any,
         encoder_offset_rev: Callable[[int], float],
         violation: Callable[[str, str], None],
+        new_count: Callable[[int], None] = lambda i: None,
     ) -> None:
         super().__init__(name="chaos-tap", daemon=True)
         self.bus = bus
@@ -190,6 +199,7 @@ class Tap(threading.Thread):
         self._index = {n: i for i, n in enumerate(self.node_ids)}
         self._reels = [r.reel for r in cfg.reels]
         self._offset = encoder_offset_rev
+        self._new_count = new_count
         self._violation = violation
         self._cpr = float(cfg.drive.options.get("counts_per_rev", 1.0))
         lim = cfg.limits
@@ -259,6 +269,10 @@ class Tap(threading.Thread):
                 self._setpoint(i, value, stamp)
 
     def _cia402(self, arb: int, data: bytes, stamp: float) -> None:
+        sdo = self._index.get(arb - 0x600)
+        if sdo is not None:  # the daemon sets the drive up: it commands in its new count next
+            self._new_count(sdo)
+            return
         i = self._index.get(arb - 0x200)
         if i is None or len(data) != _RPDO1.size:
             return

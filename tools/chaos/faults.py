@@ -340,6 +340,8 @@ KINDS: dict[str, Fault] = {
 }
 FAMILY_ONLY = {"second_master": "cia402"}
 NOT_BY_DEFAULT = {"zenoh_flood_reconnect"}
+LATE_KINDS = {"daemon_kill9"}
+"""Kinds injected only late in a run (`chaos.worker.LATE_FRACTION`)."""
 """Kinds run only when asked for (`--kinds`)."""
 OUTCOME = {
     "state_dir_readonly": "named_error",
