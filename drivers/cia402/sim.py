@@ -201,7 +201,67 @@ class _Pdo:
     last: bytes | None = None
 
 
-class SimCiA402Drive:
+class _InjectedFaults:
+    """The fault injection of `SimCiA402Drive` (a mixin: the drive owns the state below)."""
+
+    _lock: threading.RLock
+    _silent: bool
+    _sdo_held: list[tuple[int, bytes, float]] | None
+    _sdo_released: list[tuple[int, bytes, float]]
+    _pending_error: tuple[int, bool] | None
+    _pending_corrupt: int
+    _drift_rate_rps: float
+
+    def _zero_here(self) -> None:
+        raise NotImplementedError
+
+    def _power_up(self) -> None:
+        raise NotImplementedError
+
+    def silence(self, silent: bool = True) -> None:
+        """Go silent (no frames received or sent), or speak again."""
+        with self._lock:
+            self._silent = silent
+
+    def hold_sdo(self, hold: bool = True) -> None:
+        """Hold SDO requests unanswered (True), or answer the held ones with the next step and
+        every later one at once (False)."""
+        with self._lock:
+            if hold:
+                if self._sdo_held is None:
+                    self._sdo_held = []
+            elif self._sdo_held is not None:
+                self._sdo_released.extend(self._sdo_held)
+                self._sdo_held = None
+
+    def set_error(self, code: int, *, persistent: bool = False) -> None:
+        """Raise error `code` with the next step: EMCY, Fault (power stage off). A fault reset
+        clears it unless `persistent`. Raises ValueError unless 0x1000 <= code <= 0xFFFF."""
+        if not 0x1000 <= code <= 0xFFFF:
+            raise ValueError(f"EMCY error code 0x1000..0xFFFF expected, got 0x{code:x}")
+        with self._lock:
+            self._pending_error = (code, persistent)
+
+    def send_corrupt(self, count: int = 1) -> None:
+        """Emit `count` wrong-length (5 byte) TPDO1 frames with the next step."""
+        with self._lock:
+            self._pending_corrupt += count
+
+    def drift(self, rate_rev_per_s: float) -> None:
+        """Let position actual drift from the true position at this rate."""
+        if not math.isfinite(rate_rev_per_s):
+            raise ValueError("drift rate must be finite")
+        with self._lock:
+            self._drift_rate_rps = rate_rev_per_s
+
+    def power_cycle(self) -> None:
+        """Restart the drive: boot-up, dictionary defaults, position actual from 0."""
+        with self._lock:
+            self._zero_here()
+            self._power_up()
+
+
+class SimCiA402Drive(_InjectedFaults):
     """One simulated CiA 402 servo drive; thread-safe (an internal lock guards every method)."""
 
     def __init__(
@@ -670,50 +730,6 @@ class SimCiA402Drive:
             self.accel_rps2 = (v_new - v) / h
             self.position_rev = p_new
             self.velocity_rps = v_new
-
-    # --- fault injection ------------------------------------------------------------------
-
-    def silence(self, silent: bool = True) -> None:
-        """Go silent (no frames received or sent), or speak again."""
-        with self._lock:
-            self._silent = silent
-
-    def hold_sdo(self, hold: bool = True) -> None:
-        """Hold SDO requests unanswered (True), or answer the held ones with the next step and
-        every later one at once (False)."""
-        with self._lock:
-            if hold:
-                if self._sdo_held is None:
-                    self._sdo_held = []
-            elif self._sdo_held is not None:
-                self._sdo_released.extend(self._sdo_held)
-                self._sdo_held = None
-
-    def set_error(self, code: int, *, persistent: bool = False) -> None:
-        """Raise error `code` with the next step: EMCY, Fault (power stage off). A fault reset
-        clears it unless `persistent`. Raises ValueError unless 0x1000 <= code <= 0xFFFF."""
-        if not 0x1000 <= code <= 0xFFFF:
-            raise ValueError(f"EMCY error code 0x1000..0xFFFF expected, got 0x{code:x}")
-        with self._lock:
-            self._pending_error = (code, persistent)
-
-    def send_corrupt(self, count: int = 1) -> None:
-        """Emit `count` wrong-length (5 byte) TPDO1 frames with the next step."""
-        with self._lock:
-            self._pending_corrupt += count
-
-    def drift(self, rate_rev_per_s: float) -> None:
-        """Let position actual drift from the true position at this rate."""
-        if not math.isfinite(rate_rev_per_s):
-            raise ValueError("drift rate must be finite")
-        with self._lock:
-            self._drift_rate_rps = rate_rev_per_s
-
-    def power_cycle(self) -> None:
-        """Restart the drive: boot-up, dictionary defaults, position actual from 0."""
-        with self._lock:
-            self._zero_here()
-            self._power_up()
 
 
 class SimCiA402Bank(ThreadedSimBank):
