@@ -88,6 +88,10 @@ class AxisReading:
     it was sent; CiA 402: a statusword answering a SYNC sent after it); -inf = none yet.
     While it is older than `command_stamp_s` the status fields still show the drive's state
     before the command (see `status_fresh`)."""
+    count_epoch: int = 0
+    """How many times the drive's position count started afresh (CiA 402: a drive whose
+    position after a restart is not the one before, as an incremental encoder's): positions
+    of different epochs are not comparable, so homing offsets taken before no longer hold."""
 
     def status_fresh(self) -> bool:
         """True if `ready`, `fault` and `state_name` come from a report that answers the last
@@ -113,6 +117,7 @@ class AxisReading:
             self.torque_stamp_s,
             self.command_stamp_s,
             self.status_stamp_s,
+            self.count_epoch,
         )
 
     def encoder_age_s(self, now_s: float) -> float:

@@ -41,6 +41,9 @@ ANOTHER_SYNC_PRODUCER = (
     "another SYNC producer on the bus: a SYNC (0x080) this host did not send (two CANopen "
     "masters on one bus: stop the other one)"
 )
+COUNT_KEPT_REV = 0.01
+"""A restarted drive whose first position is within this of its last one kept its count (an
+absolute encoder; the reel is braked while the drive restarts); farther, a new count began."""
 SYNC_RING = 4096
 """SYNCs whose send times are kept, to tell which SYNC a drive's TPDO answers."""
 MAX_ANSWER_DELAY_S = 1.0
@@ -56,6 +59,7 @@ class DriveRecord:
         "bad_frames",
         "boots",
         "configured",
+        "counts_before_restart",
         "emcy",
         "fault_reset",
         "ff_units",
@@ -85,6 +89,9 @@ class DriveRecord:
         self.configured = False
         self.restarted = False
         self.boots = 0
+        self.counts_before_restart: int | None = None
+        """Position actual when the drive was last heard before a restart (its first position
+        after it tells whether the count survived)."""
         """NMT boot-ups heard from the drive (a restart while it was being configured)."""
         self.statusword: int | None = None
         self.state: DriveState | None = None
@@ -233,6 +240,11 @@ class CiA402Receive:
         values = layout.unpack(data)
         counts = values[1]
         r = d.reading
+        before = d.counts_before_restart
+        if before is not None:
+            d.counts_before_restart = None
+            if abs(counts - before) > COUNT_KEPT_REV * self.counts_per_rev:
+                r.count_epoch += 1  # a new count: positions before and after do not compare
         cpr = self.counts_per_rev
         t_sample = self._last_sync_s
         prev = d.prev_counts
@@ -274,7 +286,11 @@ class CiA402Receive:
             if state == NMT_BOOT_UP:
                 d.boots += 1
             if state == NMT_BOOT_UP and d.configured:
-                # The drive restarted: its PDO set-up and mode are back to their defaults.
+                # The drive restarted: its PDO set-up and mode are back to their defaults, and
+                # its position count may have started afresh (judged on its next position).
+                if d.actual_counts is not None:
+                    d.counts_before_restart = d.actual_counts
+                d.prev_counts = None  # no velocity across the restart
                 d.configured = False
                 d.restarted = True
                 self._tpdo_by_cob = {c: x for c, x in self._tpdo_by_cob.items() if x is not d}

@@ -18,7 +18,7 @@ from typing import Any, cast
 import can
 import pytest
 
-from controller.core.commands import Arm, Disarm, Estop, Move, Reset
+from controller.core.commands import Arm, Disarm, Estop, Home, Move, Reset
 from controller.core.states import State
 from controller.service.loop import Controller
 from drivers.bus import open_bus
@@ -269,3 +269,25 @@ def test_another_sync_producer_faults_the_loop_by_name_and_holds_off_the_arm(rig
         assert rig.ctl.status()["bus"]["conflicts"] == 1
     finally:
         other.shutdown()
+
+
+def test_a_drive_that_lost_its_count_is_homed_again_before_an_arm(patient_rig: Rig) -> None:
+    # The simulated drive's incremental encoder counts from 0 after a restart: the offsets
+    # taken before no longer hold. No pose from them, the arm refused by name until `home`.
+    rig = patient_rig
+    rig.arm()
+    held_at = rig.ctl.pose_m
+    assert held_at is not None
+    rig.bank.axis(3).power_cycle()
+    rig.wait(lambda: rig.ctl.state is State.FAULT, 2.0, "FAULT")
+    rig.ctl.submit(Reset()).result(timeout=2.0)
+    with pytest.raises(Exception, match="not_ready: arm: node 3"):
+        rig.ctl.submit(Arm()).result(timeout=2.0)
+    rig.wait(lambda: rig.driver.reading(3).count_epoch == 1, 5.0, "node 3's new count")
+    rig.wait(lambda: not rig.ctl.pose_valid, 1.0, "no pose from the old offsets")
+    with pytest.raises(Exception, match=r"not homed: count_lost: node 3's position count"):
+        rig.ctl.submit(Arm()).result(timeout=2.0)
+    rig.ctl.submit(Home(held_at)).result(timeout=2.0)
+    rig.wait(lambda: rig.ctl.pose_valid, 1.0, "the pose again")
+    assert math.dist(rig.ctl.pose_m, held_at) < 1e-6  # type: ignore[arg-type]
+    rig.arm()

@@ -137,3 +137,24 @@ def test_own_syncs_echoed_by_udp_multicast_are_not_a_conflict() -> None:
     finally:
         mine.shutdown()
         other.shutdown()
+
+
+@pytest.mark.parametrize("kept", [False, True], ids=["incremental", "absolute"])
+def test_a_restart_that_loses_the_count_starts_a_new_count_epoch(rig: Rig, kept: bool) -> None:
+    rig.armed()
+    drv = rig.driver
+    r2 = drv.reading(2)
+    assert r2.count_epoch == 0
+    before = r2.position_rev
+    sim = rig.bank.axis(2)
+    sim.power_cycle()
+    if kept:
+        sim._drift_rev = 0.0  # an absolute encoder: the same position after the restart
+    assert poll_until(drv, lambda: r2.fault is not None)
+    drv.disarm()
+    with pytest.raises(ArmRefused):
+        drv.arm()
+    assert poll_until(drv, lambda: drv.drive_status(2).configured and r2.stamp_s > 0.0)
+    assert poll_until(drv, lambda: r2.position_rev != before or kept, 2.0)
+    assert r2.count_epoch == (0 if kept else 1), (r2.position_rev, before)
+    assert abs(r2.velocity_rps) < 1.0  # no velocity across the restart

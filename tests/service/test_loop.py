@@ -840,6 +840,23 @@ def test_a_residual_fault_names_the_reading_that_lags() -> None:
     assert f"; node {node}'s reading is 0.022 s old)" in reason, reason
 
 
+def test_arm_is_refused_while_the_cables_disagree() -> None:
+    # Disarmed, a cable slipped: the pose has a residual above the limit. Arming would fault on
+    # it at once; the arm is refused by name, and `home` puts it right.
+    rig = Rig()
+    rig.tick(5)
+    assert rig.ctl.state is State.DISARMED and rig.ctl.pose_valid
+    rig.driver.readings[1].position_rev += 2.0
+    rig.tick()
+    assert rig.ctl.residual_m is not None and rig.ctl.residual_m > 0.01
+    reason = rig.refused(Arm())
+    assert reason.startswith("residual: ") and "home at a known pose" in reason, reason
+    assert rig.ctl.state is State.DISARMED
+    rig.do(Home(rig.start))
+    rig.arm()
+    assert rig.ctl.state is State.HOLDING
+
+
 # ------------------------------------------------------------------------ streamed set-points
 
 

@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import random
+import signal
 import subprocess
 import sys
 import tempfile
@@ -45,8 +46,15 @@ def _args(argv: list[str] | None) -> argparse.Namespace:
 
 
 def _worker(args: argparse.Namespace) -> int:
-    from chaos.worker import run_worker
+    import signal
 
+    from chaos.worker import STOP, run_worker
+
+    def on_signal(signum: int, frame: object) -> None:
+        STOP.set()  # the run ends at its next step and undoes what it changed on the host
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
     kinds = [k for k in args.kinds.split(",") if k]
     report = run_worker(args.worker, args.duration_s, args.seed, args.workdir, args.tag, kinds)
     Path(args.json).write_text(json.dumps(report, indent=1))
@@ -71,12 +79,19 @@ def main(argv: list[str] | None = None) -> int:
         flush=True,
     )
     env = dict(os.environ, PYTHONPATH=f"{TOOLS}{os.pathsep}{TOOLS.parent}")
-    hogs = [
-        subprocess.Popen([sys.executable, "-c", "while True: pass"], stdin=subprocess.DEVNULL)
-        for _ in range(args.busy_loops)
-    ]
+    from chaos.robot import busy_loops, die_with_parent
+
+    hogs = busy_loops(args.busy_loops)
     procs: dict[str, tuple[subprocess.Popen[bytes], Path]] = {}
     rng = random.Random(seed)
+
+    def forward(signum: int, frame: object) -> None:
+        for p, _ in procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)  # each worker tears down and reports
+
+    signal.signal(signal.SIGTERM, forward)
+    signal.signal(signal.SIGINT, forward)
     try:
         for i, fam in enumerate(families):
             out = work / f"{fam}.json"
@@ -87,15 +102,27 @@ def main(argv: list[str] | None = None) -> int:
                 "--workdir", str(work / fam), "--json", str(out),
                 "--tag", f"{os.getpid() % 10000}{i}", "--kinds", args.kinds,
             ]  # fmt: skip
-            procs[fam] = (subprocess.Popen(cmd, env=env, cwd=TOOLS.parent), out)
+            procs[fam] = (
+                subprocess.Popen(
+                    cmd,
+                    env=env,
+                    cwd=TOOLS.parent,
+                    preexec_fn=lambda: die_with_parent(signal.SIGTERM),
+                ),
+                out,
+            )
         deadline = time.monotonic() + args.duration_s + 300.0
         for p, _ in procs.values():
             p.wait(max(1.0, deadline - time.monotonic()))
     finally:
         for p, _ in procs.values():
             if p.poll() is None:
-                p.kill()
-                p.wait(10)
+                p.terminate()
+                try:
+                    p.wait(60)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait(10)
         for h in hogs:
             h.kill()
             h.wait(10)

@@ -36,6 +36,15 @@ ANCHORS = ((-0.5, -0.5, 0.8), (-0.5, 0.5, 0.8), (0.5, 0.5, 0.8), (0.5, -0.5, 0.8
 POWER_UP_M = (0.0, 0.0, 0.3)
 
 
+def die_with_parent(signum: int = signal.SIGKILL) -> None:
+    """In a child before exec: send it `signum` when the process that started it dies (Linux
+    PR_SET_PDEATHSIG), so a worker that is killed leaves no daemon or busy loop behind."""
+    import ctypes
+
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(1, signum)  # PR_SET_PDEATHSIG = 1
+
+
 def free_tcp_port() -> int:
     """A TCP port free on loopback now."""
     with socket.socket() as s:
@@ -152,6 +161,7 @@ class Daemon:
                 stdin=subprocess.DEVNULL,
                 stdout=log,
                 stderr=log,
+                preexec_fn=die_with_parent,
             )
         self.starts += 1
 
@@ -376,7 +386,11 @@ def _own_v1_memory_cgroup() -> Path | None:
 def busy_loops(n: int) -> list[subprocess.Popen[bytes]]:
     """`n` processes that spin on a core until killed (the CPU taken from the daemon)."""
     return [
-        subprocess.Popen([sys.executable, "-c", "while True: pass"], stdin=subprocess.DEVNULL)
+        subprocess.Popen(
+            [sys.executable, "-c", "while True: pass"],
+            stdin=subprocess.DEVNULL,
+            preexec_fn=die_with_parent,
+        )
         for _ in range(n)
     ]
 

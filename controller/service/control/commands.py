@@ -303,6 +303,16 @@ class CommandExecution(Homing):
         not homed or when the bus fails."""
         if not self.homed:
             raise CommandRefused("not homed: run `home` at a known pose first")
+        lost = self._count_lost(readings)
+        if lost is not None:
+            raise CommandRefused(f"not homed: {lost}")
+        res = self.residual_m
+        if self.pose_valid and res is not None and res > self._residual_max_m:
+            # Arming would fault on it at once (the residual rule of every armed state).
+            raise CommandRefused(
+                f"residual: {res * 1e3:.1f} mm > {self._residual_max_m * 1e3:.1f} mm: the cables"
+                " disagree (slack or slipped cable): home at a known pose, or pretension, first"
+            )
         since = self._conflict_s
         if since is not None and now_s - since < CONFLICT_HOLDOFF_S:
             raise CommandRefused(

@@ -104,6 +104,13 @@ class ControlStep(CommandExecution):
             else:
                 self.pose_valid = False
                 return
+        lost = self._count_lost(readings)
+        if lost is not None:
+            # The offsets were taken in another count of a drive's position: no pose from them.
+            self.pose_valid = False
+            if self.state is not State.DISARMED:
+                raise _Fault(lost)
+            return
         newest_ns = 0
         for i, r in enumerate(readings):
             if r.stamp_ns > newest_ns:
