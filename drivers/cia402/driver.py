@@ -317,7 +317,8 @@ class CiA402Reels(CiA402Receive):
 
         Blocks: about 36 SDO exchanges per drive, each waiting at most `sdo_timeout_s` for its
         answer (a drive that does not answer fails at its first). Call it before cyclic
-        operation (`arm` calls it for drives not yet configured or restarted since). Raises
+        operation, never from the loop (`arm` configures drives not yet configured or restarted
+        since beside the loop, `ConfigJob`; a job under way is waited for first). Raises
         ConfigureError naming the first drive and step that failed (the drives before it stay
         configured), KeyError for a node not ours.
         """
