@@ -33,7 +33,9 @@ from chaos.checks import NAMED, Checker, strict_json  # noqa: E402
 from chaos.equipment import ChaosBus, Tap, fpk  # noqa: E402
 from chaos.robot import ANCHORS, robot_toml  # noqa: E402
 
-ROOT_ONLY_KINDS = ("network_cut", "state_dir_readonly", "state_dir_full", "memory_limit")
+ROOT_ONLY_KINDS = ("network_cut", "state_dir_readonly", "state_dir_full")
+"""Kinds root can always inject here (iproute2, which .ci/run installs, and mount); the memory
+cgroup depends on the host's cgroup set-up and is reported when it is missing."""
 
 
 @settings(max_examples=60, deadline=None)

@@ -206,9 +206,8 @@ def render(summary: dict[str, Any]) -> str:
             f"  machine stalls seen (100 ms or more): {st['count']}, longest {st['longest_s']} s"
         )
         for e in r["excused"]:
-            lines.append(
-                f"  excused (a machine stall of {e['machine_stall_s']} s): {e['kind']}: {e['what']}"
-            )
+            stall = f"{e['machine_stall_s']} s" if e["machine_stall_s"] else "machine stall"
+            lines.append(f"  excused (a {stall}): {e['kind']}: {e['what']}")
         lines.append(f"  invariant violations: {len(r['violations'])}")
         lines.extend(
             f"    {v['t_s']:>7.1f} s  {v['kind']}: {v['text']}" for v in r["violations"][:40]

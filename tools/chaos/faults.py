@@ -9,7 +9,6 @@ a mount or a cgroup). The worker then watches what the daemon did, and brings th
 
 from __future__ import annotations
 
-import json
 import random
 import signal
 import sys
@@ -188,60 +187,17 @@ def memory_limit(w: Worker, rng: random.Random) -> str:
     return f"memory capped at RSS + {headroom >> 20} MiB for {span_s:.1f} s"
 
 
-_FLOOD = [
-    ("cmd/move", b"{not json"),
-    ("cmd/move", b'{"position_m": [NaN, 0, 0.3]}'),
-    ("cmd/move", b'{"position_m": [1e999, 0, 0.3]}'),
-    ("cmd/move", b'{"position_m": "here"}'),
-    ("cmd/move", b"[" * 64),
-    ("cmd/path", b'{"points_m": [[0, 0, 0.3]]' + b" " * 200_000 + b"}"),
-    ("cmd/path", json.dumps({"points_m": [[0.0, 0.0, 0.3]] * 1500}).encode()),
-    ("cmd/home", b'{"position_m": [0, 0]}'),
-    ("cmd/arm", b"\xff\xfe\x00garbage"),
-    ("cmd/nosuchverb", b"{}"),
-    ("setpoint", b'{"position_m": [NaN, NaN, NaN]}'),
-    ("setpoint", b"\x00" * 8192),
-    ("velocity", b'{"velocity_mps": [1e308, 0, 0]}'),
-    ("velocity", b'{"velocity_mps": "fast"}'),
-]
-
-
-def _flood(w: Worker, rng: random.Random, session: object) -> int:
-    sent = 0
-    end = time.monotonic() + 1.5
-    while time.monotonic() < end:
-        key, payload = rng.choice(_FLOOD)
-        full = f"{w.prefix}/{key}"
-        if key.startswith("cmd/"):
-            for _ in session.get(full, payload=payload, timeout=0.5):  # type: ignore[attr-defined]
-                pass
-        else:
-            session.put(full, payload)  # type: ignore[attr-defined]
-        sent += 1
-    return sent
-
-
 def zenoh_flood(w: Worker, rng: random.Random) -> str:
-    """A hostile client (connected for the whole run) floods malformed and oversized commands
-    for a second and a half."""
-    try:
-        sent = _flood(w, rng, w.hostile_session())
-    except Exception:  # its session died with a killed daemon: connect again next time
-        w.drop_hostile_session()
-        raise
-    return f"{sent} malformed or oversized commands"
+    """A hostile client (a process of its own, connected for the whole run) floods malformed
+    and oversized commands for a second and a half (`chaos.hostile`)."""
+    return w.hostile_flood("flood", 1.5, rng.randrange(1 << 30))
 
 
 def zenoh_flood_reconnect(w: Worker, rng: random.Random) -> str:
     """The flood from a new session each time, closed after it. Not in the default set: every
     such session leaves about 16 MiB in the daemon's Zenoh (docs/chaos.md), a defect of the
     Zenoh library reproduced without cablebot."""
-    session = w.open_session()
-    try:
-        sent = _flood(w, rng, session)
-    finally:
-        session.close()
-    return f"{sent} malformed or oversized commands from a new session"
+    return w.hostile_flood("flood_new", 1.5, rng.randrange(1 << 30))
 
 
 _CHURN = """

@@ -149,6 +149,11 @@ class Worker:
         self.chaos_bus = ChaosBus(self.sim_bus, random.Random(self.seed + 1))
         self.bank = sim_bank(self.cfg, self.chaos_bus)
         self.bank.start()
+        # The drives' thread gets the loop's scheduling one step below, as `cablebot sim` does:
+        # a starved simulator looks like a stale drive.
+        from controller.service.simulated import schedule_sim_thread
+
+        self.sim_scheduling = schedule_sim_thread(self.cfg, getattr(self.bank, "_thread", None))
         self.drives = Drives(self.family, self.bank, self.cfg)
         self.anchors = np.array(self.cfg.anchors_m, dtype=float)
         self._residual_home_m = 0.8 * float(self.cfg.faults.residual_max_m)
@@ -224,17 +229,37 @@ class Worker:
         ]
         self._session = s
 
-    def hostile_session(self) -> Any:
-        """The flooding client's session (opened once, kept)."""
-        if self._hostile is None:
-            self._hostile = self.open_session()
-        return self._hostile
+    def hostile_flood(self, verb: str, seconds: float, seed: int) -> str:
+        """Have the hostile client (`chaos.hostile`, started once, kept) flood the daemon."""
+        import subprocess
+
+        from chaos.robot import die_with_parent
+
+        p = self._hostile
+        if p is None or p.poll() is not None:
+            p = self._hostile = subprocess.Popen(
+                [sys.executable, "-m", "chaos.hostile", self.endpoint, self.prefix],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.DEVNULL,
+                env=dict(self.child_env, PYTHONPATH=f"{REPO / 'tools'}{os.pathsep}{REPO}"),
+                preexec_fn=die_with_parent,
+            )
+        assert p.stdin is not None and p.stdout is not None
+        p.stdin.write(f"{verb} {seconds} {seed}\n".encode())
+        p.stdin.flush()
+        line = p.stdout.readline().decode().strip()  # it answers after the flood (or dies)
+        return f"{line.removeprefix('sent ') or 'no'} malformed or oversized commands" + (
+            " from a new session" if verb == "flood_new" else ""
+        )
 
     def drop_hostile_session(self) -> None:
-        """Forget the flooding client's session (after the daemon it knew was killed)."""
-        if self._hostile is not None:
+        """End the hostile client."""
+        p = self._hostile
+        if p is not None and p.poll() is None:
+            p.kill()
             with contextlib.suppress(Exception):
-                self._hostile.close()
+                p.wait(5)
         self._hostile = None
 
     def _close_session(self) -> None:
@@ -321,7 +346,10 @@ class Worker:
             if self.daemon.alive():
                 ran = now - self._daemon_ran_s > 0.5 and not self._in_stall(now)
                 self.checker.tracking(
-                    self.drives.true_lengths_m(), self.tap.commanded_lengths(0.2), ran
+                    self.drives.true_lengths_m(),
+                    self.tap.commanded_lengths(0.2),
+                    ran,
+                    self.stall_watch.overlapping,
                 )
                 if now >= next_rss:
                     self.checker.sample_rss(self.daemon.rss_bytes(), self.daemon.starts)
@@ -447,6 +475,9 @@ class Worker:
                 out_s = time.monotonic() - t0
                 break
             time.sleep(0.001)
+        # The tap reads the bus in this process: on a stalled machine it may be behind. Its
+        # stamps are the kernel's, so waiting for it changes no figure.
+        wait_for(lambda: len(self.tap.estop_stamps) >= len(self.drives.node_ids), 3.0)
         stamps = dict(self.tap.estop_stamps)
         if out_s is None:
             self.checker.violation(
@@ -517,14 +548,22 @@ class Worker:
         truth = self.truth_pose()
         err = math.dist(pose, truth)
         source = self.q("status").get("home_source")
-        if err > 0.001:
+        # Each cable's length from the persisted offsets against its true length (the pose
+        # itself depends on the FPK when the cables disagree: it is reported).
+        cables = self._pose().get("cable_lengths_m") or []
+        true_l = self.drives.true_lengths_m()
+        worst = max((abs(a - b) for a, b in zip(cables, true_l, strict=False)), default=math.inf)
+        if len(cables) != len(true_l) or worst > 1e-4:
             self.checker.violation(
-                "restart", f"pose after restart {err * 1e3:.2f} mm from the truth"
+                "restart", f"cable lengths after restart {worst * 1e3:.3f} mm from the truth"
             )
         if source != "state_file":
             self.checker.violation("restart", f"homed from {source!r}, not the state file")
         self.checker.stall(t0, time.monotonic())
-        return f"restarted in {time.monotonic() - t0:.1f} s, pose {err * 1e3:.3f} mm from the truth"
+        return (
+            f"restarted in {time.monotonic() - t0:.1f} s, cables {worst * 1e3:.4f} mm and pose"
+            f" {err * 1e3:.3f} mm from the truth"
+        )
 
     def jog_and_cut(self, rng: random.Random) -> str:
         """A jogging client in the namespace; cut; the robot holds within DEADMAN_S; restore."""
@@ -540,7 +579,7 @@ class Worker:
             cut_s = rng.uniform(1.0, 3.0)
             t_cut = time.monotonic()
             self.net.cut()
-            held = wait_for(lambda: self.state() == "HOLDING", DEADMAN_S + 2.0, 0.005)
+            held = wait_for(lambda: self.state() != "MOVING", DEADMAN_S + 2.0, 0.005)
             held_s = time.monotonic() - t_cut
             if moving and (not held or held_s > DEADMAN_S):
                 what = f"still {self.state()} {held_s:.2f} s after the cut"
@@ -746,7 +785,10 @@ class Worker:
             "estop_drives_out_ms": _percentiles(sorted(1e3 * t for _, t in est)),
             "estop_over_target": sum(1 for t, _ in est if t > ESTOP_TARGET_S),
             "unprovoked": self.unprovoked,
-            "excused": self.excused,
+            "excused": self.excused
+            + [
+                {"kind": "tracking", "what": t, "machine_stall_s": None} for t in c.tracking_excused
+            ],
             "machine_stalls": self.stall_watch.summary(),
             "records": self.records,
             "daemon_log": str(self.daemon.log_path),
