@@ -25,9 +25,18 @@ cable in range: then it is the distribution that violates the limits least, and
   variable, is the smallest crossing value of a rising and a falling line (LP duality), and
   lambda is the middle of the interval where every line is at least that value.  Closed form,
   no iteration, vectorised for maps.
-* N > 4: the linear program "maximise s subject to U t = f, t_min + s <= t_i <= t_max - s"
-  (``scipy.optimize.linprog``, HiGHS), solved in units of the force and then projected back
-  onto ``U t = f`` so equilibrium holds to rounding.
+* N > 4: the max-min rule is the linear program "maximise s subject to U t = f, t_min + s <=
+  t_i <= t_max - s": the distribution nearest the middle of the tension range in the max norm.
+  With two or more spare dimensions its optimum can jump from one vertex to another as the
+  pose moves (by tens of newtons on an eight-cable cube), so the planned distribution adds a
+  small strictly convex term (``tension_many.regularised``): its largest distance from the
+  middle is at most ``REGULARISE`` (5 %) more than the max-min's, it is unique and moves
+  continuously, and where it would leave the limits while the max-min keeps them the
+  max-min's vertex is taken.  ``controller.core.tension_many`` solves both in plain floats
+  (the max-min through its dual, by pivots from the last optimal pair of cables; the strictly
+  convex one by an active set started from the last pose's), so the tick does one small 3x3
+  solve; ``scipy.optimize.linprog`` only settles a degenerate tie beyond rounding.  No
+  closed-form derivative: callers take differences.
 
 ``feasible`` is ``margin_n >= 0``.  Cable *indices* in data are 0-based; cable *names* in
 messages are 1-based (``cable 1`` is row 0), as in ``controller.core.kinematics``.
@@ -49,7 +58,7 @@ Errors (nothing here returns NaN or inf)
   along the force (for the weight: P at or above every anchor, e.g. in the plane of level
   anchors); the cable directions do not span space (``sqrt(det(U U^T)) < RANK_TOL``:
   coplanar directions, P on the line of two anchors, coincident or parallel cables for N = 3).
-* ``SolverUnavailable``: N > 4 without scipy.
+* ``SolverUnavailable``: a degenerate tie of N > 4 cables without scipy.
 
 The batch form never raises for a bad row: singular or non-finite rows get ``feasible`` False,
 ``limiting`` ``SINGULAR_ROW`` (-1), tensions 0.0 and margin ``SINGULAR_MARGIN_N`` (finite).
@@ -73,6 +82,17 @@ from controller.core.statics_errors import (
 )
 from controller.core.tension_batch import ANCHOR_TOL_M, UP_TOL, batch_closed, batch_margin
 from controller.core.tension_derivative import derivative34
+from controller.core.tension_many import (
+    MANY_TOL,
+    REGULARISE,
+    Pairs,
+    PairSolution,
+    best_pairs,
+    pair_solution,
+    pivot_solve,
+    project,
+    regularised,
+)
 from controller.core.tension_math import RANK_TOL, TRIPLES4, det3, maxmin_lambda
 
 __all__ = [
@@ -123,7 +143,8 @@ class Tensions:
     distance of any tension to either limit (negative when infeasible).  ``limiting_cable``:
     0-based index of the cable at that smallest distance (when infeasible, the cable that cannot
     be kept in range), ``limiting_bound`` which limit it is nearest to or beyond.  ``method``:
-    ``"unique"`` (N = 3), ``"closed-form"`` (N = 4) or ``"lp"`` (N > 4).  ``derivative``:
+    ``"unique"`` (N = 3), ``"closed-form"`` (N = 4) or ``"lp"`` (N > 4, the linear program
+    made strictly convex).  ``derivative``:
     d t_i / d P (one row per cable, N/m) when asked of ``CableStatics.solve`` and it has one
     (``tension_derivative``), else None.
     """
@@ -259,7 +280,17 @@ class CableStatics:
     ``0 <= t_min_n < t_max_n``.
     """
 
-    __slots__ = ("_anchors_t", "anchors_m", "n_cables", "t_max_n", "t_min_n")
+    __slots__ = (
+        "_anchors_t",
+        "_hint",
+        "_pairs",
+        "_signs",
+        "_signs_g",
+        "anchors_m",
+        "n_cables",
+        "t_max_n",
+        "t_min_n",
+    )
 
     def __init__(self, anchors_m: ArrayLike, t_min_n: float, t_max_n: float) -> None:
         self.anchors_m = _anchor_array(anchors_m)
@@ -268,6 +299,12 @@ class CableStatics:
         self._anchors_t: tuple[Vec3, ...] = tuple(
             (float(r[0]), float(r[1]), float(r[2])) for r in self.anchors_m.tolist()
         )
+        self._pairs = Pairs.of(self.n_cables) if self.n_cables > 4 else None
+        # N > 4: the last max-min vertex's pair and the last planned distribution's bound
+        # cables, tried first: they only save time (each answer is checked to be the optimum).
+        self._hint: tuple[int, int] | None = None
+        self._signs: list[float] | None = None
+        self._signs_g: Vec3 = (math.inf, math.inf, math.inf)
 
     # -- single pose -------------------------------------------------------------------------
 
@@ -392,6 +429,7 @@ class CableStatics:
         """The distribution for directions `u` and the force ``mag * dirn``; with `point_m`
         (straight cables to the anchors from there) its derivative too."""
         nv: list[float] | None = None
+        d = None
         if self.n_cables == 3:
             t = _solve3(u, mag, dirn)
             method = "unique"
@@ -399,12 +437,79 @@ class CableStatics:
             t, nv = self._solve4_parts(u, mag, dirn)
             method = "closed-form"
         else:
-            t = self._solve_lp(u, mag, dirn)
+            t = self._solve_many(u, mag, dirn)
             method = "lp"
-        d = None
-        if point_m is not None and self.n_cables <= 4:
+            point_m = None  # no closed-form derivative: callers take differences
+        if point_m is not None:
             d = derivative34(self._anchors_t, self.t_min_n, self.t_max_n, point_m, u, t, nv)
         return self._result(t, method, d)
+
+    def _solve_many(self, u: list[Vec3], mag: float, dirn: Vec3) -> list[float]:
+        """N > 4: the planned distribution (``controller.core.tension_many``): the max-min
+        rule made strictly convex (``regularised``), warm-started from the last pose's bound
+        cables, else from the max-min vertex; the max-min vertex itself where the strictly
+        convex answer leaves the limits but the vertex keeps them (the limits decide, not the
+        smoothing)."""
+        assert self._pairs is not None
+        lo, hi = self.t_min_n, self.t_max_n
+        c = 0.5 * (lo + hi)
+        r = 0.5 * (hi - lo)
+        n = len(u)
+        fx, fy, fz = dirn
+        gx, gy, gz = mag * fx, mag * fy, mag * fz
+        for x, y, z in u:
+            gx -= c * x
+            gy -= c * y
+            gz -= c * z
+        g = (gx, gy, gz)
+        scale = hi + mag
+        tol = MANY_TOL * scale
+        eps = 2.0 * REGULARISE / (n * r)
+        signs = self._signs
+        lx, ly, lz = self._signs_g
+        self._signs_g = g
+        # The last bound cables are likely to hold when g barely moved (the tick); a pose far
+        # away (a map, a check of a distant target) goes straight to the vertex.
+        if signs is not None and abs(gx - lx) + abs(gy - ly) + abs(gz - lz) < 0.05 * scale:
+            res = regularised(u, g, eps, signs, tol, 1)
+            if res is not None and res[1] <= r:
+                self._signs = res[2]
+                return project(u, (mag * fx, mag * fy, mag * fz), [c + v for v in res[0]])
+        vertex = self._vertex(u, g, scale)
+        res = regularised(u, g, eps, vertex.signs, tol, 4 * n)
+        if res is None or (res[1] > r >= vertex.rho):
+            return project(u, (mag * fx, mag * fy, mag * fz), [c + v for v in vertex.d])
+        self._signs = res[2]
+        return project(u, (mag * fx, mag * fy, mag * fz), [c + v for v in res[0]])
+
+    def _vertex(self, u: list[Vec3], g: Vec3, scale: float) -> PairSolution:
+        """The max-min distribution's vertex (``tension_many``): the dual simplex from the
+        last optimal pair, else every pair, else the linear program (a tie beyond rounding)."""
+        assert self._pairs is not None
+        a, b = self._hint or (0, 1)
+        sol = pivot_solve(u, g, a, b, scale, 2 * len(u))
+        if sol is not None:
+            self._hint = (sol.a, sol.b)
+            return sol
+        pairs, span = best_pairs(u, g, self._pairs)
+        if not span >= RANK_TOL:
+            raise SingularConfiguration(
+                f"the cable directions do not span space (sqrt(det(U U^T)) = {span:.3g}): "
+                "they cannot balance the weight"
+            )
+        for a, b in pairs:
+            sol = pair_solution(u, g, a, b, scale)
+            if sol is not None and sol.optimal:
+                return sol
+        c = 0.5 * (self.t_min_n + self.t_max_n)
+        fx = g[0] + c * sum(v[0] for v in u)
+        fy = g[1] + c * sum(v[1] for v in u)
+        fz = g[2] + c * sum(v[2] for v in u)
+        mag, dirn = _check_force((fx, fy, fz))
+        t = self._solve_lp(u, mag, dirn)
+        d = [x - c for x in t]
+        rho = max(abs(x) for x in d)
+        return PairSolution(0, 1, d, rho, True, False, [0.0] * len(u), (0.0, 0.0, 0.0), d)
 
     def _result(
         self,
@@ -500,7 +605,7 @@ class CableStatics:
         elif self.n_cables == 4:
             t, nv = self._solve4_parts(u, w, _UP)
         else:
-            t = self._solve_lp(u, w, _UP)
+            t = self._solve_many(u, w, _UP)
         total = sum(t)
         if total - total != 0.0:  # overflow on a pathological pose: never return inf
             raise SingularConfiguration("tensions overflow: the configuration is singular")
@@ -522,9 +627,9 @@ class CableStatics:
         the falling line of ``maxmin_lambda`` that cross at its optimum), which fixes the
         null-space part.  Where the binding pair changes (a kink of the distribution) this is
         the derivative on the side the tensions `tensions_n` belong to.  Returns None for more
-        than four cables (a linear program: no closed form here) and where no line pair binds
-        (a cable whose tension does not depend on the null space, a degenerate tie).  Raises
-        ``StaticsInputError`` for a bad point or a wrong count of tensions and
+        than four cables (no closed form: callers take differences) and where no line pair
+        binds (a cable whose tension does not depend on the null space, a degenerate tie).
+        Raises ``StaticsInputError`` for a bad point or a wrong count of tensions and
         ``SingularConfiguration`` where ``solve`` would.
         """
         nc = self.n_cables
@@ -593,7 +698,7 @@ class CableStatics:
             if nc <= 4:
                 t, ok = batch_closed(self.anchors_m, p[sl], w, lo, hi)
             else:
-                t, ok = self._batch_lp(p[sl], m)
+                t, ok = self._batch_many(p[sl], m)
             mg, lim = batch_margin(t, lo, hi)
             ok &= np.isfinite(mg)
             tens[sl] = np.where(ok[:, None], t, 0.0)
@@ -602,21 +707,26 @@ class CableStatics:
         feasible = (limiting != SINGULAR_ROW) & (margin >= 0.0)
         return tens, margin, feasible, limiting
 
-    def _batch_lp(
+    def _batch_many(
         self, p: NDArray[np.float64], mass_kg: float
     ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """N > 4 on rows of points: the single-pose solve row by row (each starts from the
+        row before: neighbouring points of a map share their bound cables)."""
         t = np.zeros((p.shape[0], self.n_cables))
         ok = np.zeros(p.shape[0], dtype=bool)
         for k, row in enumerate(p.tolist()):
-            try:
-                r = self.solve(row, mass_kg)
-            except SolverUnavailable:
-                raise
-            except StaticsError:  # singular or non-finite row (or, never seen, an LP failure)
-                continue
-            t[k] = r.tensions_n
-            ok[k] = True
+            t[k], ok[k] = self._row(row, mass_kg)
         return t, ok
+
+    def _row(self, point: list[float], mass_kg: float) -> tuple[Any, bool]:
+        """One batch row by the single-pose solve: (tensions, True), or (0, False) where it
+        is singular or not finite."""
+        try:
+            return self.solve(point, mass_kg).tensions_n, True
+        except SolverUnavailable:
+            raise
+        except StaticsError:
+            return 0.0, False
 
 
 def _lp_maxmin(
