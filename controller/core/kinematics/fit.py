@@ -36,6 +36,19 @@ anchors at one height the cost is symmetric about their plane, and a point above
 mirrored back to the lower solution.  With a tilted seed triple the seed's mirror image in the
 triple's plane also meets the three spheres; when it is below every anchor and the other
 cables agree with it better, the fit starts there.
+
+Among the anchors (``Geometry.hanging`` False: a Hangprinter)
+-------------------------------------------------------------
+The effector is inside the anchors' hull, above some of them, so "the lower solution" can be
+the wrong one: three low anchors meet at the effector and at its mirror image below their
+plane (Klipper's ``winch`` trilaterates from three anchors and, above low ones, takes that
+one).  The seed triple is a face of the hull and the effector is always on the hull's side of
+its plane (``Geometry.seed_up``), so the three-spheres point on that side seeds the fit; the
+last pose, when the caller has it (``fpk(..., seed_m=...)``: the control loop's, a tick old)
+seeds it instead and spares the three spheres.  Gauss-Newton over every cable then finds the
+pose (no mirroring: the other cables tell the two apart).  A fit from the last pose that
+leaves more than ``RETRY_RMS_M`` of residual (a stale or far guess) is done again from the
+three-spheres seed, and the better one is kept.
 """
 
 from __future__ import annotations
@@ -85,6 +98,9 @@ GN_COST_REL_TOL = 1e-9
 GN_COST_ROUND_M = 1e-11
 #: J^T J determinant (sum of unit vectors' outer products) below which the fit stops.
 GN_DET_MIN = 1e-12
+#: Among the anchors: a fit from the caller's last pose with a larger RMS residual (m) is done
+#: again from the three-spheres seed on the hull's side.
+RETRY_RMS_M = 0.002
 
 # Module-level alias: one global lookup per call.
 _sqrt = math.sqrt
@@ -349,7 +365,53 @@ def _refine(
     return _gauss_newton(geom._anchors_t, lengths, x, y, z, mirror)
 
 
-def _fpk(geom: Geometry, lengths: list[float]) -> FpkResult:
+def _inner_seed(geom: Geometry, x: float, y: float, z: float) -> Vec3:
+    """The seed triple's three-spheres point on the hull's side of the triple's plane, from
+    its lower one (x, y, z)."""
+    if not geom.seed_up:
+        return x, y, z
+    sd = geom._seed
+    if isinstance(sd, _EqualSeed):
+        return x, y, 2.0 * sd.zn - z
+    tilt = geom._fit.tilt
+    assert tilt is not None  # a general seed's plane is not level
+    return _mirror(tilt, x, y, z)
+
+
+def _fpk_among(geom: Geometry, lengths: list[float], seed_m: Sequence[float] | None) -> FpkResult:
+    """``fpk`` for an effector among its anchors (module docstring)."""
+    anchors = geom._anchors_t
+    tri = geom.seed_triple
+    best: tuple[float, float, float, float] | None = None
+    if seed_m is not None and len(seed_m) == 3:
+        gx, gy, gz = float(seed_m[0]), float(seed_m[1]), float(seed_m[2])
+        if math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz):
+            best = _gauss_newton(anchors, lengths, gx, gy, gz, None)
+            if best[3] <= RETRY_RMS_M:
+                return FpkResult((best[0], best[1], best[2]), best[3], tri)
+    sd = geom._seed
+    r1, r2, r3 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3]
+    # Just above the low anchors' plane (a printer's bed) noisy lengths can miss each other:
+    # the point of the radical line in the plane seeds the fit then (the other cables decide
+    # the side).
+    if isinstance(sd, _EqualSeed):
+        x, y, z = _seed_equal(sd, r1, r2, r3, True)
+    else:
+        x, y, z = _seed_general(sd, r1, r2, r3, True)
+    x, y, z = _inner_seed(geom, x, y, z)
+    fit = geom._fit
+    lo = [lengths[j] for j in fit.others]
+    cost, worst = _others_cost(fit.anchors, lo, x, y, z)
+    if worst <= GN_STEP_TOL_M * GN_STEP_TOL_M:  # consistent lengths: the seed is the fit
+        res = (x, y, z, _sqrt(cost / geom.n_cables))
+    else:
+        res = _gauss_newton(anchors, lengths, x, y, z, None)
+    if best is not None and best[3] < res[3]:
+        res = best
+    return FpkResult((res[0], res[1], res[2]), res[3], tri)
+
+
+def _fpk(geom: Geometry, lengths: list[float], seed_m: Sequence[float] | None = None) -> FpkResult:
     """``fpk`` on a list of floats."""
     sd = geom._seed
     n = geom.n_cables
@@ -361,6 +423,12 @@ def _fpk(geom: Geometry, lengths: list[float]) -> FpkResult:
         for k, ln in enumerate(lengths):
             if not (0.0 < ln < math.inf):
                 raise KinematicsError(f"cable {k + 1} length must be finite and > 0, got {ln!r}")
+    if not geom.hanging:
+        res = _fpk_among(geom, lengths, seed_m)
+        p = res.position_m
+        if not (math.isfinite(p[0] + p[1] + p[2]) and math.isfinite(res.residual_m)):
+            raise KinematicsError("FPK produced a non-finite result")  # defensive
+        return res
     r1, r2, r3 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3]
     if isinstance(sd, _EqualSeed):
         x, y, z = _seed_equal(sd, r1, r2, r3)
@@ -375,20 +443,26 @@ def _fpk(geom: Geometry, lengths: list[float]) -> FpkResult:
     return FpkResult((x, y, z), rms, tri)
 
 
-def fpk(geom: Geometry, lengths_m: Sequence[float] | FloatArray) -> FpkResult:
+def fpk(
+    geom: Geometry,
+    lengths_m: Sequence[float] | FloatArray,
+    seed_m: Sequence[float] | None = None,
+) -> FpkResult:
     """Forward pose kinematics of one pose: the point P where the N cables meet.
 
     ``lengths_m``: the N cable lengths, a sequence or an array of shape (N,) (many poses at
     once: ``fpk_batch``).  The seed triple's three-spheres point, then for N > 3 the
     least-squares fit over all cables (see the module docstring); ``residual_m`` is the RMS
-    cable-length mismatch.  Raises ``KinematicsError`` for a wrong shape or count or for
-    non-finite / non-positive lengths, and ``UnreachableError`` (naming the 1-based cable and
-    its shortfall) when the seed triple cannot meet.
+    cable-length mismatch.  ``seed_m``: the last pose, when the caller has one; it seeds the
+    fit of an effector among its anchors (``Geometry.hanging`` False) and is not needed for
+    a hanging one (ignored there).  Raises ``KinematicsError`` for a wrong shape or count or
+    for non-finite / non-positive lengths, and ``UnreachableError`` (naming the 1-based cable
+    and its shortfall) when the seed triple cannot meet.
     """
     if isinstance(lengths_m, np.ndarray):
         if lengths_m.ndim != 1:
             raise KinematicsError(
                 f"lengths must have shape (N,), got {lengths_m.shape} (fpk_batch takes (M, N))"
             )
-        return _fpk(geom, lengths_m.tolist())
-    return _fpk(geom, list(map(float, lengths_m)))
+        return _fpk(geom, lengths_m.tolist(), seed_m)
+    return _fpk(geom, list(map(float, lengths_m)), seed_m)
