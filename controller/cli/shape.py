@@ -56,8 +56,8 @@ class RobotShape:
         Raises ShapeError when the anchors or limits are missing, not finite, or make no
         workspace.
         """
-        from controller.core.kinematics import Geometry, KinematicsError
-        from controller.core.workspace import Workspace
+        from controller.core.kinematics import KinematicsError
+        from controller.core.workspace import Workspace, layout_geometry
         from controller.service.config import LimitsConfig
 
         try:
@@ -75,7 +75,7 @@ class RobotShape:
         if not all(math.isfinite(c) for a in anchors for c in a):
             raise ShapeError(f"anchors are not finite: {anchors}")
         try:
-            geometry = Geometry(anchors)
+            geometry = layout_geometry(anchors, limits_cfg)
             ws = Workspace.from_limits(limits_cfg, geometry)
         except (KinematicsError, ValueError) as exc:  # WorkspaceError is a ValueError
             raise ShapeError(f"configuration summary: {exc}") from exc

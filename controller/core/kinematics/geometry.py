@@ -59,6 +59,7 @@ __all__ = [
     "HEIGHT_TOL_M",
     "SINGULAR_REL_TOL",
     "Geometry",
+    "HullFace",
     "ipk",
     "ipk_point",
     "paper_anchors",
@@ -107,14 +108,22 @@ def _convex_hull(points: list[tuple[float, float]]) -> list[tuple[float, float]]
     return lower[:-1] + upper[:-1]
 
 
-def _hull_faces(pts: Sequence[Vec3]) -> dict[tuple[int, int, int], bool]:
+HullFace = tuple[float, float, float, float, tuple[int, ...]]
+"""A face of the anchors' hull: its outward unit normal (nx, ny, nz), c (inside is
+``nx x + ny y + nz z <= c``) and the anchors (0-based) on it."""
+
+
+def _hull_faces(
+    pts: Sequence[Vec3],
+) -> tuple[dict[tuple[int, int, int], bool], tuple[HullFace, ...]]:
     """The triples of anchors that are faces of their convex hull (every other anchor on one
     side of the triple's plane, or in it), each with whether that side is above the plane
-    (its normal turned up).  Raises ``SingularGeometryError`` when the anchors lie in one
-    plane (a hull without volume)."""
+    (its normal turned up); and the hull's faces as planes, one per plane.  Raises
+    ``SingularGeometryError`` when the anchors lie in one plane (a hull without volume)."""
     span = max(math.dist(a, b) for a, b in itertools.combinations(pts, 2))
     tol = COPLANAR_REL_TOL * span
     faces: dict[tuple[int, int, int], bool] = {}
+    planes: list[HullFace] = []
     flat = True
     for tri in itertools.combinations(range(len(pts)), 3):
         a, b, c = (pts[k] for k in tri)
@@ -135,14 +144,26 @@ def _hull_faces(pts: Sequence[Vec3]) -> dict[tuple[int, int, int], bool]:
             flat = False
         if all(d >= -tol for d in sides):
             faces[tri] = True
+            out = -1.0  # the hull is above: the outward normal points down
         elif all(d <= tol for d in sides):
             faces[tri] = False
+            out = 1.0
+        else:
+            continue
+        ox, oy, oz = out * nx / norm, out * ny / norm, out * nz / norm
+        on = tuple(
+            k
+            for k, p in enumerate(pts)
+            if abs((p[0] - a[0]) * ox + (p[1] - a[1]) * oy + (p[2] - a[2]) * oz) <= tol
+        )
+        if not any(f[4] == on for f in planes):
+            planes.append((ox, oy, oz, ox * a[0] + oy * a[1] + oz * a[2], on))
     if flat:
         raise SingularGeometryError(
             "the anchors lie in one plane: an effector among them (some anchors below it) "
             "cannot be held; only a robot hanging below them can"
         )
-    return faces
+    return faces, tuple(planes)
 
 
 def _usable_triples(pts: Sequence[Vec3]) -> list[tuple[float, tuple[int, int, int]]]:
@@ -182,8 +203,9 @@ class Geometry:
     ``hanging``: True (the default) when the effector hangs below every anchor, False when
     it works among them inside their convex hull (some anchors below it: a Hangprinter);
     then the seed triple is a face of the hull, ``seed_up`` says whether the hull lies above
-    its plane, and ``SingularGeometryError`` is raised for fewer than four anchors or anchors
-    in one plane (no hull to work in).
+    its plane, ``hull_faces`` are the hull's faces (outward unit normal, offset, the anchors
+    on it; empty for a hanging layout), and ``SingularGeometryError`` is raised for fewer
+    than four anchors or anchors in one plane (no hull to work in).
     """
 
     __slots__ = (
@@ -198,6 +220,7 @@ class Geometry:
         "footprint_m",
         "hanging",
         "height_tol_m",
+        "hull_faces",
         "n_cables",
         "seed_triple",
         "seed_up",
@@ -247,13 +270,14 @@ class Geometry:
         usable = _usable_triples(pts)
         self.hanging = bool(hanging)
         self.seed_up = False
+        self.hull_faces: tuple[HullFace, ...] = ()
         if not self.hanging:
             if n < 4:
                 raise SingularGeometryError(
                     f"{n} anchors cannot surround an effector: working among the anchors "
                     "(some below it) needs at least 4"
                 )
-            faces = _hull_faces(pts)
+            faces, self.hull_faces = _hull_faces(pts)
             usable = [(a, t) for a, t in usable if t in faces]
             if not usable:  # pragma: no cover - a hull always has a face seen from above
                 raise SingularGeometryError("no face of the anchors' hull is usable by the FPK")
