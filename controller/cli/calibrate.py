@@ -559,6 +559,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
             samples,
             settings,
             pose_height_m=z_hi - z_lo,
+            hanging=cfg.geometry.hanging,
         )
     except (CalibrationError, CalibrationUnavailable) as exc:
         return refuse(str(exc))
