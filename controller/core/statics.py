@@ -88,6 +88,7 @@ from controller.core.tension_many import (
     Pairs,
     PairSolution,
     best_pairs,
+    least_squares_pair,
     pair_solution,
     pivot_solve,
     project,
@@ -470,23 +471,26 @@ class CableStatics:
         self._signs_g = g
         # The last bound cables are likely to hold when g barely moved (the tick); a pose far
         # away (a map, a check of a distant target) goes straight to the vertex.
-        if signs is not None and abs(gx - lx) + abs(gy - ly) + abs(gz - lz) < 0.05 * scale:
+        near = abs(gx - lx) + abs(gy - ly) + abs(gz - lz) < 0.05 * scale
+        if signs is not None and near:
             res = regularised(u, g, eps, signs, tol, 1)
             if res is not None and res[1] <= r:
                 self._signs = res[2]
                 return project(u, (mag * fx, mag * fy, mag * fz), [c + v for v in res[0]])
-        vertex = self._vertex(u, g, scale)
+        vertex = self._vertex(u, g, scale, near)
         res = regularised(u, g, eps, vertex.signs, tol, 4 * n)
         if res is None or (res[1] > r >= vertex.rho):
             return project(u, (mag * fx, mag * fy, mag * fz), [c + v for v in vertex.d])
         self._signs = res[2]
         return project(u, (mag * fx, mag * fy, mag * fz), [c + v for v in res[0]])
 
-    def _vertex(self, u: list[Vec3], g: Vec3, scale: float) -> PairSolution:
+    def _vertex(self, u: list[Vec3], g: Vec3, scale: float, near: bool) -> PairSolution:
         """The max-min distribution's vertex (``tension_many``): the dual simplex from the
-        last optimal pair, else every pair, else the linear program (a tie beyond rounding)."""
+        last optimal pair (`near`: the last pose's), or from the two cables nearest the middle
+        in the least-squares distribution, else every pair, else the linear program (a tie
+        beyond rounding)."""
         assert self._pairs is not None
-        a, b = self._hint or (0, 1)
+        a, b = (self._hint if near else None) or least_squares_pair(u, g)
         sol = pivot_solve(u, g, a, b, scale, 2 * len(u))
         if sol is not None:
             self._hint = (sol.a, sol.b)

@@ -55,6 +55,7 @@ __all__ = [
     "PairSolution",
     "Pairs",
     "best_pairs",
+    "least_squares_pair",
     "pair_solution",
     "pivot_solve",
     "project",
@@ -464,3 +465,43 @@ def project(u: Sequence[Vec3], f: Vec3, t: list[float]) -> list[float]:
     ay = (c12 * rx + c22 * ry + c23 * rz) / det
     az = (c13 * rx + c23 * ry + c33 * rz) / det
     return [ti + x * ax + y * ay + z * az for (x, y, z), ti in zip(u, t, strict=True)]
+
+
+def least_squares_pair(u: Sequence[Vec3], g: Vec3) -> tuple[int, int]:
+    """The two cables whose deviations are smallest in the least-squares distribution
+    ``d = U^T (U U^T)^-1 g``: a cold start for ``pivot_solve`` (the max-min vertex frees the
+    two cables least pressed toward a limit; this guess is often that pair). (0, 1) when
+    ``U U^T`` is singular."""
+    g11 = g12 = g13 = g22 = g23 = g33 = 0.0
+    for x, y, z in u:
+        g11 += x * x
+        g12 += x * y
+        g13 += x * z
+        g22 += y * y
+        g23 += y * z
+        g33 += z * z
+    c11 = g22 * g33 - g23 * g23
+    c12 = g13 * g23 - g12 * g33
+    c13 = g12 * g23 - g13 * g22
+    det = g11 * c11 + g12 * c12 + g13 * c13
+    if not det > 1e-18:
+        return 0, 1
+    c22 = g11 * g33 - g13 * g13
+    c23 = g12 * g13 - g11 * g23
+    c33 = g11 * g22 - g12 * g12
+    rx, ry, rz = g
+    ax = c11 * rx + c12 * ry + c13 * rz
+    ay = c12 * rx + c22 * ry + c23 * rz
+    az = c13 * rx + c23 * ry + c33 * rz
+    # the two smallest |d_i| (d = U^T x, x the solve's vector times det)
+    b1 = b2 = math.inf
+    i1 = 0
+    i2 = 1
+    for i, (x, y, z) in enumerate(u):
+        d = abs(x * ax + y * ay + z * az)
+        if d < b1:
+            b2, i2 = b1, i1
+            b1, i1 = d, i
+        elif d < b2:
+            b2, i2 = d, i
+    return (i1, i2) if i1 < i2 else (i2, i1)

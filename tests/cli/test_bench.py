@@ -39,6 +39,7 @@ TOP_KEYS = {
     "stretch_us",
     "ros2_publish_us",
     "compute_per_tick",
+    "layouts",
 }
 NEW_SECTION_KEYS = {
     "planning": {
@@ -268,6 +269,20 @@ def test_bench_statics_piece() -> None:
     }
     assert all(_number(v) and v > 0.0 for v in figures.values()), figures
     assert figures["statics_batch_us"] < figures["statics_us"]
+
+
+def test_bench_layouts_piece() -> None:
+    """Every layout's statics and FPK per call (random poses and a path a tick apart) and the
+    ratios to the paper robot's, which are its own 1.0."""
+    from controller.cli.bench.layouts import bench_layouts
+
+    figures = bench_layouts(repeats=1, n_poses=10)
+    assert list(figures) == list(bench.LAYOUTS)
+    for name, fig in figures.items():
+        assert set(fig) == set(bench.LAYOUT_KEYS), name
+        assert all(_number(v) and v > 0.0 for v in fig.values()), (name, fig)
+    assert figures["paper-4"]["statics_over_paper4"] == 1.0
+    assert figures["paper-4"]["fpk_over_paper4"] == 1.0
 
 
 def test_bench_sim_plant_piece() -> None:

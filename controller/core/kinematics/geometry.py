@@ -44,7 +44,14 @@ import numpy as np
 import numpy.typing as npt
 
 from controller.core.kinematics.errors import KinematicsError, SingularGeometryError
-from controller.core.kinematics.fitplan import _Fit, _make_fit, _make_planar4, _Planar4
+from controller.core.kinematics.fitplan import (
+    _Fit,
+    _Linear,
+    _make_fit,
+    _make_linear,
+    _make_planar4,
+    _Planar4,
+)
 from controller.core.kinematics.spheres import (
     Vec3,
     _EqualSeed,
@@ -211,6 +218,7 @@ class Geometry:
     __slots__ = (
         "_anchors_t",
         "_fit",
+        "_lin",
         "_p4",
         "_seed",
         "anchor_height_max_m",
@@ -243,6 +251,7 @@ class Geometry:
     _anchors_t: tuple[Vec3, ...]
     _seed: _EqualSeed | _GeneralSeed
     _fit: _Fit
+    _lin: _Linear | None
     _p4: _Planar4 | None
 
     def __init__(
@@ -311,6 +320,7 @@ class Geometry:
             else _make_general_seed(pts, seed)
         )
         self._fit = _make_fit(pts, seed)
+        self._lin = None if self.hanging else _make_linear(pts)
         self._p4 = (
             _make_planar4(pts, self._seed, self._fit.others)
             if isinstance(self._seed, _EqualSeed) and self.hanging
