@@ -728,6 +728,51 @@ def _inside_gate(anchors_m: FloatArray, poses_m: FloatArray) -> Gate:
     )
 
 
+def _gates(
+    st: Settings,
+    rms_dof: float,
+    rms: float,
+    worst: float,
+    free_bad: int,
+    held: int,
+    converged: bool,
+    a: FloatArray,
+    p: FloatArray,
+    hanging: bool,
+) -> tuple[Gate, ...]:
+    """The quality gates of a calibration (module docstring)."""
+    inside_gate = _inside_gate(a, p) if not hanging else None
+    high = int(np.sum(p[:, 2] >= float(a[:, 2].min())))
+    return (
+        Gate(
+            "rms",
+            rms_dof <= st.max_rms_m,
+            f"RMS residual per redundant equation {rms_dof * 1e3:.3g} mm <= "
+            f"{st.max_rms_m * 1e3:g} mm (plain RMS {rms * 1e3:.3g} mm)",
+        ),
+        Gate(
+            "worst",
+            worst <= st.max_residual_m,
+            f"worst residual {worst * 1e3:.3g} mm <= {st.max_residual_m * 1e3:g} mm",
+        ),
+        Gate(
+            "observable",
+            free_bad == 0,
+            f"{free_bad} direction(s) seen worse than {st.hold_std_m * 1e3:g} mm left free, "
+            f"{held} held near the configured values",
+        ),
+        Gate("converged", converged, "the least-squares solve converged"),
+        inside_gate
+        or Gate(
+            "below_anchors",
+            high <= 0,
+            f"{high} pose(s) fitted above the lowest anchor (a mirror solution)"
+            if high
+            else "every pose fitted below the anchors",
+        ),
+    )
+
+
 def calibrate(
     anchors_m: Any,
     reels: Sequence[ReelModel],
@@ -834,35 +879,8 @@ def calibrate(
     free_bad = [float(v) for v in free_std if v > st.hold_std_m]
     _add_warnings(warnings, directions, anchor_std, bool(coplanar), st)
 
-    inside_gate = _inside_gate(a, p) if not hanging else None
-    high = int(np.sum(p[:, 2] >= float(a[:, 2].min())))
-    gates = (
-        Gate(
-            "rms",
-            rms_dof <= st.max_rms_m,
-            f"RMS residual per redundant equation {rms_dof * 1e3:.3g} mm <= "
-            f"{st.max_rms_m * 1e3:g} mm (plain RMS {rms * 1e3:.3g} mm)",
-        ),
-        Gate(
-            "worst",
-            worst <= st.max_residual_m,
-            f"worst residual {worst * 1e3:.3g} mm <= {st.max_residual_m * 1e3:g} mm",
-        ),
-        Gate(
-            "observable",
-            not free_bad,
-            f"{len(free_bad)} direction(s) seen worse than {st.hold_std_m * 1e3:g} mm left free, "
-            f"{held_c.shape[1]} held near the configured values",
-        ),
-        Gate("converged", converged, "the least-squares solve converged"),
-        inside_gate
-        or Gate(
-            "below_anchors",
-            high <= 0,
-            f"{high} pose(s) fitted above the lowest anchor (a mirror solution)"
-            if high
-            else "every pose fitted below the anchors",
-        ),
+    gates = _gates(
+        st, rms_dof, rms, worst, len(free_bad), held_c.shape[1], converged, a, p, hanging
     )
     return Calibration(
         node_ids=samples.node_ids,
