@@ -334,9 +334,24 @@ class CableStatics:
 
     def _units(self, point_m: Sequence[float]) -> list[Vec3]:
         """The unit vectors at P of a weight's solve: some cable must pull up."""
-        units, up = self._directions(point_m)
+        # ``_directions`` written out: the per-tick path of every hanging robot.
+        if len(point_m) != 3:
+            raise StaticsInputError(f"point_m needs 3 coordinates, got {len(point_m)}")
+        px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
+        if not (_finite(px) and _finite(py) and _finite(pz)):
+            raise StaticsInputError(f"point_m ({px}, {py}, {pz}) is not finite")
+        units: list[Vec3] = []
+        up = -1.0
+        for ax, ay, az in self._anchors_t:
+            dx, dy, dz = ax - px, ay - py, az - pz
+            d = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if not d > ANCHOR_TOL_M:
+                return self._directions(point_m)[0]  # raises, naming the anchor
+            uz = dz / d
+            if uz > up:
+                up = uz
+            units.append((dx / d, dy / d, uz))
         if not up > UP_TOL:
-            px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
             raise SingularConfiguration(
                 f"P = ({px:.6g}, {py:.6g}, {pz:.6g}) m is at or above every anchor: no cable "
                 "pulls upward, the weight cannot be held"
@@ -566,10 +581,10 @@ class CableStatics:
             n[j] = -d if j & 1 else d
             nn += d * d
             # D_j^2 t^(j) = D_j * (Cramer numerators: dirn . pairwise cross products)
-            if along_z:
-                tp[a] += d * (bx * cy - by * cx) * fz
-                tp[b] += d * (cx * ay - cy * ax) * fz
-                tp[c] += d * (ax * by - ay * bx) * fz
+            if along_z:  # the sign of fz goes into the scale below
+                tp[a] += d * (bx * cy - by * cx)
+                tp[b] += d * (cx * ay - cy * ax)
+                tp[c] += d * (ax * by - ay * bx)
             else:
                 tp[a] += d * (
                     fx * (by * cz - bz * cy) + fy * (bz * cx - bx * cz) + fz * (bx * cy - by * cx)
@@ -586,7 +601,7 @@ class CableStatics:
                 f"the four cable directions do not span space (sqrt(det(U U^T)) = {norm:.3g}): "
                 "they cannot balance the weight"
             )
-        scale = mag / nn
+        scale = (mag * fz if along_z else mag) / nn
         tp = [x * scale for x in tp]
         s = [x / norm for x in n]
         lam = maxmin_lambda(tp, s, self.t_min_n, self.t_max_n)

@@ -1,6 +1,5 @@
 """The derivative of the three- and four-cable tension distribution with respect to the
-effector's position (``CableStatics.tension_derivative``), and the right-hand side ``G`` every
-cable count shares.
+effector's position (``CableStatics.tension_derivative``).
 
 Differentiating ``U(P) t = f`` (f fixed) gives ``U T' = G`` with ``G = sum_i t_i (I - u_i
 u_i^T) / L_i``; for four cables the distribution also keeps its two binding distances to the
@@ -16,30 +15,7 @@ from collections.abc import Sequence
 from controller.core.statics_errors import SingularConfiguration
 from controller.core.tension_math import TRIPLES4, det3, triple_solve
 
-__all__ = ["derivative34", "g_columns"]
-
-
-def g_columns(
-    anchors_t: Sequence[tuple[float, float, float]],
-    point_m: Sequence[float],
-    u: Sequence[tuple[float, float, float]],
-    tensions_n: Sequence[float],
-) -> tuple[tuple[float, float, float], ...]:
-    """The columns of ``G = sum_i t_i (I - u_i u_i^T) / L_i`` (symmetric), the right-hand
-    side of ``U T' = G``: how the cables' directions turn with P, weighted by their tensions."""
-    px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
-    g11 = g12 = g13 = g22 = g23 = g33 = 0.0
-    for i, (ax, ay, az) in enumerate(anchors_t):
-        ux, uy, uz = u[i]
-        dx, dy, dz = ax - px, ay - py, az - pz
-        k = float(tensions_n[i]) / math.sqrt(dx * dx + dy * dy + dz * dz)
-        g11 += k * (1.0 - ux * ux)
-        g22 += k * (1.0 - uy * uy)
-        g33 += k * (1.0 - uz * uz)
-        g12 -= k * ux * uy
-        g13 -= k * ux * uz
-        g23 -= k * uy * uz
-    return ((g11, g12, g13), (g12, g22, g23), (g13, g23, g33))
+__all__ = ["derivative34"]
 
 
 def derivative34(
@@ -56,7 +32,20 @@ def derivative34(
     vector `nv` of the solve (None: computed here).  Raises ``SingularConfiguration`` where
     the directions do not span space."""
     nc = len(anchors_t)
-    gc = g_columns(anchors_t, point_m, u, tensions_n)
+    # G = sum_i t_i (I - u_i u_i^T) / L_i: how the directions turn with P, weighted by tension
+    px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
+    g11 = g12 = g13 = g22 = g23 = g33 = 0.0
+    for i, (ax, ay, az) in enumerate(anchors_t):
+        ux, uy, uz = u[i]
+        dx, dy, dz = ax - px, ay - py, az - pz
+        k = float(tensions_n[i]) / math.sqrt(dx * dx + dy * dy + dz * dz)
+        g11 += k * (1.0 - ux * ux)
+        g22 += k * (1.0 - uy * uy)
+        g33 += k * (1.0 - uz * uz)
+        g12 -= k * ux * uy
+        g13 -= k * ux * uz
+        g23 -= k * uy * uz
+    gc = ((g11, g12, g13), (g12, g22, g23), (g13, g23, g33))  # columns (symmetric)
     if nc == 3:
         x = triple_solve(u, (0, 1, 2), gc)
         if x is None:
