@@ -1,6 +1,7 @@
 """Tensions of five or more cables: the max-min rule made strictly convex, fast enough to tick.
 
-Pure module (``math``, ``numpy``; ``scipy`` only for a degenerate tie, imported then), no I/O.
+Pure module (``math``, ``numpy``), no I/O; a degenerate tie beyond rounding is left to the
+statics module's linear program.
 
 The rule (``controller.core.statics``): maximise the smallest distance ``s`` of any tension to
 the limits ``[lo, hi]`` subject to ``U t = f``.  With the middle of the range ``c = (lo + hi)
@@ -23,8 +24,9 @@ w) / |w|^2`` and ``d_b = ((u_a x h) . w) / |w|^2``.  A pair whose two are within
 optimal (the primal and dual values agree); when every other cable has ``u_i . w`` away from
 zero the optimum is unique (strict complementarity).
 
-``pivot_solve`` reaches the optimal pair by the dual simplex from the last one (one or two
-pivots between random poses, none between ticks); ``best_pairs`` computes every pair's ratio at
+``pivot_solve`` reaches the optimal pair by the dual simplex from the last one (none between
+ticks) or, far from the last pose, from the least-squares distribution's two freest cables
+(``least_squares_pair``: one or two pivots); ``best_pairs`` computes every pair's ratio at
 once with numpy where a pair on the way is degenerate (a symmetric pose: cables in the pair's
 plane share the rest of g, again as near the middle as they can, ``_plane_solve``).
 
