@@ -454,6 +454,9 @@ class CableStatics:
             method = "closed-form"
         else:
             t = self._solve_many(u, mag, dirn)
+            total = sum(t)
+            if total - total != 0.0:  # never a NaN or inf out of the pair arithmetic
+                raise SingularConfiguration("tensions overflow: the configuration is singular")
             method = "lp"
             point_m = None  # no closed-form derivative: callers take differences
         if point_m is not None:
