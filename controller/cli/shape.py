@@ -66,7 +66,7 @@ class RobotShape:
                 for a in (r["anchor_m"] for r in summary["reels"])
             )
             given: dict[str, Any] = {
-                k: int(v) if k == "max_queued_points" else float(v)
+                k: int(v) if k == "max_queued_points" else None if v is None else float(v)
                 for k, v in summary["limits"].items()
             }
             limits_cfg = LimitsConfig(**given)

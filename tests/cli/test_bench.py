@@ -124,7 +124,12 @@ def test_bench_quick_json(tmp_path: Path) -> None:
     rtf = data["sim_plant_rtf"]
     assert set(rtf) == {"position", "torque"} and all(_number(v) and v > 0.0 for v in rtf.values())
     _check_new_sections(data)
-    for key in TOP_KEYS - {"loop", "estop_latency_flood_ms", "sim_plant_rtf", *NEW_SECTION_KEYS}:
+    assert list(data["layouts"]) == list(bench.LAYOUTS)
+    for fig in data["layouts"].values():
+        assert set(fig) == set(bench.LAYOUT_KEYS)
+        assert all(_number(v) and v > 0.0 for v in fig.values()), fig
+    skip = {"loop", "estop_latency_flood_ms", "sim_plant_rtf", "layouts", *NEW_SECTION_KEYS}
+    for key in TOP_KEYS - skip:
         assert _number(data[key]), (key, data[key])
         assert data[key] > 0.0, (key, data[key])
     assert data["fpk_simplified_us"] < 1e3 and data["fpk_general_us"] < 1e3
@@ -148,6 +153,7 @@ def test_bench_quick_json(tmp_path: Path) -> None:
         "stretch_us.fpk_stretch_moving",
         "ros2_publish_us.tick_handoff_us",
         "compute_per_tick.p99_us",
+        "layouts.cube-8.statics_over_paper4",
         "repeats",
     ):
         assert name in table
