@@ -43,7 +43,7 @@ from controller.cli.formats import (
     path_remaining_m,
     status_tensions_n,
 )
-from controller.cli.pathcheck import PathFile, check_with_robot
+from controller.cli.pathcheck import PathFile, check_json_points, check_with_robot
 from controller.cli.session import (
     DEFAULT_ENDPOINT,
     DEFAULT_PREFIX,
@@ -198,7 +198,7 @@ def read_path_file(path: str, *, stream: bool = False) -> tuple[dict[str, Any], 
             payload = dict(data)
         else:
             raise InputError(f"{path}: expected a list of points or an object")
-        _check_json_points(path, payload.get("points_m"))
+        check_json_points(path, payload.get("points_m"))
     else:
         points: list[list[float]] = []
         line_of = []
@@ -244,23 +244,6 @@ def read_path_file(path: str, *, stream: bool = False) -> tuple[dict[str, Any], 
             where = f" (points {i * MAX_PATH_POINTS_SENT} on)" if i else ""
             raise InputError(f"{path}{where}: {exc}") from None
     return payload, line_of
-
-
-def _check_json_points(path: str, pts: Any) -> None:
-    """Refuse the points of a JSON path file as the daemon would, naming a bad one by its
-    position in the file from 1 (as the whole-file check does), not by its index in the
-    chunk it would be sent in. Raises InputError."""
-    from controller.core.commands import CommandError, parse_point
-
-    if not isinstance(pts, list):
-        return  # not a list: the command's own check names it
-    if not pts:
-        raise InputError(f"{path}: no points in it (an empty list): nothing to fly")
-    for i, p in enumerate(pts):
-        try:
-            parse_point(p, f"point {i + 1}")
-        except CommandError as exc:
-            raise InputError(f"{path}: {exc}") from None
 
 
 def _no_constant(name: str) -> Any:
