@@ -446,8 +446,10 @@ def _stream_path(
     precheck: Callable[[Any], None] | None = None,
 ) -> int:
     """Stream a long path (`pathstream.stream_points`), then with --wait follow it to its end
-    as `_motion` does; Ctrl-C brakes to a hold (`_interrupted`). With `append` (the file's
-    `"append": true`) the first chunk too is appended to the path in progress."""
+    as `_motion` does; Ctrl-C, SIGTERM and SIGHUP brake to a hold (`_interrupted`) while it
+    streams or is waited on, as for `gcode` (a path cut off where its sender died is not the
+    path asked for), unless `--detach`. With `append` (the file's `"append": true`) the first
+    chunk too is appended to the path in progress."""
     from controller.cli.pathstream import StreamRefused, stream_points
 
     def body(session: Any) -> int:
@@ -479,7 +481,7 @@ def _stream_path(
 
         t0 = time.monotonic()
         try:
-            with signals_interrupt(_waits_for_motion(args)):
+            with signals_interrupt(not getattr(args, "detach", False)):
                 return _stream(send, status, drain, line, poses, t0)
         except KeyboardInterrupt:
             line.clear()
@@ -585,7 +587,8 @@ def _motion(
 WAIT_SIGNALS: tuple[signal.Signals, ...] = tuple(
     getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)
 )
-"""Signals that, while a motion is waited on, count as Ctrl-C (the terminal closed, `kill`)."""
+"""Signals that, while a motion is waited on or a stream is sent, count as Ctrl-C (the terminal
+closed, `kill`)."""
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:
