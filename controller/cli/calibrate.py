@@ -32,7 +32,7 @@ import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Final
 
 from controller.cli.client import (
     ARRIVED_TOL_M,
@@ -57,8 +57,9 @@ Vec3 = tuple[float, float, float]
 DEFAULT_MARGIN_RATIO = 0.05
 """`--auto` keeps this fraction of the workspace's smallest extent inside its limits."""
 
-AUTO_RECOMMENDED = 0
-"""`--auto` without N: visit `calibration.recommended_poses` poses."""
+AUTO_RECOMMENDED: Final = object()
+"""`--auto` without N: visit `calibration.recommended_poses` poses (a value no N can take,
+and not a string, which argparse would convert as if typed)."""
 
 SAMPLE_OVERHEAD_S = 0.5
 """Besides the settle time, what one `--auto` sample costs (command, status queries, the
@@ -325,7 +326,7 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
         _positive("--speed", args.speed)
         _positive("--settle-s", args.settle_s, allow_none=False)
         _positive("--still-m", args.still_m, allow_none=False)
-        if args.auto is not None and args.auto < 1:
+        if isinstance(args.auto, int) and args.auto < 1:
             raise InputError(f"--auto needs a number of poses >= 1, got {args.auto}")
         if args.count is not None and args.count < 1:
             raise InputError(f"--count must be >= 1, got {args.count}")
@@ -352,7 +353,7 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
                     f"(state {st.get('state')}; run `cablebot arm` first)"
                 )
             n_auto = args.auto
-            if n_auto == AUTO_RECOMMENDED:
+            if n_auto is AUTO_RECOMMENDED:
                 from controller.core.calibration import recommended_poses
 
                 n_auto = recommended_poses(len(node_ids))

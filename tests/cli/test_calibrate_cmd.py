@@ -493,3 +493,42 @@ def test_ctrl_c_during_collect_auto_brakes_to_a_hold(
     assert "interrupted: braking to a hold" in err
     assert sent[-1] == "stop", sent
     assert "move" in sent
+
+
+def test_collect_auto_without_a_count_visits_the_recommended_poses(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A bare `collect --auto` (as the docs show it) visits as many poses as `calibrate solve`
+    recommends for the daemon's cables (28 for four), not none (a fake session: the first
+    wait for a still pose ends the run)."""
+    from controller.cli import calibrate, client
+    from controller.core.calibration import recommended_poses
+
+    asked: list[int] = []
+    status = {
+        "state": "HOLDING",
+        "pose": {"position_m": [0.0, 0.0, 0.4]},
+        "config": {"name": "desk", "reels": [{"node_id": n} for n in range(4)]},
+    }
+
+    def fake_query(session: Any, key: str, payload: Any, timeout_s: float) -> Any:
+        return status if key.endswith("/status") else {"ok": True, "state": "HOLDING"}
+
+    def poses(summary: Any, n: int, *_a: Any) -> list[tuple[float, float, float]]:
+        asked.append(n)
+        return [(0.1, 0.0, 0.4)] * n
+
+    def ctrl_c(*_a: Any, **_k: Any) -> Any:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(calibrate, "query", fake_query)
+    monkeypatch.setattr(client, "query", fake_query)
+    monkeypatch.setattr(calibrate, "auto_poses", poses)
+    monkeypatch.setattr(calibrate, "auto_speed_mps", lambda *a: (0.2, 0.5))
+    monkeypatch.setattr(calibrate, "wait_still", ctrl_c)
+    monkeypatch.setattr(calibrate, "_run", lambda args, body: body(_FakeSession()))
+    code, out, err = run_cli(["calibrate", "collect", str(tmp_path / "s.csv"), "--auto"], capsys)
+    assert code == exitcodes.INTERRUPTED, (out, err)
+    assert "needs a number of poses" not in err, err
+    assert asked == [recommended_poses(4)] == [28], (asked, out, err)
+    assert f"visiting {recommended_poses(4)} poses" in out
