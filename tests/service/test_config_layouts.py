@@ -101,3 +101,34 @@ def test_a_layout_that_holds_the_payload_nowhere_is_refused(
     assert code == exitcodes.REFUSED
     assert "cannot hold the 1 kg payload anywhere in the workspace" in err
     assert "not a valid robot configuration" in err
+    # the reason is the lines' limit, not the layout: the cable and its tension where the
+    # tensions come closest to it
+    assert "do not surround" not in err
+    m = re.search(
+        r"where they come closest, at \(([-0-9., ]+)\) m, cable \d tension [-0-9.]+ N "
+        r"(above 5\.5 N \(limits\.max_tension_n 6 N|below 3\.5 N \(min_tension_n 3 N) ",
+        err,
+    )
+    assert m is not None, err
+    cfg = load_config(HP4)
+    at = tuple(float(v) for v in m.group(1).split(","))
+    assert Workspace.from_limits(cfg.limits, cfg.geometry).check_point(at) is None
+
+
+def test_check_config_shows_the_stretch_inside_the_pyramid(tmp_path: Path) -> None:
+    """The stretch line's poses on the workspace's centre line: at the narrow top of the
+    anchors' pyramid the centre line leaves the workspace, and the nearest sampled point
+    inside stands in (outside, the statics there pushes on lines: negative stretch)."""
+    from controller.cli.configs import describe
+
+    cfg = load_config(write(tmp_path, text_with(HP4, top_margin_m="0.1")))
+    ws = Workspace.from_limits(cfg.limits, cfg.geometry)
+    (x_lo, x_hi), (y_lo, y_hi), (_, top) = ws.box()
+    assert ws.check_point(((x_lo + x_hi) / 2, (y_lo + y_hi) / 2, top)) is not None
+    lines, _, data = describe(cfg)
+    assert [p["pose"] for p in data["stretch"]] == ["power-up", "floor", "middle", "top"]
+    for p in data["stretch"]:
+        assert ws.check_point(p["position_m"]) is None, p
+        assert max(p["stretch_m"]) > 1e-3, p  # tens of newtons on metres of EA 20 kN line
+    (line,) = [ln for ln in lines if ln.startswith("stretch")]
+    assert "e-1" not in line and "-0," not in line, line  # poses to a tenth of a millimetre
