@@ -132,3 +132,27 @@ def test_check_config_shows_the_stretch_inside_the_pyramid(tmp_path: Path) -> No
         assert max(p["stretch_m"]) > 1e-3, p  # tens of newtons on metres of EA 20 kN line
     (line,) = [ln for ln in lines if ln.startswith("stretch")]
     assert "e-1" not in line and "-0," not in line, line  # poses to a tenth of a millimetre
+
+
+def test_a_layout_that_must_hang_says_why(tmp_path: Path) -> None:
+    """A Hangprinter-like file (floor above the low anchors) whose anchors cannot surround an
+    effector is held to the hanging rule; the floor's refusal says why: the anchors lie in
+    one plane, or three anchors (always in one plane)."""
+    level = HP4.read_text().replace("[0.0, 0.0, 2.29983]", "[0.2, 0.3, -0.125]")
+    for low in ("-0.13153]", "-0.12128]", "-0.12182]"):
+        level = level.replace(low, "-0.125]")
+    with pytest.raises(ConfigError, match=r"floor_z_m: 0 m must be below the lowest anchor") as e:
+        load_config(write(tmp_path, level))
+    assert "the effector cannot work among these anchors: the anchors lie in one plane" in str(
+        e.value
+    )
+    text = HP4.read_text()
+    three = (
+        text[: text.index("[[reels]]                       # C, low")]
+        + text[text.index("[[reels]]                       # D, on the ceiling") :]
+    )
+    with pytest.raises(ConfigError, match=r"3 anchors cannot surround an effector"):
+        load_config(write(tmp_path, three))
+    # the anchors below the floor, not in one plane: no reason to add
+    with pytest.raises(ConfigError, match=r"highest anchor minus top_margin_m \(1\.89983 m\)$"):
+        load_config(write(tmp_path, text_with(HP4, floor_z_m="2.5")))
