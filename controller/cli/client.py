@@ -43,7 +43,7 @@ from controller.cli.formats import (
     path_remaining_m,
     status_tensions_n,
 )
-from controller.cli.pathcheck import PathFile, check_with_robot
+from controller.cli.pathcheck import PathFile, check_json_points, check_with_robot
 from controller.cli.session import (
     DEFAULT_ENDPOINT,
     DEFAULT_PREFIX,
@@ -198,6 +198,7 @@ def read_path_file(path: str, *, stream: bool = False) -> tuple[dict[str, Any], 
             payload = dict(data)
         else:
             raise InputError(f"{path}: expected a list of points or an object")
+        check_json_points(path, payload.get("points_m"))
     else:
         points: list[list[float]] = []
         line_of = []
@@ -216,6 +217,9 @@ def read_path_file(path: str, *, stream: bool = False) -> tuple[dict[str, Any], 
                 raise InputError(f"{path} line {n}: expected x,y,z, got {row}") from None
             points.append(_vec3(values, f"{path} line {n}"))
             line_of.append(n)
+        if not points:
+            what = "empty" if not text.strip() else "only a header, comments or blank lines"
+            raise InputError(f"{path}: no points in it ({what}): nothing to fly")
         payload = {"points_m": points}
     from controller.core.commands import CommandError, parse_command
 
@@ -442,8 +446,10 @@ def _stream_path(
     precheck: Callable[[Any], None] | None = None,
 ) -> int:
     """Stream a long path (`pathstream.stream_points`), then with --wait follow it to its end
-    as `_motion` does; Ctrl-C brakes to a hold (`_interrupted`). With `append` (the file's
-    `"append": true`) the first chunk too is appended to the path in progress."""
+    as `_motion` does; Ctrl-C, SIGTERM and SIGHUP brake to a hold (`_interrupted`) while it
+    streams or is waited on, as for `gcode` (a path cut off where its sender died is not the
+    path asked for), unless `--detach`. With `append` (the file's `"append": true`) the first
+    chunk too is appended to the path in progress."""
     from controller.cli.pathstream import StreamRefused, stream_points
 
     def body(session: Any) -> int:
@@ -475,7 +481,7 @@ def _stream_path(
 
         t0 = time.monotonic()
         try:
-            with signals_interrupt(_waits_for_motion(args)):
+            with signals_interrupt(not getattr(args, "detach", False)):
                 return _stream(send, status, drain, line, poses, t0)
         except KeyboardInterrupt:
             line.clear()
@@ -581,7 +587,8 @@ def _motion(
 WAIT_SIGNALS: tuple[signal.Signals, ...] = tuple(
     getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)
 )
-"""Signals that, while a motion is waited on, count as Ctrl-C (the terminal closed, `kill`)."""
+"""Signals that, while a motion is waited on or a stream is sent, count as Ctrl-C (the terminal
+closed, `kill`)."""
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:
