@@ -32,7 +32,7 @@ import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Final
 
 from controller.cli.client import (
     ARRIVED_TOL_M,
@@ -57,8 +57,9 @@ Vec3 = tuple[float, float, float]
 DEFAULT_MARGIN_RATIO = 0.05
 """`--auto` keeps this fraction of the workspace's smallest extent inside its limits."""
 
-AUTO_RECOMMENDED = 0
-"""`--auto` without N: visit `calibration.recommended_poses` poses."""
+AUTO_RECOMMENDED: Final = object()
+"""`--auto` without N: visit `calibration.recommended_poses` poses (a value no N can take,
+and not a string, which argparse would convert as if typed)."""
 
 SAMPLE_OVERHEAD_S = 0.5
 """Besides the settle time, what one `--auto` sample costs (command, status queries, the
@@ -325,7 +326,7 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
         _positive("--speed", args.speed)
         _positive("--settle-s", args.settle_s, allow_none=False)
         _positive("--still-m", args.still_m, allow_none=False)
-        if args.auto is not None and args.auto < 1:
+        if isinstance(args.auto, int) and args.auto < 1:
             raise InputError(f"--auto needs a number of poses >= 1, got {args.auto}")
         if args.count is not None and args.count < 1:
             raise InputError(f"--count must be >= 1, got {args.count}")
@@ -352,7 +353,7 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
                     f"(state {st.get('state')}; run `cablebot arm` first)"
                 )
             n_auto = args.auto
-            if n_auto == AUTO_RECOMMENDED:
+            if n_auto is AUTO_RECOMMENDED:
                 from controller.core.calibration import recommended_poses
 
                 n_auto = recommended_poses(len(node_ids))
@@ -468,13 +469,67 @@ def _mm(v: float | None) -> str:
     return "unbounded" if v is None else f"{v * 1e3:.2f} mm"
 
 
-def format_report(result: Any, config_path: str, samples_path: str) -> str:
-    """The human-readable report of a `Calibration`."""
+def stretch_model(cfg: Any) -> Any:
+    """The stretch factors of `cfg`'s elastic cables for `calibrate` (a function of anchors
+    and poses: ``(EA + t) / EA`` under the tensions the controller plans there, its tension
+    rule with those anchors), or None for rigid cables (no `cable_ea_n`). The function raises
+    CalibrationError naming the pose where the statics have no tensions. Raises nothing."""
+    if all(r.cable_ea_n is None for r in cfg.reels) or cfg.payload is None or cfg.tension is None:
+        return None
+    import numpy as np
+
+    from controller.core.calibration import CalibrationError
+    from controller.core.kinematics import Geometry, KinematicsError
+    from controller.core.stretch import CableStretch
+    from controller.service.config import tension_check
+
+    eas = [r.cable_ea_n for r in cfg.reels]
+    ones = [1.0] * len(eas)
+    hanging = bool(cfg.geometry.hanging)
+
+    def factors(anchors_m: Any, poses_m: Any) -> Any:
+        try:
+            geom = Geometry(anchors_m, hanging=hanging)
+            model = CableStretch(geom, eas, tension_check(cfg.payload, cfg.tension, geom))
+        except (KinematicsError, ValueError) as exc:
+            raise CalibrationError(f"the cables' stretch at the fitted anchors: {exc}") from None
+        out = np.empty((len(poses_m), len(eas)))
+        for k, p in enumerate(np.asarray(poses_m, dtype=np.float64).tolist()):
+            try:
+                out[k] = model.stretched_m(ones, model.tensions_n(p))
+            except (KinematicsError, ValueError) as exc:
+                raise CalibrationError(f"sample {k + 1}: the cables' stretch: {exc}") from None
+        return out
+
+    return factors
+
+
+def most_stretch_m(stretch: Any, anchors_m: Any, poses_m: Any) -> float:
+    """The most any cable stretched at `poses_m` (K, 3) by the factors of `stretch`. Raises
+    what `stretch` raises."""
+    import numpy as np
+
+    lengths = np.linalg.norm(np.asarray(poses_m)[:, None, :] - np.asarray(anchors_m)[None], axis=2)
+    return float(np.max(lengths - lengths / stretch(anchors_m, poses_m)))
+
+
+def format_report(
+    result: Any, config_path: str, samples_path: str, stretch_m: float | None = None
+) -> str:
+    """The human-readable report of a `Calibration` (`stretch_m`: the most any cable stretched
+    at a sample, when the cables' stretch was taken out)."""
     n = len(result.node_ids)
     lines = [
         f"calibration of {config_path} from {samples_path}: {result.poses_m.shape[0]} poses x "
         f"{n} cables ({result.redundancy} redundant equations)",
         "frame: the new anchors are the best-fit rigid (Kabsch) alignment to the configured ones",
+    ]
+    if stretch_m is not None:
+        lines.append(
+            "stretch: each cable's length is what its reel paid out, stretched by the tension "
+            f"planned at the sample (cable_ea_n; up to {stretch_m * 1e3:.2f} mm)"
+        )
+    lines += [
         "",
         f"{'anchor':>6} {'node':>4}  {'configured x y z (m)':^29}  {'calibrated x y z (m)':^29}"
         f"  {'|d| mm':>7}{'dx':>7}{'dy':>7}{'dz':>7}{'±1σ mm':>9}",
@@ -580,6 +635,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
         )
         samples = parse_samples(samples_text, args.samples, cfg.node_ids)
         _, _, (z_lo, z_hi) = Workspace.from_limits(cfg.limits, cfg.geometry).box()
+        stretch = stretch_model(cfg)
         result = calibrate(
             cfg.anchors_m,
             [r.reel for r in cfg.reels],
@@ -587,11 +643,16 @@ def cmd_solve(args: argparse.Namespace) -> int:
             settings,
             pose_height_m=z_hi - z_lo,
             hanging=cfg.geometry.hanging,
+            stretch=stretch,
+        )
+        stretch_m = (
+            None if stretch is None else most_stretch_m(stretch, result.anchors_m, result.poses_m)
         )
     except (CalibrationError, CalibrationUnavailable) as exc:
         return refuse(str(exc))
 
     out = result.as_dict()
+    out["stretch_m"] = stretch_m
     written: dict[str, str] = {}
     problem: str | None = None
     if (args.write or args.write_offsets) and not result.ok:
@@ -624,7 +685,14 @@ def cmd_solve(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(out, allow_nan=False))
     else:
-        print(format_report(result, args.config or "the built-in robot", args.samples))
+        print(
+            format_report(
+                result,
+                args.config or "the built-in robot",
+                args.samples,
+                stretch_m,
+            )
+        )
         for what, path in written.items():
             print(f"wrote {what}: {path}")
         if "offsets" in written:

@@ -135,13 +135,18 @@ def check_loaded(path: str, lines: Sequence[Line], cfg: Any, start_m: Sequence[f
 
 def job_warnings(job: Job, cfg: Any) -> list[str]:
     """What about the job cannot be meant on this robot (`controller.core.scale`: motions a
-    thousandth of the workspace across, a file written in metres). Raises nothing."""
-    from controller.core.scale import tiny_job_problem
+    thousandth of the workspace across, a file written in metres; an M203 read in the other
+    dialect's unit). Raises nothing."""
+    from controller.core.scale import speed_limit_problem, tiny_job_problem
     from controller.core.workspace import Workspace
 
     extent = max(h - low for low, h in zip(*job.bbox_m, strict=True))
-    why = tiny_job_problem(extent, Workspace.from_limits(cfg.limits, cfg.geometry).box())
-    return [] if why is None else [why]
+    why = [tiny_job_problem(extent, Workspace.from_limits(cfg.limits, cfg.geometry).box())]
+    if job.speed_limit is not None:
+        line_no, limit = job.speed_limit
+        per_minute = cfg.gcode.dialect == "reprapfirmware"
+        why.append(speed_limit_problem(line_no, limit, job.fastest_feed_mps, per_minute))
+    return [w for w in why if w is not None]
 
 
 def warn(messages: Sequence[str]) -> None:

@@ -197,6 +197,10 @@ class Job:
     accel_mps2: float = math.inf
     """The lowest acceleration limit in effect at any point of the job (the frame's, or lower
     by `M201`/`M204`)."""
+    speed_limit: tuple[int, float] | None = None
+    """(line, m/s) of the `M203` that lowered the speed limit the most, if one did."""
+    fastest_feed_mps: float = 0.0
+    """The fastest feed the job's F words ask for (with `M220`), before any limit."""
 
 
 # -------------------------------------------------------------------------- the interpreter
@@ -267,6 +271,8 @@ class Interpreter:
         why = check_speed(v)
         if why is not None:
             raise JobError(line_no, f"feed F{self.feed_per_min:g} ({v:.4g} m/s): {why}")
+        if v > self.job.fastest_feed_mps:
+            self.job.fastest_feed_mps = v
         return min(v, self.max_speed_mps)
 
     def _note(self, table: dict[str, int], code: str) -> None:
@@ -507,6 +513,9 @@ class Interpreter:
             return None
         if code == "M203":
             self.max_speed_mps = min(self.frame.max_speed_mps, min(vals))
+            low = self.job.speed_limit
+            if min(vals) < self.frame.max_speed_mps and (low is None or min(vals) < low[1]):
+                self.job.speed_limit = (n, min(vals))
         else:
             self.max_accel_mps2 = min(self.frame.max_accel_mps2, min(vals))
             self.job.accel_mps2 = min(self.job.accel_mps2, self.max_accel_mps2)

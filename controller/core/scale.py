@@ -1,6 +1,7 @@
 """Values that cannot be meant: a speed or a job whose size is off by a unit's factor for the
 robot it is given to (a speed in mm/s where m/s is asked for, a G-code file written in metres
-where millimetres are read). Pure: numbers in, a reason out.
+where millimetres are read, a job's M203 read in the other dialect's unit). Pure: numbers in,
+a reason out.
 """
 
 from __future__ import annotations
@@ -13,6 +14,9 @@ MIN_CROSSING_S = 0.05
 TINY_JOB_M = 0.005
 """A job whose motions span less than this (its bounding box's longest side), or less than a
 `UNIT_FACTOR`th of the workspace's longest side, ..."""
+SLOW_LIMIT_RATIO = 10.0
+"""A job's M203 that lowers the speed this many times below the job's own feeds is taken for
+the other dialect's unit (mm/s and mm/min are 60 apart)."""
 TINY_JOB_RATIO = 100.0
 """... on a robot whose workspace is at least this many times `TINY_JOB_M` long is taken for
 a unit mistake."""
@@ -59,4 +63,24 @@ def tiny_job_problem(extent_m: float, workspace_box: Sequence[tuple[float, float
         f"the job's motions span only {extent_m * 1e3:.3g} mm on a robot whose workspace is"
         f" {side:.3g} m long: is the file written in metres? G-code lengths are millimetres"
         " (G21) or inches (G20), and [gcode] units sets the unit a job starts in"
+    )
+
+
+def speed_limit_problem(
+    line_no: int, limit_mps: float, fastest_feed_mps: float, per_minute: bool
+) -> str | None:
+    """Why a job's `M203` at `line_no`, which limits it to `limit_mps`, is likely read in the
+    wrong unit: the job's own feeds ask for `SLOW_LIMIT_RATIO` times that or more (Marlin
+    writes M203 in mm/s, RepRapFirmware in mm/min: `per_minute` says which was read), or None.
+    Raises nothing."""
+    if not (limit_mps > 0.0 and fastest_feed_mps >= SLOW_LIMIT_RATIO * limit_mps):
+        return None
+    read, other, other_dialect = (
+        ("mm/min", "mm/s", "marlin") if per_minute else ("mm/s", "mm/min", "reprapfirmware")
+    )
+    return (
+        f"line {line_no}: M203 limits the job to {limit_mps * 1e3:.4g} mm/s (read in {read}),"
+        f" {fastest_feed_mps / limit_mps:.0f} times below the feeds it asks for (up to"
+        f" {fastest_feed_mps * 1e3:.4g} mm/s): was it written in {other}? ([gcode] dialect ="
+        f' "{other_dialect}" reads it so)'
     )

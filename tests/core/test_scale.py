@@ -10,6 +10,7 @@ from controller.core.scale import (
     TINY_JOB_M,
     TINY_JOB_RATIO,
     UNIT_FACTOR,
+    speed_limit_problem,
     speed_scale_problem,
     tiny_job_problem,
 )
@@ -69,3 +70,16 @@ def test_a_job_is_flagged_exactly_when_it_fits_in_a_thousandth_or_5_mm_of_a_big_
     flagged = tiny_job_problem(extent_m, box) is not None
     big = side_m >= TINY_JOB_RATIO * TINY_JOB_M
     assert flagged == (big and 0.0 < extent_m < max(TINY_JOB_M, side_m / UNIT_FACTOR))
+
+
+def test_an_m203_far_below_the_jobs_feeds_is_taken_for_the_other_dialect() -> None:
+    # Marlin's M203 X200 (mm/s) read as RepRapFirmware's mm/min, feeds up to 120 mm/s
+    why = speed_limit_problem(13, 0.2 / 60.0, 0.12, per_minute=True)
+    assert why is not None and why.startswith("line 13: M203 limits the job to 3.333 mm/s")
+    assert '"marlin"' in why and "36 times below" in why
+    why = speed_limit_problem(5, 0.001, 0.02, per_minute=False)
+    assert why is not None and '"reprapfirmware"' in why and "(read in mm/s)" in why
+    # a limit the feeds stay near is meant: a slow first layer, a cautious job
+    assert speed_limit_problem(13, 0.2, 0.12, per_minute=True) is None
+    assert speed_limit_problem(13, 0.02, 0.19, per_minute=False) is None
+    assert speed_limit_problem(13, 0.0, 0.19, per_minute=False) is None
