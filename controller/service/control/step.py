@@ -172,7 +172,7 @@ class ControlStep(CommandExecution):
             # The pose is where the effector was when the readings were taken; the set-point has
             # moved on since by at most its speed times their age (a late reading on a busy
             # computer is not a lag of the robot; a stale one faults on its own).
-            v = self.planner.velocity_mps
+            v = self.shaping.velocity_mps
             allowed = (
                 self._tracking_max_m
                 + math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) * oldest_age_s
@@ -219,6 +219,7 @@ class ControlStep(CommandExecution):
     def _hold_at(self, p: Vec3) -> None:
         """Hold at `p`; _Fault if the payload cannot be held there (the tension rule)."""
         self.planner.hold(p)
+        self.shaping.reset(p)
         self.setpoint_m = p
         self.setpoint_lengths_m = None
         if self.tension is not None:
@@ -254,10 +255,16 @@ class ControlStep(CommandExecution):
                 and self.planner.moving
             ):
                 self._set_state(State.MOVING, "velocity")
-        sp = self.planner.advance(dt)
-        sp = (float(sp[0]), float(sp[1]), float(sp[2]))
+        raw = self.planner.advance(dt)
+        raw = (float(raw[0]), float(raw[1]), float(raw[2]))
+        if not (math.isfinite(raw[0]) and math.isfinite(raw[1]) and math.isfinite(raw[2])):
+            raise _Fault(f"nan_setpoint: planner gave {raw}")
+        shaping = self.shaping
+        sp = shaping.shape(
+            raw, self.planner.velocity_mps, dt, self.setpoint_m, self.planned_tensions_n
+        )
         if not (math.isfinite(sp[0]) and math.isfinite(sp[1]) and math.isfinite(sp[2])):
-            raise _Fault(f"nan_setpoint: planner gave {sp}")
+            raise _Fault(f"nan_setpoint: shaper gave {sp}")
         reason = self.workspace.check_point(sp)
         if reason is not None:
             raise _Fault(f"limit: set-point {_fmt(sp)}: {reason}")
@@ -281,13 +288,14 @@ class ControlStep(CommandExecution):
                 raise _Fault(f"cable_speed: {reason}")
         reels = self.reels
         rev = [reels[i].position_rev(paid[i]) for i in range(self.n)]
-        ff = self._velocity_ff(sp, self.planner.velocity_mps, lengths, rev)
+        ff = self._velocity_ff(sp, shaping.velocity_mps, lengths, rev)
         self._send(rev, ff)
         self.commanded_rev = rev
         self.commanded_ff_rps = ff
         self.setpoint_m = sp
         self.setpoint_lengths_m = lengths
-        if self.state is State.MOVING and not self.planner.moving:
+        if self.state is State.MOVING and not self.planner.moving and shaping.settled:
+            shaping.take_pending(sp)
             self._set_state(State.HOLDING)
 
     def _plan_tensions(self, sp: Vec3) -> None:
@@ -400,15 +408,17 @@ class ControlStep(CommandExecution):
         on a path, braking along it, longer through corner arcs; 0 when still). Thread-safe:
         read while the loop may change the planner, it is retried and, should the planner keep
         changing under it, bounded from the speed at the corner arcs' braking share of the
-        acceleration (`BRAKE_ACCEL_SHARE`). Raises nothing."""
+        acceleration (`BRAKE_ACCEL_SHARE`). With input shaping the shaped set-point arrives
+        the shaper's delay later. Raises nothing."""
         planner = self.planner
+        lag = self.shaping.max_delay_s()
         for _ in range(3):
             try:
                 t = planner.brake_time_s
             except (RuntimeError, IndexError):  # the deque changed while it was walked
                 continue
             if math.isfinite(t) and t >= 0.0:
-                return t
+                return t + (0.0 if t == 0.0 and self.shaping.settled else lag)
         vx, vy, vz = planner.velocity_mps
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)
-        return speed / (float(self.cfg.limits.max_accel_mps2) * BRAKE_ACCEL_SHARE)
+        return speed / (float(self.cfg.limits.max_accel_mps2) * BRAKE_ACCEL_SHARE) + lag
