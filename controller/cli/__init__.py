@@ -19,6 +19,7 @@ _MODULES: tuple[str, ...] = (
     "controller.cli.client",  # list, pose, status, move, path, stop, estop, arm, disarm, ...
     "controller.cli.offline",  # ipk, fpk
     "controller.cli.statics_cmd",  # statics, workspace
+    "controller.cli.modes_cmd",  # modes
     "controller.cli.configs",  # check-config, init-config
     "controller.cli.monitor",  # monitor
     "controller.cli.jog",  # jog
