@@ -20,6 +20,7 @@ _MODULES: tuple[str, ...] = (
     "controller.cli.offline",  # ipk, fpk
     "controller.cli.statics_cmd",  # statics, workspace
     "controller.cli.modes_cmd",  # modes
+    "controller.cli.resonance",  # resonance
     "controller.cli.configs",  # check-config, init-config
     "controller.cli.monitor",  # monitor
     "controller.cli.jog",  # jog

@@ -42,11 +42,15 @@ class _Clock:
     def __call__(self) -> float:
         return self.now_s
 
+    def wall_ns(self) -> int:
+        """The same time as a wall clock in ns."""
+        return int(self.now_s * 1e9)
+
 
 class PlantDriver:
     """A `drivers.base.ReelDriver` whose reels carry a `ReelPlant`: ideal drives (each axis
-    reads the turns last commanded, in closed loop after `arm`), the plant stepped by `step`.
-    No bus, no frames."""
+    reads the turns last commanded, in closed loop after `arm`, and the torque its cable
+    needs, as torque telemetry), the plant stepped by `step`. No bus, no frames."""
 
     def __init__(self, node_ids: Sequence[int], plant: Any, clock: _Clock) -> None:
         from drivers.base import AxisReading, BusStats
@@ -70,12 +74,15 @@ class PlantDriver:
         """Every reading fresh at the clock's time, each axis at its commanded turns."""
         now = self._clock.now_s
         now_ns = int(now * 1e9)
+        torques = self.plant.torques_nm
         for i, r in enumerate(self._readings):
             r.position_rev = self._turns[i]
             r.stamp_s = now
             r.stamp_ns = now_ns
             r.heartbeat_stamp_s = now
             r.status_stamp_s = now
+            r.torque_nm = torques[i]
+            r.torque_stamp_s = now
         return len(self._readings)
 
     def read(self) -> Sequence[Any]:
@@ -169,12 +176,13 @@ def robot_config(
     start_m: Vec3,
     shaper: dict[str, Any] | None,
     max_tension_n: float | None = None,
+    telemetry: str = "off",
 ) -> Any:
     """The robot of TOML `data` carrying `mass_kg` from `start_m`, its reels modelled with EA
     `model_ea_n`, the simulated plant's cables of `plant_ea_n` with realistic ropes
     (`PLANT_DAMPING_RATIO`) and a light drag, the `[shaper]` keys `shaper` (None: off),
-    generous faults (a measurement, not a fault test) and `max_tension_n` if given. Raises
-    ConfigError."""
+    generous faults (a measurement, not a fault test), `max_tension_n` if given and the torque
+    `telemetry` ("off", "cyclic"). Raises ConfigError."""
     import copy
 
     from controller.service.config import parse_config
@@ -200,6 +208,7 @@ def robot_config(
         "effector_damping_n_s_per_m": DRAG_PER_S * mass_kg,
     }
     d["shaper"] = {"type": "off"} if shaper is None else dict(shaper)
+    d["loop"] = {**d.get("loop", {}), "torque_telemetry": telemetry}
     return parse_config(d, f"<vibration {d.get('name', 'robot')}>")
 
 
@@ -208,7 +217,7 @@ class PlantRig:
     its power-up pose with the plant at rest there, armed. Raises RuntimeError if it does not
     arm."""
 
-    def __init__(self, cfg: Any) -> None:
+    def __init__(self, cfg: Any, publisher: Any = None) -> None:
         from controller.core import kinematics
         from controller.core.commands import Arm
         from controller.core.states import State
@@ -222,7 +231,9 @@ class PlantRig:
         self.plant = sim_plant(cfg, turns)
         self.clock = _Clock()
         self.driver = PlantDriver([r.node_id for r in cfg.reels], self.plant, self.clock)
-        self.ctl = Controller(cfg, self.driver, clock=self.clock)
+        self.ctl = Controller(
+            cfg, self.driver, publisher, clock=self.clock, wall_clock_ns=self.clock.wall_ns
+        )
         self.period_s = 1.0 / float(cfg.loop.rate_hz)
         self.tick(2)
         self.ctl.submit(Arm())
@@ -294,3 +305,66 @@ def _off_line(p: Sequence[float] | None, a: Vec3, b: Vec3, span: float) -> float
     w = [p[i] - a[i] for i in range(3)]
     t = sum(d[i] * w[i] for i in range(3)) / (span * span)
     return math.dist(p, tuple(a[i] + t * d[i] for i in range(3)))
+
+
+class RecordingPublisher:
+    """A `controller.service.pose.Publisher` keeping every pose sample as its JSON object."""
+
+    def __init__(self) -> None:
+        self.samples: list[dict[str, Any]] = []
+
+    def publish_pose(self, sample: Any) -> None:
+        """Keep the sample (decoded from its JSON)."""
+        import json
+
+        self.samples.append(json.loads(sample.to_json_bytes()))
+
+    def publish_state(self, state: str, reason: str | None, stamp_ns: int) -> None:
+        """Nothing to keep."""
+
+
+class RigLink:
+    """`controller.cli.resonance.Link` over a `PlantRig` built with a `RecordingPublisher`:
+    commands parsed as the Zenoh interface parses them and taken by the next ticks, the pose
+    samples the rig published, time passing as ticks."""
+
+    def __init__(self, rig: PlantRig, poses: RecordingPublisher) -> None:
+        self.rig = rig
+        self.poses = poses
+
+    def status(self) -> dict[str, Any]:
+        """The controller's status."""
+        status: dict[str, Any] = self.rig.ctl.status()
+        return status
+
+    def command(self, verb: str, payload: dict[str, Any] | None) -> dict[str, Any]:
+        """Submit the command, tick until answered; raises Refused with its reason."""
+        import json
+
+        from controller.cli.session import Refused
+        from controller.core.commands import CommandError, parse_command
+
+        try:
+            cmd = parse_command(verb, None if payload is None else json.dumps(payload))
+        except CommandError as exc:
+            raise Refused(str(exc)) from None
+        fut = self.rig.ctl.submit(cmd)
+        for _ in range(100):
+            self.rig.tick(1)
+            if fut.done():
+                break
+        exc = fut.exception(timeout=0)
+        if exc is not None:
+            raise Refused(str(exc))
+        reply: dict[str, Any] = fut.result(timeout=0)
+        return reply
+
+    def take_samples(self) -> list[dict[str, Any]]:
+        """The samples published since the last call."""
+        out = self.poses.samples
+        self.poses.samples = []
+        return out
+
+    def pause(self, seconds: float) -> None:
+        """`seconds` of ticks."""
+        self.rig.tick(max(1, round(seconds / self.rig.period_s)))
