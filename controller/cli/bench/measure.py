@@ -40,6 +40,7 @@ from controller.cli.bench.settings import (
     TARGET_SIMPLIFIED_US,
     Plan,
 )
+from controller.cli.bench.shaping import measure_shaping
 from controller.cli.bench.stretch import measure_stretch
 from controller.cli.bench.table import Row, _frames_row
 
@@ -461,6 +462,9 @@ def measure(
         rows += part
     if "compute" in sections:
         result["compute_per_tick"], part = measure_compute(p, log)
+        rows += part
+    if "shaping" in sections:
+        result["shaping_per_tick"], part = measure_shaping(p, log)
         rows += part
     # The JSON keeps the documented order whatever ran.
     result = {key: result[key] for key in JSON_KEYS if key in result}

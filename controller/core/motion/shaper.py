@@ -191,90 +191,68 @@ def residual_vibration(
 
 
 class _Stage:
-    """One mode's train applied to a stream of set-points: a ring of past (time, position,
-    velocity) samples and the impulses' places in it."""
+    """One mode's train applied to a stream of set-points: a ring of past (time, x, y, z)
+    samples (entries updated in place) and each impulse's place in it."""
 
-    __slots__ = (
-        "amps",
-        "cap",
-        "count",
-        "cursor",
-        "delays",
-        "t",
-        "unit_times",
-        "vx",
-        "vy",
-        "vz",
-        "x",
-        "y",
-        "z",
-    )
+    __slots__ = ("amps", "cap", "count", "cursor", "delays", "ring", "unit_times")
 
     def __init__(self, amps: Sequence[float], unit_times: Sequence[float], capacity: int) -> None:
         self.amps = tuple(amps)
         self.unit_times = tuple(unit_times)
         self.delays = [0.0] * len(self.amps)
         self.cap = capacity
-        self.t = [0.0] * capacity
-        self.x = [0.0] * capacity
-        self.y = [0.0] * capacity
-        self.z = [0.0] * capacity
-        self.vx = [0.0] * capacity
-        self.vy = [0.0] * capacity
-        self.vz = [0.0] * capacity
+        self.ring = [[0.0, 0.0, 0.0, 0.0] for _ in range(capacity)]
         self.count = 0
         self.cursor = [0] * len(self.amps)
 
     def reset(self, now_s: float, p: Vec3) -> None:
         self.count = 0
-        self.push(now_s, p, (0.0, 0.0, 0.0))
+        self.push(now_s, p)
         self.cursor = [0] * len(self.amps)
 
-    def push(self, now_s: float, p: Vec3, v: Vec3) -> None:
-        i = self.count % self.cap
-        self.t[i] = now_s
-        self.x[i] = p[0]
-        self.y[i] = p[1]
-        self.z[i] = p[2]
-        self.vx[i] = v[0]
-        self.vy[i] = v[1]
-        self.vz[i] = v[2]
+    def push(self, now_s: float, p: Vec3) -> None:
+        e = self.ring[self.count % self.cap]
+        e[0] = now_s
+        e[1] = p[0]
+        e[2] = p[1]
+        e[3] = p[2]
         self.count += 1
 
-    def output(self, now_s: float, period_s: float) -> tuple[Vec3, Vec3]:
+    def output(self, now_s: float, period_s: float) -> Vec3:
         """The train applied at `now_s` (the newest sample's time) with the delays set."""
         cap = self.cap
+        ring = self.ring
+        cursor = self.cursor
+        delays = self.delays
         newest = self.count - 1
-        oldest = max(0, self.count - cap)
-        t = self.t
-        px = py = pz = wx = wy = wz = 0.0
+        oldest = self.count - cap if self.count > cap else 0
+        px = py = pz = 0.0
         for k, a in enumerate(self.amps):
-            when = now_s - self.delays[k]
-            c = self.cursor[k]
+            when = now_s - delays[k]
+            c = cursor[k]
             if c < oldest or c > newest:
-                c = newest - int(self.delays[k] / period_s)
+                c = newest - int(delays[k] / period_s)
                 c = oldest if c < oldest else newest if c > newest else c
-            while c > oldest and t[c % cap] > when:
+            while c > oldest and ring[c % cap][0] > when:
                 c -= 1
-            while c < newest and t[(c + 1) % cap] <= when:
+            while c < newest and ring[(c + 1) % cap][0] <= when:
                 c += 1
-            self.cursor[k] = c
-            i = c % cap
-            if c == newest or t[i] >= when:
-                f = 0.0
-                j = i
-            else:
-                j = (c + 1) % cap
-                span = t[j] - t[i]
-                f = (when - t[i]) / span if span > 0.0 else 0.0
-            g = 1.0 - f
-            px += a * (g * self.x[i] + f * self.x[j])
-            py += a * (g * self.y[i] + f * self.y[j])
-            pz += a * (g * self.z[i] + f * self.z[j])
-            wx += a * (g * self.vx[i] + f * self.vx[j])
-            wy += a * (g * self.vy[i] + f * self.vy[j])
-            wz += a * (g * self.vz[i] + f * self.vz[j])
-        return (px, py, pz), (wx, wy, wz)
+            cursor[k] = c
+            e = ring[c % cap]
+            t0 = e[0]
+            if c == newest or t0 >= when:
+                px += a * e[1]
+                py += a * e[2]
+                pz += a * e[3]
+                continue
+            n = ring[(c + 1) % cap]
+            span = n[0] - t0
+            f = a * (when - t0) / span if span > 0.0 else 0.0
+            g = a - f
+            px += g * e[1] + f * n[1]
+            py += g * e[2] + f * n[2]
+            pz += g * e[3] + f * n[3]
+        return (px, py, pz)
 
 
 class InputShaper:
@@ -368,8 +346,8 @@ class InputShaper:
 
     @property
     def velocity_mps(self) -> Vec3:
-        """The shaped set-point's velocity at the last tick (the trains applied to the
-        unshaped velocity)."""
+        """The shaped set-point's velocity over the last tick (its change over the tick's
+        time: half a tick behind; the unshaped velocity once settled)."""
         return self._out_v
 
     @property
@@ -406,8 +384,8 @@ class InputShaper:
         """The shaped set-point for the unshaped `position_m` moving at `velocity_mps`, `dt_s`
         after the last call, with each stage's mode at `frequencies_hz` (ascending; None or a
         short or non-finite tuple keeps the last ones; below the floor: the floor). Its velocity
-        is `velocity_mps` afterwards. Once settled, exactly `position_m`. Raises nothing for
-        finite inputs."""
+        is `velocity_mps` afterwards. Once settled, exactly `position_m` (and `velocity_mps`,
+        zero then). Raises nothing for finite inputs."""
         if dt_s > 0.0:
             self._now_s += dt_s
         now = self._now_s
@@ -423,11 +401,11 @@ class InputShaper:
                     self._freqs[k] = f if f > floor else floor
         if self.settled:
             for stage in self._stages:
-                stage.push(now, position_m, velocity_mps)
+                stage.push(now, position_m)
             self._out_p = position_m
-            self._out_v = (0.0, 0.0, 0.0) if velocity_mps == (0.0, 0.0, 0.0) else velocity_mps
+            self._out_v = velocity_mps
             return position_m
-        p, v = position_m, velocity_mps
+        p = position_m
         period = self._period_s
         for stage, f in zip(self._stages, self._freqs, strict=True):
             if f == math.inf:
@@ -436,8 +414,15 @@ class InputShaper:
             delays = stage.delays
             for k, tk in enumerate(stage.unit_times):
                 delays[k] = tk * inv
-            stage.push(now, p, v)
-            p, v = stage.output(now, period)
+            stage.push(now, p)
+            p = stage.output(now, period)
+        last = self._out_p
+        if dt_s > 0.0:
+            inv_dt = 1.0 / dt_s
+            self._out_v = (
+                (p[0] - last[0]) * inv_dt,
+                (p[1] - last[1]) * inv_dt,
+                (p[2] - last[2]) * inv_dt,
+            )
         self._out_p = p
-        self._out_v = v
         return p
