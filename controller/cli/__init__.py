@@ -22,6 +22,7 @@ _MODULES: tuple[str, ...] = (
     "controller.cli.modes_cmd",  # modes
     "controller.cli.resonance",  # resonance
     "controller.cli.configs",  # check-config, init-config
+    "controller.cli.import_rrf",  # import-rrf
     "controller.cli.monitor",  # monitor
     "controller.cli.jog",  # jog
     "controller.cli.demo",  # demo

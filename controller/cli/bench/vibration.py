@@ -353,9 +353,9 @@ class RigLink:
             self.rig.tick(1)
             if fut.done():
                 break
-        exc = fut.exception(timeout=0)
-        if exc is not None:
-            raise Refused(str(exc))
+        failure = fut.exception(timeout=0)
+        if failure is not None:
+            raise Refused(str(failure))
         reply: dict[str, Any] = fut.result(timeout=0)
         return reply
 
