@@ -68,6 +68,9 @@ MIN_FREQUENCY_HZ = 0.05
 """The lowest frequency a shaper may target (a 20 s period)."""
 MAX_FREQUENCY_HZ = 1000.0
 """The highest frequency a shaper may target."""
+MAX_FREQUENCY_STEP = 0.005
+"""A stage's frequency changes by at most this fraction per tick (a mode's frequency follows
+the pose slowly; a jump would move the shaped set-point at once)."""
 VIBRATION_TOLERANCE = 0.05
 """The residual vibration the EI trains allow at their humps (the designs' V)."""
 
@@ -383,7 +386,8 @@ class InputShaper:
     ) -> Vec3:
         """The shaped set-point for the unshaped `position_m` moving at `velocity_mps`, `dt_s`
         after the last call, with each stage's mode at `frequencies_hz` (ascending; None or a
-        short or non-finite tuple keeps the last ones; below the floor: the floor). Its velocity
+        short or non-finite tuple keeps the last ones; below the floor: the floor; each moves
+        at most `MAX_FREQUENCY_STEP` a tick from the last). Its velocity
         is `velocity_mps` afterwards. Once settled, exactly `position_m` (and `velocity_mps`,
         zero then). Raises nothing for finite inputs."""
         if dt_s > 0.0:
@@ -395,10 +399,17 @@ class InputShaper:
             self._raw_v = velocity_mps
         if frequencies_hz is not None and len(frequencies_hz) >= len(self._stages):
             floor = self._floor_hz
+            freqs = self._freqs
             for k in range(len(self._stages)):
                 f = frequencies_hz[k]
                 if f == f and f < math.inf:  # finite
-                    self._freqs[k] = f if f > floor else floor
+                    if f < floor:
+                        f = floor
+                    old = freqs[k]
+                    if old < math.inf:  # no jumps: at most MAX_FREQUENCY_STEP a tick
+                        step = old * MAX_FREQUENCY_STEP
+                        f = old - step if f < old - step else old + step if f > old + step else f
+                    freqs[k] = f
         if self.settled:
             for stage in self._stages:
                 stage.push(now, position_m)

@@ -179,6 +179,13 @@ class ControllerState:
         """Tensions that hold the payload at the last good set-point (None: not known)."""
         self.planned_margin_n: float | None = None
         self._planned_at: Vec3 | None = None
+        self._held_n: tuple[float, ...] | None = None
+        """The tensions that hold the payload still at the last set-point planned (without the
+        m a share): the modes' stiffness."""
+        self._planned_acc: Vec3 = (0.0, 0.0, 0.0)
+        """The set-point's acceleration the planned tensions include (its m a share)."""
+        self._setpoint_v: Vec3 = (0.0, 0.0, 0.0)
+        """The set-point's velocity at the last tick (its change is the acceleration)."""
         self._measure = cfg.loop.torque_telemetry != "off"
         self.measured_tensions_n: list[float | None] = [None] * self.n
         """Tensions from the motors' torque telemetry (None: no fresh reading)."""

@@ -10,6 +10,7 @@ from collections.abc import Callable, Sequence
 
 from controller.core import kinematics
 from controller.core.commands import Vec3
+from controller.core.inertia import inertial_share, with_inertia
 from controller.core.motion import BRAKE_ACCEL_SHARE
 from controller.core.states import ARMED_STATES, State
 from controller.core.statics import StaticsError
@@ -18,6 +19,8 @@ from controller.service.control.commands import CommandExecution
 from controller.service.pose import PoseSample
 from controller.service.runner import SPIN_S, Runner
 from drivers.base import AxisReading, BusError
+
+_ZERO: Vec3 = (0.0, 0.0, 0.0)
 
 
 class ControlStep(CommandExecution):
@@ -220,6 +223,7 @@ class ControlStep(CommandExecution):
         """Hold at `p`; _Fault if the payload cannot be held there (the tension rule)."""
         self.planner.hold(p)
         self.shaping.reset(p)
+        self._setpoint_v = _ZERO
         self.setpoint_m = p
         self.setpoint_lengths_m = None
         if self.tension is not None:
@@ -260,9 +264,7 @@ class ControlStep(CommandExecution):
         if not (math.isfinite(raw[0]) and math.isfinite(raw[1]) and math.isfinite(raw[2])):
             raise _Fault(f"nan_setpoint: planner gave {raw}")
         shaping = self.shaping
-        sp = shaping.shape(
-            raw, self.planner.velocity_mps, dt, self.setpoint_m, self.planned_tensions_n
-        )
+        sp = shaping.shape(raw, self.planner.velocity_mps, dt, self.setpoint_m, self._held_n)
         if not (math.isfinite(sp[0]) and math.isfinite(sp[1]) and math.isfinite(sp[2])):
             raise _Fault(f"nan_setpoint: shaper gave {sp}")
         reason = self.workspace.check_point(sp)
@@ -275,8 +277,12 @@ class ControlStep(CommandExecution):
         reason = self.workspace.check_lengths(lengths)
         if reason is not None:
             raise _Fault(f"limit: {reason}")
-        if self.tension is not None and sp != self._planned_at:
-            self._plan_tensions(sp)
+        v = shaping.velocity_mps
+        pv = self._setpoint_v
+        self._setpoint_v = v
+        acc = ((v[0] - pv[0]) / dt, (v[1] - pv[1]) / dt, (v[2] - pv[2]) / dt)
+        if self.tension is not None and (sp != self._planned_at or acc != self._planned_acc):
+            self._plan_tensions(sp, acc)
         try:
             paid = self.cables.commanded_lengths_m(lengths, self.planned_tensions_n)
         except kinematics.KinematicsError as exc:
@@ -298,9 +304,11 @@ class ControlStep(CommandExecution):
             shaping.take_pending(sp)
             self._set_state(State.HOLDING)
 
-    def _plan_tensions(self, sp: Vec3) -> None:
-        """The tensions that hold the payload at set-point `sp`; _Fault if they break the
-        tension rule (limits and margin). A held set-point is solved once."""
+    def _plan_tensions(self, sp: Vec3, acc: Vec3 = _ZERO) -> None:
+        """The tensions that hold the payload at set-point `sp` and accelerate it at `acc`
+        (`controller.core.inertia`: the held distribution and the least-norm share of m a);
+        _Fault if the held distribution breaks the tension rule (limits and margin: the margin
+        is the room the share takes). A held set-point is solved once."""
         assert self.tension is not None
         # The FPK's tension derivative (cable stretch) comes with this solve, every 5 cm.
         want = self.cables.wants_derivative(sp)
@@ -313,9 +321,14 @@ class ControlStep(CommandExecution):
             raise _Fault(f"tension: set-point {_fmt(sp)}: {reason}")
         if want:
             self.cables.take_derivative(sp, res.derivative)
-        self.planned_tensions_n = res.tensions_n
+        planned = self._held_n = res.tensions_n
+        if acc != _ZERO:
+            share = inertial_share(self._anchors, sp, self.tension.mass_kg, acc)
+            planned = with_inertia(planned, share)
+        self.planned_tensions_n = planned
         self.planned_margin_n = res.margin_n
         self._planned_at = sp
+        self._planned_acc = acc
 
     def _velocity_ff(
         self, sp: Vec3, v_mps: Vec3, lengths: Sequence[float], rev: Sequence[float]
