@@ -21,6 +21,7 @@ _MODULES: tuple[str, ...] = (
     "controller.cli.statics_cmd",  # statics, workspace
     "controller.cli.modes_cmd",  # modes
     "controller.cli.resonance",  # resonance
+    "controller.cli.shaper_cmd",  # shaper
     "controller.cli.configs",  # check-config, init-config
     "controller.cli.import_rrf",  # import-rrf
     "controller.cli.monitor",  # monitor

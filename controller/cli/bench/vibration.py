@@ -8,8 +8,9 @@ elastic cables of `controller.core.plant.ReelPlant`, stepped once per tick: no b
 threads, deterministic. The plant's position is the truth. A rest-to-rest move is flown from
 the plant at rest; its end is the tick the controller is back in HOLDING (the shaped set-point
 has arrived); the residual vibration is the largest distance of the truth from where the
-commanded lengths bring the effector to rest (the target when the model is exact) over the
-`settle_s` after that end.
+commanded lengths bring the effector to rest (the target when the model is exact; taken at the
+end of the watch, when drives with a position loop have caught up) over the `settle_s` after
+that end.
 """
 
 from __future__ import annotations
@@ -48,17 +49,30 @@ class _Clock:
 
 
 class PlantDriver:
-    """A `drivers.base.ReelDriver` whose reels carry a `ReelPlant`: ideal drives (each axis
-    reads the turns last commanded, in closed loop after `arm`, and the torque its cable
-    needs, as torque telemetry), the plant stepped by `step`. No bus, no frames."""
+    """A `drivers.base.ReelDriver` whose reels carry a `ReelPlant` (the plant stepped by
+    `step`; each axis reports the torque its cable needs, as torque telemetry) and follow the
+    commanded turns: ideal drives (each axis at the turns last commanded, in closed loop after
+    `arm`), or with `drive` = (position gain (rev/s)/rev, velocity limit rev/s, acceleration
+    limit rev/s^2) the simulated ODrive's cascaded loop (`drivers.odrive.sim`: velocity =
+    feed-forward + gain x error, limited, in 1 ms sub-steps). No bus, no frames."""
 
-    def __init__(self, node_ids: Sequence[int], plant: Any, clock: _Clock) -> None:
+    def __init__(
+        self,
+        node_ids: Sequence[int],
+        plant: Any,
+        clock: _Clock,
+        drive: tuple[float, float, float] | None = None,
+    ) -> None:
         from drivers.base import AxisReading, BusStats
 
         self.node_ids = tuple(node_ids)
         self.plant = plant
         self._clock = clock
+        self._drive = drive
         self._turns = list(plant.positions_rev)
+        self._pos = list(self._turns)
+        self._vel = [0.0] * len(self._turns)
+        self._ff = [0.0] * len(self._turns)
         self._readings = [
             AxisReading(nid, position_rev=float(p), axis_state=1, state_name="IDLE")
             for nid, p in zip(self.node_ids, self._turns, strict=True)
@@ -67,16 +81,31 @@ class PlantDriver:
         self._armed = False
 
     def step(self, dt_s: float) -> None:
-        """Step the plant `dt_s` with the reels moving to the turns last commanded."""
-        self.plant.step(self._turns, dt_s)
+        """Step the plant `dt_s` with the reels moving to the turns last commanded (at once,
+        or through the drive's loop)."""
+        if self._drive is None:
+            self.plant.step(self._turns, dt_s)
+            return
+        gain, vmax, amax = self._drive
+        n = max(1, math.ceil(dt_s / 0.001))
+        h = dt_s / n
+        pos, vel, ff, cmd = self._pos, self._vel, self._ff, self._turns
+        for _ in range(n):
+            for i in range(len(pos)):
+                want = max(-vmax, min(vmax, ff[i] + gain * (cmd[i] - pos[i])))
+                v2 = vel[i] + max(-amax * h, min(amax * h, want - vel[i]))
+                pos[i] += 0.5 * (vel[i] + v2) * h
+                vel[i] = v2
+            self.plant.step(pos, h)
 
     def poll(self) -> int:
         """Every reading fresh at the clock's time, each axis at its commanded turns."""
         now = self._clock.now_s
         now_ns = int(now * 1e9)
         torques = self.plant.torques_nm
+        at = self._turns if self._drive is None else self._pos
         for i, r in enumerate(self._readings):
-            r.position_rev = self._turns[i]
+            r.position_rev = at[i]
             r.stamp_s = now
             r.stamp_ns = now_ns
             r.heartbeat_stamp_s = now
@@ -100,6 +129,8 @@ class PlantDriver:
             raise ValueError(f"non-finite set-point {list(positions_rev)}")
         if self._armed:
             self._turns = [float(v) for v in positions_rev]
+            if velocity_ff_rps is not None:
+                self._ff = [float(v) for v in velocity_ff_rps]
 
     def arm(self) -> None:
         """Every axis enters closed loop at once."""
@@ -214,15 +245,17 @@ def robot_config(
 
 class PlantRig:
     """The controller of `cfg` on a `PlantDriver` carrying `cfg`'s physical plant, homed at
-    its power-up pose with the plant at rest there, armed. Raises RuntimeError if it does not
-    arm."""
+    its power-up pose with the plant at rest there, armed; ideal drives, or with
+    `odrive_loop` the simulated ODrive's position loop (its gain, `[sim]`'s limits). Raises
+    RuntimeError if it does not arm."""
 
-    def __init__(self, cfg: Any, publisher: Any = None) -> None:
+    def __init__(self, cfg: Any, publisher: Any = None, *, odrive_loop: bool = False) -> None:
         from controller.core import kinematics
         from controller.core.commands import Arm
         from controller.core.states import State
         from controller.service.loop import Controller
         from controller.service.simulated import sim_plant
+        from drivers.odrive.sim import DEFAULT_POS_GAIN
 
         self.cfg = cfg
         pose = cfg.homing.power_up_position_m
@@ -230,7 +263,12 @@ class PlantRig:
         turns = [r.reel.position_rev(L) for r, L in zip(cfg.reels, lengths, strict=True)]
         self.plant = sim_plant(cfg, turns)
         self.clock = _Clock()
-        self.driver = PlantDriver([r.node_id for r in cfg.reels], self.plant, self.clock)
+        drive = (
+            (DEFAULT_POS_GAIN, float(cfg.sim.max_velocity_rps), float(cfg.sim.max_accel_rps2))
+            if odrive_loop
+            else None
+        )
+        self.driver = PlantDriver([r.node_id for r in cfg.reels], self.plant, self.clock, drive)
         self.ctl = Controller(
             cfg, self.driver, publisher, clock=self.clock, wall_clock_ns=self.clock.wall_ns
         )
@@ -289,11 +327,12 @@ class PlantRig:
             raise RuntimeError(f"the move ended in {ctl.state.value}: {ctl.reason}")
         duration = self.clock.now_s - t0
         delay = ctl.shaping.shaper.duration_s if ctl.shaping.shaper is not None else 0.0
-        rest = self.rest_point_m()
-        peak = 0.0
+        path = []
         for _ in range(round(settle_s / self.period_s)):
             self.tick(1)
-            peak = max(peak, math.dist(self.plant.position_m, rest))
+            path.append(self.plant.position_m)
+        rest = self.rest_point_m()  # the drives have caught up with the last commands by now
+        peak = max(math.dist(p, rest) for p in path)
         return MoveResult(duration, peak, math.dist(rest, target_m), delay, off_line)
 
 

@@ -68,6 +68,8 @@ MIN_FREQUENCY_HZ = 0.05
 """The lowest frequency a shaper may target (a 20 s period)."""
 MAX_FREQUENCY_HZ = 1000.0
 """The highest frequency a shaper may target."""
+_TIME_EPS_S = 1e-9
+"""Times this close count as equal (the planner's time is a sum of ticks)."""
 MAX_FREQUENCY_STEP = 0.005
 """A stage's frequency changes by at most this fraction per tick (a mode's frequency follows
 the pose slowly; a jump would move the shaped set-point at once)."""
@@ -360,10 +362,10 @@ class InputShaper:
 
     @property
     def settled(self) -> bool:
-        """True when the shaped set-point has arrived: the unshaped one has been still for
-        longer than the cascade reaches back (at the current frequencies, and a tick), so both
-        are the same point."""
-        return self._now_s - self._quiet_s > self.duration_s + self._period_s
+        """True when the shaped set-point has arrived: the unshaped one has been still for as
+        long as the cascade reaches back (at the current frequencies), so every impulse reads
+        where it stopped and both are the same point."""
+        return self._now_s - self._quiet_s >= self.duration_s - _TIME_EPS_S
 
     def reset(self, position_m: Sequence[float]) -> None:
         """Forget the past: the set-point is at rest at `position_m` (a hold). Raises
