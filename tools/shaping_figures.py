@@ -109,8 +109,9 @@ def target_for(cfg: Any, start: Vec3, direction: Vec3, length_m: float) -> Vec3 
     return None
 
 
-def moves(robot: str, kind: str, quick: bool) -> None:
-    """The residual-vibration matrix of `robot` (module docstring)."""
+def moves(robot: str, kind: str, quick: bool, only_kg: float | None = None) -> None:
+    """The residual-vibration matrix of `robot` (module docstring), of one payload `only_kg`
+    if given."""
     spec = ROBOTS[robot]
     data = robot_data(robot)
     poses = spec["poses"][:3] if quick else spec["poses"]
@@ -118,7 +119,7 @@ def moves(robot: str, kind: str, quick: bool) -> None:
     ratios: dict[tuple[float, float], dict[int, list[float]]] = {}
     gains: list[tuple[float, float]] = []
     t0 = time.monotonic()
-    for mass in spec["masses"]:
+    for mass in spec["masses"] if only_kg is None else (only_kg,):
         for pi, start in enumerate(poses):
             for direction in DIRECTIONS:
                 target = None
@@ -300,9 +301,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("robot", nargs="?", default="paper", choices=tuple(ROBOTS))
     ap.add_argument("--type", default=DEFAULT_SHAPER_TYPE, help="the shaper's type")
     ap.add_argument("--quick", action="store_true", help="three poses only")
+    ap.add_argument("--mass", type=float, default=None, help="one payload only (kg)")
     args = ap.parse_args(argv)
     if args.what == "moves":
-        moves(args.robot, args.type, args.quick)
+        moves(args.robot, args.type, args.quick, args.mass)
     else:
         paths(args.type)
     return 0

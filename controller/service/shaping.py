@@ -64,27 +64,12 @@ def mode_range(
     ea = model_ea(cfg)
     if None in ea:
         raise ModesError("a rigid model (no `[[reels]] cable_ea_n`) has no modes")
-    ws = Workspace.from_limits(cfg.limits, cfg.geometry)
-    (x0, x1), (y0, y1), (z0, z1) = ws.box()
-    grid = np.stack(
-        np.meshgrid(
-            np.linspace(x0, x1, steps[0]),
-            np.linspace(y0, y1, steps[1]),
-            np.linspace(z0, z1, steps[2]),
-            indexing="ij",
-        ),
-        axis=-1,
-    ).reshape(-1, 3)
-    inside = grid[ws.inside_points(grid)]
-    tensions, margin, _, _ = check.statics.solve_batch(inside, check.mass_kg)
     low = [math.inf] * 3
     high = [0.0] * 3
     dlow = [math.inf] * 3
     dhigh = [0.0] * 3
     points = skipped = 0
-    for p, t, mg in zip(inside.tolist(), tensions.tolist(), margin.tolist(), strict=True):
-        if not mg >= check.margin_n:
-            continue
+    for p, t in _holding_poses(cfg, check, steps):
         try:
             m = effector_modes(
                 cfg.anchors_m, p, t, ea, check.mass_kg, cable_damping_ratio=damping_ratio
@@ -108,6 +93,44 @@ def mode_range(
         points,
         skipped,
     )
+
+
+def lowest_frequency_hz(cfg: Any, check: TensionCheck, steps: Sequence[int] = RANGE_STEPS) -> float:
+    """The model's lowest natural frequency over the grid `mode_range` samples (the scalar
+    `ModeTracker`: a few microseconds a pose); inf where no pose has modes. Raises ModesError
+    for a rigid model, WorkspaceError for no workspace."""
+    tracker = ModeTracker(cfg.anchors_m, model_ea(cfg), check.mass_kg)
+    lowest = math.inf
+    for p, t in _holding_poses(cfg, check, steps):
+        f = tracker.frequencies_hz(p, t)
+        if f is not None and f[0] < lowest:
+            lowest = f[0]
+    return lowest
+
+
+def _holding_poses(
+    cfg: Any, check: TensionCheck, steps: Sequence[int]
+) -> list[tuple[list[float], list[float]]]:
+    """(pose, tensions) on a grid of the workspace box, inside the workspace, where statics
+    holds the payload within the tension rule."""
+    ws = Workspace.from_limits(cfg.limits, cfg.geometry)
+    (x0, x1), (y0, y1), (z0, z1) = ws.box()
+    grid = np.stack(
+        np.meshgrid(
+            np.linspace(x0, x1, steps[0]),
+            np.linspace(y0, y1, steps[1]),
+            np.linspace(z0, z1, steps[2]),
+            indexing="ij",
+        ),
+        axis=-1,
+    ).reshape(-1, 3)
+    inside = grid[ws.inside_points(grid)]
+    tensions, margin, _, _ = check.statics.solve_batch(inside, check.mass_kg)
+    return [
+        (p, t)
+        for p, t, mg in zip(inside.tolist(), tensions.tolist(), margin.tolist(), strict=True)
+        if mg >= check.margin_n
+    ]
 
 
 class LoopShaper:
@@ -140,9 +163,9 @@ class LoopShaper:
             self._tracker = ModeTracker(
                 cfg.anchors_m, model_ea(cfg), check.mass_kg, sc.frequency_scale
             )
-            rng = mode_range(cfg, check, sc.damping_ratio)
-            if rng is not None:
-                self._floor_hz = FLOOR_MARGIN * rng.low_hz[0] * sc.frequency_scale
+            lowest = lowest_frequency_hz(cfg, check)
+            if lowest < math.inf:
+                self._floor_hz = FLOOR_MARGIN * lowest * sc.frequency_scale
             else:
                 self._tracker = None
         self._check(sc.type, sc.frequency_hz, sc.damping_ratio)

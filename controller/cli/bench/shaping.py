@@ -12,7 +12,7 @@ from controller.cli.bench.compute import bench_compute
 from controller.cli.bench.settings import SHAPING_KEYS, TARGET_SHAPING_ADDED_US, Plan
 from controller.cli.bench.table import Row
 
-PAIRS = 3
+PAIRS = 5
 """Off/on pairs of compute runs."""
 
 

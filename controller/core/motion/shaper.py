@@ -196,67 +196,77 @@ def residual_vibration(
 
 
 class _Stage:
-    """One mode's train applied to a stream of set-points: a ring of past (time, x, y, z)
-    samples (entries updated in place) and each impulse's place in it."""
+    """One mode's train applied to a stream of set-points: a ring of past samples (time and
+    position in four flat lists, written in place) and each impulse's place in it."""
 
-    __slots__ = ("amps", "cap", "count", "cursor", "delays", "ring", "unit_times")
+    __slots__ = ("cap", "count", "cursor", "taps", "tt", "tx", "ty", "tz", "unit_times")
 
     def __init__(self, amps: Sequence[float], unit_times: Sequence[float], capacity: int) -> None:
-        self.amps = tuple(amps)
         self.unit_times = tuple(unit_times)
-        self.delays = [0.0] * len(self.amps)
+        self.taps = tuple(zip(range(len(amps)), amps, unit_times, strict=True))
         self.cap = capacity
-        self.ring = [[0.0, 0.0, 0.0, 0.0] for _ in range(capacity)]
+        self.tt = [0.0] * capacity
+        self.tx = [0.0] * capacity
+        self.ty = [0.0] * capacity
+        self.tz = [0.0] * capacity
         self.count = 0
-        self.cursor = [0] * len(self.amps)
+        self.cursor = [0] * len(amps)
 
     def reset(self, now_s: float, p: Vec3) -> None:
         self.count = 0
         self.push(now_s, p)
-        self.cursor = [0] * len(self.amps)
+        self.cursor = [0] * len(self.cursor)
 
     def push(self, now_s: float, p: Vec3) -> None:
-        e = self.ring[self.count % self.cap]
-        e[0] = now_s
-        e[1] = p[0]
-        e[2] = p[1]
-        e[3] = p[2]
+        i = self.count % self.cap
+        self.tt[i] = now_s
+        self.tx[i] = p[0]
+        self.ty[i] = p[1]
+        self.tz[i] = p[2]
         self.count += 1
 
-    def output(self, now_s: float, period_s: float) -> Vec3:
-        """The train applied at `now_s` (the newest sample's time) with the delays set."""
+    def step(self, now_s: float, p: Vec3, period_s: float, inv_f: float) -> Vec3:
+        """Push `p` at `now_s` and apply the train for a mode of frequency 1 / `inv_f`: the
+        weighted samples at the impulses' delays, read by linear interpolation."""
         cap = self.cap
-        ring = self.ring
+        count = self.count
+        i = count % cap
+        tt, tx, ty, tz = self.tt, self.tx, self.ty, self.tz
+        tt[i] = now_s
+        tx[i] = p[0]
+        ty[i] = p[1]
+        tz[i] = p[2]
+        self.count = count + 1
+        newest = count
+        oldest = count + 1 - cap if count + 1 > cap else 0
         cursor = self.cursor
-        delays = self.delays
-        newest = self.count - 1
-        oldest = self.count - cap if self.count > cap else 0
         px = py = pz = 0.0
-        for k, a in enumerate(self.amps):
-            when = now_s - delays[k]
+        for k, a, tk in self.taps:
+            delay = tk * inv_f
+            when = now_s - delay
             c = cursor[k]
             if c < oldest or c > newest:
-                c = newest - int(delays[k] / period_s)
+                c = newest - int(delay / period_s)
                 c = oldest if c < oldest else newest if c > newest else c
-            while c > oldest and ring[c % cap][0] > when:
+            while c > oldest and tt[c % cap] > when:
                 c -= 1
-            while c < newest and ring[(c + 1) % cap][0] <= when:
+            while c < newest and tt[(c + 1) % cap] <= when:
                 c += 1
             cursor[k] = c
-            e = ring[c % cap]
-            t0 = e[0]
+            e = c % cap
+            t0 = tt[e]
             if c == newest or t0 >= when:
-                px += a * e[1]
-                py += a * e[2]
-                pz += a * e[3]
+                px += a * tx[e]
+                py += a * ty[e]
+                pz += a * tz[e]
                 continue
-            n = ring[(c + 1) % cap]
-            span = n[0] - t0
+            n = (c + 1) % cap
+            span = tt[n] - t0
             f = a * (when - t0) / span if span > 0.0 else 0.0
             g = a - f
-            px += g * e[1] + f * n[1]
-            py += g * e[2] + f * n[2]
-            pz += g * e[3] + f * n[3]
+            px += g * tx[e] + f * tx[n]
+            py += g * ty[e] + f * ty[n]
+            pz += g * tz[e] + f * tz[n]
         return (px, py, pz)
 
 
@@ -420,15 +430,9 @@ class InputShaper:
             return position_m
         p = position_m
         period = self._period_s
+        floor = self._floor_hz
         for stage, f in zip(self._stages, self._freqs, strict=True):
-            if f == math.inf:
-                f = self._floor_hz
-            inv = 1.0 / f
-            delays = stage.delays
-            for k, tk in enumerate(stage.unit_times):
-                delays[k] = tk * inv
-            stage.push(now, p)
-            p = stage.output(now, period)
+            p = stage.step(now, p, period, 1.0 / (floor if f == math.inf else f))
         last = self._out_p
         if dt_s > 0.0:
             inv_dt = 1.0 / dt_s
