@@ -148,6 +148,7 @@ class LoopShaper:
         "_floor_hz",
         "_pending",
         "_period_s",
+        "_raw_a",
         "_raw_v",
         "_tracker",
         "settings",
@@ -173,6 +174,7 @@ class LoopShaper:
         self._pending: Any = None
         self._fixed: tuple[float, ...] | None = None
         self._raw_v: Vec3 = (0.0, 0.0, 0.0)
+        self._raw_a: Vec3 = (0.0, 0.0, 0.0)
         self.shaper = self._build(sc)
 
     def _check(self, kind: str, frequency_hz: float | None, damping_ratio: float) -> None:
@@ -235,7 +237,7 @@ class LoopShaper:
         """The set-point holds at `position_m`: forget the past (and take a pending change)."""
         if self._pending is not None:
             self._apply_pending()
-        self._raw_v = (0.0, 0.0, 0.0)
+        self._raw_v = self._raw_a = (0.0, 0.0, 0.0)
         if self.shaper is not None:
             self.shaper.reset(position_m)
 
@@ -253,12 +255,27 @@ class LoopShaper:
         inputs."""
         sh = self.shaper
         if sh is None:
+            pv = self._raw_v
+            self._raw_a = (
+                (
+                    (velocity_mps[0] - pv[0]) / dt_s,
+                    (velocity_mps[1] - pv[1]) / dt_s,
+                    (velocity_mps[2] - pv[2]) / dt_s,
+                )
+                if dt_s > 0.0
+                else (0.0, 0.0, 0.0)
+            )
             self._raw_v = velocity_mps
             return position_m
         if self._fixed is not None:
             freqs: Sequence[float] | None = self._fixed
         elif self._tracker is not None and at_m is not None and tensions_n is not None:
-            freqs = self._tracker.frequencies_hz(at_m, tensions_n)
+            # where the shaped set-point is now (the last one moved on by its velocity): the
+            # frequencies then change smoothly in time whatever the ticks' lengths (a tick
+            # late, a tick's jitter would shake the delays, and the set-point with them)
+            v = sh.velocity_mps
+            now = (at_m[0] + v[0] * dt_s, at_m[1] + v[1] * dt_s, at_m[2] + v[2] * dt_s)
+            freqs = self._tracker.frequencies_hz(now, tensions_n)
         else:
             freqs = None
         return sh.shape(position_m, velocity_mps, dt_s, freqs)
@@ -268,6 +285,13 @@ class LoopShaper:
         """The shaped set-point's velocity at the last tick."""
         sh = self.shaper
         return self._raw_v if sh is None else sh.velocity_mps
+
+    @property
+    def acceleration_mps2(self) -> Vec3:
+        """The set-point's acceleration at the last tick (the shaped one's, or the change of
+        the planner's velocity over the tick)."""
+        sh = self.shaper
+        return self._raw_a if sh is None else sh.acceleration_mps2
 
     @property
     def settled(self) -> bool:
@@ -302,7 +326,7 @@ class LoopShaper:
         if self._pending is None or not self.settled:
             return False
         self._apply_pending()
-        self._raw_v = (0.0, 0.0, 0.0)
+        self._raw_v = self._raw_a = (0.0, 0.0, 0.0)
         if self.shaper is not None:
             self.shaper.reset(at_m)
         return True

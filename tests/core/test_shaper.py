@@ -185,12 +185,14 @@ def test_a_straight_move_stays_straight_within_its_limits_and_arrives_exactly(
     shaper.reset(start)
     pts = []
     vels = []
+    accs = []
     t = 0.0
     while True:
         t += period
         p, v = move.sample(t)
         pts.append(shaper.shape(p, v, period, (f,)))
         vels.append(shaper.velocity_mps)
+        accs.append(shaper.acceleration_mps2)
         if t > move.duration_s and shaper.settled:
             break
         assert t < move.duration_s + 10.0 / f + 1.0
@@ -199,12 +201,16 @@ def test_a_straight_move_stays_straight_within_its_limits_and_arrives_exactly(
     rel = a - np.array(start)
     off = rel - np.outer(rel @ u, u)
     assert np.abs(off).max() < 1e-9  # on the line
-    assert (rel @ u).min() >= -1e-12 and (rel @ u).max() <= length + 1e-12  # between the ends
+    # between the ends: a weighted average of the move's points, read between two ticks by
+    # cubic interpolation, which can pass a stop by a hair (under a micrometre)
+    assert (rel @ u).min() >= -1e-6 and (rel @ u).max() <= length + 1e-6
     speed = np.linalg.norm(np.diff(a, axis=0), axis=1) / period
-    assert speed.max() <= 1.0 + 1e-9
-    assert np.linalg.norm(np.array(vels), axis=1).max() <= 1.0 + 1e-9
-    acc = np.linalg.norm(np.diff(np.array(vels), axis=0), axis=1) / period
-    assert acc.max() <= 2.0 + 1e-6
+    assert speed.max() <= 1.0 + 1e-3  # the set-point: never faster than the move
+    accel = np.linalg.norm(np.diff(a, n=2, axis=0), axis=1) / period**2
+    assert accel.max() <= 2.0 * 1.01  # nor accelerating harder
+    assert np.linalg.norm(np.array(accs), axis=1).max() <= 2.0 * 1.01
+    # the velocity handed to the drives: the change over the tick and half a tick of that
+    assert np.linalg.norm(np.array(vels), axis=1).max() <= 1.0 + 2.0 * period / 2.0 + 1e-9
     assert pts[-1] == end  # exactly there once settled
     # it takes the train's duration longer, at most (and the ticks that see it arrive)
     assert t <= move.duration_s + duration_periods(kind) / f / math.sqrt(1 - 0.02**2) + 3 * period

@@ -37,11 +37,19 @@ fraction of a mode's ringing a train leaves (1 = unshaped).
 mode's train, the result through the second's, and so on (the convolution of the trains, at the
 cost of the sum, not the product, of their impulse counts). Every train is one scalar train
 applied to all three axes, so a straight move stays on its line and the shaped set-point is a
-weighted average of past set-points: its speed and acceleration never exceed the largest the
-unshaped one had, and it stays in the convex hull of where the set-point has been. The
-frequencies may change every tick (the modes follow the pose); each stage keeps the set-points
-of the time its longest train can reach back in a ring, stamped with planner time, and reads
-them by linear interpolation (O(1) per impulse: each impulse keeps its place in the ring).
+weighted average of past set-points: its speed and acceleration do not exceed the largest the
+unshaped one had, and it stays in the convex hull of where the set-point has been (to a
+micrometre: between two ticks the past is read by cubic interpolation, which can pass a stop
+by a hair). The frequencies may change every tick (the modes follow the pose); each stage
+keeps the set-points and velocities of the time its longest train can reach back in a ring,
+stamped with planner time, and reads them by cubic Hermite interpolation (O(1) per impulse:
+each impulse keeps its place in the ring). Cubic, because the loop wants the shaped
+set-point's acceleration (the payload's m a in the planned tensions) and ticks come unevenly:
+a linear reading's error changes with where each tick falls between two samples, which the
+acceleration amplifies into noise; the planner's motion is piecewise quadratic, which a cubic
+reads exactly. For the same reason each stage's velocity includes the drift of its delay as
+the frequency follows the pose (d delay / dt), and the loop asks for the modes where the shaped
+set-point is now, not where it was a tick ago.
 """
 
 from __future__ import annotations
@@ -71,8 +79,8 @@ MAX_FREQUENCY_HZ = 1000.0
 _TIME_EPS_S = 1e-9
 """Times this close count as equal (the planner's time is a sum of ticks)."""
 MAX_FREQUENCY_STEP = 0.005
-"""A stage's frequency changes by at most this fraction per tick (a mode's frequency follows
-the pose slowly; a jump would move the shaped set-point at once)."""
+"""A stage's frequency changes by at most this fraction per loop period (a mode's frequency
+follows the pose slowly; a jump would move the shaped set-point at once)."""
 VIBRATION_TOLERANCE = 0.05
 """The residual vibration the EI trains allow at their humps (the designs' V)."""
 
@@ -196,10 +204,25 @@ def residual_vibration(
 
 
 class _Stage:
-    """One mode's train applied to a stream of set-points: a ring of past samples (time and
-    position in four flat lists, written in place) and each impulse's place in it."""
+    """One mode's train applied to a stream of set-points: a ring of past samples (time,
+    position and velocity in flat lists, written in place) and each impulse's place in it.
+    Between two samples the set-point is read by cubic Hermite interpolation (exact for the
+    planner's piecewise quadratic motion, so uneven ticks add no noise to its derivatives)."""
 
-    __slots__ = ("cap", "count", "cursor", "taps", "tt", "tx", "ty", "tz", "unit_times")
+    __slots__ = (
+        "cap",
+        "count",
+        "cursor",
+        "taps",
+        "tt",
+        "tu",
+        "tv",
+        "tw",
+        "tx",
+        "ty",
+        "tz",
+        "unit_times",
+    )
 
     def __init__(self, amps: Sequence[float], unit_times: Sequence[float], capacity: int) -> None:
         self.unit_times = tuple(unit_times)
@@ -209,40 +232,56 @@ class _Stage:
         self.tx = [0.0] * capacity
         self.ty = [0.0] * capacity
         self.tz = [0.0] * capacity
+        self.tu = [0.0] * capacity
+        self.tv = [0.0] * capacity
+        self.tw = [0.0] * capacity
         self.count = 0
         self.cursor = [0] * len(amps)
 
     def reset(self, now_s: float, p: Vec3) -> None:
         self.count = 0
-        self.push(now_s, p)
+        self.push(now_s, p, (0.0, 0.0, 0.0))
         self.cursor = [0] * len(self.cursor)
 
-    def push(self, now_s: float, p: Vec3) -> None:
+    def push(self, now_s: float, p: Vec3, v: Vec3) -> None:
         i = self.count % self.cap
         self.tt[i] = now_s
         self.tx[i] = p[0]
         self.ty[i] = p[1]
         self.tz[i] = p[2]
+        self.tu[i] = v[0]
+        self.tv[i] = v[1]
+        self.tw[i] = v[2]
         self.count += 1
 
-    def step(self, now_s: float, p: Vec3, period_s: float, inv_f: float) -> Vec3:
-        """Push `p` at `now_s` and apply the train for a mode of frequency 1 / `inv_f`: the
-        weighted samples at the impulses' delays, read by linear interpolation."""
+    def step(
+        self, now_s: float, p: Vec3, v: Vec3, period_s: float, inv_f: float, inv_f_rate: float
+    ) -> tuple[Vec3, Vec3]:
+        """Push `p` moving at `v` at `now_s` and apply the train for a mode of frequency
+        1 / `inv_f`, which changes at `inv_f_rate` (1/Hz per s): the weighted samples at the
+        impulses' delays; (position, velocity). The velocity is the position's derivative:
+        each delayed sample's velocity times (1 - d delay / dt), so the next stage's cubic
+        interpolation has true tangents when the frequencies drift."""
         cap = self.cap
         count = self.count
         i = count % cap
-        tt, tx, ty, tz = self.tt, self.tx, self.ty, self.tz
+        tt, tx, ty, tz, tu, tv, tw = self.tt, self.tx, self.ty, self.tz, self.tu, self.tv, self.tw
         tt[i] = now_s
         tx[i] = p[0]
         ty[i] = p[1]
         tz[i] = p[2]
+        tu[i] = v[0]
+        tv[i] = v[1]
+        tw[i] = v[2]
         self.count = count + 1
         newest = count
         oldest = count + 1 - cap if count + 1 > cap else 0
         cursor = self.cursor
-        px = py = pz = 0.0
-        for k, a, tk in self.taps:
+        px = py = pz = vx = vy = vz = 0.0
+        for k, w0, tk in self.taps:
             delay = tk * inv_f
+            w = w0  # the position's weight; its velocity's: w0 (1 - d delay / dt)
+            wv = w0 * (1.0 - tk * inv_f_rate)
             when = now_s - delay
             c = cursor[k]
             if c < oldest or c > newest:
@@ -255,19 +294,32 @@ class _Stage:
             cursor[k] = c
             e = c % cap
             t0 = tt[e]
-            if c == newest or t0 >= when:
-                px += a * tx[e]
-                py += a * ty[e]
-                pz += a * tz[e]
-                continue
             n = (c + 1) % cap
-            span = tt[n] - t0
-            f = a * (when - t0) / span if span > 0.0 else 0.0
-            g = a - f
-            px += g * tx[e] + f * tx[n]
-            py += g * ty[e] + f * ty[n]
-            pz += g * tz[e] + f * tz[n]
-        return (px, py, pz)
+            h = tt[n] - t0
+            if c == newest or t0 >= when or not h > 0.0:
+                px += w * tx[e]
+                py += w * ty[e]
+                pz += w * tz[e]
+                vx += wv * tu[e]
+                vy += wv * tv[e]
+                vz += wv * tw[e]
+                continue
+            s = (when - t0) / h
+            s2 = s * s
+            s3 = s2 * s
+            b01 = w * (3.0 * s2 - 2.0 * s3)  # Hermite: p0 (w - b01) + p1 b01 + tangents
+            b10 = w * h * (s3 - 2.0 * s2 + s)
+            b11 = w * h * (s3 - s2)
+            b00 = w - b01
+            px += b00 * tx[e] + b01 * tx[n] + b10 * tu[e] + b11 * tu[n]
+            py += b00 * ty[e] + b01 * ty[n] + b10 * tv[e] + b11 * tv[n]
+            pz += b00 * tz[e] + b01 * tz[n] + b10 * tw[e] + b11 * tw[n]
+            ws = wv * s
+            wr = wv - ws
+            vx += wr * tu[e] + ws * tu[n]
+            vy += wr * tv[e] + ws * tv[n]
+            vz += wr * tw[e] + ws * tw[n]
+        return (px, py, pz), (vx, vy, vz)
 
 
 class InputShaper:
@@ -286,7 +338,11 @@ class InputShaper:
     __slots__ = (
         "_floor_hz",
         "_freqs",
+        "_inv_f",
+        "_last_dt",
+        "_mid_v",
         "_now_s",
+        "_out_a",
         "_out_p",
         "_out_v",
         "_period_s",
@@ -326,12 +382,16 @@ class InputShaper:
         self._floor_hz = floor
         self._period_s = period
         self._freqs: list[float] = [math.inf] * stages
+        self._inv_f: list[float] = [0.0] * stages
         self._now_s = 0.0
         self._quiet_s = 0.0
         self._raw_p: Vec3 = (0.0, 0.0, 0.0)
         self._raw_v: Vec3 = (0.0, 0.0, 0.0)
         self._out_p: Vec3 = (0.0, 0.0, 0.0)
         self._out_v: Vec3 = (0.0, 0.0, 0.0)
+        self._out_a: Vec3 = (0.0, 0.0, 0.0)
+        self._mid_v: Vec3 = (0.0, 0.0, 0.0)
+        self._last_dt = 0.0
         self.reset((0.0, 0.0, 0.0))
 
     @property
@@ -361,9 +421,17 @@ class InputShaper:
 
     @property
     def velocity_mps(self) -> Vec3:
-        """The shaped set-point's velocity over the last tick (its change over the tick's
-        time: half a tick behind; the unshaped velocity once settled)."""
+        """The shaped set-point's velocity at the last tick (its change over the tick, and
+        half a tick of its acceleration; the unshaped velocity once settled)."""
         return self._out_v
+
+    @property
+    def acceleration_mps2(self) -> Vec3:
+        """The shaped set-point's acceleration at the last tick: the change of its velocity
+        between the last two ticks' middles over their time apart (uneven ticks counted as
+        they came; the rings' cubic interpolation keeps that free of their noise); zero once
+        settled."""
+        return self._out_a
 
     @property
     def position_m(self) -> Vec3:
@@ -387,6 +455,10 @@ class InputShaper:
         self._raw_v = (0.0, 0.0, 0.0)
         self._out_p = p
         self._out_v = (0.0, 0.0, 0.0)
+        self._out_a = (0.0, 0.0, 0.0)
+        self._mid_v = (0.0, 0.0, 0.0)
+        self._last_dt = 0.0
+        self._inv_f = [0.0] * len(self._stages)
         self._quiet_s = self._now_s - 2.0 * self.max_duration_s
 
     def shape(
@@ -399,7 +471,7 @@ class InputShaper:
         """The shaped set-point for the unshaped `position_m` moving at `velocity_mps`, `dt_s`
         after the last call, with each stage's mode at `frequencies_hz` (ascending; None or a
         short or non-finite tuple keeps the last ones; below the floor: the floor; each moves
-        at most `MAX_FREQUENCY_STEP` a tick from the last). Its velocity
+        at most `MAX_FREQUENCY_STEP` a period of time from the last). Its velocity
         is `velocity_mps` afterwards. Once settled, exactly `position_m` (and `velocity_mps`,
         zero then). Raises nothing for finite inputs."""
         if dt_s > 0.0:
@@ -418,28 +490,46 @@ class InputShaper:
                     if f < floor:
                         f = floor
                     old = freqs[k]
-                    if old < math.inf:  # no jumps: at most MAX_FREQUENCY_STEP a tick
-                        step = old * MAX_FREQUENCY_STEP
+                    if old < math.inf:  # no jumps: at most MAX_FREQUENCY_STEP a period
+                        step = old * MAX_FREQUENCY_STEP * dt_s / self._period_s
                         f = old - step if f < old - step else old + step if f > old + step else f
                     freqs[k] = f
         if self.settled:
             for stage in self._stages:
-                stage.push(now, position_m)
+                stage.push(now, position_m, velocity_mps)
             self._out_p = position_m
-            self._out_v = velocity_mps
+            self._out_v = self._mid_v = velocity_mps
+            self._out_a = (0.0, 0.0, 0.0)
+            self._last_dt = 0.0
             return position_m
         p = position_m
+        v = velocity_mps
         period = self._period_s
         floor = self._floor_hz
-        for stage, f in zip(self._stages, self._freqs, strict=True):
-            p = stage.step(now, p, period, 1.0 / (floor if f == math.inf else f))
-        last = self._out_p
+        inv_last = self._inv_f
+        for k, (stage, f) in enumerate(zip(self._stages, self._freqs, strict=True)):
+            inv = 1.0 / (floor if f == math.inf else f)
+            inv_before = inv_last[k]
+            rate = (inv - inv_before) / dt_s if dt_s > 0.0 and inv_before > 0.0 else 0.0
+            inv_last[k] = inv
+            p, v = stage.step(now, p, v, period, inv, rate)
         if dt_s > 0.0:
+            # the change over the tick (the velocity at its middle, the frequencies' drift
+            # included), and the change of that between two ticks' middles
+            last = self._out_p
             inv_dt = 1.0 / dt_s
-            self._out_v = (
-                (p[0] - last[0]) * inv_dt,
-                (p[1] - last[1]) * inv_dt,
-                (p[2] - last[2]) * inv_dt,
+            mid = ((p[0] - last[0]) * inv_dt, (p[1] - last[1]) * inv_dt, (p[2] - last[2]) * inv_dt)
+            before = self._mid_v
+            gap = 0.5 * (dt_s + self._last_dt)
+            a = (
+                ((mid[0] - before[0]) / gap, (mid[1] - before[1]) / gap, (mid[2] - before[2]) / gap)
+                if self._last_dt > 0.0
+                else (0.0, 0.0, 0.0)
             )
+            half = 0.5 * dt_s
+            self._out_a = a
+            self._out_v = (mid[0] + a[0] * half, mid[1] + a[1] * half, mid[2] + a[2] * half)
+            self._mid_v = mid
+            self._last_dt = dt_s
         self._out_p = p
         return p

@@ -184,8 +184,6 @@ class ControllerState:
         m a share): the modes' stiffness."""
         self._planned_acc: Vec3 = (0.0, 0.0, 0.0)
         """The set-point's acceleration the planned tensions include (its m a share)."""
-        self._setpoint_v: Vec3 = (0.0, 0.0, 0.0)
-        """The set-point's velocity at the last tick (its change is the acceleration)."""
         self._measure = cfg.loop.torque_telemetry != "off"
         self.measured_tensions_n: list[float | None] = [None] * self.n
         """Tensions from the motors' torque telemetry (None: no fresh reading)."""

@@ -223,7 +223,6 @@ class ControlStep(CommandExecution):
         """Hold at `p`; _Fault if the payload cannot be held there (the tension rule)."""
         self.planner.hold(p)
         self.shaping.reset(p)
-        self._setpoint_v = _ZERO
         self.setpoint_m = p
         self.setpoint_lengths_m = None
         if self.tension is not None:
@@ -277,10 +276,7 @@ class ControlStep(CommandExecution):
         reason = self.workspace.check_lengths(lengths)
         if reason is not None:
             raise _Fault(f"limit: {reason}")
-        v = shaping.velocity_mps
-        pv = self._setpoint_v
-        self._setpoint_v = v
-        acc = ((v[0] - pv[0]) / dt, (v[1] - pv[1]) / dt, (v[2] - pv[2]) / dt)
+        acc = shaping.acceleration_mps2
         if self.tension is not None and (sp != self._planned_at or acc != self._planned_acc):
             self._plan_tensions(sp, acc)
         try:
