@@ -38,18 +38,18 @@ mode's train, the result through the second's, and so on (the convolution of the
 cost of the sum, not the product, of their impulse counts). Every train is one scalar train
 applied to all three axes, so a straight move stays on its line and the shaped set-point is a
 weighted average of past set-points: its speed and acceleration do not exceed the largest the
-unshaped one had, and it stays in the convex hull of where the set-point has been (to a
-micrometre: between two ticks the past is read by cubic interpolation, which can pass a stop
-by a hair). The frequencies may change every tick (the modes follow the pose); each stage
+unshaped one had, and it stays in the convex hull of where the set-point has been. The
+frequencies may change every tick (the modes follow the pose); each stage
 keeps the set-points and velocities of the time its longest train can reach back in a ring,
-stamped with planner time, and reads them by cubic Hermite interpolation (O(1) per impulse:
-each impulse keeps its place in the ring). Cubic, because the loop wants the shaped
-set-point's acceleration (the payload's m a in the planned tensions) and ticks come unevenly:
-a linear reading's error changes with where each tick falls between two samples, which the
-acceleration amplifies into noise; the planner's motion is piecewise quadratic, which a cubic
-reads exactly. For the same reason each stage's velocity includes the drift of its delay as
-the frequency follows the pose (d delay / dt), and the loop asks for the modes where the shaped
-set-point is now, not where it was a tick ago.
+stamped with planner time, and reads them by linear interpolation (O(1) per impulse: each
+impulse keeps its place in the ring). The loop wants the shaped set-point's acceleration (the
+payload's m a in the planned tensions) and ticks come unevenly: differentiating the shaped
+positions would turn the interpolation's error, which changes with where each tick falls
+between two samples, into noise. So the rings carry velocities too, the shaped velocity is
+their weighted average (exact: the planner's velocity is piecewise linear), each stage's
+velocity includes the drift of its delay as the frequency follows the pose (d delay / dt), and
+the acceleration is the shaped velocity's change over the tick. The loop asks for the modes
+where the shaped set-point is now, not where it was a tick ago.
 """
 
 from __future__ import annotations
@@ -206,8 +206,7 @@ def residual_vibration(
 class _Stage:
     """One mode's train applied to a stream of set-points: a ring of past samples (time,
     position and velocity in flat lists, written in place) and each impulse's place in it.
-    Between two samples the set-point is read by cubic Hermite interpolation (exact for the
-    planner's piecewise quadratic motion, so uneven ticks add no noise to its derivatives)."""
+    Between two samples both are read by linear interpolation."""
 
     __slots__ = (
         "cap",
@@ -244,7 +243,7 @@ class _Stage:
         self.cursor = [0] * len(self.cursor)
 
     def push(self, now_s: float, p: Vec3, v: Vec3) -> None:
-        i = self.count % self.cap
+        i = self.count & (self.cap - 1)
         self.tt[i] = now_s
         self.tx[i] = p[0]
         self.ty[i] = p[1]
@@ -260,11 +259,10 @@ class _Stage:
         """Push `p` moving at `v` at `now_s` and apply the train for a mode of frequency
         1 / `inv_f`, which changes at `inv_f_rate` (1/Hz per s): the weighted samples at the
         impulses' delays; (position, velocity). The velocity is the position's derivative:
-        each delayed sample's velocity times (1 - d delay / dt), so the next stage's cubic
-        interpolation has true tangents when the frequencies drift."""
-        cap = self.cap
+        each delayed sample's velocity times (1 - d delay / dt)."""
+        m = self.cap - 1  # the capacity is a power of two: an index is a mask away
         count = self.count
-        i = count % cap
+        i = count & m
         tt, tx, ty, tz, tu, tv, tw = self.tt, self.tx, self.ty, self.tz, self.tu, self.tv, self.tw
         tt[i] = now_s
         tx[i] = p[0]
@@ -275,26 +273,25 @@ class _Stage:
         tw[i] = v[2]
         self.count = count + 1
         newest = count
-        oldest = count + 1 - cap if count + 1 > cap else 0
+        oldest = count - m if count > m else 0
         cursor = self.cursor
         px = py = pz = vx = vy = vz = 0.0
-        for k, w0, tk in self.taps:
+        for k, w, tk in self.taps:
             delay = tk * inv_f
-            w = w0  # the position's weight; its velocity's: w0 (1 - d delay / dt)
-            wv = w0 * (1.0 - tk * inv_f_rate)
+            wv = w * (1.0 - tk * inv_f_rate)  # the velocity's weight: w (1 - d delay / dt)
             when = now_s - delay
             c = cursor[k]
             if c < oldest or c > newest:
                 c = newest - int(delay / period_s)
                 c = oldest if c < oldest else newest if c > newest else c
-            while c > oldest and tt[c % cap] > when:
+            while c > oldest and tt[c & m] > when:
                 c -= 1
-            while c < newest and tt[(c + 1) % cap] <= when:
+            while c < newest and tt[(c + 1) & m] <= when:
                 c += 1
             cursor[k] = c
-            e = c % cap
+            e = c & m
             t0 = tt[e]
-            n = (c + 1) % cap
+            n = (c + 1) & m
             h = tt[n] - t0
             if c == newest or t0 >= when or not h > 0.0:
                 px += w * tx[e]
@@ -305,20 +302,16 @@ class _Stage:
                 vz += wv * tw[e]
                 continue
             s = (when - t0) / h
-            s2 = s * s
-            s3 = s2 * s
-            b01 = w * (3.0 * s2 - 2.0 * s3)  # Hermite: p0 (w - b01) + p1 b01 + tangents
-            b10 = w * h * (s3 - 2.0 * s2 + s)
-            b11 = w * h * (s3 - s2)
-            b00 = w - b01
-            px += b00 * tx[e] + b01 * tx[n] + b10 * tu[e] + b11 * tu[n]
-            py += b00 * ty[e] + b01 * ty[n] + b10 * tv[e] + b11 * tv[n]
-            pz += b00 * tz[e] + b01 * tz[n] + b10 * tw[e] + b11 * tw[n]
-            ws = wv * s
-            wr = wv - ws
-            vx += wr * tu[e] + ws * tu[n]
-            vy += wr * tv[e] + ws * tv[n]
-            vz += wr * tw[e] + ws * tw[n]
+            b = w * s
+            r = w - b
+            px += r * tx[e] + b * tx[n]
+            py += r * ty[e] + b * ty[n]
+            pz += r * tz[e] + b * tz[n]
+            b = wv * s
+            r = wv - b
+            vx += r * tu[e] + b * tu[n]
+            vy += r * tv[e] + b * tv[n]
+            vz += r * tw[e] + b * tw[n]
         return (px, py, pz), (vx, vy, vz)
 
 
@@ -339,8 +332,6 @@ class InputShaper:
         "_floor_hz",
         "_freqs",
         "_inv_f",
-        "_last_dt",
-        "_mid_v",
         "_now_s",
         "_out_a",
         "_out_p",
@@ -376,8 +367,8 @@ class InputShaper:
         self.damping_ratio = float(damping_ratio)
         longest_s = unit_times[-1] / floor
         # twice the ticks the longest train reaches back (ticks may come early after a late
-        # one), and a margin
-        capacity = math.ceil(2.0 * longest_s / period) + 64
+        # one) and a margin, rounded up to a power of two (an index is then a mask)
+        capacity = 1 << (math.ceil(2.0 * longest_s / period) + 64).bit_length()
         self._stages = [_Stage(amps, unit_times, capacity) for _ in range(stages)]
         self._floor_hz = floor
         self._period_s = period
@@ -390,8 +381,6 @@ class InputShaper:
         self._out_p: Vec3 = (0.0, 0.0, 0.0)
         self._out_v: Vec3 = (0.0, 0.0, 0.0)
         self._out_a: Vec3 = (0.0, 0.0, 0.0)
-        self._mid_v: Vec3 = (0.0, 0.0, 0.0)
-        self._last_dt = 0.0
         self.reset((0.0, 0.0, 0.0))
 
     @property
@@ -421,16 +410,14 @@ class InputShaper:
 
     @property
     def velocity_mps(self) -> Vec3:
-        """The shaped set-point's velocity at the last tick (its change over the tick, and
-        half a tick of its acceleration; the unshaped velocity once settled)."""
+        """The shaped set-point's velocity at the last tick: the unshaped velocity through the
+        trains, with the delays' drift (the unshaped velocity once settled)."""
         return self._out_v
 
     @property
     def acceleration_mps2(self) -> Vec3:
-        """The shaped set-point's acceleration at the last tick: the change of its velocity
-        between the last two ticks' middles over their time apart (uneven ticks counted as
-        they came; the rings' cubic interpolation keeps that free of their noise); zero once
-        settled."""
+        """The shaped set-point's acceleration over the last tick: the change of its velocity
+        over the tick's time; zero once settled."""
         return self._out_a
 
     @property
@@ -456,8 +443,6 @@ class InputShaper:
         self._out_p = p
         self._out_v = (0.0, 0.0, 0.0)
         self._out_a = (0.0, 0.0, 0.0)
-        self._mid_v = (0.0, 0.0, 0.0)
-        self._last_dt = 0.0
         self._inv_f = [0.0] * len(self._stages)
         self._quiet_s = self._now_s - 2.0 * self.max_duration_s
 
@@ -498,9 +483,8 @@ class InputShaper:
             for stage in self._stages:
                 stage.push(now, position_m, velocity_mps)
             self._out_p = position_m
-            self._out_v = self._mid_v = velocity_mps
+            self._out_v = velocity_mps
             self._out_a = (0.0, 0.0, 0.0)
-            self._last_dt = 0.0
             return position_m
         p = position_m
         v = velocity_mps
@@ -514,22 +498,15 @@ class InputShaper:
             inv_last[k] = inv
             p, v = stage.step(now, p, v, period, inv, rate)
         if dt_s > 0.0:
-            # the change over the tick (the velocity at its middle, the frequencies' drift
-            # included), and the change of that between two ticks' middles
-            last = self._out_p
-            inv_dt = 1.0 / dt_s
-            mid = ((p[0] - last[0]) * inv_dt, (p[1] - last[1]) * inv_dt, (p[2] - last[2]) * inv_dt)
-            before = self._mid_v
-            gap = 0.5 * (dt_s + self._last_dt)
-            a = (
-                ((mid[0] - before[0]) / gap, (mid[1] - before[1]) / gap, (mid[2] - before[2]) / gap)
-                if self._last_dt > 0.0
-                else (0.0, 0.0, 0.0)
+            # the velocity's change over the tick: exact whatever the ticks' lengths (the
+            # velocity of the planner's piecewise quadratic motion is piecewise linear, which
+            # the rings read exactly, and the delays' drift is in it)
+            before = self._out_v
+            self._out_a = (
+                (v[0] - before[0]) / dt_s,
+                (v[1] - before[1]) / dt_s,
+                (v[2] - before[2]) / dt_s,
             )
-            half = 0.5 * dt_s
-            self._out_a = a
-            self._out_v = (mid[0] + a[0] * half, mid[1] + a[1] * half, mid[2] + a[2] * half)
-            self._mid_v = mid
-            self._last_dt = dt_s
+        self._out_v = v
         self._out_p = p
         return p
