@@ -6,6 +6,7 @@ repository:
     .venv/bin/python tools/shaping_figures.py moves paper [--quick]   # 25 poses x 6 directions
     .venv/bin/python tools/shaping_figures.py moves desk               # 9 poses x 6 directions
     .venv/bin/python tools/shaping_figures.py paths                    # the square, the vase
+    .venv/bin/python tools/shaping_figures.py vertical                 # one move, drives, ticks
 
 `moves`: from each pose a rest-to-rest move in +-x, +-y, +-z (2 m on the paper robot, 0.2 m
 on the desk rig, halved until the target and the leg are allowed), for each payload, with the
@@ -19,6 +20,9 @@ the smallest and the median of those over the poses.
 `paths`: the repository's square (`config/square-path.csv`, paper robot, 5 kg) and the first two
 layers of `tests/data/vase.gcode.gz` (desk rig): the largest distance of the set-point and of
 the truth from the programmed path, shaped and unshaped.
+
+`vertical`: the paper robot's 2 m vertical move from (0, 0, 2) m at 1 m/s with 5 and 20 kg,
+on ideal drives and on the simulated ODrive's position loop, and with the loop's ticks uneven.
 """
 
 from __future__ import annotations
@@ -174,8 +178,41 @@ def moves(robot: str, kind: str, quick: bool, only_kg: float | None = None) -> N
         lo = min(g for g, _ in gains)
         hi = max(g for g, _ in gains)
         print(
-            f"time gained by shaping: {lo:.3f}..{hi:.3f} s; largest excess over the shaper's "
+            f"time shaping adds to a move: {lo:.3f}..{hi:.3f} s; largest excess over the shaper's "
             f"delay at the end {over * 1e3:.1f} ms"
+        )
+
+
+def vertical(kind: str) -> None:
+    """The paper robot's 2 m vertical move from (0, 0, 2) m at 1 m/s: 5 and 20 kg, ideal drives
+    and the simulated ODrive's position loop, unshaped and shaped; then the loop's ticks
+    uneven by up to 30 and 90 % (5 kg, ODrive loop)."""
+    data = robot_data("paper")
+    start, target = (0.0, 0.0, 2.0), (0.0, 0.0, 4.0)
+    cases: list[tuple[float, bool, float]] = [
+        (mass, odrive, 0.0) for odrive in (False, True) for mass in (5.0, 20.0)
+    ]
+    cases += [(5.0, True, 0.3), (5.0, True, 0.9)]
+    for mass, odrive, jitter in cases:
+        res = {}
+        for shaped in (False, True):
+            cfg = robot_config(
+                data,
+                mass_kg=mass,
+                plant_ea_n=PAPER_EA_N,
+                model_ea_n=PAPER_EA_N,
+                start_m=start,
+                shaper={"type": kind} if shaped else None,
+                max_tension_n=ROBOTS["paper"]["max_tension_n"],
+            )
+            rig = PlantRig(cfg, odrive_loop=odrive, jitter=jitter)
+            res[shaped] = rig.move(target, 1.0)
+        drives = "ODrive loop" if odrive else "ideal drives"
+        ticks = f", ticks +-{jitter * 100:.0f} %" if jitter else ""
+        print(
+            f"paper {mass:4g} kg, {drives}{ticks}: residual {res[False].residual_m * 1e3:.3f} mm "
+            f"unshaped, {res[True].residual_m * 1e3:.4f} mm shaped",
+            flush=True,
         )
 
 
@@ -297,7 +334,7 @@ def paths(kind: str) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """The command line (module docstring)."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("what", choices=("moves", "paths"))
+    ap.add_argument("what", choices=("moves", "paths", "vertical"))
     ap.add_argument("robot", nargs="?", default="paper", choices=tuple(ROBOTS))
     ap.add_argument("--type", default=DEFAULT_SHAPER_TYPE, help="the shaper's type")
     ap.add_argument("--quick", action="store_true", help="three poses only")
@@ -305,6 +342,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.what == "moves":
         moves(args.robot, args.type, args.quick, args.mass)
+    elif args.what == "vertical":
+        vertical(args.type)
     else:
         paths(args.type)
     return 0

@@ -16,6 +16,7 @@ that end.
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -246,10 +247,20 @@ def robot_config(
 class PlantRig:
     """The controller of `cfg` on a `PlantDriver` carrying `cfg`'s physical plant, homed at
     its power-up pose with the plant at rest there, armed; ideal drives, or with
-    `odrive_loop` the simulated ODrive's position loop (its gain, `[sim]`'s limits). Raises
-    RuntimeError if it does not arm."""
+    `odrive_loop` the simulated ODrive's position loop (its gain, `[sim]`'s limits). Every
+    tick lasts the loop's period, or with `jitter` a fraction up to that much longer or
+    shorter at random (uniform, seeded by `seed`: repeatable). Raises RuntimeError if it does
+    not arm."""
 
-    def __init__(self, cfg: Any, publisher: Any = None, *, odrive_loop: bool = False) -> None:
+    def __init__(
+        self,
+        cfg: Any,
+        publisher: Any = None,
+        *,
+        odrive_loop: bool = False,
+        jitter: float = 0.0,
+        seed: int = 1,
+    ) -> None:
         from controller.core import kinematics
         from controller.core.commands import Arm
         from controller.core.states import State
@@ -273,6 +284,8 @@ class PlantRig:
             cfg, self.driver, publisher, clock=self.clock, wall_clock_ns=self.clock.wall_ns
         )
         self.period_s = 1.0 / float(cfg.loop.rate_hz)
+        self._jitter = jitter
+        self._rng = random.Random(seed)
         self.tick(2)
         self.ctl.submit(Arm())
         for _ in range(1000):
@@ -286,6 +299,8 @@ class PlantRig:
         """`n` ticks: the controller's step, then the plant's."""
         dt = self.period_s
         for _ in range(n):
+            if self._jitter:
+                dt = self.period_s * (1.0 + self._jitter * self._rng.uniform(-1.0, 1.0))
             self.clock.now_s += dt
             self.ctl.tick(self.clock.now_s)
             self.driver.step(dt)
