@@ -43,7 +43,7 @@ from controller.cli.formats import (
     path_remaining_m,
     status_tensions_n,
 )
-from controller.cli.pathcheck import PathFile, check_with_robot
+from controller.cli.pathcheck import PathFile, check_json_points, check_with_robot
 from controller.cli.session import (
     DEFAULT_ENDPOINT,
     DEFAULT_PREFIX,
@@ -198,6 +198,7 @@ def read_path_file(path: str, *, stream: bool = False) -> tuple[dict[str, Any], 
             payload = dict(data)
         else:
             raise InputError(f"{path}: expected a list of points or an object")
+        check_json_points(path, payload.get("points_m"))
     else:
         points: list[list[float]] = []
         line_of = []
@@ -216,6 +217,9 @@ def read_path_file(path: str, *, stream: bool = False) -> tuple[dict[str, Any], 
                 raise InputError(f"{path} line {n}: expected x,y,z, got {row}") from None
             points.append(_vec3(values, f"{path} line {n}"))
             line_of.append(n)
+        if not points:
+            what = "empty" if not text.strip() else "only a header, comments or blank lines"
+            raise InputError(f"{path}: no points in it ({what}): nothing to fly")
         payload = {"points_m": points}
     from controller.core.commands import CommandError, parse_command
 
@@ -442,8 +446,10 @@ def _stream_path(
     precheck: Callable[[Any], None] | None = None,
 ) -> int:
     """Stream a long path (`pathstream.stream_points`), then with --wait follow it to its end
-    as `_motion` does; Ctrl-C brakes to a hold (`_interrupted`). With `append` (the file's
-    `"append": true`) the first chunk too is appended to the path in progress."""
+    as `_motion` does; Ctrl-C, SIGTERM and SIGHUP brake to a hold (`_interrupted`) while it
+    streams or is waited on, as for `gcode` (a path cut off where its sender died is not the
+    path asked for), unless `--detach`. With `append` (the file's `"append": true`) the first
+    chunk too is appended to the path in progress."""
     from controller.cli.pathstream import StreamRefused, stream_points
 
     def body(session: Any) -> int:
@@ -475,7 +481,7 @@ def _stream_path(
 
         t0 = time.monotonic()
         try:
-            with signals_interrupt(_waits_for_motion(args)):
+            with signals_interrupt(not getattr(args, "detach", False)):
                 return _stream(send, status, drain, line, poses, t0)
         except KeyboardInterrupt:
             line.clear()
@@ -526,7 +532,7 @@ def _stream_path(
             return EXIT_OK
         moving = status().get("state") == "MOVING"
         tail = points[-MAX_PATH_POINTS_SENT:]
-        return _wait_arrival(args, "path", poses, tail, seen_moving=not moving)
+        return _wait_arrival(args, "path", poses, tail, seen_moving=not moving, status=status)
 
     return _run(args, body)
 
@@ -566,7 +572,14 @@ def _motion(
         # must not count as arrival. Unless the motion is already over, wait to see it move.
         status = query(session, _key(args, "status"), None, args.timeout)
         moving = isinstance(status, dict) and status.get("state") == "MOVING"
-        return _wait_arrival(args, verb, poses, points, seen_moving=not moving)
+        return _wait_arrival(
+            args,
+            verb,
+            poses,
+            points,
+            seen_moving=not moving,
+            status=lambda: query(session, _key(args, "status"), None, args.timeout),
+        )
 
     return _run(args, body)
 
@@ -574,7 +587,8 @@ def _motion(
 WAIT_SIGNALS: tuple[signal.Signals, ...] = tuple(
     getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)
 )
-"""Signals that, while a motion is waited on, count as Ctrl-C (the terminal closed, `kill`)."""
+"""Signals that, while a motion is waited on or a stream is sent, count as Ctrl-C (the terminal
+closed, `kill`)."""
 
 
 def _raise_interrupt(signum: int, frame: Any) -> None:
@@ -635,16 +649,20 @@ def _wait_arrival(
     points: list[list[float]],
     *,
     seen_moving: bool = True,
+    status: Callable[[], Any] | None = None,
 ) -> int:
     """Follow the pose until it is within 1 mm of the last point in a still state (HOLDING).
 
     With `seen_moving` False, HOLDING samples count only after a MOVING one (the motion was
     still running when the wait began, and older samples may stand where the path ends).
+    When the robot holds away from the end, `status()` (the daemon's status) says whether it
+    is settling there (its set-point is the end) or the motion ended elsewhere: stopped by
+    another client's `stop`, or replaced by another command (Failed at once, with the reason).
 
     On a terminal (and without `--json`) one line shows the distance still to travel, rewritten
     in place. At the end it prints "arrived: <pose>" (with `--json` a line
-    `{"arrived": true, "pose": <the pose sample>}`). Raises WaitTimeout, Refused (the robot
-    left the motion states) or DaemonAbsent.
+    `{"arrived": true, "pose": <the pose sample>}`). Raises WaitTimeout, Failed (the robot
+    left the motion states, or the motion ended short of its end) or DaemonAbsent.
     """
     end = points[-1]
     line = StatusLine(sys.stdout, enabled=is_tty(sys.stdout) and not args.json)
@@ -654,6 +672,7 @@ def _wait_arrival(
     last: dict[str, Any] | None = None
     legs: list[tuple[list[float], list[float]]] | None = None
     leg = 0
+    asked = False  # the status was asked during this hold (settling, or ended elsewhere)
     try:
         while True:
             now = time.monotonic()
@@ -682,6 +701,7 @@ def _wait_arrival(
                 continue
             if state == "MOVING":
                 seen_moving = True
+                asked = False
             if state == "HOLDING" and seen_moving and math.dist(pos, end) <= ARRIVED_TOL_M:
                 line.clear()
                 if args.json:
@@ -689,6 +709,9 @@ def _wait_arrival(
                 else:
                     print(f"arrived: {format_pose(last)}", flush=True)
                 return EXIT_OK
+            if state == "HOLDING" and seen_moving and status is not None and not asked:
+                asked = True
+                _check_held_for(status(), end, last)
             if legs is None:
                 starts = [list(pos), *points[:-1]]
                 legs = list(zip(starts, points, strict=True))
@@ -700,6 +723,22 @@ def _wait_arrival(
             )
     finally:
         line.clear()
+
+
+def _check_held_for(st: Any, end: Sequence[float], last: dict[str, Any]) -> None:
+    """Raise Failed when the status `st` holds a set-point away from `end`: the motion waited
+    on ended there (stopped, or replaced by another command), not at its end."""
+    if not isinstance(st, dict) or st.get("state") != "HOLDING":
+        return
+    sp = st.get("setpoint_m")
+    if not isinstance(sp, list) or len(sp) != 3 or math.dist(sp, end) <= ARRIVED_TOL_M:
+        return  # settling on the end point
+    why = st.get("reason") or "another command took over"
+    pos = last.get("position_m") or sp
+    raise Failed(
+        f"the motion ended {math.dist(pos, end):.3f} m short of {format_xyz(end)}: {why}; "
+        f"{format_pose(last)}"
+    )
 
 
 def list_daemons(session: Any, timeout_s: float) -> list[dict[str, Any]]:

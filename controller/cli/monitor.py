@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from controller.cli import exitcodes
+from controller.cli.zenoh_threads import start_zenoh_thread
 
 STATUS_PERIOD_S = 0.25
 POSE_STALE_S = 1.0
@@ -383,13 +384,9 @@ def cmd_monitor(args: argparse.Namespace) -> int:
             ),
         ]
         stop = threading.Event()
-        poller = threading.Thread(
-            target=_poll_status,
-            args=(session, prefix, data, stop, args.timeout),
-            name="cablebot-monitor-status",
-            daemon=True,
+        poller = start_zenoh_thread(
+            _poll_status, session, prefix, data, stop, args.timeout, name="cablebot-monitor-status"
         )
-        poller.start()
         fd: int | None = None
         with contextlib.suppress(AttributeError, ValueError, OSError):
             if sys.stdin.isatty():
@@ -415,12 +412,15 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                     )
                     if verb is not None:
                         data.set_message(f"{verb}: sent …", "bold yellow")
-                        threading.Thread(
-                            target=_send,
-                            args=(session, prefix, verb, data, args.timeout),
+                        start_zenoh_thread(
+                            _send,
+                            session,
+                            prefix,
+                            verb,
+                            data,
+                            args.timeout,
                             name=f"cablebot-monitor-{verb}",
-                            daemon=True,
-                        ).start()
+                        )
         finally:
             stop.set()
             for sub in subs:

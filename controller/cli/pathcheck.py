@@ -87,6 +87,24 @@ def path_refusal(
     )
 
 
+def check_json_points(path: str, pts: Any) -> None:
+    """Refuse the points of a JSON path file as the daemon would, naming a bad one by its
+    position in the file from 1 (as the whole-file check does), not by its index in the
+    chunk it would be sent in. Raises InputError."""
+    from controller.cli.session import InputError
+    from controller.core.commands import CommandError, parse_point
+
+    if not isinstance(pts, list):
+        return  # not a list: the command's own check names it
+    if not pts:
+        raise InputError(f"{path}: no points in it (an empty list): nothing to fly")
+    for i, p in enumerate(pts):
+        try:
+            parse_point(p, f"point {i + 1}")
+        except CommandError as exc:
+            raise InputError(f"{path}: {exc}") from None
+
+
 class PathFile(NamedTuple):
     """A path file as read: its name, points, their line numbers (None: JSON, whose points are
     named by position) and whether it appends to the path in progress."""

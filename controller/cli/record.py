@@ -45,6 +45,8 @@ from pathlib import Path
 from types import FrameType
 from typing import IO, Any
 
+from controller.cli.zenoh_threads import start_zenoh_thread
+
 CHUNK_SIZE = 256 * 1024
 """Close an MCAP chunk when it holds this many (uncompressed) bytes."""
 DEFAULT_FLUSH_S = 1.0
@@ -278,6 +280,31 @@ class RecordedMessage:
     data: bytes
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The bytes every MCAP file starts (and ends) with."""
+
+
+def _unreadable_reason(path: Path, exc: BaseException) -> str:
+    """Why a file that did not yield its first MCAP record is not a recording, for people."""
+    import struct
+
+    from mcap.exceptions import EndOfFile
+
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            head = f.read(len(MCAP_MAGIC))
+    except OSError:
+        return str(exc) or type(exc).__name__
+    if size == 0:
+        return "the file is empty (0 bytes)"
+    if head != MCAP_MAGIC[: len(head)]:
+        return "not an MCAP file (it does not start with MCAP's magic bytes)"
+    if len(head) < len(MCAP_MAGIC) or isinstance(exc, EndOfFile | struct.error):
+        return f"the file is cut off after {size} bytes, before its first record"
+    return str(exc) or f"{type(exc).__name__} reading its first record"
+
+
 @dataclass
 class Recording:
     """A cablebot MCAP file, read front to back (works on a file cut short by a kill).
@@ -316,7 +343,8 @@ class Recording:
                     break
                 except Exception as exc:
                     if not started:  # not an MCAP file (bad magic) or an empty one
-                        raise McapError(f"{self.path}: not a cablebot recording: {exc}") from exc
+                        reason = _unreadable_reason(self.path, exc)
+                        raise McapError(f"not a cablebot recording: {reason}") from exc
                     self.error = f"{type(exc).__name__}: {exc}"  # a cut or damaged tail
                     break
                 started = True
@@ -520,8 +548,7 @@ def _record(
         session.declare_subscriber(f"{prefix}/**", on_sample),
         session.liveliness().declare_subscriber(f"{prefix}/alive", on_alive, history=True),
     ]
-    poller = threading.Thread(target=poll_status, name="cablebot-record-status", daemon=True)
-    poller.start()
+    poller = start_zenoh_thread(poll_status, name="cablebot-record-status")
     print(f"recording {prefix}/** via {args.connect} into {args.file}", flush=True)
     deadline = math.inf if args.duration is None else time.monotonic() + args.duration
     try:

@@ -142,6 +142,7 @@ JSON_KEYS = (
     "ros2_publish_us",
     "compute_per_tick",
     "shaping_per_tick",
+    "layouts",
 )
 
 
@@ -157,6 +158,7 @@ SECTIONS = (
     "ros2",
     "compute",
     "shaping",
+    "layouts",
 )
 """The benchmark's sections, in the order they run (`cablebot bench --only NAME ...`)."""
 
@@ -227,3 +229,18 @@ at most this to the tick's 99th percentile."""
 
 
 SHAPING_KEYS = ("p50_us_off", "p99_us_off", "p50_us_on", "p99_us_on", "added_p99_us", "on_over_off")
+
+
+LAYOUTS = ("paper-4", "triangle-3", "hangprinter-4", "hangprinter-5", "cube-8")
+"""The layouts section's robots: the paper robot (the reference), three cables hanging from a
+triangle, the Hangprinter v4 and five-anchor files, eight anchors at a box's corners (among)."""
+LAYOUT_KEYS = (
+    "statics_us",
+    "statics_tick_us",
+    "fpk_us",
+    "fpk_tick_us",
+    "statics_over_paper4",
+    "fpk_over_paper4",
+)
+TARGET_LAYOUT_OVER_PAPER4 = 2.0
+"""Eight cables' statics and FPK per call over the paper robot's four, at random poses."""
