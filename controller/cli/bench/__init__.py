@@ -141,11 +141,12 @@ only.
 
 Layout: `settings` (plans, targets, JSON keys), `timing` (percentiles, interleaved timing),
 `figures` (the micro-benchmarks: FPK, batch, statics, simulator, decode), `planning`,
-`stretch`, `ros2`, `compute`, `shaping`, `layouts` (one section each: its figures and rows), `helpers`
-(the helper processes: simulated drives, pose subscriber), `loop` (the daemon-like loop run,
-end-to-end matching), `estop` (the e-stop flood), `table` (rows and the table), `measure`
-(each section's figures and rows), `command` (`cablebot bench`), `__main__` (the helper
-processes' entry).
+`stretch`, `ros2`, `compute`, `shaping`, `layouts` (one section each: its figures and rows),
+`helpers` (the helper processes: simulated drives, pose subscriber), `loop` (the daemon-like
+loop run, end-to-end matching), `estop` (the e-stop flood), `table` (rows and the table),
+`measure` (each section's figures and rows), `command` (`cablebot bench`), `vibration` (the
+controller on the physical plant: `tools/shaping_figures.py` and the shaping tests),
+`__main__` (the helper processes' entry).
 """
 
 from __future__ import annotations
