@@ -308,6 +308,11 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
     if stretch is not None:
         lines.append(stretch[0])
         data["stretch"] = stretch[1]
+    from controller.cli.modes_cmd import modes_lines
+
+    mode_text, mode_data = modes_lines(cfg)
+    lines.extend(mode_text)
+    data.update(mode_data)
     lp = cfg.loop
     pub_hz = lp.rate_hz / max(1, lp.publish_every)
     lines.append(

@@ -91,6 +91,11 @@ def format_status(st: dict[str, Any]) -> str:
                 if res.get("ok")
                 else f"pretension ended without homing: {res.get('reason')}"
             )
+    shaper = st.get("shaper")
+    if isinstance(shaper, dict):
+        from controller.cli.shaper_cmd import describe
+
+        lines.append(f"shaper     {describe(shaper)}")
     tensions = status_tensions_n(st)
     for i, ax in enumerate(st.get("axes", [])):
         age = ax.get("age_s")

@@ -37,6 +37,7 @@ from controller.core.gcode_job import (
     GcodeFrame,
     Job,
     JobPlan,
+    Shaping,
     Step,
     Sync,
     check_job,
@@ -295,8 +296,8 @@ class RobotLink(Protocol):
     def status(self) -> dict[str, Any]:
         """The daemon's status."""
 
-    def command(self, verb: str) -> Any:
-        """Send a verb without payload (disarm, estop); raises client.Refused."""
+    def command(self, verb: str, payload: dict[str, Any] | None = None) -> Any:
+        """Send a verb with `payload` (none: disarm, estop); raises client.Refused."""
 
 
 class Streamer:
@@ -367,6 +368,15 @@ class Streamer:
             self.robot.command("estop")
         elif isinstance(step, Sync):
             return step.report
+        elif isinstance(step, Shaping):
+            self.robot.command(
+                "shaper",
+                {
+                    "type": step.type,
+                    "frequency_hz": step.frequency_hz,
+                    "damping_ratio": step.damping_ratio,
+                },
+            )
         return None
 
     def rest(self, deadline_s: float = math.inf) -> None:
@@ -427,11 +437,11 @@ class ZenohRobot:
         st = query(self.session, self._key("status"), None, self.args.timeout)
         return st if isinstance(st, dict) else {}
 
-    def command(self, verb: str) -> Any:
-        """Send `verb` without a payload; raises client.Refused."""
+    def command(self, verb: str, payload: dict[str, Any] | None = None) -> Any:
+        """Send `verb` with `payload` (None: without one); raises client.Refused."""
         from controller.cli.client import query
 
-        return query(self.session, self._key(f"cmd/{verb}"), None, self.args.timeout)
+        return query(self.session, self._key(f"cmd/{verb}"), payload, self.args.timeout)
 
 
 def cmd_stream(args: argparse.Namespace) -> int:

@@ -57,13 +57,31 @@ def sim_plant(cfg: Any, turns: Sequence[float]) -> Any:
     """
     if cfg.sim.plant != "physical":
         return None
-    from controller.core.plant import PlantParams, ReelPlant
+    from controller.core.plant import ReelPlant
     from controller.service.config import tension_check
 
     pose = tuple(float(v) for v in cfg.homing.power_up_position_m)
     tensions = tension_check(cfg.payload, cfg.tension, cfg.geometry).solve(pose).tensions_n
-    params = PlantParams(cfg.anchors_m, float(cfg.sim.cable_ea_n), float(cfg.payload.mass_kg))
+    params = sim_plant_params(cfg)
     return ReelPlant(params, [r.reel for r in cfg.reels], pose, turns, tensions)
+
+
+def sim_plant_params(cfg: Any) -> Any:
+    """The `controller.core.plant.PlantParams` of the config's physical plant: the anchors,
+    `[sim] cable_ea_n`, the payload's mass, `[sim] cable_damping_ratio` and
+    `effector_damping_n_s_per_m` (unset: the plant's light drag). Raises PlantError on
+    parameters the plant refuses, AttributeError without a payload."""
+    from controller.core.plant import PlantParams
+
+    s = cfg.sim
+    drag = s.effector_damping_n_s_per_m
+    return PlantParams(
+        cfg.anchors_m,
+        float(s.cable_ea_n),
+        float(cfg.payload.mass_kg),
+        cable_damping_ratio=float(s.cable_damping_ratio),
+        effector_damping_n_s_per_m=None if drag is None else float(drag),
+    )
 
 
 def sim_bank(cfg: Any, bus: Any) -> Any:

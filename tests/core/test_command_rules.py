@@ -20,6 +20,7 @@ from controller.core.commands import (
     Pretension,
     Reset,
     Setpoint,
+    Shaper,
     Stop,
     Velocity,
 )
@@ -104,6 +105,7 @@ def _command(verb: str, rig: Rig) -> Any:
         "setpoint": Setpoint(near),
         "velocity": Velocity((0.1, 0.0, 0.0)),
         "stop": Stop(),
+        "shaper": Shaper("zv", 5.0),
     }[verb]
 
 

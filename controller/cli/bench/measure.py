@@ -41,6 +41,7 @@ from controller.cli.bench.settings import (
     TARGET_SIMPLIFIED_US,
     Plan,
 )
+from controller.cli.bench.shaping import measure_shaping
 from controller.cli.bench.stretch import measure_stretch
 from controller.cli.bench.table import Row, _frames_row
 
@@ -462,6 +463,9 @@ def measure(
         rows += part
     if "compute" in sections:
         result["compute_per_tick"], part = measure_compute(p, log)
+        rows += part
+    if "shaping" in sections:
+        result["shaping_per_tick"], part = measure_shaping(p, log)
         rows += part
     if "layouts" in sections:
         result["layouts"], part = measure_layouts(p, log)

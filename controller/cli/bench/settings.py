@@ -141,6 +141,7 @@ JSON_KEYS = (
     "stretch_us",
     "ros2_publish_us",
     "compute_per_tick",
+    "shaping_per_tick",
     "layouts",
 )
 
@@ -156,6 +157,7 @@ SECTIONS = (
     "stretch",
     "ros2",
     "compute",
+    "shaping",
     "layouts",
 )
 """The benchmark's sections, in the order they run (`cablebot bench --only NAME ...`)."""
@@ -219,6 +221,14 @@ COMPUTE_KEYS = ("ticks", "p50_us", "p99_us", "p99_frac")
 
 class BenchError(RuntimeError):
     """A figure could not be measured (a helper process failed, no samples, ...)."""
+
+
+TARGET_SHAPING_ADDED_US = 50.0
+"""Input shaping (the default train on the model's three modes, following the set-point) adds
+at most this to the tick's 99th percentile."""
+
+
+SHAPING_KEYS = ("p50_us_off", "p99_us_off", "p50_us_on", "p99_us_on", "added_p99_us", "on_over_off")
 
 
 LAYOUTS = ("paper-4", "triangle-3", "hangprinter-4", "hangprinter-5", "cube-8")
