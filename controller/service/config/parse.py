@@ -17,6 +17,7 @@ from typing import Any
 from controller.core.commands import MAX_PATH_POINTS
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
 from controller.core.reel import ReelModel, spool_buildup, spool_buildup_from_factor
+from controller.core.scale import speed_scale_problem
 from controller.core.statics import TensionCheck
 from controller.core.workspace import Workspace, WorkspaceError
 from controller.service.config.interfaces import _parse_bus, _parse_ros2, _parse_zenoh
@@ -50,6 +51,7 @@ from controller.service.config.schema import (
     key_names,
 )
 from controller.service.config.tables import _Errors, _Table, _tname, _unknown
+from controller.service.config.tomltext import to_toml
 from drivers import busload, registry
 
 _REEL_KEYS = key_names(REEL_KEYS)
@@ -269,13 +271,15 @@ def _parse_faults(ft: _Table, loop: LoopConfig, sim: SimConfig) -> FaultConfig:
     return faults
 
 
-def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
+def parse_config(data: Mapping[str, Any], source: str, text: str | None = None) -> RobotConfig:
     """Validate an already-parsed TOML mapping and return the `RobotConfig`.
 
-    `source` names the origin (file path) in error messages. Raises one ConfigError listing
-    every problem found (each naming the key path): unknown keys, wrong types or units,
-    out-of-range values, duplicate node ids, unusable anchor geometry, an unknown bus interface
-    or interface option, a bad Zenoh endpoint or file, failed cross-checks.
+    `source` names the origin (file path) in error messages; `text` is the TOML text the
+    mapping was read from (None: written from the mapping, `tomltext.to_toml`). Raises one
+    ConfigError listing every problem found (each naming the key path): unknown keys, wrong
+    types or units, out-of-range values, duplicate node ids, unusable anchor geometry, an
+    unknown bus interface or interface option, a bad Zenoh endpoint or file, failed
+    cross-checks, a top speed that cannot be meant (`controller.core.scale`).
     """
     errs = _Errors(source)
     if not isinstance(data, Mapping):
@@ -319,6 +323,11 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         for i, r in enumerate(reels):
             errs.check(f"reels[{i}]", functools.partial(_check_reel_range, r, i, limits, source))
     limits_ok = limits_ok and errs.clean_since(mark)
+    if limits_ok and geometry is not None:
+        box = Workspace.from_limits(limits, geometry).box()
+        why = speed_scale_problem(limits.max_speed_mps, box)
+        if why is not None:
+            errs.add("limits.max_speed_mps", why)
 
     st = top.sub("sim")
     sim = _parse_sim(st, bus.interface, loop)
@@ -363,7 +372,17 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         tension=tension,
         ros2=ros2,
         gcode=gcode,
+        text=_robot_text(data) if text is None else text,
     )
+
+
+def _robot_text(data: Mapping[str, Any]) -> str:
+    """The TOML text of a valid robot mapping; "" if it holds a value TOML cannot write (a
+    robot built in code with, say, a tuple of numpy floats: it then has no description)."""
+    try:
+        return to_toml(data)
+    except (TypeError, ValueError):
+        return ""
 
 
 def _parse_gcode(top: _Table, limits: LimitsConfig | None) -> GcodeConfig:

@@ -631,6 +631,9 @@ class RobotConfig:
     drive: DriveConfig = field(default_factory=DriveConfig)
     ros2: Ros2Config = field(default_factory=lambda: Ros2Config())
     gcode: GcodeConfig = field(default_factory=lambda: GcodeConfig())
+    text: str = field(default="", compare=False, repr=False)
+    """The robot file's TOML text as loaded (for a robot built from a mapping, its TOML text):
+    what the daemon serves as its robot description on `<prefix>/robot`."""
 
     @property
     def node_ids(self) -> tuple[int, ...]:
