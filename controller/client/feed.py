@@ -62,10 +62,10 @@ class Follower(Generic[T]):
         """Called with every sample as it arrives, before it is queued (for subclasses that
         note something about the stream as it passes)."""
 
-    def get(self, timeout_s: float) -> T | None:
-        """The next sample, waiting at most `timeout_s`; None when none came."""
+    def get(self, timeout: float) -> T | None:
+        """The next sample, waiting at most `timeout` seconds; None when none came."""
         try:
-            return self._queue.get(timeout=max(0.0, timeout_s))
+            return self._queue.get(timeout=max(0.0, timeout))
         except queue.Empty:
             return None
 

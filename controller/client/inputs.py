@@ -79,6 +79,12 @@ def load_path_file(path: str, *, stream: bool = False) -> dict[str, Any]:
     the points one command carries. Raises InputError for an unreadable, not UTF-8 or invalid
     file.
     """
+    return read_path_file(path, stream=stream)[0]
+
+
+def read_path_file(path: str, *, stream: bool = False) -> tuple[dict[str, Any], list[int] | None]:
+    """`load_path_file`, and the file's line number of every point (None for JSON, whose
+    points are named by their position). Raises as `load_path_file` does."""
     from controller.service.textfile import NotUtf8Error, read_text
 
     try:
@@ -89,6 +95,7 @@ def load_path_file(path: str, *, stream: bool = False) -> dict[str, Any]:
         raise InputError(f"{path}: {exc}") from None
     stripped = text.lstrip()
     payload: dict[str, Any]
+    line_of: list[int] | None = None
     if stripped.startswith(("[", "{")):
         try:
             data = json.loads(text, parse_constant=_no_constant)
@@ -101,7 +108,8 @@ def load_path_file(path: str, *, stream: bool = False) -> dict[str, Any]:
         else:
             raise InputError(f"{path}: expected a list of points or an object")
     else:
-        payload = {"points_m": _csv_points(path, text)}
+        pts_read, line_of = _csv_points(path, text)
+        payload = {"points_m": pts_read}
     pts = payload.get("points_m")
     if isinstance(pts, list) and len(pts) > MAX_PATH_POINTS_SENT and not stream:
         raise InputError(
@@ -122,13 +130,14 @@ def load_path_file(path: str, *, stream: bool = False) -> dict[str, Any]:
         except (CommandError, ValueError) as exc:
             where = f" (points {i * MAX_PATH_POINTS_SENT} on)" if i else ""
             raise InputError(f"{path}{where}: {exc}") from None
-    return payload
+    return payload, line_of
 
 
-def _csv_points(path: str, text: str) -> list[list[float]]:
-    """The points of CSV or whitespace-separated `x,y,z` lines. Raises InputError naming the
-    line of the first bad one."""
+def _csv_points(path: str, text: str) -> tuple[list[list[float]], list[int]]:
+    """The points of CSV or whitespace-separated `x,y,z` lines and the line of each. Raises
+    InputError naming the line of the first bad one."""
     out: list[list[float]] = []
+    line_of: list[int] = []
     header_seen = False
     rows = csv.reader(io.StringIO(text.replace("\t", ",")))
     for n, row in enumerate(rows, start=1):
@@ -143,7 +152,8 @@ def _csv_points(path: str, text: str) -> list[list[float]]:
                 continue
             raise InputError(f"{path} line {n}: expected x,y,z, got {row}") from None
         out.append(point(values, f"{path} line {n}"))
-    return out
+        line_of.append(n)
+    return out, line_of
 
 
 def _no_constant(name: str) -> Any:

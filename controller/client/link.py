@@ -20,9 +20,10 @@ from contextlib import suppress
 from typing import Any
 
 from controller.client import inputs, transport
+from controller.client.description import NoDescription, RobotDescription, fetch_description
 from controller.client.errors import ClientError, DaemonAbsent, Refused
 from controller.client.feed import FOLLOWER_LIMIT, Feed, Follower
-from controller.client.model import DaemonInfo, Pose, Status, Truth
+from controller.client.model import DaemonInfo, Pose, StateChange, Status, Truth
 from controller.core.commands import quote
 
 POSE_MAX_AGE_S = 0.5
@@ -66,8 +67,10 @@ class RobotLink:
         self._lock = threading.Lock()
         self._poses: Feed[Pose] | None = None
         self._truths: Feed[Truth] | None = None
+        self._states: Feed[StateChange] | None = None
         self._declared: list[Any] = []
         self._publishers: dict[str, Any] = {}
+        self._description: RobotDescription | NoDescription | None = None
         self._closed = False
         if session is None:
             self.endpoint: str | None = transport.normalize_endpoint(endpoint)
@@ -124,6 +127,26 @@ class RobotLink:
             raise Refused(f"unexpected status reply {quote(st)}")
         return Status.from_mapping(st)
 
+    def description(self) -> RobotDescription:
+        """The robot the daemon runs (`<prefix>/robot`: its name, TOML text and the validated
+        configuration), fetched once and kept. Raises NoDescription (a Refused) from a daemon
+        that serves none (older than this client), DaemonAbsent, Refused (a description that
+        cannot be used)."""
+        with self._lock:
+            known = self._description
+        if known is None:
+            try:
+                known = fetch_description(
+                    self._session, self.prefix, self.timeout_s, self._query_fn
+                )
+            except NoDescription as exc:
+                known = exc
+            with self._lock:
+                self._description = known
+        if isinstance(known, NoDescription):
+            raise NoDescription(str(known))
+        return known
+
     def _pose_feed(self) -> Feed[Pose]:
         with self._lock:
             if self._poses is None:
@@ -150,6 +173,11 @@ class RobotLink:
             raise DaemonAbsent(f"no pose sample within {wait_s:g} s on {self.key('pose')}")
         return pose
 
+    def latest_pose(self) -> Pose | None:
+        """The newest pose sample received, never waiting: None before the first arrives (the
+        first call subscribes; check its `received_s` for its age)."""
+        return self._pose_feed().latest
+
     def poses(self, *, timeout_s: float | None = None, limit: int = FOLLOWER_LIMIT) -> PoseStream:
         """Every pose sample from now on, in order, as an iterator (close it, or use it as a
         context manager, when done). Raises (while iterating) DaemonAbsent when no sample
@@ -165,6 +193,19 @@ class RobotLink:
         stop."""
         feed = self._pose_feed()
         return feed.add(Follower(feed, sink=callback))
+
+    def on_state(self, callback: Callable[[StateChange], None]) -> Follower[StateChange]:
+        """Call `callback(change)` with every change of state from now on (`<prefix>/state`),
+        on Zenoh's thread (keep it short); returns the subscription: `close()` it to stop."""
+        with self._lock:
+            if self._states is None:
+                feed: Feed[StateChange] = Feed(lambda data, t: StateChange.from_json(data, t))
+                self._declared.append(
+                    self._session.declare_subscriber(self.key("state"), feed.on_sample)
+                )
+                self._states = feed
+            states = self._states
+        return states.add(Follower(states, sink=callback))
 
     def truth(self, timeout_s: float = 1.0) -> Truth | None:
         """The simulator's latest ground truth (`<prefix>/sim/truth`: the plant's true position
@@ -229,6 +270,14 @@ class PoseStream:
     def dropped(self) -> int:
         """Samples dropped because too many waited unread."""
         return self._follower.dropped
+
+    def get(self, timeout: float) -> Pose | None:
+        """The next sample, waiting at most `timeout` seconds; None when none came."""
+        return self._follower.get(timeout)
+
+    def drain(self) -> None:
+        """Drop every sample received so far and not read."""
+        self._follower.drain()
 
     def __iter__(self) -> PoseStream:
         return self

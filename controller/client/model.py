@@ -163,6 +163,32 @@ def pose_text(seq: Any, state: Any, position_m: Sequence[float] | None, residual
     return f"seq {seq}  state {state}  {where}{resid}"
 
 
+@dataclass(frozen=True, slots=True)
+class StateChange:
+    """One sample of `<prefix>/state`, published on every change of state: the new state, why
+    (a fault's reason; None when there is none) and when (`stamp_ns`, wall clock)."""
+
+    state: str
+    reason: str | None
+    stamp_ns: int
+    received_s: float = field(default=0.0, compare=False)
+
+    @classmethod
+    def from_json(cls, data: bytes, received_s: float | None = None) -> StateChange:
+        """The change of one sample. Raises ValueError when it is not a JSON object with a
+        string `state`."""
+        obj = decode_object(data)
+        state = obj.get("state")
+        if not isinstance(state, str):
+            raise ValueError("a state sample needs a string state")
+        return cls(
+            state=state,
+            reason=_str(obj.get("reason")),
+            stamp_ns=_int(obj.get("stamp_ns")),
+            received_s=time.monotonic() if received_s is None else received_s,
+        )
+
+
 # --------------------------------------------------------------------------------------------
 # The status
 

@@ -54,6 +54,7 @@ from controller.client.model import (
     Reply,
     Status,
 )
+from controller.client.pathcheck import PathFile, check_with_robot
 from controller.client.stream import LOW_WATER_S, StreamProgress, StreamRefused, iter_points
 from controller.core.commands import (
     MAX_PATH_POINTS_SENT,
@@ -125,7 +126,7 @@ class Robot(RobotLink):
 
     def close(self) -> None:
         """`RobotLink.close`; motion in progress goes on (nothing is followed any more)."""
-        self._end_motion()
+        self.forget_motion()
         super().close()
 
     def __enter__(self) -> Robot:
@@ -156,18 +157,19 @@ class Robot(RobotLink):
     def _send(self, verb: str, payload: dict[str, Any] | None) -> Reply:
         reply = Reply.from_reply(verb, self.query(f"cmd/{verb}", payload))
         if verb in ("stop", "estop", "disarm"):
-            self._end_motion()
+            self.forget_motion()
         return reply
 
     def move(self, position_m: Sequence[float], *, speed_mps: float | None = None) -> Reply:
-        """Move in a straight line to `position_m` (at `speed_mps`, or the robot's speed; a
-        speed above the robot's maximum runs at the maximum). `wait()` follows it. Raises
-        InputError, Refused (outside the workspace or the limits, not allowed in this state),
-        DaemonAbsent."""
+        """Move in a straight line to `position_m` (at `speed_mps`, at most the robot's
+        `limits.max_speed_mps`; by default the robot's speed). `wait()` follows it. Raises
+        InputError (nothing sent: bad numbers, a speed above the robot's maximum), Refused
+        (outside the workspace or the limits, not allowed in this state), DaemonAbsent."""
         target = inputs.point(position_m, "move")
         payload: dict[str, Any] = {"position_m": target}
         speed = inputs.speed(speed_mps, "speed_mps")
         if speed is not None:
+            check_with_robot(self, speed, None, speed_option="speed_mps")
             payload["speed_mps"] = speed
         return self._motion_command("move", payload, [target])
 
@@ -179,8 +181,10 @@ class Robot(RobotLink):
         append: bool = False,
     ) -> Reply:
         """Fly through `points_m` (at most `MAX_PATH_POINTS_SENT`; longer: `stream_path`), with
-        rounded corners; `append` adds them to the path in progress. `wait()` follows it.
-        Raises InputError, Refused, DaemonAbsent."""
+        rounded corners; `append` adds them to the path in progress. `wait()` follows it. The
+        whole path is checked first against the daemon's robot (`pathcheck`). Raises
+        InputError (nothing sent: bad numbers, a point the robot refuses, a speed above its
+        maximum), Refused, DaemonAbsent."""
         pts = inputs.points(points_m, "points_m")
         if len(pts) > MAX_PATH_POINTS_SENT:
             raise InputError(
@@ -189,6 +193,9 @@ class Robot(RobotLink):
             )
         payload: dict[str, Any] = {"points_m": pts}
         speed = inputs.speed(speed_mps, "speed_mps")
+        check_with_robot(
+            self, speed, PathFile("points_m", pts, None, append, "path"), speed_option="speed_mps"
+        )
         if speed is not None:
             payload["speed_mps"] = speed
         if append:
@@ -196,11 +203,18 @@ class Robot(RobotLink):
         return self._motion_command("path", payload, pts)
 
     def send_motion(
-        self, verb: str, payload: dict[str, Any], points: Sequence[Sequence[float]]
+        self,
+        verb: str,
+        payload: dict[str, Any],
+        points: Sequence[Sequence[float]],
+        *,
+        follow: bool = True,
     ) -> Reply:
         """Send a `move` or `path` payload checked already (a path file read by
-        `inputs.load_path_file`), to be followed to the last of `points` by `wait()`. Raises
-        Refused, DaemonAbsent."""
+        `inputs.read_path_file`), to be followed to the last of `points` by `wait()` (unless
+        not `follow`: then nothing subscribes to the pose). Raises Refused, DaemonAbsent."""
+        if not follow:
+            return self._send(verb, payload)
         return self._motion_command(verb, payload, points)
 
     def _motion_command(
@@ -222,8 +236,17 @@ class Robot(RobotLink):
         if old is not None and old is not motion:
             old.follower.close()
 
-    def _end_motion(self, motion: Motion | None = None) -> None:
-        """Forget the motion followed (only `motion`, when given)."""
+    def expect_motion(self, points: Sequence[Sequence[float]]) -> Motion:
+        """Follow a motion about to be sent other than by this Robot's own methods (a job):
+        its end is the last of `points`; `wait()` follows it and a cancel brakes it. Returns
+        the motion (for `forget_motion`). Raises nothing."""
+        motion = Motion(points, self._pose_feed().follow())
+        self._set_motion(motion)
+        return motion
+
+    def forget_motion(self, motion: Motion | None = None) -> None:
+        """Stop following the motion sent last (only `motion`, when given): it ended, or the
+        robot no longer moves. Raises nothing."""
         with self._lock:
             old = self._motion
             if old is None or (motion is not None and old is not motion):
@@ -287,7 +310,7 @@ class Robot(RobotLink):
         motion = self._motion
         if motion is None:
             return None
-        self._end_motion(motion)
+        self.forget_motion(motion)
         try:
             reply = self._send("stop", None)
         except Exception as err:  # the daemon gone, a refusal: say so, never mask `exc`
@@ -317,15 +340,11 @@ class Robot(RobotLink):
         KeyboardInterrupt meanwhile (Cancelled too) brakes the robot to a hold (with
         `brake`)."""
         motion = self._motion
-        if motion is None:
-            raise InputError("nothing to wait for: no motion sent since the last wait or stop")
         wait_s = inputs.positive_s(timeout_s, "timeout_s")
         try:
-            # Samples from before the daemon took the command may stand HOLDING where a path
-            # also ends: unless the motion is over already, wait to see it move.
-            arrival = Arrival(motion.points, seen_moving=self.status().state != "MOVING")
+            samples, arrival = self.arrival()
             pose = follow_arrival(
-                motion.follower.get,
+                samples.get,
                 arrival,
                 wait_timeout_s=wait_s,
                 sample_timeout_s=self.timeout_s,
@@ -336,14 +355,25 @@ class Robot(RobotLink):
         except WaitTimeout:
             raise  # the robot goes on
         except Failed:
-            self._end_motion(motion)  # the robot stopped, or holds where the motion ended
+            self.forget_motion(motion)  # the robot stopped, or holds where the motion ended
             raise
         except BaseException as exc:
             if brake:
                 self.brake_if_moving(exc)
             raise
-        self._end_motion(motion)
+        self.forget_motion(motion)
         return pose
+
+    def arrival(self) -> tuple[Follower[Pose], Arrival]:
+        """The motion sent last, ready to follow: its pose samples (from just before it was
+        sent) and its arrival rule (`controller.client.arrival`). Samples from before the daemon
+        took the command may stand HOLDING where a path also ends: unless the status says the
+        motion is over already, the rule waits to see it move. Raises InputError when nothing
+        was sent to follow, DaemonAbsent, Refused."""
+        motion = self._motion
+        if motion is None:
+            raise InputError("nothing to wait for: no motion sent since the last wait or stop")
+        return motion.follower, Arrival(motion.points, seen_moving=self.status().state != "MOVING")
 
     def wait_armed(self, timeout_s: float = ARM_FOLLOW_S) -> Status:
         """Follow an arming (state ARMING) until it ends; returns the status then (still
@@ -392,12 +422,14 @@ class Robot(RobotLink):
         append: bool = False,
         brake: bool = True,
         low_water_s: float = LOW_WATER_S,
+        check: bool = True,
     ) -> Generator[StreamProgress, None, None]:
         """Stream a path of any length: the first points as a path (with `append`: added to the
         path in progress), the rest appended in chunks while the daemon's queue holds less
         than `low_water_s` of motion. Yields the progress after every chunk and every poll of
         the queue; the stream is done when the iterator ends (`wait()` then follows the robot
-        to the last point). Every point is checked before the first is sent.
+        to the last point). Every point is checked before the first is sent: its numbers, and
+        (with `check`) the whole path against the daemon's robot (`pathcheck`).
 
         Raises InputError (nothing sent); while iterating: Refused (a chunk refused, or the
         robot left HOLDING/MOVING; how far it got in the message), DaemonAbsent. Closing the
@@ -405,6 +437,9 @@ class Robot(RobotLink):
         """
         pts = inputs.points(points_m, "points_m")
         speed = inputs.speed(speed_mps, "speed_mps")
+        if check:
+            path = PathFile("points_m", pts, None, append, "path")
+            check_with_robot(self, speed, path, speed_option="speed_mps")
         return self._stream(pts, speed, append, brake, low_water_s)
 
     def _stream(
@@ -458,13 +493,19 @@ class Robot(RobotLink):
         on_progress: Callable[[StreamProgress], None] | None = None,
         brake: bool = True,
         low_water_s: float = LOW_WATER_S,
+        check: bool = True,
     ) -> StreamProgress:
         """`iter_path` with a callback: `on_progress` gets each progress; returns the last
         (every point sent). Raises as `iter_path`; an exception in `on_progress` brakes the
         robot to a hold (with `brake`) and is raised."""
         last = StreamProgress(total=0)
         it = self.iter_path(
-            points_m, speed_mps=speed_mps, append=append, brake=brake, low_water_s=low_water_s
+            points_m,
+            speed_mps=speed_mps,
+            append=append,
+            brake=brake,
+            low_water_s=low_water_s,
+            check=check,
         )
         with closing(it) as steps:
             for last in steps:
