@@ -54,8 +54,8 @@ class AsyncRobot:
     @classmethod
     async def connect(
         cls,
-        endpoint: str = transport.DEFAULT_ENDPOINT,
-        prefix: str = transport.DEFAULT_PREFIX,
+        endpoint: str | None = None,
+        prefix: str | None = None,
         *,
         zenoh_config: str | None = None,
         timeout_s: float = transport.DEFAULT_TIMEOUT_S,

@@ -38,12 +38,13 @@ QueryFn = Callable[[Any, str, Any, float], Any]
 class RobotLink:
     """The robot a daemon runs, reached over Zenoh: its status and what it publishes.
 
-    `endpoint` is where the daemon listens (`tcp/HOST:PORT` or `HOST:PORT`), `prefix` its key
-    prefix (`cablebot/<robot name>`), `zenoh_config` a Zenoh JSON5 file for this client (TLS
-    certificates, say), `timeout_s` how long a reply or a pose sample may take. With
-    `session`, the Robot uses that open Zenoh session instead of opening one (and does not
-    close it); `query` replaces the function that sends one query (tools that record or
-    replay the traffic).
+    `endpoint` is where the daemon listens (`tcp/HOST:PORT` or `HOST:PORT`; default
+    `$CABLEBOT_ENDPOINT`, else `tcp/127.0.0.1:7447`), `prefix` its key prefix (`cablebot/<robot
+    name>`; default `$CABLEBOT_PREFIX`, else `cablebot/default`), `zenoh_config` a Zenoh JSON5
+    file for this client (TLS certificates, say), `timeout_s` how long a reply or a pose sample
+    may take. With `session`, the Robot uses that open Zenoh session instead of opening one
+    (and does not close it); `query` replaces the function that sends one query (tools that
+    record or replay the traffic).
 
     Raises UsageError for an endpoint or configuration file that cannot be used, DaemonAbsent
     when nothing accepts the connection (a daemon that is there but does not answer on
@@ -53,15 +54,15 @@ class RobotLink:
 
     def __init__(
         self,
-        endpoint: str = transport.DEFAULT_ENDPOINT,
-        prefix: str = transport.DEFAULT_PREFIX,
+        endpoint: str | None = None,
+        prefix: str | None = None,
         *,
         zenoh_config: str | None = None,
         timeout_s: float = transport.DEFAULT_TIMEOUT_S,
         session: Any = None,
         query: QueryFn | None = None,
     ) -> None:
-        self.prefix = prefix.rstrip("/")
+        self.prefix = (transport.default_prefix() if prefix is None else prefix).rstrip("/")
         self.timeout_s = inputs.positive_s(timeout_s, "timeout_s")
         self._query_fn: QueryFn = transport.query if query is None else query
         self._lock = threading.Lock()
@@ -73,7 +74,8 @@ class RobotLink:
         self._description: RobotDescription | NoDescription | None = None
         self._closed = False
         if session is None:
-            self.endpoint: str | None = transport.normalize_endpoint(endpoint)
+            given = transport.default_endpoint() if endpoint is None else endpoint
+            self.endpoint: str | None = transport.normalize_endpoint(given)
             self._session = transport.open_zenoh(self.endpoint, config_file=zenoh_config)
             self._owns_session = True
         else:
@@ -332,12 +334,14 @@ def list_daemons(
 
 
 def discover(
-    endpoint: str = transport.DEFAULT_ENDPOINT,
+    endpoint: str | None = None,
     *,
     zenoh_config: str | None = None,
     timeout_s: float = transport.DEFAULT_TIMEOUT_S,
 ) -> list[DaemonInfo]:
-    """Every live daemon reachable via `endpoint` (`list_daemons` on a session of its own).
-    Raises UsageError, DaemonAbsent (nothing accepts the connection)."""
-    with transport.open_session(endpoint, config_file=zenoh_config) as session:
+    """Every live daemon reachable via `endpoint` (default: `$CABLEBOT_ENDPOINT`, else
+    `tcp/127.0.0.1:7447`), by `list_daemons` on a session of its own. Raises UsageError,
+    DaemonAbsent (nothing accepts the connection)."""
+    given = transport.default_endpoint() if endpoint is None else endpoint
+    with transport.open_session(given, config_file=zenoh_config) as session:
         return list_daemons(session, timeout_s)

@@ -91,12 +91,13 @@ class Robot(RobotLink):
     """The robot a daemon runs, reached over Zenoh: read it (`RobotLink`), command it, follow
     its motion.
 
-    `endpoint` is where the daemon listens (`tcp/HOST:PORT` or `HOST:PORT`), `prefix` its key
-    prefix (`cablebot/<robot name>`), `zenoh_config` a Zenoh JSON5 file for this client (TLS
-    certificates, say), `timeout_s` how long a reply or a pose sample may take. With
-    `session`, the Robot uses that open Zenoh session instead of opening one (and does not
-    close it); `query` replaces the function that sends one query (tools that record or
-    replay the traffic).
+    `endpoint` is where the daemon listens (`tcp/HOST:PORT` or `HOST:PORT`; default
+    `$CABLEBOT_ENDPOINT`, else `tcp/127.0.0.1:7447`), `prefix` its key prefix (`cablebot/<robot
+    name>`; default `$CABLEBOT_PREFIX`, else `cablebot/default`), `zenoh_config` a Zenoh JSON5
+    file for this client (TLS certificates, say), `timeout_s` how long a reply or a pose sample
+    may take. With `session`, the Robot uses that open Zenoh session instead of opening one
+    (and does not close it); `query` replaces the function that sends one query (tools that
+    record or replay the traffic).
 
     Raises UsageError for an endpoint or configuration file that cannot be used, DaemonAbsent
     when nothing accepts the connection (a daemon that is there but does not answer on
@@ -106,8 +107,8 @@ class Robot(RobotLink):
 
     def __init__(
         self,
-        endpoint: str = transport.DEFAULT_ENDPOINT,
-        prefix: str = transport.DEFAULT_PREFIX,
+        endpoint: str | None = None,
+        prefix: str | None = None,
         *,
         zenoh_config: str | None = None,
         timeout_s: float = transport.DEFAULT_TIMEOUT_S,

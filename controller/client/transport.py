@@ -9,6 +9,7 @@ opened, not before, so that importing the library stays cheap.
 from __future__ import annotations
 
 import json
+import os
 import re
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -22,6 +23,11 @@ DEFAULT_PREFIX = "cablebot/default"
 """The key prefix of the built-in robot (`cablebot/<robot name>`)."""
 DEFAULT_TIMEOUT_S = 5.0
 """How long a client waits for a reply or a pose sample unless told otherwise."""
+ENDPOINT_ENV = "CABLEBOT_ENDPOINT"
+"""The environment variable that, when set, replaces `DEFAULT_ENDPOINT` for a program's
+`Robot()` (so a script is pointed at another daemon without an edit)."""
+PREFIX_ENV = "CABLEBOT_PREFIX"
+"""The environment variable that, when set, replaces `DEFAULT_PREFIX` for `Robot()`."""
 LIVELINESS_TIMEOUT_S = 1.0
 """How long `live_prefixes` waits for the daemons' liveliness tokens."""
 
@@ -56,6 +62,18 @@ def normalize_endpoint(text: str, option: str = "endpoint") -> str:
     if m is None or not 1 <= int(m.group(2)) <= 65535:
         raise bad
     return t if "/" in t else f"tcp/{t}"
+
+
+def default_endpoint() -> str:
+    """The endpoint a program's client uses when it names none: `$CABLEBOT_ENDPOINT` when set
+    and not empty, else `DEFAULT_ENDPOINT`."""
+    return os.environ.get(ENDPOINT_ENV) or DEFAULT_ENDPOINT
+
+
+def default_prefix() -> str:
+    """The prefix a program's client uses when it names none: `$CABLEBOT_PREFIX` when set and
+    not empty, else `DEFAULT_PREFIX`."""
+    return os.environ.get(PREFIX_ENV) or DEFAULT_PREFIX
 
 
 def clean_zenoh_error(text: str) -> str:
