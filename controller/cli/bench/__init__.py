@@ -124,15 +124,23 @@ Method
   building up (`[[reels]] spool_buildup_factor_m`, `BENCH_BUILDUP_FACTOR_M`). No bus and no
   other process, so the figure carries over between machines.
 
+* `client_stream` (full run only, `FULL_ONLY_SECTIONS`; `--only client`): a 100,000-point path
+  streamed to a daemon of the built-in robot by the CLI (`cablebot path FILE --wait`) and by a
+  script on the client library (`Robot.stream_path`, `Robot.wait`), back to back, each a fresh
+  process timed from start to exit, with its CPU time (`controller.cli.bench.client`). Target:
+  the script's wall time over the CLI's at most `TARGET_SCRIPT_OVER_CLI`.
+
 `--only SECTION ...` runs only those sections (`SECTIONS`: kinematics, statics, sim, decode,
-loops, estop, planning, stretch, ros2, compute); the JSON then holds their keys only.
+loops, estop, planning, stretch, ros2, compute; and `client`); the JSON then holds their keys
+only.
 
 Layout: `settings` (plans, targets, JSON keys), `timing` (percentiles, interleaved timing),
 `figures` (the micro-benchmarks: FPK, batch, statics, simulator, decode), `planning`,
-`stretch`, `ros2`, `compute` (one section each: its figures and rows), `helpers` (the helper
-processes: simulated drives, pose subscriber), `loop` (the daemon-like loop run, end-to-end
-matching), `estop` (the e-stop flood), `table` (rows and the table), `measure` (each section's
-figures and rows), `command` (`cablebot bench`), `__main__` (the helper processes' entry).
+`stretch`, `ros2`, `compute`, `client` (one section each: its figures and rows), `helpers`
+(the helper processes: simulated drives, pose subscriber), `loop` (the daemon-like loop run,
+end-to-end matching), `estop` (the e-stop flood), `table` (rows and the table), `measure` (each
+section's figures and rows), `command` (`cablebot bench`), `__main__` (the helper processes'
+entry).
 """
 
 from __future__ import annotations
