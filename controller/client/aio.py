@@ -230,8 +230,14 @@ class AsyncRobot:
     ) -> AsyncGenerator[StreamProgress, None]:
         """`Robot.iter_path` as an async iterator (close it with `contextlib.aclosing`, or let
         it end). Cancelling, or closing it early, brakes the robot to a hold (with `brake`)."""
-        steps = self.robot.iter_path(
-            points_m, speed_mps=speed_mps, append=append, brake=brake, low_water_s=low_water_s
+        # The whole path is checked first (queries): off the event loop, as every call.
+        steps = await asyncio.to_thread(
+            self.robot.iter_path,
+            list(points_m),
+            speed_mps=speed_mps,
+            append=append,
+            brake=brake,
+            low_water_s=low_water_s,
         )
         try:
             while True:

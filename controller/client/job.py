@@ -390,6 +390,12 @@ def run_job(
     except StopIteration as stop:
         result: JobResult = stop.value
         return result
+    except (Refused, WaitTimeout):
+        raise
+    except BaseException as exc:  # the callback's (or a Ctrl-C): brake first, saying so on it
+        if brake:
+            robot.brake_if_moving(exc)
+        raise
     finally:
         steps.close()
 

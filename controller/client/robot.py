@@ -509,7 +509,14 @@ class Robot(RobotLink):
             check=check,
         )
         with closing(it) as steps:
-            for last in steps:
-                if on_progress is not None:
-                    on_progress(last)
+            try:
+                for last in steps:
+                    if on_progress is not None:
+                        on_progress(last)
+            except (Refused, WaitTimeout):
+                raise
+            except BaseException as exc:  # the callback's: brake first, saying so on it
+                if brake:
+                    self.brake_if_moving(exc)
+                raise
         return last
