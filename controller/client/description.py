@@ -20,11 +20,12 @@ from typing import TYPE_CHECKING, Any
 
 from controller.client import transport
 from controller.client.errors import DaemonAbsent, Refused
+from controller.service import keys
 
 if TYPE_CHECKING:  # the configuration's modules load when a description is read, not before
     from controller.service.config import RobotConfig
 
-ROBOT_KEY = "robot"
+ROBOT_KEY = keys.ROBOT
 """The daemon's robot description: `<prefix>/robot`."""
 
 
@@ -95,7 +96,7 @@ def fetch_description(
     try:
         reply = query(session, f"{prefix}/{ROBOT_KEY}", None, timeout_s)
     except DaemonAbsent:
-        query(session, f"{prefix}/status", None, timeout_s)  # no daemon: DaemonAbsent
+        query(session, f"{prefix}/{keys.STATUS}", None, timeout_s)  # no daemon: DaemonAbsent
         raise NoDescription(
             f"the daemon on {prefix} serves no robot description ({prefix}/{ROBOT_KEY}): it is"
             " older than this client; update it"

@@ -43,6 +43,7 @@ from controller.core.gcode_job import (
     Sync,
     chunks,
 )
+from controller.service import keys
 
 if TYPE_CHECKING:
     from controller.client.robot import Robot
@@ -102,16 +103,16 @@ class RobotJobLink:
         }
         if append:
             payload["append"] = True
-        return self.robot.query("cmd/path", payload)
+        return self.robot.query(keys.command("path"), payload)
 
     def status(self) -> dict[str, Any]:
         """The daemon's status ({} if it is not an object)."""
-        st = self.robot.query("status")
+        st = self.robot.query(keys.STATUS)
         return st if isinstance(st, dict) else {}
 
     def command(self, verb: str) -> Any:
         """Send `verb` without a payload; raises Refused."""
-        return self.robot.query(f"cmd/{verb}")
+        return self.robot.query(keys.command(verb))
 
 
 class Streamer:

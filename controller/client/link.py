@@ -25,11 +25,10 @@ from controller.client.errors import ClientError, DaemonAbsent, Refused
 from controller.client.feed import FOLLOWER_LIMIT, Feed, Follower
 from controller.client.model import DaemonInfo, Pose, StateChange, Status, Truth
 from controller.core.commands import quote
+from controller.service import keys
 
 POSE_MAX_AGE_S = 0.5
 """How old the latest pose may be for `pose()` to return it without waiting for a new one."""
-TRUTH_KEY = "sim/truth"
-"""The simulator's ground truth (`controller.service.simulated.TRUTH_KEY`)."""
 
 QueryFn = Callable[[Any, str, Any, float], Any]
 """`query(session, key, payload, timeout_s)`: one query, its decoded JSON reply."""
@@ -124,7 +123,7 @@ class RobotLink:
     def status(self) -> Status:
         """The daemon's status. Raises DaemonAbsent, Refused (an error reply or one that is
         not a status)."""
-        st = self.query("status")
+        st = self.query(keys.STATUS)
         if not isinstance(st, Mapping):
             raise Refused(f"unexpected status reply {quote(st)}")
         return Status.from_mapping(st)
@@ -154,7 +153,7 @@ class RobotLink:
             if self._poses is None:
                 feed: Feed[Pose] = Feed(lambda data, t: Pose.from_json(data, t))
                 self._declared.append(
-                    self._session.declare_subscriber(self.key("pose"), feed.on_sample)
+                    self._session.declare_subscriber(self.key(keys.POSE), feed.on_sample)
                 )
                 self._poses = feed
             return self._poses
@@ -187,7 +186,7 @@ class RobotLink:
         older ones are dropped and counted in `dropped` (gaps in `seq` show them too)."""
         wait_s = self.timeout_s if timeout_s is None else timeout_s
         feed = self._pose_feed()
-        return PoseStream(feed.add(Follower(feed, limit)), wait_s, self.key("pose"))
+        return PoseStream(feed.add(Follower(feed, limit)), wait_s, self.key(keys.POSE))
 
     def on_pose(self, callback: Callable[[Pose], None]) -> Follower[Pose]:
         """Call `callback(pose)` with every pose sample from now on, on Zenoh's thread (keep it
@@ -203,7 +202,7 @@ class RobotLink:
             if self._states is None:
                 feed: Feed[StateChange] = Feed(lambda data, t: StateChange.from_json(data, t))
                 self._declared.append(
-                    self._session.declare_subscriber(self.key("state"), feed.on_sample)
+                    self._session.declare_subscriber(self.key(keys.STATE), feed.on_sample)
                 )
                 self._states = feed
             states = self._states
@@ -217,7 +216,7 @@ class RobotLink:
             if self._truths is None:
                 feed: Feed[Truth] = Feed(lambda data, t: Truth.from_json(data, t))
                 self._declared.append(
-                    self._session.declare_subscriber(self.key(TRUTH_KEY), feed.on_sample)
+                    self._session.declare_subscriber(self.key(keys.TRUTH), feed.on_sample)
                 )
                 self._truths = feed
             truths = self._truths
@@ -248,14 +247,14 @@ class RobotLink:
         acceleration limits). No reply: a refused sample shows in `status().raw["stream"]`.
         Raises InputError (nothing sent)."""
         p = inputs.point(position_m, "setpoint")
-        self._publisher("setpoint").put(json.dumps({"position_m": p}).encode())
+        self._publisher(keys.SETPOINT).put(json.dumps({"position_m": p}).encode())
 
     def velocity(self, velocity_mps: Sequence[float]) -> None:
         """Send one velocity-input sample (`<prefix>/velocity`): fly at `velocity_mps` until
         the next; send 10-50 a second while moving (the daemon brakes to a hold when none comes
         for `[limits] velocity_timeout_s`); (0, 0, 0) brakes at once. Raises InputError."""
         v = inputs.point(velocity_mps, "velocity")
-        self._publisher("velocity").put(json.dumps({"velocity_mps": v}).encode())
+        self._publisher(keys.VELOCITY).put(json.dumps({"velocity_mps": v}).encode())
 
 
 class PoseStream:
@@ -314,7 +313,7 @@ def list_daemons(
     out: list[DaemonInfo] = []
     for prefix in transport.live_prefixes(session):
         try:
-            st = ask(session, f"{prefix}/status", None, timeout_s)
+            st = ask(session, f"{prefix}/{keys.STATUS}", None, timeout_s)
         except (ClientError, ValueError):
             st = None
         if not isinstance(st, Mapping):

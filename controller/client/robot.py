@@ -62,6 +62,7 @@ from controller.core.commands import (
     CommandError,
     parse_command,
 )
+from controller.service import keys
 
 ARMED_STATES = frozenset({"ARMING", "HOLDING", "MOVING", "PRETENSIONING"})
 """States in which the motors are armed (or arming): `arm` there is already done."""
@@ -156,7 +157,7 @@ class Robot(RobotLink):
         return self._send(verb, body)
 
     def _send(self, verb: str, payload: dict[str, Any] | None) -> Reply:
-        reply = Reply.from_reply(verb, self.query(f"cmd/{verb}", payload))
+        reply = Reply.from_reply(verb, self.query(keys.command(verb), payload))
         if verb in ("stop", "estop", "disarm"):
             self.forget_motion()
         return reply
@@ -459,11 +460,11 @@ class Robot(RobotLink):
             payload: dict[str, Any] = {"points_m": part, "append": more or append}
             if speed is not None:
                 payload["speed_mps"] = speed
-            reply = self.query("cmd/path", payload)
+            reply = self.query(keys.command("path"), payload)
             return reply if isinstance(reply, dict) else {}
 
         def status() -> dict[str, Any]:
-            st = self.query("status")
+            st = self.query(keys.STATUS)
             return st if isinstance(st, dict) else {}
 
         steps = iter_points(

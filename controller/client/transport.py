@@ -16,6 +16,7 @@ from contextlib import contextmanager
 from typing import Any
 
 from controller.client.errors import DaemonAbsent, Refused, UsageError
+from controller.service import keys
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 """Where a client looks for the daemon unless told otherwise (the daemon's default listen)."""
@@ -184,11 +185,11 @@ def live_prefixes(session: Any, timeout_s: float = LIVELINESS_TIMEOUT_S) -> list
     Raises nothing: a failed lookup is an empty list."""
     found: set[str] = set()
     try:
-        for reply in session.liveliness().get("**/alive", timeout=timeout_s):
+        for reply in session.liveliness().get(f"**/{keys.ALIVE}", timeout=timeout_s):
             if reply.ok is not None:
                 name = str(reply.ok.key_expr)
-                if name.endswith("/alive"):
-                    found.add(name.removesuffix("/alive"))
+                if name.endswith(f"/{keys.ALIVE}"):
+                    found.add(name.removesuffix(f"/{keys.ALIVE}"))
     except Exception:  # a closing session: nothing to name
         return []
     return sorted(found)
