@@ -24,22 +24,32 @@ brakes; an exception leaving `async with` while motion this robot sent may run b
 from __future__ import annotations
 
 import asyncio
+import math
 import threading
 from collections.abc import AsyncGenerator, Callable, Generator, Iterable, Sequence
 from contextlib import suppress
-from typing import Any, TypeVar
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
 
 from controller.client import transport
 from controller.client.arrival import ArrivalProgress
 from controller.client.errors import DaemonAbsent
+from controller.client.job import GcodeJob, JobProgress, JobResult, iter_job, load_gcode
 from controller.client.model import Pose, PretensionResult, Reply, Status, Truth
 from controller.client.robot import ARM_FOLLOW_S, WAIT_TIMEOUT_S, Robot
 from controller.client.stream import LOW_WATER_S, StreamProgress
 
 T = TypeVar("T")
+R = TypeVar("R")
 POSE_QUEUE = 1_000
 """The most pose samples an async pose iterator keeps unread (the oldest is dropped)."""
-_DONE = object()
+
+
+@dataclass(frozen=True)
+class _Done(Generic[R]):
+    """A blocking generator's end, with its return value."""
+
+    value: R
 
 
 class AsyncRobot:
@@ -242,12 +252,58 @@ class AsyncRobot:
         try:
             while True:
                 item = await _step(steps)
-                if item is _DONE:
+                if isinstance(item, _Done):
                     return
-                assert isinstance(item, StreamProgress)
                 yield item
         finally:
             await asyncio.to_thread(steps.close)  # brakes unless the stream ended
+
+    async def load_gcode(self, file: str) -> GcodeJob:
+        """`controller.client.job.load_gcode` on this robot."""
+        return await self._call(load_gcode, self.robot, file)
+
+    async def iter_job(
+        self,
+        job: GcodeJob,
+        *,
+        wait: bool = False,
+        wait_timeout_s: float = math.inf,
+        brake: bool = True,
+    ) -> AsyncGenerator[JobProgress, None]:
+        """`controller.client.job.iter_job` as an async iterator. Cancelling, or closing it
+        early, brakes the robot to a hold (with `brake`)."""
+        steps = iter_job(self.robot, job, wait=wait, wait_timeout_s=wait_timeout_s, brake=brake)
+        try:
+            while True:
+                item = await _step(steps)
+                if isinstance(item, _Done):
+                    return
+                yield item
+        finally:
+            await asyncio.to_thread(steps.close)  # brakes unless the job ended
+
+    async def run_job(
+        self,
+        job: GcodeJob,
+        *,
+        wait: bool = False,
+        wait_timeout_s: float = math.inf,
+        on_progress: Callable[[JobProgress], None] | None = None,
+        brake: bool = True,
+    ) -> JobResult:
+        """`controller.client.job.run_job`; `on_progress` is called on the event loop.
+        Cancelling brakes the robot to a hold (with `brake`)."""
+        steps = iter_job(self.robot, job, wait=wait, wait_timeout_s=wait_timeout_s, brake=brake)
+        try:
+            while True:
+                item = await _step(steps)
+                if isinstance(item, _Done):
+                    result: JobResult = item.value
+                    return result
+                if on_progress is not None:
+                    on_progress(item)
+        finally:
+            await asyncio.to_thread(steps.close)
 
     async def stream_path(
         self,
@@ -273,13 +329,16 @@ class AsyncRobot:
         return last
 
 
-async def _step(steps: Generator[T, None, None]) -> T | object:
-    """The next item of a blocking generator, from a worker thread (`_DONE` at its end). A
-    cancellation waits for the step in flight: the generator may be closed only between
-    steps."""
+async def _step(steps: Generator[T, None, R]) -> T | _Done[R]:
+    """The next item of a blocking generator, from a worker thread (`_Done` with its return
+    value at its end). A cancellation waits for the step in flight: the generator may be
+    closed only between steps."""
 
-    def step() -> T | object:
-        return next(steps, _DONE)
+    def step() -> T | _Done[R]:
+        try:
+            return next(steps)
+        except StopIteration as stop:
+            return _Done(stop.value)
 
     task = asyncio.ensure_future(asyncio.to_thread(step))
     try:

@@ -139,3 +139,21 @@ def test_a_cancelled_async_wait_brakes_the_robot(daemon: ClientDaemon) -> None:
             time.sleep(0.05)
         assert st.setpoint_m is not None and math.dist(st.setpoint_m, target) > 1.0
         ready(r)
+
+
+def test_the_asyncio_form_runs_a_job(daemon: ClientDaemon, tmp_path: Path) -> None:
+    path = _job(tmp_path, ["G21 G90", "G1 X0 Y0 Z2000 F60000", "G1 X300", "M114", "G1 X0"])
+
+    async def main() -> tuple[int, list[str]]:
+        async with await AsyncRobot.connect(daemon.endpoint, daemon.prefix) as robot:
+            job = await robot.load_gcode(path)
+            reports: list[str] = []
+            result = await robot.run_job(
+                job, wait=True, on_progress=lambda p: p.report and reports.append(p.report)
+            )
+            return result.moves, reports
+
+    with daemon.robot() as r:
+        ready(r)
+    moves, reports = asyncio.run(main())
+    assert moves == 3 and len(reports) == 1 and reports[0].startswith("X:300.000")
