@@ -285,6 +285,22 @@ def _query(session: Any, key: str, payload: Any, timeout_s: float) -> Any:
     return query(session, key, payload, timeout_s)
 
 
+def same_pose_as(
+    pose: Sequence[float], earlier: Sequence[Sequence[float]]
+) -> tuple[int, float] | None:
+    """The 1-based number of the earlier sample nearest `pose` and the distance to it (m) when
+    it is closer than the calibration's `DISTINCT_POSE_M` (the fit counts the two as one
+    pose), else None. Raises nothing."""
+    from controller.core.calibration import DISTINCT_POSE_M
+
+    best: tuple[int, float] | None = None
+    for i, other in enumerate(earlier, start=1):
+        d = math.dist(pose, other)
+        if d < DISTINCT_POSE_M and (best is None or d < best[1]):
+            best = (i, d)
+    return best
+
+
 def _open_out(path: str, force: bool) -> IO[str]:
     if os.path.exists(path) and not force:
         raise InputError(f"{path} exists (use --force to overwrite)")
@@ -351,6 +367,7 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
 
         fh = _open_out(args.out, args.force)
         n_rows = 0
+        recorded: list[list[float]] = []
         try:
             fh.write(
                 samples_preamble(
@@ -374,6 +391,16 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
                     + " ".join(f"{nid}:{r:.4f}" for nid, r in zip(node_ids, revs, strict=True)),
                     flush=True,
                 )
+                same = same_pose_as(pose, recorded)
+                if same is not None:
+                    print(
+                        f"cablebot: warning: sample {n_rows} is sample {same[0]}'s pose again "
+                        f"({same[1] * 1e3:.2f} mm apart): the fit counts them as one pose; "
+                        "move the robot to a new pose before the next sample",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                recorded.append(pose)
 
             if targets is not None:
                 travel_m, total_s = auto_estimate_s(

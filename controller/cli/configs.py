@@ -1,4 +1,4 @@
-"""`cablebot check-config FILE` and `cablebot init-config --example NAME [OUT]`.
+"""`cablebot check-config FILE` (or `--config FILE`) and `cablebot init-config --example NAME`.
 
 `check-config` validates a robot file (every problem at once, as `load_config` reports them)
 and prints what it means: anchors, the footprint, the workspace box, the cable lengths the
@@ -339,10 +339,21 @@ def invalid_report(file: str, exc: BaseException) -> dict[str, Any]:
 
 
 def cmd_check_config(args: argparse.Namespace) -> int:
-    """`cablebot check-config FILE`: validate and describe; exit 1 with every problem (with
-    `--json` also as a JSON object on stdout, see `invalid_report`)."""
+    """`cablebot check-config FILE` (or `--config FILE`, as every other verb names its robot
+    file): validate and describe; exit 1 with every problem (with `--json` also as a JSON
+    object on stdout, see `invalid_report`), 2 without a file or with two different ones."""
     from controller.service.config import ConfigError, load_config
 
+    if args.file is not None and args.config is not None and args.file != args.config:
+        print(
+            f"cablebot check-config: two files, {args.file} and --config {args.config}: name one",
+            file=sys.stderr,
+        )
+        return exitcodes.USAGE
+    args.file = args.file if args.file is not None else args.config
+    if args.file is None:
+        print("cablebot check-config: name the robot file: check-config FILE", file=sys.stderr)
+        return exitcodes.USAGE
     try:
         cfg = load_config(args.file)
         lines, notes, data = describe(cfg)
@@ -402,7 +413,10 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         "check-config",
         help="validate a robot file and print what it means (exit 1 on problems)",
     )
-    p.add_argument("file", metavar="FILE", help="robot TOML file")
+    p.add_argument("file", nargs="?", default=None, metavar="FILE", help="robot TOML file")
+    p.add_argument(
+        "--config", default=None, metavar="FILE", help="the robot TOML file (instead of FILE)"
+    )
     p.add_argument("--json", action="store_true", help="print the description as JSON")
     p.set_defaults(func=cmd_check_config)
 

@@ -89,8 +89,14 @@ from canopen.nmt import NMT_STATES
 from canopen.pdo import PdoMap
 
 from drivers.base import AxisReading, BusError, BusStats
-from drivers.cia402 import profile
-from drivers.cia402.profile import DriveState, Goal
+from drivers.cia402.profile import (
+    CW_FAULT_RESET,
+    DriveState,
+    Goal,
+    controlword_for,
+    emcy_text,
+    interpolation_period,
+)
 from drivers.cia402.receive import (
     SYNC_RING,
     CiA402Receive,
@@ -231,7 +237,7 @@ class CiA402Reels(CiA402Receive):
             raise ValueError(f"velocity_units_per_rps must be finite and > 0, got {vel_units!r}")
         if max_frames_per_poll <= 0:
             raise ValueError("max_frames_per_poll must be > 0")
-        self._interp = profile.interpolation_period(period_s)
+        self._interp = interpolation_period(period_s)
         heartbeat_ms = round(heartbeat_period_s * 1000.0)
         if not 1 <= heartbeat_ms <= 0xFFFF:
             raise ValueError(f"heartbeat_period_s {heartbeat_period_s!r} is not 1..65535 ms")
@@ -409,7 +415,7 @@ class CiA402Reels(CiA402Receive):
             d.torque,
             None if emcy is None else emcy.code,
             None if emcy is None else emcy.register,
-            None if emcy is None else profile.emcy_text(emcy.code),
+            None if emcy is None else emcy_text(emcy.code),
         )
 
     def bad_frames(self, node_id: int) -> int:
@@ -437,8 +443,8 @@ class CiA402Reels(CiA402Receive):
             if not d.configured:
                 continue
             state = d.state
-            cw = profile.controlword_for(goal, state, d.fault_reset)
-            if cw == profile.CW_FAULT_RESET:
+            cw = controlword_for(goal, state, d.fault_reset)
+            if cw == CW_FAULT_RESET:
                 d.fault_reset = False  # one edge per arm
             if state is not enabled:
                 # Not following set-points: hold where the reel is when it starts to.
@@ -647,7 +653,7 @@ def check_options(options: Mapping[str, Any], period_s: float) -> list[tuple[str
     uses. Returns (key path, problem) pairs; empty if none. Raises nothing."""
     problems: list[tuple[str, str]] = []
     try:
-        profile.interpolation_period(period_s)
+        interpolation_period(period_s)
     except ValueError as exc:
         problems.append(("loop.rate_hz", f"{exc}: CiA 402 drives need a period like 1, 2 or 4 ms"))
     eds = options.get("eds")

@@ -22,8 +22,7 @@ from canopen.emcy import EmcyError
 from canopen.nmt import NMT_STATES
 
 from drivers.base import AxisReading, BusStats
-from drivers.cia402 import profile
-from drivers.cia402.profile import DriveState
+from drivers.cia402.profile import NO_EMCY_CODE, DriveState, drive_state, emcy_text
 from drivers.socketcan_fast import (
     CAN_EFF_FLAG,
     CAN_ERR_FLAG,
@@ -272,7 +271,7 @@ class CiA402Receive:
 
     def _refresh(self, d: DriveRecord) -> None:
         """Derive the reading's state fields from statusword, NMT state, EMCY and restarts."""
-        state = d.state = None if d.statusword is None else profile.drive_state(d.statusword)
+        state = d.state = None if d.statusword is None else drive_state(d.statusword)
         r = d.reading
         nmt = d.nmt_state
         fault: str | None = None
@@ -288,7 +287,7 @@ class CiA402Receive:
             if state is DriveState.FAULT or state is DriveState.FAULT_REACTION_ACTIVE:
                 emcy = d.emcy
                 fault = (
-                    f"EMCY 0x{emcy.code:04X} {profile.emcy_text(emcy.code)}"
+                    f"EMCY 0x{emcy.code:04X} {emcy_text(emcy.code)}"
                     if emcy is not None
                     else f"{state.value} (no EMCY received)"
                 )
@@ -305,4 +304,4 @@ class CiA402Receive:
         if fault is None:
             r.axis_error = 0
         else:
-            r.axis_error = d.emcy.code if d.emcy is not None else profile.NO_EMCY_CODE
+            r.axis_error = d.emcy.code if d.emcy is not None else NO_EMCY_CODE

@@ -4,10 +4,11 @@ path FILE --wait`), both to one daemon, back to back.
 
 The daemon is the built-in robot in a process of its own (simulated drives in-process, on a
 `virtual` bus: nothing leaves the process; Zenoh on a free loopback port; the stale-reading and
-heartbeat timeouts widened so that a starved process on a busy machine does not fault the run). The path is a spiral
-through the robot's power-up pose, its points `CLIENT_SPACING_M` apart, flown at
-`CLIENT_SPEED_MPS`; the daemon's queue paces both clients (each sends a chunk when less than
-3 s of motion is queued), so the wall time of each is the flight plus its own start and end.
+heartbeat timeouts widened so that a starved process on a busy machine does not fault the run).
+The path is a spiral through the robot's power-up pose, its points `CLIENT_SPACING_M` apart,
+flown at `CLIENT_SPEED_MPS`; the daemon's queue paces both clients (each sends a chunk when
+less than 3 s of motion is queued), so the wall time of each is the flight plus its own start
+and end.
 Each side is a fresh process, timed from its start to its exit (wall clock), with its CPU time
 (user + system, from the kernel's accounting of the finished child). Between the runs the
 robot is moved back to the spiral's start (not timed). `script_over_cli` is the ratio of the

@@ -49,6 +49,7 @@ from controller.service.config.schema import (
     Vec3,
     defaults,
     key_names,
+    kinematic_sim,
 )
 from controller.service.config.tables import _Errors, _Table, _tname, _unknown
 from controller.service.config.tomltext import to_toml
@@ -350,7 +351,9 @@ def parse_config(data: Mapping[str, Any], source: str, text: str | None = None) 
             if refusal is not None:
                 errs.add("loop.rate_hz", refusal)
     payload, tension = _parse_statics(top, errs, limits, limits_ok, reels, geometry, pup)
-    _check_telemetry_and_plant(top, lt, ft, st, ht, loop, faults, sim, drive, payload, tension, pup)
+    _check_telemetry_and_plant(
+        top, lt, ft, st, ht, loop, faults, sim, bus.interface, drive, payload, tension, pup
+    )
     _check_stretch(top, lt, errs, loop, reels)
 
     errs.raise_if_any()
@@ -472,17 +475,19 @@ def _check_telemetry_and_plant(
     loop: LoopConfig,
     faults: FaultConfig,
     sim: SimConfig,
+    bus_interface: str,
     drive: DriveConfig,
     payload: PayloadConfig | None,
     tension: TensionLimits | None,
     pup: Vec3 | None,
 ) -> None:
     """Cross-checks of torque telemetry, the slack fault and the simulated plant with the
-    drives, the payload and the power-up pose (problems recorded in the tables)."""
-    if loop.torque_telemetry != "off" and sim.enabled and sim.plant == "kinematic":
+    drives, the bus, the payload and the power-up pose (problems recorded in the tables)."""
+    if loop.torque_telemetry != "off" and kinematic_sim(sim, bus_interface):
+        where = "sim.enabled" if sim.enabled else f"simulated drives on {bus_interface}"
         lt.fail(
             "torque_telemetry",
-            f'"{loop.torque_telemetry}" with the kinematic simulator (sim.enabled): it carries '
+            f'"{loop.torque_telemetry}" with the kinematic simulator ({where}): it carries '
             'no load and reports no torque; use sim.plant = "physical"',
         )
     if faults.slack_tension_n is not None:

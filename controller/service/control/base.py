@@ -203,11 +203,15 @@ class ControllerState:
         self._estop_flag = False
         self._stream_target: tuple[Vec3, int] | None = None
         """The latest streamed set-point and the armed session (`_arm_epoch`) it arrived in."""
+        self._stop_brake: tuple[Vec3, str] | None = None
+        """Where a `stop` taken while MOVING brakes to and why: the HOLDING there carries the
+        reason (a motion that replaced the braking ends elsewhere and carries none)."""
         self._arm_epoch = 0
         """Counts `arm` commands taken: a set-point from an earlier session is discarded."""
         self.stream_refused = 0
         self.stream_last_refusal: str | None = None
         self.stream_discarded = 0
+        self.stream_last_discard: str | None = None
         """Set-points discarded because the state takes none (written by the submitting thread)."""
         self._velocity_cmd: tuple[Vec3, int] | None = None
         """The latest velocity sample and the armed session it arrived in (like a set-point)."""
@@ -234,6 +238,8 @@ class ControllerState:
         self.pose_stamp_ns = 0
         """Wall-clock arrival time of the newest encoder reading the pose came from."""
         self.setpoint_m: Vec3 | None = None
+        self._setpoint_tick_s: float | None = None
+        """The clock time of the tick that computed `setpoint_m` (written after it)."""
         """Set-point commanded on the last good tick (the hold set-point in FAULT)."""
         self.setpoint_lengths_m: tuple[float, ...] | None = None
         self.commanded_rev: list[float] | None = None

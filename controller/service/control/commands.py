@@ -115,8 +115,10 @@ class CommandExecution(Homing):
         state = self.state
         why = refusal(state, "setpoint")
         if why is not None:
-            self.stream_discarded += 1
-            return self._refusal_text(state, why)
+            text = self._refusal_text(state, why)
+            self.stream_last_discard = text
+            self.stream_discarded += 1  # after the reason: a reader of the count finds it
+            return text
         self._stream_target = (p, epoch)  # one reference assignment: atomic
         return None
 
@@ -286,6 +288,9 @@ class CommandExecution(Homing):
             self._stop_pretension()
         elif self.state in ARMED_STATES:
             self.planner.stop()
+            if self.state is State.MOVING:
+                why = "the daemon's shutdown" if self._closing else "a `stop` command"
+                self._stop_brake = (self.planner.rest_point_m, f"stopped by {why}")
         return {"ok": True, "state": self.state.value}
 
     def _cmd_arm(

@@ -19,6 +19,9 @@ from controller.service.pose import PoseSample
 from controller.service.runner import SPIN_S, Runner
 from drivers.base import AxisReading, BusError
 
+STOP_POINT_TOL_M = 1e-6
+"""A motion held this close to where a `stop` braked it to ended by that stop."""
+
 
 class ControlStep(CommandExecution):
     """The controller's control step and the fixed-rate loop that calls it."""
@@ -220,6 +223,7 @@ class ControlStep(CommandExecution):
         """Hold at `p`; _Fault if the payload cannot be held there (the tension rule)."""
         self.planner.hold(p)
         self.setpoint_m = p
+        self._setpoint_tick_s = self._last_tick_s
         self.setpoint_lengths_m = None
         if self.tension is not None:
             self._plan_tensions(p)
@@ -241,8 +245,8 @@ class ControlStep(CommandExecution):
                 if self.state is State.HOLDING:
                     self._set_state(State.MOVING, "stream")
             else:
-                self.stream_refused += 1
                 self.stream_last_refusal = reason
+                self.stream_refused += 1  # after the reason: a reader of the count finds it
         vel = None if self._closing else self._velocity_cmd
         if vel is not None:
             self._velocity_cmd = None
@@ -286,9 +290,18 @@ class ControlStep(CommandExecution):
         self.commanded_rev = rev
         self.commanded_ff_rps = ff
         self.setpoint_m = sp
+        self._setpoint_tick_s = self._last_tick_s  # after it: see `status`
         self.setpoint_lengths_m = lengths
         if self.state is State.MOVING and not self.planner.moving:
-            self._set_state(State.HOLDING)
+            self._set_state(State.HOLDING, self._stop_reason(sp))
+
+    def _stop_reason(self, held_m: Vec3) -> str | None:
+        """Why a motion ended at `held_m`: the reason of the `stop` whose braking ended there,
+        else None (it arrived, or ended where a later motion led). Forgets the stop."""
+        brake, self._stop_brake = self._stop_brake, None
+        if brake is not None and math.dist(brake[0], held_m) <= STOP_POINT_TOL_M:
+            return brake[1]
+        return None
 
     def _plan_tensions(self, sp: Vec3) -> None:
         """The tensions that hold the payload at set-point `sp`; _Fault if they break the
