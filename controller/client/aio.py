@@ -31,7 +31,7 @@ from contextlib import suppress
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
-from controller.client import transport
+import controller.client.transport as transport
 from controller.client.arrival import ArrivalProgress
 from controller.client.errors import DaemonAbsent
 from controller.client.job import GcodeJob, JobProgress, JobResult, iter_job, load_gcode

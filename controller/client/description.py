@@ -18,7 +18,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from controller.client import transport
+import controller.client.transport as transport
 from controller.client.errors import DaemonAbsent, Refused
 from controller.service import keys
 

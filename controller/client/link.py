@@ -19,7 +19,8 @@ from collections.abc import Callable, Mapping, Sequence
 from contextlib import suppress
 from typing import Any
 
-from controller.client import inputs, transport
+import controller.client.inputs as inputs
+import controller.client.transport as transport
 from controller.client.description import NoDescription, RobotDescription, fetch_description
 from controller.client.errors import ClientError, DaemonAbsent, Refused
 from controller.client.feed import FOLLOWER_LIMIT, Feed, Follower

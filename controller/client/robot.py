@@ -38,7 +38,8 @@ from collections.abc import Callable, Generator, Iterable, Mapping, Sequence
 from contextlib import closing
 from typing import Any
 
-from controller.client import inputs, transport
+import controller.client.inputs as inputs
+import controller.client.transport as transport
 from controller.client.arrival import Arrival, ArrivalProgress, follow_arrival
 from controller.client.errors import (
     Failed,
