@@ -82,11 +82,20 @@ WAIT_TIMEOUT_S = 120.0
 
 class Motion:
     """The motion a Robot sent last and may follow: its points (the last of them is its end)
-    and the pose samples since just before it was sent."""
+    and its pose samples: since just before a single command was sent, or (a stream, a job:
+    nothing to follow while it is sent) from when the follow begins (`follower` None until
+    then)."""
 
-    def __init__(self, points: Sequence[Sequence[float]], follower: Follower[Pose]) -> None:
+    def __init__(
+        self, points: Sequence[Sequence[float]], follower: Follower[Pose] | None = None
+    ) -> None:
         self.points = [list(p) for p in points]
         self.follower = follower
+
+    def close(self) -> None:
+        """Stop following its pose samples (idempotent)."""
+        if self.follower is not None:
+            self.follower.close()
 
 
 class Robot(RobotLink):
@@ -228,7 +237,7 @@ class Robot(RobotLink):
         try:
             reply = self._send(verb, payload)
         except BaseException:
-            motion.follower.close()
+            motion.close()
             raise
         self._set_motion(motion)
         return reply
@@ -237,13 +246,13 @@ class Robot(RobotLink):
         with self._lock:
             old, self._motion = self._motion, motion
         if old is not None and old is not motion:
-            old.follower.close()
+            old.close()
 
     def expect_motion(self, points: Sequence[Sequence[float]]) -> Motion:
         """Follow a motion about to be sent other than by this Robot's own methods (a job):
         its end is the last of `points`; `wait()` follows it and a cancel brakes it. Returns
         the motion (for `forget_motion`). Raises nothing."""
-        motion = Motion(points, self._pose_feed().follow())
+        motion = Motion(points)
         self._set_motion(motion)
         return motion
 
@@ -255,7 +264,7 @@ class Robot(RobotLink):
             if old is None or (motion is not None and old is not motion):
                 return
             self._motion = None
-        old.follower.close()
+        old.close()
 
     @property
     def moving(self) -> bool:
@@ -369,13 +378,16 @@ class Robot(RobotLink):
 
     def arrival(self) -> tuple[Follower[Pose], Arrival]:
         """The motion sent last, ready to follow: its pose samples (from just before it was
-        sent) and its arrival rule (`controller.client.arrival`). Samples from before the daemon
-        took the command may stand HOLDING where a path also ends: unless the status says the
-        motion is over already, the rule waits to see it move. Raises InputError when nothing
-        was sent to follow, DaemonAbsent, Refused."""
+        sent, or from now for a stream or a job) and its arrival rule
+        (`controller.client.arrival`). Samples from before the daemon took the command may
+        stand HOLDING where a path also ends: unless the status (asked after the samples are
+        followed) says the motion is over already, the rule waits to see it move. Raises
+        InputError when nothing was sent to follow, DaemonAbsent, Refused."""
         motion = self._motion
         if motion is None:
             raise InputError("nothing to wait for: no motion sent since the last wait or stop")
+        if motion.follower is None:
+            motion.follower = self._pose_feed().follow()
         return motion.follower, Arrival(motion.points, seen_moving=self.status().state != "MOVING")
 
     def wait_armed(self, timeout_s: float = ARM_FOLLOW_S) -> Status:
@@ -453,8 +465,7 @@ class Robot(RobotLink):
         brake: bool,
         low_water_s: float,
     ) -> Generator[StreamProgress, None, None]:
-        feed = self._pose_feed()
-        motion = Motion(pts[-MAX_PATH_POINTS_SENT:], feed.follow())
+        motion = Motion(pts[-MAX_PATH_POINTS_SENT:])  # its samples: from `arrival()` on
         self._set_motion(motion)
 
         def send(part: list[list[float]], more: bool) -> dict[str, Any]:
@@ -474,7 +485,6 @@ class Robot(RobotLink):
             status,
             refused=Refused,
             low_water_s=low_water_s,
-            before_last=motion.follower.drain,  # poses from before the last chunk never arrive
             append_first=append,
         )
         try:
