@@ -91,15 +91,16 @@ def auto_poses(
     summary lacks the anchors or limits, or the region holds too few poses.
     """
     from controller.core.calibration import CalibrationError, spread_poses
-    from controller.core.kinematics import Geometry, KinematicsError
+    from controller.core.kinematics import KinematicsError
     from controller.core.statics import TensionCheck
-    from controller.core.workspace import Workspace
+    from controller.core.workspace import Workspace, layout_geometry
     from controller.service.config import LimitsConfig
 
     try:
         anchors = [tuple(float(c) for c in r["anchor_m"]) for r in summary["reels"]]
-        geom = Geometry(anchors)
-        ws = Workspace.from_limits(LimitsConfig(**summary["limits"]), geom)
+        limits = LimitsConfig(**summary["limits"])
+        geom = layout_geometry(anchors, limits)
+        ws = Workspace.from_limits(limits, geom)
         ten, load = summary.get("tension"), summary.get("payload")
         tension = (
             None
@@ -581,6 +582,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
             samples,
             settings,
             pose_height_m=z_hi - z_lo,
+            hanging=cfg.geometry.hanging,
         )
     except (CalibrationError, CalibrationUnavailable) as exc:
         return refuse(str(exc))

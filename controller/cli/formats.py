@@ -135,6 +135,10 @@ def format_status(st: dict[str, Any]) -> str:
             f" dropped {bus.get('dropped')}"
             f"  commands heard {bus.get('commands_heard', 0)} (own echoes or another master)"
         )
+        if bus.get("conflicts"):
+            lines.append(
+                f"           another master heard {bus['conflicts']}x: {bus.get('last_conflict')}"
+            )
     z = st.get("zenoh")
     if z:
         put = z.get("pose_put") or {}

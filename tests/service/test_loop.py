@@ -879,6 +879,39 @@ def test_fpk_is_solved_only_when_the_encoder_lengths_change() -> None:
     assert rig.ctl.reason is not None and rig.ctl.reason.startswith("residual:")
 
 
+def test_a_residual_fault_names_the_reading_that_lags() -> None:
+    # A drive gone quiet mid-move: its reading stays while the others move on, and the residual
+    # passes its limit before that reading is stale. The fault says which node lags.
+    rig = _armed_rig(stale_timeout_s=0.05)
+    rig.driver.silent = {rig.driver.node_ids[2]}
+    rig.tick(10)  # 20 ms: not stale yet
+    rig.driver.follow = False
+    rig.driver.readings[1].position_rev += 2.0
+    rig.tick()
+    assert rig.ctl.state is State.FAULT
+    reason = str(rig.ctl.reason)
+    assert reason.startswith("residual:") and "slack or slipped cable" in reason, reason
+    node = rig.driver.node_ids[2]
+    assert f"; node {node}'s reading is 0.022 s old)" in reason, reason
+
+
+def test_arm_is_refused_while_the_cables_disagree() -> None:
+    # Disarmed, a cable slipped: the pose has a residual above the limit. Arming would fault on
+    # it at once; the arm is refused by name, and `home` puts it right.
+    rig = Rig()
+    rig.tick(5)
+    assert rig.ctl.state is State.DISARMED and rig.ctl.pose_valid
+    rig.driver.readings[1].position_rev += 2.0
+    rig.tick()
+    assert rig.ctl.residual_m is not None and rig.ctl.residual_m > 0.01
+    reason = rig.refused(Arm())
+    assert reason.startswith("residual: ") and "home at a known pose" in reason, reason
+    assert rig.ctl.state is State.DISARMED
+    rig.do(Home(rig.start))
+    rig.arm()
+    assert rig.ctl.state is State.HOLDING
+
+
 # ------------------------------------------------------------------------ streamed set-points
 
 

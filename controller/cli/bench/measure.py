@@ -15,6 +15,7 @@ from controller.cli.bench.figures import (
     bench_statics,
     bench_three_spheres,
 )
+from controller.cli.bench.layouts import measure_layouts
 from controller.cli.bench.loop import bench_loop, merge_runs
 from controller.cli.bench.planning import measure_planning
 from controller.cli.bench.ros2 import measure_ros2
@@ -464,6 +465,9 @@ def measure(
         rows += part
     if "compute" in sections:
         result["compute_per_tick"], part = measure_compute(p, log)
+        rows += part
+    if "layouts" in sections:
+        result["layouts"], part = measure_layouts(p, log)
         rows += part
     if "client" in sections:
         from controller.cli.bench.client import measure_client

@@ -330,10 +330,27 @@ class LimitsConfig:
     required (a safe limit depends on the robot); the defaults here are stand-ins."""
 
     xy_margin_m: float = key(
-        2.0, "keep this far inside the anchors' plan-view polygon", shown=_IN_A_FILE
+        2.0,
+        "keep this far inside the anchors' plan-view polygon (among the anchors: inside the "
+        "anchors' hull, measured across the plan view at every height)",
+        shown=_IN_A_FILE,
     )
-    floor_z_m: float = key(0.0, "lowest allowed z", shown=_IN_A_FILE)
-    top_margin_m: float = key(1.0, "highest z = lowest anchor z minus this", shown=_IN_A_FILE)
+    floor_z_m: float = key(
+        0.0,
+        "lowest allowed z; at or above the lowest anchor minus `top_margin_m` the effector "
+        "works among the anchors (a Hangprinter: see [Hangprinters](hangprinter.md))",
+        shown=_IN_A_FILE,
+    )
+    top_margin_m: float = key(
+        1.0,
+        "highest z = lowest anchor z minus this (among the anchors: highest anchor z minus this)",
+        shown=_IN_A_FILE,
+    )
+    ceiling_z_m: float | None = key(None, "highest allowed z, when lower than the anchors allow")
+    print_radius_m: float | None = key(
+        None,
+        "keep within this plan-view radius of the origin (RepRapFirmware's M669 P)",
+    )
     min_cable_m: float = key(
         1.0, "shortest allowed cable (every cable, every tick)", shown=_IN_A_FILE
     )

@@ -36,6 +36,8 @@ COMMAND_QUEUE_SIZE = 32
 ESTOP_CONFIRM_S = 0.2
 """Every axis must confirm leaving closed loop this soon after an e-stop (see
 `controller.service.loop`)."""
+CONFLICT_HOLDOFF_S = 2.0
+"""An arm is refused this long after another bus master was last heard (`BusStats.conflicts`)."""
 MAX_PLANNER_DT_PERIODS = 4.0
 """The planner advances at most this many loop periods per tick (see `controller.service.loop`)."""
 TENSION_SAMPLE_FRACTION = 0.01
@@ -183,6 +185,8 @@ class ControllerState:
         self.reels: list[ReelModel] = list(self._base_reels)
         self.homed = False
         self.home_source = "none"
+        self._home_epochs: list[int] = []
+        """Each drive's `count_epoch` when the offsets were taken (they hold in it only)."""
         self._state_file: str | None = cfg.homing.state_file
         self._power_up: Vec3 | None = (
             None
@@ -255,6 +259,9 @@ class ControllerState:
         self._arm_rev: list[float] | None = None
         self._last_tick_s: float | None = None
         self._bus_errors_seen = driver.stats.bus_errors
+        self._conflicts_seen = driver.stats.conflicts
+        self._conflict_s: float | None = None
+        """When another bus master was last heard (None: never)."""
         self.seq = 0
         self.ticks = 0
         self.command_errors = 0
@@ -301,6 +308,20 @@ class ControllerState:
         self.reels = models
         self.homed = True
         self.home_source = source
+        self._home_epochs = [r.count_epoch for r in self.driver.read()]
+
+    def _count_lost(self, readings: Sequence[AxisReading]) -> str | None:
+        """The reason the homing no longer holds: a drive's position count started afresh since
+        the offsets were taken (None while it holds). Raises nothing."""
+        epochs = self._home_epochs
+        for i in range(len(epochs)):
+            r = readings[i]
+            if r.count_epoch != epochs[i]:
+                return (
+                    f"count_lost: node {r.node_id}'s position count started afresh (it restarted"
+                    " and its encoder lost the count): home at a known pose"
+                )
+        return None
 
     def _load_state_file(self) -> None:
         from controller.service import offsets as homing  # lazily: only with a state file
@@ -333,6 +354,7 @@ class ControllerState:
             for base, r, L in zip(self._base_reels, readings, lengths, strict=True)
         ]
         self.homed = True
+        self._home_epochs = [r.count_epoch for r in readings]
         self.lengths_m[:] = [float(v) for v in lengths]
         self._fpk_lengths_m[:] = self.lengths_m
         self.pose_m = (float(position_m[0]), float(position_m[1]), float(position_m[2]))

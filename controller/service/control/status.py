@@ -109,6 +109,8 @@ class StatusReport(ControllerState):
                 "decode_errors": bs.decode_errors,
                 "dropped": bs.dropped,
                 "commands_heard": bs.commands_heard,
+                "conflicts": bs.conflicts,
+                "last_conflict": bs.last_conflict,
                 "bus_errors": bs.bus_errors,
                 "ff_clamped": bs.ff_clamped,
                 "last_error": bs.last_error,

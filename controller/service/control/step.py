@@ -59,6 +59,8 @@ class ControlStep(CommandExecution):
                 self._bus_errors_persist(now_s, state)
             else:
                 self._bus_err_since_s = None
+            if drv.stats.conflicts != self._conflicts_seen:
+                self._check_conflicts(now_s, state)
             self._solve_pose(readings, now_s)
             if self._measure:
                 self._measure_tensions(readings, now_s, state)
@@ -105,6 +107,13 @@ class ControlStep(CommandExecution):
             else:
                 self.pose_valid = False
                 return
+        lost = self._count_lost(readings)
+        if lost is not None:
+            # The offsets were taken in another count of a drive's position: no pose from them.
+            self.pose_valid = False
+            if self.state is not State.DISARMED:
+                raise _Fault(lost)
+            return
         newest_ns = 0
         for i, r in enumerate(readings):
             if r.stamp_ns > newest_ns:
@@ -118,6 +127,7 @@ class ControlStep(CommandExecution):
             return
         stale = self._stale_s
         oldest_age_s = 0.0
+        oldest = readings[0]
         for r in readings:
             age_s = now_s - r.stamp_s
             if age_s > stale:
@@ -126,6 +136,7 @@ class ControlStep(CommandExecution):
                 return
             if age_s > oldest_age_s:
                 oldest_age_s = age_s
+                oldest = r
         pose = self.pose_m
         residual = self.residual_m
         if (
@@ -164,9 +175,16 @@ class ControlStep(CommandExecution):
             and self.state is not State.DISARMED
             and self._pretension is None  # slack cables are what a pre-tension takes up
         ):
+            # A drive gone quiet mid-move leaves its last reading while the others move on: the
+            # residual passes its limit before the reading is stale; say which one lags.
+            lag = (
+                f"; node {oldest.node_id}'s reading is {oldest_age_s:.3f} s old"
+                if oldest_age_s > 2.0 * self.period_s
+                else ""
+            )
             raise _Fault(
                 f"residual: {residual * 1e3:.1f} mm > {self._residual_max_m * 1e3:.1f} mm"
-                " (slack or slipped cable)"
+                f" (slack or slipped cable{lag})"
             )
         sp = self.setpoint_m
         if sp is not None and self.state in ARMED_STATES:
