@@ -65,7 +65,9 @@ class RobotLink:
         self.prefix = (transport.default_prefix() if prefix is None else prefix).rstrip("/")
         self.timeout_s = inputs.positive_s(timeout_s, "timeout_s")
         self._query_fn: QueryFn = transport.query if query is None else query
-        self._lock = threading.Lock()
+        # Re-entrant: a KeyboardInterrupt landing inside a `with` of this thread must not leave
+        # the lock it holds to deadlock the stop that follows.
+        self._lock = threading.RLock()
         self._poses: Feed[Pose] | None = None
         self._truths: Feed[Truth] | None = None
         self._states: Feed[StateChange] | None = None
