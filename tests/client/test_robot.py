@@ -262,15 +262,28 @@ def test_velocity_samples_fly_and_zero_brakes(robot: Robot) -> None:
     robot.wait(60.0)
 
 
+def _setpoints_taken(robot: Robot) -> int:
+    taken = robot.status().raw["zenoh"]["setpoints"]["ok"]
+    assert isinstance(taken, int)
+    return taken
+
+
 def test_streamed_setpoints_are_followed(robot: Robot) -> None:
     target = (0.02, 0.0, 2.0)
+    before = _setpoints_taken(robot)
+    sent = 0
     deadline = time.monotonic() + 20.0
     while True:
         robot.setpoint(target)
+        sent += 1
         pose = robot.pose(max_age_s=0.0)
         if pose.position_m is not None and math.dist(pose.position_m, target) < 1e-3:
             break
         assert time.monotonic() < deadline, pose
+        time.sleep(0.05)
+    # every sample taken before the move goes: a late one (latest wins) would replace it
+    while _setpoints_taken(robot) < before + sent:
+        assert time.monotonic() < deadline
         time.sleep(0.05)
     robot.move(START)
     robot.wait(60.0)
@@ -282,6 +295,10 @@ def test_state_changes_are_heard(robot: Robot) -> None:
     try:
         robot.move((0.5, 0.0, 2.0))
         robot.wait(60.0)
+        deadline = time.monotonic() + 10.0  # the state's own sample may come after the pose's
+        while "HOLDING" not in [c.state for c in changes]:
+            assert time.monotonic() < deadline, changes
+            time.sleep(0.02)
     finally:
         sub.close()
     assert [c.state for c in changes][:2] == ["MOVING", "HOLDING"]
