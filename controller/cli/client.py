@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from controller.cli import add_xyz_arguments, exitcodes, xyz_from_args
+from controller.cli import add_xyz_arguments, exitcodes, pathstream, xyz_from_args
 from controller.cli.formats import (
     PROGRESS_PERIOD_S,
     SeqGaps,
@@ -283,7 +283,7 @@ def cmd_move(args: argparse.Namespace) -> int:
 
 def cmd_path(args: argparse.Namespace) -> int:
     """path FILE [--speed V] [--wait]: command a multi-point path; a file longer than one
-    command carries is streamed (`Robot.iter_path`)."""
+    command carries is streamed (`_stream_path`)."""
     if _bad_wait_timeout(args):
         return EXIT_USAGE
     try:
@@ -315,9 +315,11 @@ def _stream_path(
     append: bool = False,
     precheck: Callable[[Robot], None] | None = None,
 ) -> int:
-    """Stream a long path (`Robot.iter_path`), then with --wait follow it to its end as
-    `_motion` does; Ctrl-C brakes to a hold (`_interrupted`). With `append` (the file's
-    `"append": true`) the first chunk too is appended to the path in progress."""
+    """Stream a long path (the library's `stream_points`, as `Robot.iter_path` does), then
+    with --wait follow it to its end as `_motion` does; Ctrl-C, SIGTERM and SIGHUP brake to a
+    hold (`_interrupted`) while it streams or is waited on, as for `gcode` (a path cut off
+    where its sender died is not the path asked for), unless `--detach`. With `append` (the
+    file's `"append": true`) the first chunk too is appended to the path in progress."""
 
     def body(session: Any) -> int:
         robot = robot_of(args, session)
@@ -326,16 +328,23 @@ def _stream_path(
         line = StatusLine(sys.stdout, enabled=is_tty(sys.stdout) and not args.json)
         t0 = time.monotonic()
         try:
-            with signals_interrupt(_waits_for_motion(args)):
-                prog = None
+            with signals_interrupt(not getattr(args, "detach", False)):
+                robot.expect_motion(points[-MAX_PATH_POINTS_SENT:])  # what --wait follows
                 try:
-                    for prog in robot.iter_path(
-                        points, speed_mps=speed, append=append, brake=False, check=False
-                    ):
-                        line.show(prog.text(prog.elapsed_s), time.monotonic())
+                    prog = pathstream.stream_points(
+                        points,
+                        lambda pts, more: robot.path_chunk(
+                            pts, speed_mps=speed, append=more or append
+                        ),
+                        robot.status_map,
+                        line.show,
+                        refused=Refused,
+                        append_first=append,
+                    )
+                except pathstream.StreamRefused as exc:
+                    raise Refused(str(exc)) from None
                 finally:
                     line.clear()
-                assert prog is not None
                 summary = {
                     "points": prog.sent,
                     "commands": prog.commands,

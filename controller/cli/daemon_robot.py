@@ -116,11 +116,12 @@ def _diff(a: Any, b: Any, path: str, out: list[tuple[str, Any, Any]]) -> None:
 
 def robot_differences(a: RobotConfig, b: RobotConfig) -> list[tuple[str, Any, Any]]:
     """Every setting in which two robots differ, as (key path, value in `a`, value in `b`):
-    e.g. ("gcode.origin_m", (0.0, 0.0, 0.0), (-0.1075, -0.1075, 0.1)). Where each was loaded
+    e.g. ("gcode.origin_m", (0.0, 0.0, 0.0), (-0.1075, -0.1075, 0.1)), named by the robot
+    file's keys ("reels[1].gear_ratio": a reel's model holds its keys). Where each was loaded
     from is not a difference. Raises nothing."""
     out: list[tuple[str, Any, Any]] = []
     _diff(dataclasses.replace(a, source=""), dataclasses.replace(b, source=""), "", out)
-    return out
+    return [(key.replace(".reel.", "."), x, y) for key, x, y in out]
 
 
 def _value_text(v: Any) -> str:
@@ -147,7 +148,7 @@ def check_agrees(robot: DaemonRobot, config: RobotConfig, path: str) -> None:
     raise RobotMismatch(
         f"--config {path} (robot {config.name!r}) is not the robot the daemon on"
         f" {robot.prefix} runs ({robot.name!r}, from {robot.source}): they differ in {shown}"
-        + (f" and {more} more settings" if more > 0 else "")
+        + (f" and {more} more setting{'s' if more > 1 else ''}" if more > 0 else "")
         + ". The daemon's robot is the one that moves: leave out --config, or give its file"
     )
 

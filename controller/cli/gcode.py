@@ -30,7 +30,6 @@ from controller.client.gcode import (
     frame_of,
     job_warnings,
     load_job,
-    motion_bbox_m,
     parse_file,
     plan,
     read_lines,
@@ -67,7 +66,6 @@ __all__ = [
     "frame_of",
     "job_warnings",
     "load_job",
-    "motion_bbox_m",
     "parse_file",
     "plan",
     "read_lines",
@@ -85,8 +83,8 @@ def warn(messages: Sequence[str]) -> None:
 # ------------------------------------------------------------------------------- reports
 def summary(job: Job, planned: JobPlan, start_from: str = "--from") -> dict[str, Any]:
     """The dry run's figures as one JSON-ready dict (`start_from` says where the start came
-    from; `bbox_m` is the box of the job's motions, `motion_bbox_m`)."""
-    lo, hi = motion_bbox_m(job)
+    from; `bbox_m` is the box of the job's motions, `Job.bbox_m`)."""
+    lo, hi = job.bbox_m
     return {
         "duration_s": round(planned.duration_s, 3),
         "motion_s": round(planned.motion_s, 3),

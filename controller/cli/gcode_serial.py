@@ -16,7 +16,8 @@ During a wait (`G4`, `M400`, `M114`) the host hears `echo:busy: processing` ever
 Unlike a file, a stream cannot be checked whole before its first move: the daemon checks every
 chunk against the workspace and the tension rule. A refused chunk stops the job (the robot
 brakes to a hold) and every motion line after it is answered `Error:` until the host sends
-`M999`, which starts again from where the robot rests.
+`M999`, which starts again from where the robot rests, the job's modal state (units, absolute
+or relative, feed) kept.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from controller.client.gcode import frame_of
 from controller.client.job import JobLink, RobotJobLink, Streamer, chunk_points
 from controller.core.commands import C_DECODE_MAX_BYTES, MAX_PATH_POINTS_SENT
 from controller.core.gcode import GcodeError
-from controller.core.gcode_job import Chunk, Interpreter, Motion, Step, chunks
+from controller.core.gcode_job import Chunk, Interpreter, Motion, Step, Vec3, chunks
 from controller.core.gcode_protocol import BUSY, BUSY_INTERVAL_S, LineProtocol
 
 CHUNK_POINTS = chunk_points(MAX_PATH_POINTS_SENT, C_DECODE_MAX_BYTES)
@@ -66,10 +67,23 @@ class SerialJob:
         self.halted: str | None = None
         self.interp = self._new_interpreter()
 
-    def _new_interpreter(self) -> Interpreter:
+    def _rest_point(self) -> Vec3:
+        """Where the robot rests (its set-point, else its pose): where motion lines start."""
         st = self.robot.status()
-        start = st.get("setpoint_m") or st.get("pose", {}).get("position_m") or [0.0, 0.0, 0.0]
-        return Interpreter(frame_of(self.cfg), start)
+        p = st.get("setpoint_m") or st.get("pose", {}).get("position_m") or [0.0, 0.0, 0.0]
+        return (float(p[0]), float(p[1]), float(p[2]))
+
+    def _new_interpreter(self) -> Interpreter:
+        return Interpreter(frame_of(self.cfg), self._rest_point())
+
+    def _restart(self) -> None:
+        """`M999`: take motion lines again, from where the robot rests. The job's modal state
+        (units, absolute or relative, feed rate and `M220`, `G92`, lowered limits) is kept, as
+        a firmware keeps it: a host resumes with the lines after the refused one, whose moves
+        carry no new `F`."""
+        self.halted = None
+        self.streamer.fresh = True
+        self.interp.pos_m = self._rest_point()
 
     def _busy(self) -> None:
         now = time.monotonic()
@@ -110,9 +124,7 @@ class SerialJob:
             self.write(reply)
         if r.line is not None:
             if any(c.code == "M999" for c in r.line.commands):
-                self.halted = None
-                self.streamer.fresh = True
-                self.interp = self._new_interpreter()
+                self._restart()
             elif self.halted is not None:
                 self.write(f"Error:job halted ({self.halted}); send M999 to start again")
             else:

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from controller.cli import exitcodes
+from controller.cli.zenoh_threads import start_zenoh_thread
 from controller.client.model import Pose, StateChange
 
 if TYPE_CHECKING:
@@ -368,13 +369,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
         robot = robot_of(args, session)
         subs: list[Any] = [robot.on_pose(data.on_pose), robot.on_state(data.on_state)]
         stop = threading.Event()
-        poller = threading.Thread(
-            target=_poll_status,
-            args=(robot, data, stop),
-            name="cablebot-monitor-status",
-            daemon=True,
-        )
-        poller.start()
+        poller = start_zenoh_thread(_poll_status, robot, data, stop, name="cablebot-monitor-status")
         fd: int | None = None
         with contextlib.suppress(AttributeError, ValueError, OSError):
             if sys.stdin.isatty():
@@ -400,12 +395,9 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                     )
                     if verb is not None:
                         data.set_message(f"{verb}: sent …", "bold yellow")
-                        threading.Thread(
-                            target=_send,
-                            args=(robot, verb, data),
-                            name=f"cablebot-monitor-{verb}",
-                            daemon=True,
-                        ).start()
+                        start_zenoh_thread(
+                            _send, robot, verb, data, name=f"cablebot-monitor-{verb}"
+                        )
         finally:
             stop.set()
             for sub in subs:

@@ -7,7 +7,6 @@ the planned duration on the daemon's own planner. The robot is the daemon's
 from __future__ import annotations
 
 import gzip
-import math
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -20,7 +19,6 @@ from controller.core.gcode_job import (
     GcodeFrame,
     Job,
     JobPlan,
-    Motion,
     check_job,
     dry_run_step_s,
     interpret,
@@ -113,31 +111,13 @@ def check_loaded(path: str, lines: Sequence[Line], cfg: Any, start_m: Sequence[f
     return job
 
 
-def motion_bbox_m(job: Job) -> tuple[Vec3, Vec3]:
-    """The bounding box ((min x, y, z), (max x, y, z)) of the job's motions (where the job
-    goes, its start left out; the start alone for a job without motion). Raises nothing."""
-    lo = [math.inf] * 3
-    hi = [-math.inf] * 3
-    for act in job.actions:
-        if isinstance(act, Motion):
-            for p in act.points_m:
-                for i in range(3):
-                    lo[i] = min(lo[i], p[i])
-                    hi[i] = max(hi[i], p[i])
-    if lo[0] == math.inf:
-        return job.start_m, job.start_m
-    return (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2])
-
-
 def job_warnings(job: Job, cfg: Any) -> list[str]:
     """What about the job cannot be meant on this robot (`controller.core.scale`: motions a
-    few millimetres across on a metre-scale robot, a file written in metres). Raises
-    nothing."""
+    thousandth of the workspace across, a file written in metres). Raises nothing."""
     from controller.core.scale import tiny_job_problem
     from controller.core.workspace import Workspace
 
-    lo, hi = motion_bbox_m(job)
-    extent = max(h - low for low, h in zip(lo, hi, strict=True))
+    extent = max(h - low for low, h in zip(*job.bbox_m, strict=True))
     why = tiny_job_problem(extent, Workspace.from_limits(cfg.limits, cfg.geometry).box())
     return [] if why is None else [why]
 

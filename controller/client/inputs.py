@@ -107,8 +107,12 @@ def read_path_file(path: str, *, stream: bool = False) -> tuple[dict[str, Any], 
             payload = dict(data)
         else:
             raise InputError(f"{path}: expected a list of points or an object")
+        check_json_points(path, payload.get("points_m"))
     else:
         pts_read, line_of = _csv_points(path, text)
+        if not pts_read:
+            what = "empty" if not text.strip() else "only a header, comments or blank lines"
+            raise InputError(f"{path}: no points in it ({what}): nothing to fly")
         payload = {"points_m": pts_read}
     pts = payload.get("points_m")
     if isinstance(pts, list) and len(pts) > MAX_PATH_POINTS_SENT and not stream:
@@ -131,6 +135,23 @@ def read_path_file(path: str, *, stream: bool = False) -> tuple[dict[str, Any], 
             where = f" (points {i * MAX_PATH_POINTS_SENT} on)" if i else ""
             raise InputError(f"{path}{where}: {exc}") from None
     return payload, line_of
+
+
+def check_json_points(path: str, pts: Any) -> None:
+    """Refuse the points of a JSON path file as the daemon would, naming a bad one by its
+    position in the file from 1 (as the whole-file check does), not by its index in the
+    chunk it would be sent in. Raises InputError."""
+    from controller.core.commands import parse_point
+
+    if not isinstance(pts, list):
+        return  # not a list: the command's own check names it
+    if not pts:
+        raise InputError(f"{path}: no points in it (an empty list): nothing to fly")
+    for i, p in enumerate(pts):
+        try:
+            parse_point(p, f"point {i + 1}")
+        except CommandError as exc:
+            raise InputError(f"{path}: {exc}") from None
 
 
 def _csv_points(path: str, text: str) -> tuple[list[list[float]], list[int]]:

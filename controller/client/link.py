@@ -131,6 +131,12 @@ class RobotLink:
             raise Refused(f"unexpected status reply {quote(st)}")
         return Status.from_mapping(st)
 
+    def status_map(self) -> dict[str, Any]:
+        """The daemon's status as it sent it ({} if it is not an object), for the stream's
+        pacing (`controller.client.stream`). Raises DaemonAbsent, Refused."""
+        st = self.query(keys.STATUS)
+        return st if isinstance(st, dict) else {}
+
     def description(self) -> RobotDescription:
         """The robot the daemon runs (`<prefix>/robot`: its name, TOML text and the validated
         configuration), fetched once and kept. Raises NoDescription (a Refused) from a daemon

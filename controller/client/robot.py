@@ -465,24 +465,11 @@ class Robot(RobotLink):
         brake: bool,
         low_water_s: float,
     ) -> Generator[StreamProgress, None, None]:
-        motion = Motion(pts[-MAX_PATH_POINTS_SENT:])  # its samples: from `arrival()` on
-        self._set_motion(motion)
-
-        def send(part: list[list[float]], more: bool) -> dict[str, Any]:
-            payload: dict[str, Any] = {"points_m": part, "append": more or append}
-            if speed is not None:
-                payload["speed_mps"] = speed
-            reply = self.query(keys.command("path"), payload)
-            return reply if isinstance(reply, dict) else {}
-
-        def status() -> dict[str, Any]:
-            st = self.query(keys.STATUS)
-            return st if isinstance(st, dict) else {}
-
+        motion = self.expect_motion(pts[-MAX_PATH_POINTS_SENT:])  # followed from `arrival()`
         steps = iter_points(
             pts,
-            send,
-            status,
+            lambda part, more: self.path_chunk(part, speed_mps=speed, append=more or append),
+            self.status_map,
             refused=Refused,
             low_water_s=low_water_s,
             append_first=append,
@@ -496,6 +483,18 @@ class Robot(RobotLink):
             if brake and self._motion is motion:
                 self.brake_if_moving(None if isinstance(exc, GeneratorExit) else exc)
             raise
+
+    def path_chunk(
+        self, points_m: list[list[float]], *, speed_mps: float | None, append: bool
+    ) -> dict[str, Any]:
+        """One chunk of a stream as `iter_path` sends it (`controller.client.stream`): the path
+        command with `append` as its flag, points checked already; the reply as sent ({} if it
+        is not an object). Raises Refused, DaemonAbsent."""
+        payload: dict[str, Any] = {"points_m": points_m, "append": append}
+        if speed_mps is not None:
+            payload["speed_mps"] = speed_mps
+        reply = self.query(keys.command("path"), payload)
+        return reply if isinstance(reply, dict) else {}
 
     def stream_path(
         self,

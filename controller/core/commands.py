@@ -283,8 +283,9 @@ def _finite(value: Any, field: str) -> float:
     return out
 
 
-def _vec3(value: Any, field: str) -> Vec3:
-    """Return `value` as a 3-tuple of finite floats or raise CommandError naming `field`."""
+def parse_point(value: Any, field: str) -> Vec3:
+    """Return `value` (a JSON [x, y, z]) as a 3-tuple of finite floats, as every command reads
+    a point; raise CommandError naming `field` (e.g. "points_m[3]")."""
     if not isinstance(value, list | tuple) or len(value) != 3:
         raise CommandError(f"{field}: expected [x, y, z], got {quote(value)}")
     return (
@@ -370,7 +371,7 @@ def parse_command(verb: str, payload: bytes | str | None) -> Command:
     check_payload_size(verb, len(data))
     if verb == "move":
         obj = _object(data, {"position_m", "speed_mps"}, {"position_m"})
-        return Move(_vec3(obj["position_m"], "position_m"), _speed(obj))
+        return Move(parse_point(obj["position_m"], "position_m"), _speed(obj))
     if verb == "path":
         obj = _object(data, {"points_m", "speed_mps", "append"}, {"points_m"})
         pts = obj["points_m"]
@@ -380,20 +381,20 @@ def parse_command(verb: str, payload: bytes | str | None) -> Command:
             raise CommandError(
                 f"points_m: at most {MAX_PATH_POINTS} points, got {len(pts)}; {PATH_STREAM_HINT}"
             )
-        points = tuple(_vec3(p, f"points_m[{i}]") for i, p in enumerate(pts))
+        points = tuple(parse_point(p, f"points_m[{i}]") for i, p in enumerate(pts))
         return Path(points, _speed(obj), _flag(obj, "append"))
     if verb == "home":
         obj = _object(data, {"position_m"}, {"position_m"})
-        return Home(_vec3(obj["position_m"], "position_m"))
+        return Home(parse_point(obj["position_m"], "position_m"))
     if verb == "pretension":
         obj = _object(data, {"position_m"}, {"position_m"})
-        return Pretension(_vec3(obj["position_m"], "position_m"))
+        return Pretension(parse_point(obj["position_m"], "position_m"))
     if verb == "setpoint":
         obj = _object(data, {"position_m"}, {"position_m"})
-        return Setpoint(_vec3(obj["position_m"], "position_m"))
+        return Setpoint(parse_point(obj["position_m"], "position_m"))
     if verb == "velocity":
         obj = _object(data, {"velocity_mps"}, {"velocity_mps"})
-        return Velocity(_vec3(obj["velocity_mps"], "velocity_mps"))
+        return Velocity(parse_point(obj["velocity_mps"], "velocity_mps"))
     simple: dict[str, Command] = {
         "stop": Stop(),
         "estop": Estop(),

@@ -182,8 +182,9 @@ class Job:
 
     `lines`: lines read; `moves`: G0 to G3 lines with an X, Y or Z word; `start_m`: the
     robot-frame start point; `path_m`: the length of every motion; `bbox_m`: ((min x, y, z),
-    (max x, y, z)) of the start and every motion's points; `not_driven` and `unsupported`:
-    code -> number of lines (extrusion words count under "E")."""
+    (max x, y, z)) of every motion's points, where the job goes (the start, where the robot
+    happens to be, only for a job without motion); `not_driven` and `unsupported`: code ->
+    number of lines (extrusion words count under "E")."""
 
     start_m: Vec3
     actions: list[Action] = field(default_factory=list)
@@ -224,8 +225,9 @@ class Interpreter:
         self.motion_code = ""
         self.max_speed_mps = frame.max_speed_mps
         self.max_accel_mps2 = frame.max_accel_mps2
-        self._lo = list(start)
-        self._hi = list(start)
+        self._lo: list[float] = []
+        self._hi: list[float] = []
+        """The box of the motions so far (empty before the first)."""
 
     # ---------------------------------------------------------------- coordinates
     def gcode_position(self) -> Vec3:
@@ -282,6 +284,9 @@ class Interpreter:
         job = self.job
         prev = self.pos_m
         lo, hi = self._lo, self._hi
+        if not lo:
+            lo.extend(points[0])
+            hi.extend(points[0])
         total = 0.0
         for q in points:
             total += math.dist(prev, q)

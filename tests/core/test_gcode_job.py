@@ -52,7 +52,30 @@ def test_g1_in_mm_from_the_origin_with_modal_feed() -> None:
     assert m[1].speed_mps == pytest.approx(0.1)  # modal F
     assert job.moves == 2
     assert job.path_m == pytest.approx(math.hypot(0.1, 0.05) + 0.01)
-    assert close(job.bbox_m[0], (1.0, -2.05, 2.0)) and close(job.bbox_m[1], (1.1, -2.0, 2.01))
+    # the box of where the job goes, not of where it starts (the origin, x 1.0 y -2.0)
+    assert close(job.bbox_m[0], (1.1, -2.05, 2.0)) and close(job.bbox_m[1], (1.1, -2.05, 2.01))
+
+
+def test_the_box_of_a_job_without_motion_is_its_start() -> None:
+    job = run("G21\nM104 S200\n", start=(0.5, 0.25, 3.0))
+    assert job.bbox_m == ((0.5, 0.25, 3.0), (0.5, 0.25, 3.0))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.tuples(*[st.floats(-1000.0, 1000.0, allow_nan=False)] * 3), min_size=1, max_size=8),
+    st.tuples(*[st.floats(-5.0, 5.0, allow_nan=False)] * 3),
+)
+def test_the_box_is_that_of_the_motions_points_wherever_the_job_starts(
+    targets_mm: list[tuple[float, float, float]], start: tuple[float, float, float]
+) -> None:
+    moves = "".join(f"G1 X{x:.4f} Y{y:.4f} Z{z:.4f}\n" for x, y, z in targets_mm)
+    text = "G21\nG90\nF6000\n" + moves
+    job = run(text, start=start)
+    pts = [p for m in motions(job) for p in m.points_m]
+    lo = tuple(min(p[i] for p in pts) for i in range(3))
+    hi = tuple(max(p[i] for p in pts) for i in range(3))
+    assert job.bbox_m == (lo, hi)
 
 
 def test_relative_inches_and_g92() -> None:
