@@ -24,7 +24,9 @@ robot goes on), but brakes like any other error once it leaves the `with` block.
 Threads: a Robot is one Zenoh session. Its methods may be called from several threads at once
 (queries are independent; the pose is kept under a lock); the motion it follows (`wait`) is
 the last one sent, whichever thread sent it. Callbacks (`on_pose`) run on a Zenoh thread: keep
-them short and do not call a blocking method from them. Resources: the session, its
+them short and do not call a blocking method from them. A thread that calls a Robot must not
+be a daemon thread (one still inside Zenoh's native code at the interpreter's exit aborts the
+process). Resources: the session, its
 subscribers and publishers are released by `close()` (or the end of the `with` block); a
 Robot made on a session of the caller's (`session=`) leaves that session open.
 """
