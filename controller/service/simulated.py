@@ -15,6 +15,8 @@ import logging
 from collections.abc import Sequence
 from typing import Any
 
+from controller.service.keys import TRUTH
+
 log = logging.getLogger("cablebot.sim")
 
 
@@ -129,7 +131,7 @@ def schedule_sim_thread(cfg: Any, thread: Any) -> str:
     return set_realtime(max(1, int(cfg.loop.rt_priority) - 1), thread.native_id)
 
 
-TRUTH_KEY = "sim/truth"
+TRUTH_KEY = TRUTH
 """Key (under the robot's Zenoh prefix) of the simulator's ground truth: the physical plant's
 true effector position and cable tensions, JSON ``{"position_m": [x, y, z], "tensions_n":
 [...]}``.  The simulator's key, never the controller's input."""
