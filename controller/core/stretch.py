@@ -411,7 +411,8 @@ class CableStretch:
         for k in range(MAX_PASSES):
             pe, te, dt = self._lin_at, self._lin_t, self._dt
             if k == 0 and at is not None:
-                if at != pe or dt is None:
+                # the same point planned again (the m a share gone at rest) is new tensions
+                if at != pe or at_t != te or dt is None:
                     te, dt = self._adopt(at, at_t)
                     pe = at
             elif k > 0 or dt is None or math.dist(pe, p) > TENSIONS_REUSE_M:

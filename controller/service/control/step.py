@@ -351,6 +351,10 @@ class ControlStep(CommandExecution):
         if acc != _ZERO:
             share = inertial_share(self._anchors, sp, self.tension.mass_kg, acc)
             planned = with_inertia(planned, share)
+        elif self._planned_acc != _ZERO and self.cables.stretch is not None:
+            # The share is gone (the payload at rest): the pose of the same encoder readings
+            # is solved again with the held tensions.
+            self._fpk_lengths_m[0] = math.nan
         self.planned_tensions_n = planned
         self.planned_margin_n = res.margin_n
         self._planned_at = sp
