@@ -1,0 +1,481 @@
+"""Statics with the cables' weight: the end forces of heavy, elastic cables that hold the payload.
+
+Pure module (``math``; the statics and the catenary of this package), no I/O, no threads.
+
+Model
+-----
+Each cable hangs in an elastic catenary (``controller.core.catenary``) from its anchor to the
+effector.  It pulls the effector along its tangent there, not along its chord, and its anchor
+end carries more than its effector end: the tension grows along the cable by its weight per
+metre times the height it climbs (exactly so for an inextensible cable).  The tension
+distribution that holds the payload is the statics' one (``controller.core.statics``: the
+equilibrium farthest from the tension limits) along the cables' tangents at the effector; the
+tangents depend on the tensions.  Unknowns: each cable's tangent elevation at the effector,
+``theta_i`` (its bearing is the anchor's).  Along those tangents the statics give each cable's
+end force, whose horizontal part ``H_i`` fixes the cable's catenary between its ends (closed
+form inextensible, a Newton step or two for the stretch: ``catenary.from_horizontal_force``),
+whose own tangent at the effector must be ``theta_i``.  ``SagStatics.solve`` solves that by
+Newton on the ``theta_i`` (the tensions' derivative by the tangents by forward differences of
+the statics, the catenaries' analytically), from the chords or from a solution nearby (its sag
+angles carried over).  A plain fixed point "tangents -> tensions -> tangents" contracts only by
+about the ratio of the sag angle to the chord's angle: 10 to 12 passes to 1e-9 rad for 4 mm
+Dyneema on the paper robot at 5 kg, 46 to 92 for 3 mm steel; Newton takes two or three steps.
+
+The answer (``SagSolution``): each cable's end forces, the tension at both ends (``t0`` at the
+effector, ``t1`` at the anchor: what the reel, ``max_tension_n`` and the motor's torque limit
+see), the tangents and the unstretched lengths the reels must pay out (the IPK with sag and
+stretch).  The tension rule with sag (``sag_plan.SagTensionCheck``) keeps ``min_tension_n`` at
+the effector end (the low end of a cable that climbs to its anchor) and ``max_tension_n`` at
+the anchor end; the distribution is the statics' one for the effector-end tensions, so the
+anchor end's margin is smaller by at most the cable's weight over its rise (2.7 N for 3 mm
+steel 7.6 m up).  Where a cable's force at the effector would not be a pull (the statics give
+it no tension, or too little for its weight over its span) there is no catenary: ``SagError``
+names the cable (it would hang slack).
+
+With no cable weight this is the straight-cable statics exactly (the catenary of a massless
+cable is its chord; no Newton step).
+
+Thread-safety: ``SagStatics`` is immutable after construction (every solve is a pure function
+of its inputs).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+from controller.core import catenary
+from controller.core.statics import (
+    CableStatics,
+    SingularConfiguration,
+    StaticsError,
+    StaticsInputError,
+)
+
+__all__ = [
+    "GRADIENT_STEP_M",
+    "MAX_SAG_ITERATIONS",
+    "SAG_TOL",
+    "SagError",
+    "SagSolution",
+    "SagStatics",
+]
+
+Vec3 = tuple[float, float, float]
+
+SAG_TOL = 1e-9
+"""The solve has converged when every tangent at the effector is within this (rad) of its
+catenary's."""
+MAX_SAG_ITERATIONS = 60
+"""Most passes of one solve."""
+GRADIENT_STEP_M = 1e-3
+"""Finite-difference step of the gradient of the paid-out lengths (``SagStatics.gradient``)."""
+
+
+class SagError(StaticsError):
+    """No tension distribution with sag: a cable's end force would not be a pull (it would hang
+    slack), or the iteration did not converge."""
+
+
+@dataclass(frozen=True, slots=True)
+class SagSolution:
+    """The cables' end forces that hold the payload at one pose, with their weight.
+
+    Per cable (cable order): ``chords_m`` the straight-line lengths, ``paid_out_m`` the
+    unstretched lengths (what the reels pay out), ``horizontal_n`` ``H``, ``directions`` the
+    unit tangent at the effector (the direction it pulls), ``effector_tensions_n`` ``t0``,
+    ``anchor_tensions_n`` ``t1``.  ``margin_n``: the smallest of ``t0 - t_min`` and ``t_max -
+    t1`` over the cables (negative: a limit is broken), ``limiting_cable`` (0-based) and
+    ``limiting_bound`` ("min": at the effector end, "max": at the anchor end) where it is;
+    ``iterations`` the passes taken.
+    """
+
+    position_m: Vec3
+    chords_m: tuple[float, ...]
+    paid_out_m: tuple[float, ...]
+    horizontal_n: tuple[float, ...]
+    directions: tuple[Vec3, ...]
+    effector_tensions_n: tuple[float, ...]
+    anchor_tensions_n: tuple[float, ...]
+    margin_n: float
+    limiting_cable: int
+    limiting_bound: Literal["min", "max"]
+    iterations: int
+
+
+def _solve_along(statics: CableStatics, u: list[Vec3], weight_n: float) -> list[float]:
+    """The statics' tension distribution (farthest from the limits) along the directions `u`
+    for a vertical force `weight_n`.  Raises ``SingularConfiguration`` as the statics do.
+
+    The seam to the statics: the solve of ``CableStatics`` with directions given instead of
+    the chords'."""
+    n = statics.n_cables
+    if n == 3:
+        return statics._solve3(u, weight_n)
+    if n == 4:
+        return statics._solve4_parts(u, weight_n)[0]
+    return statics._solve_lp(u, weight_n)
+
+
+class SagStatics:
+    """Statics with the cables' weight for one robot and payload (module docstring).
+
+    `statics` gives the anchors and the tension limits, `weight_n_per_m` each cable's weight
+    per metre (N/m; 0 = massless), `ea_n` each cable's EA (None = inextensible).  Raises
+    ``StaticsInputError`` for a wrong count, a negative or non-finite weight, an EA not finite
+    and > 0, or a non-positive mass.
+    """
+
+    __slots__ = ("_anchors", "_c", "_w", "mass_kg", "n", "statics", "weight_n")
+
+    def __init__(
+        self,
+        statics: CableStatics,
+        mass_kg: float,
+        weight_n_per_m: Sequence[float],
+        ea_n: Sequence[float | None],
+    ) -> None:
+        n = statics.n_cables
+        if len(weight_n_per_m) != n or len(ea_n) != n:
+            raise StaticsInputError(
+                f"{n} cables need as many weights and EAs, got {len(weight_n_per_m)} and "
+                f"{len(ea_n)}"
+            )
+        w = []
+        for i, v in enumerate(weight_n_per_m):
+            f = float(v)
+            if not (math.isfinite(f) and f >= 0.0):
+                raise StaticsInputError(f"cable {i + 1}: weight per metre must be >= 0, got {v!r}")
+            w.append(f)
+        c = []
+        for i, e in enumerate(ea_n):
+            if e is None:
+                c.append(0.0)
+                continue
+            f = float(e)
+            if not (math.isfinite(f) and f > 0.0):
+                raise StaticsInputError(f"cable {i + 1}: EA must be finite and > 0, got {e!r}")
+            c.append(1.0 / f)
+        m = float(mass_kg)
+        if not (math.isfinite(m) and m > 0.0):
+            raise StaticsInputError(f"mass_kg must be finite and > 0, got {mass_kg!r}")
+        self.statics = statics
+        self.n = n
+        self.mass_kg = m
+        self.weight_n = m * 9.80665
+        self._w = tuple(w)
+        self._c = tuple(c)
+        self._anchors = statics._anchors_t
+
+    @property
+    def weight_n_per_m(self) -> tuple[float, ...]:
+        """Each cable's weight per metre (N/m)."""
+        return self._w
+
+    def solve(self, point_m: Sequence[float], guess: SagSolution | None = None) -> SagSolution:
+        """The end forces of the cables that hold the payload at `point_m` (module docstring),
+        starting from the tangents of `guess` (a solution nearby) or from the chords.
+
+        Raises ``StaticsInputError`` for a bad point, ``SingularConfiguration`` where the
+        statics have no distribution (the point at an anchor, above every anchor, tangents
+        that do not span space) and ``SagError`` when a cable would hang slack or the
+        iteration does not converge.
+        """
+        if len(point_m) != 3:
+            raise StaticsInputError(f"point_m needs 3 coordinates, got {len(point_m)}")
+        px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
+        if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+            raise StaticsInputError(f"point_m ({px}, {py}, {pz}) is not finite")
+        spans = []
+        rises = []
+        chords = []
+        horiz: list[tuple[float, float]] = [(0.0, 0.0)] * self.n
+        for i, (ax, ay, az) in enumerate(self._anchors):
+            dx, dy, dz = ax - px, ay - py, az - pz
+            s = math.hypot(dx, dy)
+            d = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if not d > 1e-9:
+                raise SingularConfiguration(
+                    f"P = ({px:.6g}, {py:.6g}, {pz:.6g}) m is at anchor {i + 1}: cable {i + 1} "
+                    "has no direction"
+                )
+            spans.append(s)
+            rises.append(dz)
+            chords.append(d)
+            horiz[i] = (dx / s, dy / s) if s > 0.0 else (0.0, 0.0)
+        where = (px, py, pz)
+        theta = [math.atan2(rises[i], spans[i]) for i in range(self.n)]
+        if guess is not None and len(guess.directions) == self.n:
+            # the guess's sag angles (tangent below chord), moved to this pose
+            gx, gy, gz = guess.position_m
+            start = list(theta)
+            for i, dg in enumerate(guess.directions):
+                ax, ay, az = self._anchors[i]
+                chord = math.atan2(az - gz, math.hypot(ax - gx, ay - gy))
+                start[i] += math.atan2(dg[2], math.hypot(dg[0], dg[1])) - chord
+            try:
+                t, ends, res = self._pass(start, spans, rises, horiz, where)
+                theta = start
+            except SagError:
+                t, ends, res = self._pass(theta, spans, rises, horiz, where)
+        else:
+            t, ends, res = self._pass(theta, spans, rises, horiz, where)
+        norm = max(abs(r) for r in res)
+        for it in range(1, MAX_SAG_ITERATIONS + 1):
+            if norm <= SAG_TOL:
+                u = [
+                    (horiz[i][0] * math.cos(a), horiz[i][1] * math.cos(a), math.sin(a))
+                    for i, a in enumerate(theta)
+                ]
+                return self._solution(where, chords, ends, u, it)
+            step = self._newton_step(theta, t, ends, res, spans, rises, horiz)
+            alpha = 1.0
+            for _ in range(30):
+                trial = [a + alpha * d for a, d in zip(theta, step, strict=True)]
+                try:
+                    t2, e2, r2 = self._pass(trial, spans, rises, horiz, where)
+                except SagError:
+                    alpha *= 0.5
+                    continue
+                n2 = max(abs(r) for r in r2)
+                if n2 < norm or n2 <= SAG_TOL:
+                    break
+                alpha *= 0.5
+            else:
+                break
+            theta, t, ends, res, norm = trial, t2, e2, r2, n2
+        raise SagError(
+            f"the tensions with sag did not settle at ({px:.4g}, {py:.4g}, {pz:.4g}) m "
+            f"(tangents off by {norm:.3g} rad)"
+        )
+
+    @staticmethod
+    def _directions(
+        theta: Sequence[float], spans: Sequence[float], horiz: Sequence[tuple[float, float]]
+    ) -> list[Vec3]:
+        """Unit pull directions of tangent elevations `theta` along the horizontal unit
+        vectors `horiz` toward the anchors."""
+        out = []
+        for i, a in enumerate(theta):
+            hx, hy = horiz[i]
+            ca = math.cos(a)
+            out.append((hx * ca, hy * ca, math.sin(a)) if spans[i] > 0.0 else (0.0, 0.0, 1.0))
+        return out
+
+    def _pass(
+        self,
+        theta: Sequence[float],
+        spans: Sequence[float],
+        rises: Sequence[float],
+        horiz: Sequence[tuple[float, float]],
+        where: Vec3,
+    ) -> tuple[list[float], list[catenary.CatenaryEnds], list[float]]:
+        """The statics along the tangent elevations `theta`, each cable's catenary for its
+        horizontal force, and how far each catenary's own tangent is from `theta` (rad):
+        (tensions, ends, residuals).  Raises SagError for a cable that would hang slack."""
+        t = _solve_along(self.statics, self._directions(theta, spans, horiz), self.weight_n)
+        total = sum(t)
+        if total - total != 0.0:
+            raise SingularConfiguration("tensions overflow: the configuration is singular")
+        ends = []
+        res = []
+        for i in range(self.n):
+            ti = t[i]
+            if not ti > 0.0:
+                raise SagError(
+                    f"cable {i + 1} would hang slack at ({where[0]:.4g}, {where[1]:.4g}, "
+                    f"{where[2]:.4g}) m: the payload needs it to pull {ti:.4g} N"
+                )
+            a = theta[i]
+            e = self._hang(i, spans[i], rises[i], ti * math.cos(a), ti * math.sin(a), where)
+            ends.append(e)
+            res.append(a - math.atan2(e.v0_n, e.h_n) if spans[i] > 0.0 else 0.0)
+        return t, ends, res
+
+    def _newton_step(
+        self,
+        theta: Sequence[float],
+        t: Sequence[float],
+        ends: Sequence[catenary.CatenaryEnds],
+        res: Sequence[float],
+        spans: Sequence[float],
+        rises: Sequence[float],
+        horiz: Sequence[tuple[float, float]],
+    ) -> list[float]:
+        """The Newton step of the residuals ``theta - theta'(theta)``: the statics' tension
+        derivative by the tangents by forward differences (one statics solve per cable), the
+        catenaries' tangent derivative by their horizontal force analytically."""
+        n = self.n
+        eps = 1e-7
+        # d theta'_i / d H_i from the catenary at fixed span and rise
+        gp = []
+        for i, e in enumerate(ends):
+            if not spans[i] > 0.0:
+                gp.append(0.0)
+                continue
+            r = catenary.reach_derivatives(e.h_n, e.v0_n, e.unstretched_m, self._w[i], self._c[i])
+            det = r.ds_dv * r.dr_dl - r.ds_dl * r.dr_dv
+            dv_dh = (r.dr_dh * r.ds_dl - r.ds_dh * r.dr_dl) / det if det != 0.0 else 0.0
+            gp.append((e.h_n * dv_dh - e.v0_n) / (e.t0_n * e.t0_n))
+        # J = I - d theta' / d theta, with d H_i / d theta_j = cos(theta_i) dt_i/dtheta_j
+        # - [i = j] t_i sin(theta_i)
+        jac = [[0.0] * n for _ in range(n)]
+        cos_t = [math.cos(a) for a in theta]
+        for j in range(n):
+            bumped = list(theta)
+            bumped[j] += eps
+            tb = _solve_along(self.statics, self._directions(bumped, spans, horiz), self.weight_n)
+            for i in range(n):
+                dh = cos_t[i] * (tb[i] - t[i]) / eps
+                if i == j:
+                    dh -= t[i] * math.sin(theta[i])
+                jac[i][j] = (1.0 if i == j else 0.0) - gp[i] * dh
+        return _gauss(jac, [-r for r in res])
+
+    def _hang(
+        self, i: int, span: float, rise: float, h: float, v: float, where: Vec3
+    ) -> catenary.CatenaryEnds:
+        """Cable `i`'s catenary for the horizontal force `h` (or, vertical, the vertical force
+        `v`).  Raises SagError for a slack cable."""
+        w, c = self._w[i], self._c[i]
+        try:
+            if span > 0.0:
+                return catenary.from_horizontal_force(span, rise, h, w, c)
+            # straight up: rise = L0 (1 + c V0 + c w L0 / 2)
+            b = 1.0 + c * v
+            l0 = 2.0 * rise / (b + math.sqrt(b * b + 2.0 * c * w * rise))
+            return catenary.CatenaryEnds(0.0, v, v + w * l0, abs(v), abs(v + w * l0), l0, 0)
+        except catenary.SlackCableError as exc:
+            raise SagError(f"cable {i + 1} would hang slack at {_fmt(where)}: {exc}") from None
+        except catenary.CatenaryError as exc:
+            raise SagError(f"cable {i + 1} at {_fmt(where)}: {exc}") from None
+
+    def _solution(
+        self,
+        p: Vec3,
+        chords: list[float],
+        ends: list[catenary.CatenaryEnds],
+        u: list[Vec3],
+        iterations: int,
+    ) -> SagSolution:
+        lo, hi = self.statics.t_min_n, self.statics.t_max_n
+        margin = math.inf
+        limiting = 0
+        bound: Literal["min", "max"] = "min"
+        for i, e in enumerate(ends):
+            d_lo = e.t0_n - lo
+            d_hi = hi - e.t1_n
+            if d_lo < margin:
+                margin, limiting, bound = d_lo, i, "min"
+            if d_hi < margin:
+                margin, limiting, bound = d_hi, i, "max"
+        paid = tuple(e.unstretched_m for e in ends)
+        s = sum(paid) + margin
+        if s - s != 0.0:
+            raise SingularConfiguration("tensions overflow: the configuration is singular")
+        return SagSolution(
+            position_m=p,
+            chords_m=tuple(chords),
+            paid_out_m=paid,
+            horizontal_n=tuple(e.h_n for e in ends),
+            directions=tuple(u),
+            effector_tensions_n=tuple(e.t0_n for e in ends),
+            anchor_tensions_n=tuple(e.t1_n for e in ends),
+            margin_n=margin,
+            limiting_cable=limiting,
+            limiting_bound=bound,
+            iterations=iterations,
+        )
+
+    def from_horizontal(
+        self, point_m: Sequence[float], horizontal_n: Sequence[float]
+    ) -> SagSolution:
+        """The cables at `point_m` pulling with the horizontal forces `horizontal_n`, each the
+        catenary of its force between its ends (closed form and a Newton step or two for the
+        stretch): their tangents, tensions and unstretched lengths, without the statics.  The
+        end forces balance the weight when the forces are a solution's (``solve``), nearly so
+        for forces linearised from one nearby.  Raises ``StaticsInputError`` for a bad point or
+        count, ``SagError`` for a force that cannot hold its cable or a cable on its anchor's
+        vertical."""
+        if len(point_m) != 3 or len(horizontal_n) != self.n:
+            raise StaticsInputError(
+                f"need a point and {self.n} horizontal forces, got {len(point_m)} and "
+                f"{len(horizontal_n)}"
+            )
+        px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
+        if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+            raise StaticsInputError(f"point_m ({px}, {py}, {pz}) is not finite")
+        where = (px, py, pz)
+        chords = []
+        ends = []
+        u = []
+        for i, (ax, ay, az) in enumerate(self._anchors):
+            dx, dy, dz = ax - px, ay - py, az - pz
+            s = math.hypot(dx, dy)
+            if not s > 0.0:
+                raise SagError(f"cable {i + 1} is vertical at {_fmt(where)}")
+            chords.append(math.sqrt(dx * dx + dy * dy + dz * dz))
+            e = self._hang(i, s, dz, float(horizontal_n[i]), 0.0, where)
+            ends.append(e)
+            a = e.h_n / e.t0_n / s
+            u.append((dx * a, dy * a, e.v0_n / e.t0_n))
+        return self._solution(where, chords, ends, u, 0)
+
+    def gradients(self, solution: SagSolution) -> tuple[tuple[Vec3, ...], tuple[Vec3, ...]]:
+        """(dH / dP, d(chord - paid-out length) / dP) of each cable at `solution`'s pose (one
+        row per cable; N/m and dimensionless): how the planned horizontal forces move with the
+        pose, and the part of the paid-out lengths' derivative that sag and stretch add to the
+        geometry's.  Forward differences (``GRADIENT_STEP_M``; three solves started from
+        `solution`).  Raises what ``solve`` raises."""
+        x, y, z = solution.position_m
+        h0 = solution.horizontal_n
+        d0 = [ch - l0 for ch, l0 in zip(solution.chords_m, solution.paid_out_m, strict=True)]
+        step = GRADIENT_STEP_M
+        dh = []
+        dd = []
+        for q in ((x + step, y, z), (x, y + step, z), (x, y, z + step)):
+            s = self.solve(q, solution)
+            dh.append([(a - b) / step for a, b in zip(s.horizontal_n, h0, strict=True)])
+            dd.append(
+                [
+                    (ch - l0 - b) / step
+                    for ch, l0, b in zip(s.chords_m, s.paid_out_m, d0, strict=True)
+                ]
+            )
+        rows = range(self.n)
+        return (
+            tuple((dh[0][i], dh[1][i], dh[2][i]) for i in rows),
+            tuple((dd[0][i], dd[1][i], dd[2][i]) for i in rows),
+        )
+
+
+def _gauss(a: list[list[float]], b: list[float]) -> list[float]:
+    """The solution of the small dense system a x = b (Gaussian elimination with partial
+    pivoting; `a` and `b` are overwritten).  Raises SagError when it is singular."""
+    n = len(b)
+    for k in range(n):
+        p = max(range(k, n), key=lambda r: abs(a[r][k]))
+        if not abs(a[p][k]) > 1e-300:
+            raise SagError("the tensions with sag are singular there")
+        if p != k:
+            a[k], a[p] = a[p], a[k]
+            b[k], b[p] = b[p], b[k]
+        piv = a[k][k]
+        for r in range(k + 1, n):
+            f = a[r][k] / piv
+            if f != 0.0:
+                row_r, row_k = a[r], a[k]
+                for col in range(k, n):
+                    row_r[col] -= f * row_k[col]
+                b[r] -= f * b[k]
+    x = [0.0] * n
+    for k in range(n - 1, -1, -1):
+        acc = b[k] - sum(a[k][col] * x[col] for col in range(k + 1, n))
+        x[k] = acc / a[k][k]
+    return x
+
+
+def _fmt(p: Sequence[float]) -> str:
+    return "(" + ", ".join(f"{float(v):.4g}" for v in p) + ") m"

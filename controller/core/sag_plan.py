@@ -1,0 +1,406 @@
+"""Kinematics with sag: the paid-out lengths for a set-point (IPK) and the pose of paid-out
+lengths (FPK) with heavy, elastic cables, and the tension rule with their weight.
+
+Pure module (``math``; the kinematics, statics and sag statics of this package), no I/O, no
+threads.
+
+* **Plans (IPK).** ``SagPlanner.plan`` gives the cables' end forces, tensions and paid-out
+  lengths at a set-point.  A full solve (``SagStatics.solve``, a few hundred microseconds)
+  is made at a *base* point with the gradients of the horizontal forces and of the paid-out
+  lengths there; within ``PLAN_REUSE_M`` of the base a plan takes the horizontal forces
+  linearised from it and each cable's catenary for its force in closed form (an elastic
+  correction of a Newton step or two: ``SagStatics.from_horizontal``, about 30 us for four
+  cables).  The linearisation's error grows with the square of the distance to the base:
+  within 1 cm, under 15 um of paid-out length on the paper robot with 3 mm steel rope and 5 kg
+  (``tests/core/test_sag_plan.py``), far less with lighter cables.  A move at 2 m/s and
+  500 Hz makes a new base every 1 cm (every fifth tick).
+* **FPK.** The paid-out lengths are the chords less what sag and stretch take up,
+  ``L0_i(P) = |A_i - P| - d_i(P)``; ``d_i`` changes slowly with the pose, so it is linearised
+  about a plan (the loop's set-point's, handed in, or one at the warm start) with the base's
+  gradient, and the pose solved jointly from all cables by Gauss-Newton on
+  ``|A_i - P| - d_i(P0) - g_i . (P - P0) = L0_i`` with the exact geometry (the least-squares
+  solution: four cables over-determine the pose).  Warm-started from the last pose, two or
+  three steps and no statics at all while the pose is within ``FPK_REUSE_M`` of the set-point;
+  a pass that ends farther than ``RELINEARISE_M`` from its plan is repeated about its result.
+* **The tension rule** (``SagTensionCheck``): ``TensionCheck`` with the sag statics:
+  ``min_tension_n`` at the effector end of every cable, ``max_tension_n`` (or the motor's
+  torque limit) at its anchor end.  Its ``solve`` is the loop's plan (so the check, the
+  published tensions and the commanded lengths come from one solve); ``check`` and
+  ``path_failure`` solve afresh and keep nothing (they also run in the threads that submit
+  commands).
+
+Errors: ``KinematicsError`` (``SagKinematicsError`` for what is specific to sag) for lengths no
+pose explains; ``StaticsError`` (``SagError``) where the cables cannot hold the payload.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from controller.core.kinematics import Geometry, KinematicsError, fpk
+from controller.core.sag import SagSolution, SagStatics
+from controller.core.statics import (
+    PATH_MAX_SAMPLES,
+    StaticsError,
+    TensionCheck,
+    Tensions,
+)
+from controller.core.stretch import COLD_START_STRAINS, _normal_step
+
+__all__ = [
+    "FPK_REUSE_M",
+    "PLAN_REUSE_M",
+    "RELINEARISE_M",
+    "SAG_PATH_MAX_SAMPLES",
+    "SagKinematicsError",
+    "SagPlanner",
+    "SagTensionCheck",
+]
+
+Vec3 = tuple[float, float, float]
+
+PLAN_REUSE_M = 0.01
+"""Plans within this distance of the last full solve are linearised from it."""
+FPK_REUSE_M = 0.025
+"""The FPK linearises about the plan handed in (the loop's set-point's) while the warm start
+is within this distance of it; farther, about a plan of its own at the warm start."""
+RELINEARISE_M = 0.01
+"""A pass of the FPK that ends farther than this from its plan is repeated about its result."""
+MAX_PASSES = 100
+"""Most passes of one FPK."""
+MAX_STEPS = 30
+"""Most Gauss-Newton steps of one pass."""
+STEP_TOL_M = 1e-8
+"""A pass has converged when its step is shorter than this (the step is taken)."""
+MAX_STEP_M = 0.1
+"""Longest Gauss-Newton step: a longer one (a cold start far from the pose) ends the pass
+there, and the next pass plans where it ended."""
+SAG_PATH_MAX_SAMPLES = 4000
+"""At most this many solves per path check with sag (``SagTensionCheck.path_failure``): the
+spacing grows to fit."""
+_MATCH_M = 1e-9
+"""Chords this close are the same set-point's (``SagPlanner.planned``)."""
+
+
+class SagKinematicsError(KinematicsError):
+    """The sag model cannot explain the lengths: no plan near the pose (the cables cannot hold
+    the payload there), or the FPK did not converge."""
+
+
+class SagPlanner:
+    """Plans (IPK) and the FPK with sag for one robot (module docstring).
+
+    Keeps the base solve, its gradients and the last few plans: one owner (the control loop's
+    thread).  Raises nothing on construction.
+    """
+
+    __slots__ = ("_anchors", "_base", "_dd", "_dh", "_plans", "geometry", "n", "sag")
+
+    def __init__(self, sag: SagStatics, geometry: Geometry) -> None:
+        self.sag = sag
+        self.geometry = geometry
+        self.n = sag.n
+        self._anchors: tuple[Vec3, ...] = tuple(
+            (float(a[0]), float(a[1]), float(a[2])) for a in geometry.anchors_m.tolist()
+        )
+        self._base: SagSolution | None = None
+        self._dh: tuple[Vec3, ...] = ()
+        self._dd: tuple[Vec3, ...] = ()
+        self._plans: list[SagSolution] = []
+
+    def reset(self) -> None:
+        """Forget the base and the plans: the next plan solves afresh.  Raises nothing."""
+        self._base = None
+        self._plans.clear()
+
+    def exact(self, position_m: Sequence[float]) -> SagSolution:
+        """A full solve at `position_m`, started from the base (keeps nothing).  Raises
+        ``StaticsError`` (``SagError``) where the cables cannot hold the payload."""
+        return self.sag.solve(position_m, self._base)
+
+    def plan(self, position_m: Sequence[float]) -> SagSolution:
+        """The cables' end forces, tensions and paid-out lengths at `position_m`: linearised
+        from the base within ``PLAN_REUSE_M``, else a full solve there that becomes the base
+        (with its gradients).  Kept for ``planned``.  Raises ``StaticsError`` (``SagError``,
+        ``StaticsInputError``) where the cables cannot hold the payload or the point is bad."""
+        p = (float(position_m[0]), float(position_m[1]), float(position_m[2]))
+        base = self._base
+        if base is not None and math.dist(base.position_m, p) <= PLAN_REUSE_M:
+            bx, by, bz = base.position_m
+            ex, ey, ez = p[0] - bx, p[1] - by, p[2] - bz
+            h = [
+                h0 + g[0] * ex + g[1] * ey + g[2] * ez
+                for h0, g in zip(base.horizontal_n, self._dh, strict=True)
+            ]
+            sol = self.sag.from_horizontal(p, h)
+        else:
+            sol = self.sag.solve(p, base)
+            self._dh, self._dd = self.sag.gradients(sol)
+            self._base = sol
+        self._plans.append(sol)
+        if len(self._plans) > 4:
+            del self._plans[0]
+        return sol
+
+    def planned(
+        self, chords_m: Sequence[float] | None = None, position_m: Sequence[float] | None = None
+    ) -> SagSolution | None:
+        """The latest plan whose chords are `chords_m` (to a nanometre) or made at
+        `position_m`, or None.  Raises nothing."""
+        for s in reversed(self._plans):
+            if position_m is not None and tuple(position_m) == s.position_m:
+                return s
+            if (
+                chords_m is not None
+                and len(chords_m) == self.n
+                and all(abs(a - b) <= _MATCH_M for a, b in zip(chords_m, s.chords_m, strict=True))
+            ):
+                return s
+        return None
+
+    # ------------------------------------------------------------------ FPK
+
+    def fpk(
+        self,
+        paid_m: Sequence[float],
+        guess_m: Sequence[float] | None = None,
+        planned_at: Sequence[float] | None = None,
+    ) -> tuple[Vec3, float]:
+        """(pose, RMS length mismatch in metres) of the paid-out lengths `paid_m` (module
+        docstring), warm-started from `guess_m` (cold: the rigid FPK of the lengths), about
+        the plan made at `planned_at` while the start is within ``FPK_REUSE_M`` of it.
+
+        Raises ``KinematicsError`` for bad lengths or guess, ``SagKinematicsError`` when no
+        plan can be made near the pose or a pass does not converge.
+        """
+        n = self.n
+        if len(paid_m) != n:
+            raise KinematicsError(f"need {n} cable lengths, got {len(paid_m)}")
+        paid = [float(v) for v in paid_m]
+        for i, v in enumerate(paid):
+            if not (0.0 < v < math.inf):
+                raise KinematicsError(f"cable {i + 1}: length must be finite and > 0, got {v!r}")
+        if guess_m is None:
+            p = self._cold_start(paid)
+        else:
+            p = (float(guess_m[0]), float(guess_m[1]), float(guess_m[2]))
+            if not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
+                raise KinematicsError(f"guess must be finite, got {tuple(guess_m)!r}")
+        lin = None
+        if planned_at is not None and math.dist(planned_at, p) <= FPK_REUSE_M:
+            lin = self.planned(position_m=tuple(float(v) for v in planned_at))
+        for _ in range(MAX_PASSES):
+            if lin is None:
+                lin = self._plan_near(p)
+            q, ss = self._pass(p, lin, paid)
+            if math.dist(lin.position_m, q) <= RELINEARISE_M:
+                return q, math.sqrt(ss / n)
+            p = q
+            lin = None
+        raise SagKinematicsError(f"the FPK with sag did not settle at {_fmt(p)}")
+
+    def _cold_start(self, paid: list[float]) -> Vec3:
+        """A first pose without a last one: the rigid FPK of the paid-out lengths, or where
+        those cannot meet (cables stretched close under the anchors), of the lengths stretched
+        by a growing guess of the strain (``stretch.COLD_START_STRAINS``)."""
+        for strain in COLD_START_STRAINS:
+            try:
+                g = fpk(self.geometry, [v * (1.0 + strain) for v in paid]).position_m
+            except KinematicsError:
+                if strain == COLD_START_STRAINS[-1]:
+                    raise
+                continue
+            break
+        return (float(g[0]), float(g[1]), float(g[2]))
+
+    def _plan_near(self, p: Vec3) -> SagSolution:
+        try:
+            return self.plan(p)
+        except StaticsError as exc:
+            raise SagKinematicsError(f"no cable tensions with sag at {_fmt(p)}: {exc}") from None
+
+    def _pass(self, start: Vec3, lin: SagSolution, paid: Sequence[float]) -> tuple[Vec3, float]:
+        """Gauss-Newton from `start` with the sag and stretch linearised about the plan `lin`:
+        (pose, sum of squared length mismatches).  Raises SagKinematicsError without
+        convergence."""
+        x0, y0, z0 = lin.position_m
+        d0 = [ch - l0 for ch, l0 in zip(lin.chords_m, lin.paid_out_m, strict=True)]
+        grad = self._dd
+        anchors = self._anchors
+        x, y, z = start
+        for _ in range(MAX_STEPS):
+            ex, ey, ez = x - x0, y - y0, z - z0
+            a11 = a12 = a13 = a22 = a23 = a33 = 0.0
+            b1 = b2 = b3 = 0.0
+            ss = 0.0
+            for i, (ax, ay, az) in enumerate(anchors):
+                dx, dy, dz = ax - x, ay - y, az - z
+                length = math.sqrt(dx * dx + dy * dy + dz * dz)
+                gx, gy, gz = grad[i]
+                ri = length - d0[i] - gx * ex - gy * ey - gz * ez - paid[i]
+                inv = 1.0 / length
+                j1, j2, j3 = -dx * inv - gx, -dy * inv - gy, -dz * inv - gz
+                a11 += j1 * j1
+                a12 += j1 * j2
+                a13 += j1 * j3
+                a22 += j2 * j2
+                a23 += j2 * j3
+                a33 += j3 * j3
+                b1 -= j1 * ri
+                b2 -= j2 * ri
+                b3 -= j3 * ri
+                ss += ri * ri
+            step = _normal_step(a11, a12, a13, a22, a23, a33, b1, b2, b3)
+            if step is None:
+                raise SagKinematicsError(f"the cables do not fix the pose at {_fmt((x, y, z))}")
+            sx, sy, sz = step
+            size = math.sqrt(sx * sx + sy * sy + sz * sz)
+            if size > MAX_STEP_M:  # far from the plan: no longer than the model holds
+                f = MAX_STEP_M / size
+                sx, sy, sz = sx * f, sy * f, sz * f
+            x, y, z = x + sx, y + sy, z + sz
+            if size <= STEP_TOL_M:
+                return (x, y, z), self._sum_squares((x, y, z), lin, d0, paid)
+            if size > MAX_STEP_M:
+                # a new plan where the model is out of its range: end the pass here
+                return (x, y, z), self._sum_squares((x, y, z), lin, d0, paid)
+        raise SagKinematicsError(
+            f"the FPK with sag did not converge in {MAX_STEPS} steps (at {_fmt((x, y, z))})"
+        )
+
+    def _sum_squares(
+        self, p: Vec3, lin: SagSolution, d0: Sequence[float], paid: Sequence[float]
+    ) -> float:
+        x0, y0, z0 = lin.position_m
+        ex, ey, ez = p[0] - x0, p[1] - y0, p[2] - z0
+        ss = 0.0
+        for i, (ax, ay, az) in enumerate(self._anchors):
+            length = math.sqrt((ax - p[0]) ** 2 + (ay - p[1]) ** 2 + (az - p[2]) ** 2)
+            gx, gy, gz = self._dd[i]
+            r = length - d0[i] - gx * ex - gy * ey - gz * ez - paid[i]
+            ss += r * r
+        return ss
+
+
+class SagTensionCheck(TensionCheck):
+    """The tension rule with the cables' weight: `TensionCheck`'s interface, each pose solved
+    with sag (module docstring).  ``planner`` makes the loop's plans.
+
+    ``solve`` returns a `Tensions` with the anchor-end tensions (what the reels carry) and the
+    margin of the `SagSolution` (``min`` at the effector end, ``max`` at the anchor end); it
+    carries no derivative.  Raises ``StaticsInputError`` as `TensionCheck` and `SagStatics`
+    do.
+    """
+
+    __slots__ = ("planner", "sag")
+
+    def __init__(
+        self,
+        anchors_m: ArrayLike,
+        mass_kg: float,
+        t_min_n: float,
+        t_max_n: float,
+        margin_n: float,
+        max_source: str,
+        weight_n_per_m: Sequence[float],
+        ea_n: Sequence[float | None],
+    ) -> None:
+        super().__init__(anchors_m, mass_kg, t_min_n, t_max_n, margin_n, max_source)
+        self.sag = SagStatics(self.statics, self.mass_kg, weight_n_per_m, ea_n)
+        self.planner = SagPlanner(self.sag, Geometry(self.statics.anchors_m))
+
+    def tensions(self, s: SagSolution) -> Tensions:
+        """The `Tensions` of a sag solution (anchor-end tensions; its margin).  Raises
+        nothing."""
+        return Tensions(
+            tensions_n=s.anchor_tensions_n,
+            feasible=s.margin_n >= 0.0,
+            margin_n=s.margin_n,
+            limiting_cable=s.limiting_cable,
+            limiting_bound=s.limiting_bound,
+            t_min_n=self.statics.t_min_n,
+            t_max_n=self.statics.t_max_n,
+            method="sag",
+        )
+
+    def solve(self, point_m: Sequence[float], derivative: bool = False) -> Tensions:
+        """The payload's tensions at P with sag: the planner's plan there (`derivative` is
+        ignored: the plan's gradients come with its base).  Raises what ``SagPlanner.plan``
+        raises."""
+        return self.tensions(self.planner.plan(point_m))
+
+    def reason(self, result: Tensions) -> str | None:
+        """None if `result` passes, else why: the cable (1-based), the end and the bound."""
+        if result.margin_n >= self.margin_n:
+            return None
+        i = result.limiting_cable
+        lo, hi, m = self.statics.t_min_n, self.statics.t_max_n, self.margin_n
+        if result.limiting_bound == "min":
+            return (
+                f"cable {i + 1} tension {lo + result.margin_n:.4g} N at the effector below "
+                f"{lo + m:.4g} N (min_tension_n {lo:g} N + tension_margin_n {m:g} N) holding "
+                f"{self.mass_kg:g} kg and the cables' weight"
+            )
+        return (
+            f"cable {i + 1} tension {hi - result.margin_n:.4g} N at the anchor above "
+            f"{hi - m:.4g} N ({self.max_source} {hi:.4g} N - tension_margin_n {m:g} N) holding "
+            f"{self.mass_kg:g} kg and the cables' weight"
+        )
+
+    def check(self, point_m: Sequence[float]) -> str | None:
+        """None if the payload can be held at P by the rule with sag, else the reason (a full
+        solve; keeps nothing). Raises nothing."""
+        try:
+            return self.reason(self.tensions(self.sag.solve(point_m)))
+        except StaticsError as exc:
+            return f"the cables cannot hold {self.mass_kg:g} kg there: {exc}"
+
+    def path_failure(
+        self,
+        points: Sequence[Sequence[float]],
+        start_m: Sequence[float] | None,
+        step_m: float,
+        max_samples: int = PATH_MAX_SAMPLES,
+    ) -> tuple[int, str] | None:
+        """`TensionCheck.path_failure` with sag: the legs sampled every `step_m` (coarser to
+        keep within ``SAG_PATH_MAX_SAMPLES`` solves), each solve started from the sample
+        before; keeps nothing.  Raises nothing for finite points."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if start_m is None:
+            starts = np.vstack([pts[:1], pts[:-1]])
+        else:
+            starts = np.vstack([np.asarray(start_m, dtype=np.float64).reshape(1, 3), pts[:-1]])
+        leg = pts - starts
+        length = np.sqrt(np.einsum("ij,ij->i", leg, leg))
+        counts = np.maximum(1, np.ceil(length / step_m)).astype(np.int64)
+        cap = min(max_samples, SAG_PATH_MAX_SAMPLES)
+        total = int(counts.sum())
+        if total > cap:
+            counts = np.maximum(1, np.ceil(counts * (cap / total))).astype(np.int64)
+        last: SagSolution | None = None
+        for i in range(len(pts)):
+            k = int(counts[i])
+            for j in range(1, k + 1):
+                f = j / k
+                q = starts[i] + f * leg[i]
+                point = (float(q[0]), float(q[1]), float(q[2]))
+                try:
+                    last = self.sag.solve(point, last)
+                    why = self.reason(self.tensions(last))
+                except StaticsError as exc:
+                    last = None
+                    why = f"the cables cannot hold {self.mass_kg:g} kg there: {exc}"
+                if why is not None:
+                    if f < 1.0:
+                        at = "[" + ", ".join(f"{v:.4f}" for v in point) + "]"
+                        return i, f"on the leg to it: at {at}: {why}"
+                    return i, why
+        return None
+
+
+def _fmt(p: Sequence[float]) -> str:
+    return "(" + ", ".join(f"{float(v):.4g}" for v in p) + ") m"

@@ -1,0 +1,232 @@
+"""Statics and kinematics with the cables' weight: the tensions that hold the payload on
+catenaries (a rest pose of the physical plant), the paid-out lengths that put it at the target,
+the pose of paid-out lengths, the tension rule at both ends of the cables, and the limit of
+massless cables equal to today's statics and stretch."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from controller.core.kinematics import Geometry
+from controller.core.plant import PlantParams
+from controller.core.sag import SagError, SagStatics
+from controller.core.sag_plan import PLAN_REUSE_M, RELINEARISE_M, SagPlanner, SagTensionCheck
+from controller.core.sag_plant import sag_equilibrium
+from controller.core.statics import CableStatics, TensionCheck
+from controller.core.stretch import CableStretch
+
+G = 9.80665
+PAPER = [(-40.45, -25.0, 7.62), (-40.45, 25.0, 7.62), (40.45, 25.0, 7.62), (40.45, -25.0, 7.62)]
+SIX_POSES = [(0, 0, 2), (20, 10, 2), (-30, -18, 1), (0, 0, 6), (35, 20, 3), (10, -5, 0.5)]
+EA_N = 4.5e5
+DYNEEMA = 0.0083
+STEEL = 0.036
+FAST = settings(max_examples=25, deadline=None, derandomize=True)
+points = st.tuples(st.floats(-36.0, 36.0), st.floats(-21.0, 21.0), st.floats(0.0, 6.0))
+
+
+def sag_statics(per_m: float, mass_kg: float = 5.0, t_max_n: float = 2000.0) -> SagStatics:
+    return SagStatics(CableStatics(PAPER, 5.0, t_max_n), mass_kg, [per_m * G] * 4, [EA_N] * 4)
+
+
+def check(per_m: float, mass_kg: float = 5.0) -> SagTensionCheck:
+    return SagTensionCheck(
+        PAPER, mass_kg, 5.0, 500.0, 5.0, "max_tension_n", [per_m * G] * 4, [EA_N] * 4
+    )
+
+
+@pytest.mark.parametrize(("per_m", "mass_kg"), [(DYNEEMA, 5.0), (STEEL, 5.0), (STEEL, 20.0)])
+@pytest.mark.parametrize("target", SIX_POSES)
+def test_paid_out_lengths_put_the_plant_at_the_target(
+    per_m: float, mass_kg: float, target: tuple[float, ...]
+) -> None:
+    sol = sag_statics(per_m, mass_kg).solve(target)
+    params = PlantParams(PAPER, EA_N, mass_kg, cable_mass_kg_per_m=per_m)
+    rest = sag_equilibrium(params, sol.paid_out_m, guess_m=(target[0], target[1], target[2] + 0.1))
+    assert math.dist(rest.position_m, target) < 1e-7
+    assert rest.tensions_n == pytest.approx(sol.anchor_tensions_n, rel=1e-6)
+    assert sol.iterations <= 6
+
+
+@FAST
+@given(point=points, per_m=st.sampled_from([DYNEEMA, STEEL]))
+def test_the_solution_balances_the_weight_along_the_tangents(
+    point: tuple[float, float, float], per_m: float
+) -> None:
+    sag = sag_statics(per_m)
+    try:
+        sol = sag.solve(point)
+    except SagError:
+        assume(False)
+        raise
+    force = [
+        sum(t * d[k] for t, d in zip(sol.effector_tensions_n, sol.directions, strict=True))
+        for k in range(3)
+    ]
+    assert force[0] == pytest.approx(0.0, abs=1e-7)
+    assert force[1] == pytest.approx(0.0, abs=1e-7)
+    assert force[2] == pytest.approx(5.0 * G, rel=1e-9)
+    for i, (ax, ay, az) in enumerate(PAPER):
+        # the anchor end carries the cable's weight over its rise (less a stretch's worth)
+        rise = az - point[2]
+        gained = sol.anchor_tensions_n[i] - sol.effector_tensions_n[i]
+        assert gained == pytest.approx(per_m * G * rise, rel=2e-3)
+        # each tangent lies in its cable's vertical plane, below the chord
+        d = sol.directions[i]
+        assert (ax - point[0]) * d[1] - (ay - point[1]) * d[0] == pytest.approx(0.0, abs=1e-9)
+        chord_z = rise / sol.chords_m[i]
+        assert d[2] < chord_z
+
+
+@FAST
+@given(point=points)
+def test_without_cable_weight_it_is_todays_statics_and_stretch(
+    point: tuple[float, float, float],
+) -> None:
+    statics = CableStatics(PAPER, 5.0, 500.0)
+    try:
+        straight = statics.solve(point, 5.0)
+    except ValueError:
+        assume(False)
+        raise
+    sol = SagStatics(statics, 5.0, [0.0] * 4, [EA_N] * 4).solve(point)
+    assert sol.effector_tensions_n == pytest.approx(straight.tensions_n, rel=1e-9)
+    assert sol.anchor_tensions_n == pytest.approx(straight.tensions_n, rel=1e-9)
+    stretch = CableStretch(Geometry(PAPER), [EA_N] * 4, TensionCheck(PAPER, 5.0, 5.0, 500.0))
+    paid, _ = stretch.ipk(point)
+    assert sol.paid_out_m == pytest.approx(paid, rel=1e-12)
+    rigid = SagStatics(statics, 5.0, [0.0] * 4, [None] * 4).solve(point)
+    assert rigid.paid_out_m == pytest.approx(rigid.chords_m, rel=1e-13)
+
+
+@pytest.mark.parametrize("point", [(0.0, 0.0, 2.0), (35.0, 20.0, 3.0)])
+def test_newton_takes_a_few_steps_where_a_fixed_point_takes_dozens(
+    point: tuple[float, float, float],
+) -> None:
+    """Steel at 5 kg: the sag angle is a large part of the chord's angle, and the fixed point
+    "tangents -> tensions -> tangents" contracts slowly (46 to 92 passes to 1e-9 rad at the six
+    poses); the Newton solve takes three or four."""
+    sag = sag_statics(STEEL)
+    sol = sag.solve(point)
+    assert sol.iterations <= 4
+    px, py, pz = point
+    u = [
+        ((ax - px) / c, (ay - py) / c, (az - pz) / c)
+        for (ax, ay, az), c in zip(PAPER, sol.chords_m, strict=True)
+    ]
+    passes = 0
+    move = math.inf
+    while move > 1e-9 and passes < 200:
+        t = sag.statics._solve4_parts(u, sag.weight_n)[0]
+        new = []
+        for i, (ax, ay, az) in enumerate(PAPER):
+            dx, dy = ax - px, ay - py
+            span = math.hypot(dx, dy)
+            e = sag._hang(i, span, az - pz, t[i] * math.hypot(u[i][0], u[i][1]), 0.0, point)
+            a = e.h_n / e.t0_n / span
+            new.append((dx * a, dy * a, e.v0_n / e.t0_n))
+        move = max(abs(a[2] - b[2]) for a, b in zip(new, u, strict=True))
+        u = new
+        passes += 1
+    assert passes > 40
+    # both end at the same tangents
+    assert [d[2] for d in u] == pytest.approx([d[2] for d in sol.directions], abs=1e-8)
+
+
+def test_a_cable_that_would_hang_slack_is_a_named_error() -> None:
+    heavy = SagStatics(CableStatics(PAPER, 0.0, 5000.0), 0.5, [2.0 * G] * 4, [EA_N] * 4)
+    with pytest.raises(SagError, match="slack"):
+        heavy.solve((30.0, 18.0, 0.5))  # 2 kg/m of cable and a 0.5 kg payload
+
+
+@pytest.mark.parametrize(("per_m", "mass_kg"), [(DYNEEMA, 5.0), (STEEL, 5.0), (STEEL, 20.0)])
+@pytest.mark.parametrize("base", SIX_POSES)
+def test_linearised_plans_are_within_fifteen_micrometres(
+    per_m: float, mass_kg: float, base: tuple[float, ...]
+) -> None:
+    sag = sag_statics(per_m, mass_kg)
+    planner = SagPlanner(sag, Geometry(PAPER))
+    first = planner.plan(base)
+    assert first.iterations > 0  # a full solve: the base
+    for d in [(1, 0, 0), (0, 1, 0), (0, 0, 1), (-0.6, 0.6, -0.53)]:
+        n = math.sqrt(sum(v * v for v in d))
+        q = tuple(b + 0.999 * PLAN_REUSE_M * v / n for b, v in zip(base, d, strict=True))
+        lin = planner.plan(q)
+        assert lin.iterations == 0  # linearised from the base
+        exact = sag.solve(q, first)
+        err = max(abs(a - b) for a, b in zip(lin.paid_out_m, exact.paid_out_m, strict=True))
+        assert err < 15e-6
+        assert lin.anchor_tensions_n == pytest.approx(exact.anchor_tensions_n, rel=1e-4)
+        assert planner.planned(chords_m=exact.chords_m) is lin
+
+
+@pytest.mark.parametrize(("per_m", "mass_kg"), [(DYNEEMA, 5.0), (STEEL, 5.0), (STEEL, 20.0)])
+@pytest.mark.parametrize("target", SIX_POSES)
+def test_fpk_inverts_the_plan_cold_and_warm(
+    per_m: float, mass_kg: float, target: tuple[float, ...]
+) -> None:
+    planner = SagPlanner(sag_statics(per_m, mass_kg), Geometry(PAPER))
+    sol = planner.plan(target)
+    start = (target[0] + 0.008, target[1] - 0.004, target[2] + 0.003)
+    warm, residual = planner.fpk(sol.paid_out_m, start, planned_at=target)
+    assert math.dist(warm, target) < 1e-9
+    assert residual < 1e-9
+    cold, _ = planner.fpk(sol.paid_out_m)  # plans of its own on the way: linearised ones
+    assert math.dist(cold, target) < 2e-5
+
+
+@pytest.mark.parametrize("per_m", [DYNEEMA, STEEL])
+def test_fpk_about_the_set_points_plan_finds_poses_near_it(per_m: float) -> None:
+    """The lengths of a pose 5 mm to 2.4 cm from the set-point (the effector lagging or
+    leading a moving set-point): the FPK linearised about the set-point's plan finds that pose
+    to a few micrometres, with no plan of its own within RELINEARISE_M (1 cm) of it."""
+    sag = sag_statics(per_m)
+    planner = SagPlanner(sag, Geometry(PAPER))
+    target = (20.0, 10.0, 2.0)
+    planner.plan(target)
+    for offset in [(0.005, 0, 0), (0, -0.012, 0.004), (0.01, 0.01, -0.02)]:
+        q = tuple(t + d for t, d in zip(target, offset, strict=True))
+        paid = sag.solve(q).paid_out_m
+        before = len(planner._plans)
+        pose, _ = planner.fpk(paid, q, planned_at=target)
+        if math.dist(q, target) <= RELINEARISE_M:
+            assert len(planner._plans) == before  # linearised about the set-point's plan
+        assert math.dist(pose, q) < 5e-6
+
+
+def test_tension_rule_refuses_what_the_straight_rule_allows() -> None:
+    """At (0, 0, 6) m with 3 mm steel and 5 kg the cables must pull 607 N at the anchors to
+    hold the payload and themselves (the straight rule: 360 N)."""
+    straight = TensionCheck(PAPER, 5.0, 5.0, 500.0, 5.0)
+    assert straight.check((0.0, 0.0, 6.0)) is None
+    why = check(STEEL).check((0.0, 0.0, 6.0))
+    assert why is not None
+    assert "tension 606.7 N at the anchor above 495 N (max_tension_n 500 N" in why
+    assert "cables' weight" in why
+    assert check(DYNEEMA).check((0.0, 0.0, 6.0)) is None
+
+
+def test_tension_rule_solve_is_the_plan_with_anchor_tensions() -> None:
+    chk = check(STEEL)
+    res = chk.solve((20.0, 10.0, 2.0))
+    plan = chk.planner.planned(position_m=(20.0, 10.0, 2.0))
+    assert plan is not None
+    assert res.tensions_n == plan.anchor_tensions_n
+    assert res.method == "sag" and res.feasible
+    assert res.margin_n == plan.margin_n
+    assert chk.reason(res) is None
+
+
+def test_path_failure_finds_the_first_sample_the_cables_cannot_hold() -> None:
+    chk = check(STEEL)
+    assert chk.path_failure([(0.0, 0.0, 2.0), (10.0, 5.0, 2.0)], (0.0, 0.0, 2.0), 1.0) is None
+    failure = chk.path_failure([(0.0, 0.0, 2.0), (0.0, 0.0, 6.0)], (1.0, 0.0, 2.0), 0.25)
+    assert failure is not None
+    index, reason = failure
+    assert index == 1
+    assert reason.startswith("on the leg to it: at [0.0000, 0.0000, 5.7500]: cable ")
+    assert "at the anchor above" in reason
