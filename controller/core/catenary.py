@@ -64,6 +64,7 @@ __all__ = [
     "SlackCableError",
     "from_horizontal_force",
     "from_length",
+    "least_anchor_tension",
     "reach",
     "reach_derivatives",
     "sag",
@@ -472,6 +473,42 @@ def from_horizontal_force(
     except (OverflowError, ZeroDivisionError) as exc:
         raise CatenaryError(f"the catenary with H = {h_n!r} N is out of range: {exc}") from None
     return _finite_ends(ends, f"with H = {h_n!r} N")
+
+
+def least_anchor_tension(span_m: float, rise_m: float, weight_n_per_m: float) -> float:
+    """The least tension the anchor end of an inextensible cable of weight `weight_n_per_m`
+    can carry while it spans `span_m` horizontally and `rise_m` up to its anchor, whatever its
+    length: the minimum over the horizontal force (golden section on ``log lambda``; 0.7544
+    w span for level ends, w rise straight up).  Raises ``CatenaryError`` for bad input."""
+    span, rise, w, _, _ = _inputs(span_m, rise_m, weight_n_per_m, 0.0)
+    if w == 0.0:
+        return 0.0
+    if span == 0.0:
+        return w * max(rise, 0.0)
+
+    def anchor_tension(log_lam: float) -> float:
+        lam = math.exp(log_lam)
+        h = w * span / (2.0 * lam)
+        l0 = math.hypot(rise, span * _sinhc(lam))
+        v1 = h * rise / span * _xcoth(lam) + 0.5 * w * l0
+        return math.hypot(h, v1)
+
+    lo, hi = math.log(1e-4), math.log(MAX_LAMBDA)
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    a, b = hi - g * (hi - lo), lo + g * (hi - lo)
+    fa, fb = anchor_tension(a), anchor_tension(b)
+    for _ in range(100):
+        if fa < fb:
+            hi, b, fb = b, a, fa
+            a = hi - g * (hi - lo)
+            fa = anchor_tension(a)
+        else:
+            lo, a, fa = a, b, fb
+            b = lo + g * (hi - lo)
+            fb = anchor_tension(b)
+        if hi - lo < 1e-10:
+            break
+    return min(fa, fb)
 
 
 def sag(

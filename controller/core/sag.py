@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 from controller.core import catenary
@@ -55,7 +55,7 @@ from controller.core.statics import (
 )
 
 __all__ = [
-    "GRADIENT_STEP_M",
+    "JACOBIAN_REUSE_M",
     "MAX_SAG_ITERATIONS",
     "SAG_TOL",
     "SagError",
@@ -64,14 +64,18 @@ __all__ = [
 ]
 
 Vec3 = tuple[float, float, float]
+Matrix = tuple[tuple[float, ...], ...]
+Newton = tuple[Matrix, Matrix, tuple[float, ...]]
+"""The Newton matrix J of a solve, the statics' dt/dtheta and the catenaries' d theta'/dH."""
 
 SAG_TOL = 1e-9
 """The solve has converged when every tangent at the effector is within this (rad) of its
 catenary's."""
+JACOBIAN_REUSE_M = 0.05
+"""A solve started from a solution within this distance takes its first Newton step with that
+solution's matrix (no finite differences)."""
 MAX_SAG_ITERATIONS = 60
 """Most passes of one solve."""
-GRADIENT_STEP_M = 1e-3
-"""Finite-difference step of the gradient of the paid-out lengths (``SagStatics.gradient``)."""
 
 
 class SagError(StaticsError):
@@ -103,6 +107,9 @@ class SagSolution:
     limiting_cable: int
     limiting_bound: Literal["min", "max"]
     iterations: int
+    newton: Newton | None = field(default=None, compare=False, repr=False)
+    """The last Newton matrix of the solve (J, dt/dtheta, d theta'/dH), for the gradients and
+    for a solve started from this one."""
 
 
 def _solve_along(statics: CableStatics, u: list[Vec3], weight_n: float) -> list[float]:
@@ -223,14 +230,27 @@ class SagStatics:
         else:
             t, ends, res = self._pass(theta, spans, rises, horiz, where)
         norm = max(abs(r) for r in res)
+        # A nearby solution's Newton matrix serves the first step (no finite differences).
+        newton = None
+        reuse = None
+        if (
+            guess is not None
+            and guess.newton is not None
+            and math.dist(guess.position_m, where) <= JACOBIAN_REUSE_M
+        ):
+            reuse = guess.newton
         for it in range(1, MAX_SAG_ITERATIONS + 1):
             if norm <= SAG_TOL:
                 u = [
                     (horiz[i][0] * math.cos(a), horiz[i][1] * math.cos(a), math.sin(a))
                     for i, a in enumerate(theta)
                 ]
-                return self._solution(where, chords, ends, u, it)
-            step = self._newton_step(theta, t, ends, res, spans, rises, horiz)
+                return self._solution(where, chords, ends, u, it, newton or reuse)
+            if reuse is not None:
+                newton, reuse = reuse, None
+            else:
+                newton = self._newton_matrix(theta, t, ends, spans, rises, horiz)
+            step = _gauss([list(row) for row in newton[0]], [-r for r in res])
             alpha = 1.0
             for _ in range(30):
                 trial = [a + alpha * d for a, d in zip(theta, step, strict=True)]
@@ -246,9 +266,16 @@ class SagStatics:
             else:
                 break
             theta, t, ends, res, norm = trial, t2, e2, r2, n2
+        low = min(range(self.n), key=lambda i: theta[i])
+        if theta[low] < -0.5:  # past the fold: the cable hangs down from the effector
+            raise SagError(
+                f"cable {low + 1} would hang slack at {_fmt(where)}: it leaves the effector "
+                f"{math.degrees(-theta[low]):.0f} degrees downward and the payload cannot pull "
+                "it taut against its weight"
+            )
         raise SagError(
-            f"the tensions with sag did not settle at ({px:.4g}, {py:.4g}, {pz:.4g}) m "
-            f"(tangents off by {norm:.3g} rad)"
+            f"the tensions with sag did not settle at {_fmt(where)} (tangents off by "
+            f"{norm:.3g} rad)"
         )
 
     @staticmethod
@@ -294,45 +321,69 @@ class SagStatics:
             res.append(a - math.atan2(e.v0_n, e.h_n) if spans[i] > 0.0 else 0.0)
         return t, ends, res
 
-    def _newton_step(
+    def _newton_matrix(
         self,
         theta: Sequence[float],
         t: Sequence[float],
         ends: Sequence[catenary.CatenaryEnds],
-        res: Sequence[float],
         spans: Sequence[float],
         rises: Sequence[float],
         horiz: Sequence[tuple[float, float]],
-    ) -> list[float]:
-        """The Newton step of the residuals ``theta - theta'(theta)``: the statics' tension
-        derivative by the tangents by forward differences (one statics solve per cable), the
-        catenaries' tangent derivative by their horizontal force analytically."""
+    ) -> Newton:
+        """The Newton matrix of the residuals ``theta - theta'(theta)`` at `theta`: ``J = I -
+        d theta' / d theta`` with the statics' tension derivative by the tangents by forward
+        differences (one statics solve per cable) and the catenaries' tangent derivative by
+        their horizontal force analytically; (J, dt/dtheta, d theta'/dH)."""
         n = self.n
         eps = 1e-7
-        # d theta'_i / d H_i from the catenary at fixed span and rise
-        gp = []
-        for i, e in enumerate(ends):
-            if not spans[i] > 0.0:
-                gp.append(0.0)
-                continue
-            r = catenary.reach_derivatives(e.h_n, e.v0_n, e.unstretched_m, self._w[i], self._c[i])
-            det = r.ds_dv * r.dr_dl - r.ds_dl * r.dr_dv
-            dv_dh = (r.dr_dh * r.ds_dl - r.ds_dh * r.dr_dl) / det if det != 0.0 else 0.0
-            gp.append((e.h_n * dv_dh - e.v0_n) / (e.t0_n * e.t0_n))
-        # J = I - d theta' / d theta, with d H_i / d theta_j = cos(theta_i) dt_i/dtheta_j
-        # - [i = j] t_i sin(theta_i)
+        gp = [self._tangent_slopes(i, e, spans[i])[0] for i, e in enumerate(ends)]
         jac = [[0.0] * n for _ in range(n)]
+        dtd = [[0.0] * n for _ in range(n)]
         cos_t = [math.cos(a) for a in theta]
         for j in range(n):
             bumped = list(theta)
             bumped[j] += eps
             tb = _solve_along(self.statics, self._directions(bumped, spans, horiz), self.weight_n)
             for i in range(n):
-                dh = cos_t[i] * (tb[i] - t[i]) / eps
+                dtd[i][j] = (tb[i] - t[i]) / eps
+                # d H_i / d theta_j = cos(theta_i) dt_i/dtheta_j - [i = j] t_i sin(theta_i)
+                dh = cos_t[i] * dtd[i][j]
                 if i == j:
                     dh -= t[i] * math.sin(theta[i])
                 jac[i][j] = (1.0 if i == j else 0.0) - gp[i] * dh
-        return _gauss(jac, [-r for r in res])
+        return (
+            tuple(tuple(row) for row in jac),
+            tuple(tuple(row) for row in dtd),
+            tuple(gp),
+        )
+
+    def _tangent_slopes(
+        self, i: int, e: catenary.CatenaryEnds, span: float
+    ) -> tuple[float, float, float, float, float, float]:
+        """Cable `i`'s catenary `e` between fixed ends: how its tangent elevation at the
+        effector and its unstretched length move (d theta'/dH; d theta'/d span, d theta'/d rise
+        at fixed H; dL0/dH; dL0/d span, dL0/d rise at fixed H).  Zeros for a vertical one."""
+        if not span > 0.0:
+            return (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        r = catenary.reach_derivatives(e.h_n, e.v0_n, e.unstretched_m, self._w[i], self._c[i])
+        det = r.ds_dv * r.dr_dl - r.ds_dl * r.dr_dv
+        if det == 0.0:
+            return (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        # (V0, L0) of the catenary with its ends: M [dV0, dL0] = [d span, d rise] - [ds_dh,
+        # dr_dh] dH, M = [[ds_dv, ds_dl], [dr_dv, dr_dl]]
+        dv_dh = (-r.dr_dl * r.ds_dh + r.ds_dl * r.dr_dh) / det
+        dl_dh = (r.dr_dv * r.ds_dh - r.ds_dv * r.dr_dh) / det
+        dv_ds, dv_dr = r.dr_dl / det, -r.ds_dl / det
+        dl_ds, dl_dr = -r.dr_dv / det, r.ds_dv / det
+        t2 = e.t0_n * e.t0_n
+        return (
+            (e.h_n * dv_dh - e.v0_n) / t2,
+            e.h_n * dv_ds / t2,
+            e.h_n * dv_dr / t2,
+            dl_dh,
+            dl_ds,
+            dl_dr,
+        )
 
     def _hang(
         self, i: int, span: float, rise: float, h: float, v: float, where: Vec3
@@ -359,6 +410,7 @@ class SagStatics:
         ends: list[catenary.CatenaryEnds],
         u: list[Vec3],
         iterations: int,
+        newton: Newton | None = None,
     ) -> SagSolution:
         lo, hi = self.statics.t_min_n, self.statics.t_max_n
         margin = math.inf
@@ -387,6 +439,7 @@ class SagStatics:
             limiting_cable=limiting,
             limiting_bound=bound,
             iterations=iterations,
+            newton=newton,
         )
 
     def from_horizontal(
@@ -427,28 +480,88 @@ class SagStatics:
         """(dH / dP, d(chord - paid-out length) / dP) of each cable at `solution`'s pose (one
         row per cable; N/m and dimensionless): how the planned horizontal forces move with the
         pose, and the part of the paid-out lengths' derivative that sag and stretch add to the
-        geometry's.  Forward differences (``GRADIENT_STEP_M``; three solves started from
-        `solution`).  Raises what ``solve`` raises."""
-        x, y, z = solution.position_m
-        h0 = solution.horizontal_n
-        d0 = [ch - l0 for ch, l0 in zip(solution.chords_m, solution.paid_out_m, strict=True)]
-        step = GRADIENT_STEP_M
-        dh = []
-        dd = []
-        for q in ((x + step, y, z), (x, y + step, z), (x, y, z + step)):
-            s = self.solve(q, solution)
-            dh.append([(a - b) / step for a, b in zip(s.horizontal_n, h0, strict=True)])
-            dd.append(
-                [
-                    (ch - l0 - b) / step
-                    for ch, l0, b in zip(s.chords_m, s.paid_out_m, d0, strict=True)
-                ]
+        geometry's.
+
+        By the implicit function theorem on the solve's residuals ``F(theta, P) = theta -
+        theta'(theta, P) = 0``: ``J d theta / dP = d theta' / dP`` at fixed tangents, with the
+        solve's Newton matrix J (taken afresh when the solve made none), the statics' tension
+        change as the cables' bearings turn with P (two statics solves, forward differences)
+        and each catenary's change with its span and rise (analytic).  Raises what ``solve``
+        raises for a solution the statics no longer have."""
+        n = self.n
+        px, py, pz = solution.position_m
+        spans, rises, horiz = [], [], []
+        for ax, ay, az in self._anchors:
+            dx, dy = ax - px, ay - py
+            span = math.hypot(dx, dy)
+            spans.append(span)
+            rises.append(az - pz)
+            horiz.append((dx / span, dy / span) if span > 0.0 else (0.0, 0.0))
+        theta = [math.atan2(d[2], math.hypot(d[0], d[1])) for d in solution.directions]
+        t = solution.effector_tensions_n
+        ends = [
+            catenary.CatenaryEnds(h, t0 * d[2], t0 * d[2] + w * l0, t0, t1, l0, 0)
+            for h, t0, t1, d, w, l0 in zip(
+                solution.horizontal_n,
+                t,
+                solution.anchor_tensions_n,
+                solution.directions,
+                self._w,
+                solution.paid_out_m,
+                strict=True,
             )
-        rows = range(self.n)
-        return (
-            tuple((dh[0][i], dh[1][i], dh[2][i]) for i in rows),
-            tuple((dd[0][i], dd[1][i], dd[2][i]) for i in rows),
-        )
+        ]
+        newton = solution.newton or self._newton_matrix(theta, t, ends, spans, rises, horiz)
+        jac, dtd, _ = newton
+        # the statics' tensions as the bearings turn, at fixed tangent elevations
+        eps = 1e-6
+        dt_dp: list[list[float]] = [[0.0, 0.0, 0.0] for _ in range(n)]
+        for k, (ex, ey) in enumerate(((eps, 0.0), (0.0, eps))):
+            turned = []
+            for ax, ay, _az in self._anchors:
+                dx, dy = ax - px - ex, ay - py - ey
+                span = math.hypot(dx, dy)
+                turned.append((dx / span, dy / span) if span > 0.0 else (0.0, 0.0))
+            tb = _solve_along(self.statics, self._directions(theta, spans, turned), self.weight_n)
+            for i in range(n):
+                dt_dp[i][k] = (tb[i] - t[i]) / eps
+        slopes = [self._tangent_slopes(i, e, spans[i]) for i, e in enumerate(ends)]
+        cos_t = [math.cos(a) for a in theta]
+        sin_t = [math.sin(a) for a in theta]
+
+        def span_rise(i: int, k: int) -> tuple[float, float]:
+            """d span_i / dP_k, d rise_i / dP_k."""
+            if k == 2:
+                return 0.0, -1.0
+            return -horiz[i][k], 0.0
+
+        # d theta' / dP at fixed theta, one column per axis, solved for d theta / dP
+        dtheta: list[list[float]] = []
+        for k in range(3):
+            rhs = []
+            for i in range(n):
+                gp, g_s, g_r = slopes[i][0], slopes[i][1], slopes[i][2]
+                ds, dr = span_rise(i, k)
+                rhs.append(gp * cos_t[i] * dt_dp[i][k] + g_s * ds + g_r * dr)
+            dtheta.append(_gauss([list(row) for row in jac], rhs))
+        dh_rows = []
+        dd_rows = []
+        for i in range(n):
+            ax, ay, az = self._anchors[i]
+            chord = solution.chords_m[i]
+            dchord = ((px - ax) / chord, (py - ay) / chord, (pz - az) / chord)
+            dl_dh, dl_ds, dl_dr = slopes[i][3], slopes[i][4], slopes[i][5]
+            dh = []
+            dd = []
+            for k in range(3):
+                dt_i = sum(dtd[i][j] * dtheta[k][j] for j in range(n)) + dt_dp[i][k]
+                dhk = cos_t[i] * dt_i - t[i] * sin_t[i] * dtheta[k][i]
+                ds, dr = span_rise(i, k)
+                dh.append(dhk)
+                dd.append(dchord[k] - (dl_dh * dhk + dl_ds * ds + dl_dr * dr))
+            dh_rows.append((dh[0], dh[1], dh[2]))
+            dd_rows.append((dd[0], dd[1], dd[2]))
+        return tuple(dh_rows), tuple(dd_rows)
 
 
 def _gauss(a: list[list[float]], b: list[float]) -> list[float]:

@@ -39,12 +39,13 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from controller.core.kinematics import Geometry, KinematicsError, fpk
 from controller.core.sag import SagSolution, SagStatics
 from controller.core.statics import (
     PATH_MAX_SAMPLES,
+    SINGULAR_MARGIN_N,
     StaticsError,
     TensionCheck,
     Tensions,
@@ -70,15 +71,22 @@ FPK_REUSE_M = 0.025
 is within this distance of it; farther, about a plan of its own at the warm start."""
 RELINEARISE_M = 0.01
 """A pass of the FPK that ends farther than this from its plan is repeated about its result."""
-MAX_PASSES = 100
+OWN_REUSE_M = 0.002
+"""Without the set-point's plan near (disarmed), the FPK's own full solve and gradient are
+reused while the warm start is within this distance of them."""
+MAX_PASSES = 20
 """Most passes of one FPK."""
 MAX_STEPS = 30
+COLD_ROUNDS = 8
+"""Most rounds of the cold start's "rigid FPK of the lengths plus the sag and stretch"."""
 """Most Gauss-Newton steps of one pass."""
 STEP_TOL_M = 1e-8
 """A pass has converged when its step is shorter than this (the step is taken)."""
-MAX_STEP_M = 0.1
+MAX_STEP_M = 0.5
 """Longest Gauss-Newton step: a longer one (a cold start far from the pose) ends the pass
 there, and the next pass plans where it ended."""
+COLD_PASSES = 40
+"""Most passes of an FPK without a warm start."""
 SAG_PATH_MAX_SAMPLES = 4000
 """At most this many solves per path check with sag (``SagTensionCheck.path_failure``): the
 spacing grows to fit."""
@@ -98,7 +106,18 @@ class SagPlanner:
     thread).  Raises nothing on construction.
     """
 
-    __slots__ = ("_anchors", "_base", "_dd", "_dh", "_plans", "geometry", "n", "sag")
+    __slots__ = (
+        "_anchors",
+        "_base",
+        "_dd",
+        "_dh",
+        "_own",
+        "_plans",
+        "_plans_dd",
+        "geometry",
+        "n",
+        "sag",
+    )
 
     def __init__(self, sag: SagStatics, geometry: Geometry) -> None:
         self.sag = sag
@@ -111,11 +130,16 @@ class SagPlanner:
         self._dh: tuple[Vec3, ...] = ()
         self._dd: tuple[Vec3, ...] = ()
         self._plans: list[SagSolution] = []
+        self._plans_dd: list[tuple[Vec3, ...]] = []
+        self._own: tuple[SagSolution, tuple[Vec3, ...]] | None = None
 
     def reset(self) -> None:
-        """Forget the base and the plans: the next plan solves afresh.  Raises nothing."""
+        """Forget the base, the plans and the FPK's own solve: the next call solves afresh.
+        Raises nothing."""
         self._base = None
         self._plans.clear()
+        self._plans_dd.clear()
+        self._own = None
 
     def exact(self, position_m: Sequence[float]) -> SagSolution:
         """A full solve at `position_m`, started from the base (keeps nothing).  Raises
@@ -141,9 +165,26 @@ class SagPlanner:
             sol = self.sag.solve(p, base)
             self._dh, self._dd = self.sag.gradients(sol)
             self._base = sol
+        self._keep(sol, self._dd)
+        return sol
+
+    def _keep(self, sol: SagSolution, dd: tuple[Vec3, ...]) -> None:
         self._plans.append(sol)
+        self._plans_dd.append(dd)
         if len(self._plans) > 4:
             del self._plans[0]
+            del self._plans_dd[0]
+
+    def refine(self, chords_m: Sequence[float]) -> SagSolution | None:
+        """The plan whose chords are `chords_m`, made exact: a linearised plan is replaced by
+        a full solve at its point (the loop calls this when its set-point has stopped, so
+        that the lengths it holds carry no linearisation error).  None when there is no such
+        plan.  Raises ``StaticsError`` where the cables cannot hold the payload."""
+        plan = self.planned(chords_m=chords_m)
+        if plan is None or plan.iterations > 0:
+            return plan
+        sol = self.sag.solve(plan.position_m, plan)
+        self._keep(sol, self.sag.gradients(sol)[1])
         return sol
 
     def planned(
@@ -151,15 +192,22 @@ class SagPlanner:
     ) -> SagSolution | None:
         """The latest plan whose chords are `chords_m` (to a nanometre) or made at
         `position_m`, or None.  Raises nothing."""
-        for s in reversed(self._plans):
+        k = self._find(chords_m, position_m)
+        return None if k is None else self._plans[k]
+
+    def _find(
+        self, chords_m: Sequence[float] | None, position_m: Sequence[float] | None
+    ) -> int | None:
+        for k in range(len(self._plans) - 1, -1, -1):
+            s = self._plans[k]
             if position_m is not None and tuple(position_m) == s.position_m:
-                return s
+                return k
             if (
                 chords_m is not None
                 and len(chords_m) == self.n
                 and all(abs(a - b) <= _MATCH_M for a, b in zip(chords_m, s.chords_m, strict=True))
             ):
-                return s
+                return k
         return None
 
     # ------------------------------------------------------------------ FPK
@@ -190,23 +238,51 @@ class SagPlanner:
             p = (float(guess_m[0]), float(guess_m[1]), float(guess_m[2]))
             if not (math.isfinite(p[0]) and math.isfinite(p[1]) and math.isfinite(p[2])):
                 raise KinematicsError(f"guess must be finite, got {tuple(guess_m)!r}")
-        lin = None
+        lin: tuple[SagSolution, tuple[Vec3, ...]] | None = None
         if planned_at is not None and math.dist(planned_at, p) <= FPK_REUSE_M:
-            lin = self.planned(position_m=tuple(float(v) for v in planned_at))
-        for _ in range(MAX_PASSES):
+            k = self._find(None, tuple(float(v) for v in planned_at))
+            if k is not None:
+                lin = self._plans[k], self._plans_dd[k]
+        # about the set-point's plan, the pose may end RELINEARISE_M from it; about the FPK's
+        # own solves (which cost it a full solve), OWN_REUSE_M
+        reach = RELINEARISE_M
+        prev_move = math.inf
+        best: tuple[float, Vec3] | None = None
+        for k in range(MAX_PASSES if guess_m is not None else COLD_PASSES):
             if lin is None:
-                lin = self._plan_near(p)
-            q, ss = self._pass(p, lin, paid)
-            if math.dist(lin.position_m, q) <= RELINEARISE_M:
+                lin = self._solve_near(p)
+                reach = OWN_REUSE_M
+            if k > 0:  # a pass's start, linearised at itself: its exact mismatch
+                d0 = [c - v for c, v in zip(lin[0].chords_m, lin[0].paid_out_m, strict=True)]
+                ss_p = self._sum_squares(p, lin[0], lin[1], d0, paid)
+                if best is None or ss_p < best[0]:
+                    best = (ss_p, p)
+            q, ss, capped = self._pass(p, lin[0], lin[1], paid)
+            move = math.dist(lin[0].position_m, q)
+            if capped:  # far from the pose: on toward it, a plan where the pass stopped
+                prev_move = math.inf
+            elif move <= reach:
                 return q, math.sqrt(ss / n)
+            elif move >= prev_move:  # not contracting (a kink of the distribution): half way
+                q = (0.5 * (p[0] + q[0]), 0.5 * (p[1] + q[1]), 0.5 * (p[2] + q[2]))
+                prev_move = math.dist(p, q)
+            else:
+                prev_move = move
             p = q
             lin = None
-        raise SagKinematicsError(f"the FPK with sag did not settle at {_fmt(p)}")
+        # The passes did not settle: the planned distribution has a kink there (the cable that
+        # limits it changes) and the lengths disagree with it, so the passes step across the
+        # kink.  The best pose seen, by its exact mismatch.
+        if best is None:
+            raise SagKinematicsError(f"the FPK with sag did not settle at {_fmt(p)}")
+        return best[1], math.sqrt(best[0] / n)
 
     def _cold_start(self, paid: list[float]) -> Vec3:
-        """A first pose without a last one: the rigid FPK of the paid-out lengths, or where
-        those cannot meet (cables stretched close under the anchors), of the lengths stretched
-        by a growing guess of the strain (``stretch.COLD_START_STRAINS``)."""
+        """A first pose without a last one: the rigid FPK of the paid-out lengths (or where
+        those cannot meet, cables stretched close under the anchors, of the lengths stretched
+        by a growing guess of the strain, ``stretch.COLD_START_STRAINS``), then a few rounds
+        of the rigid FPK of the paid-out lengths plus what sag and stretch take up at the last
+        estimate (while the cables can hold the payload there)."""
         for strain in COLD_START_STRAINS:
             try:
                 g = fpk(self.geometry, [v * (1.0 + strain) for v in paid]).position_m
@@ -215,21 +291,46 @@ class SagPlanner:
                     raise
                 continue
             break
-        return (float(g[0]), float(g[1]), float(g[2]))
+        p = (float(g[0]), float(g[1]), float(g[2]))
+        last = None
+        for _ in range(COLD_ROUNDS):
+            try:
+                last = self.sag.solve(p, last)
+                taken = [c - v for c, v in zip(last.chords_m, last.paid_out_m, strict=True)]
+                g = fpk(self.geometry, [v + d for v, d in zip(paid, taken, strict=True)]).position_m
+            except (StaticsError, KinematicsError):
+                break
+            q = (float(g[0]), float(g[1]), float(g[2]))
+            moved = math.dist(p, q)
+            p = q
+            if moved < OWN_REUSE_M:
+                break
+        return p
 
-    def _plan_near(self, p: Vec3) -> SagSolution:
+    def _solve_near(self, p: Vec3) -> tuple[SagSolution, tuple[Vec3, ...]]:
+        """The FPK's own linearisation near `p`: a full solve with its gradient, kept and
+        reused while within ``OWN_REUSE_M``.  Raises SagKinematicsError where the cables
+        cannot hold the payload."""
+        own = self._own
+        if own is not None and math.dist(own[0].position_m, p) <= OWN_REUSE_M:
+            return own
         try:
-            return self.plan(p)
+            sol = self.sag.solve(p, own[0] if own is not None else self._base)
+            grad = self.sag.gradients(sol)[1]
         except StaticsError as exc:
             raise SagKinematicsError(f"no cable tensions with sag at {_fmt(p)}: {exc}") from None
+        self._own = (sol, grad)
+        return sol, grad
 
-    def _pass(self, start: Vec3, lin: SagSolution, paid: Sequence[float]) -> tuple[Vec3, float]:
-        """Gauss-Newton from `start` with the sag and stretch linearised about the plan `lin`:
-        (pose, sum of squared length mismatches).  Raises SagKinematicsError without
-        convergence."""
+    def _pass(
+        self, start: Vec3, lin: SagSolution, grad: Sequence[Vec3], paid: Sequence[float]
+    ) -> tuple[Vec3, float, bool]:
+        """Gauss-Newton from `start` with the sag and stretch linearised about the plan `lin`
+        with the gradient `grad`: (pose, sum of squared length mismatches, whether the pass
+        stopped at a step of ``MAX_STEP_M``, far from the pose).  Raises SagKinematicsError
+        without convergence."""
         x0, y0, z0 = lin.position_m
         d0 = [ch - l0 for ch, l0 in zip(lin.chords_m, lin.paid_out_m, strict=True)]
-        grad = self._dd
         anchors = self._anchors
         x, y, z = start
         for _ in range(MAX_STEPS):
@@ -264,23 +365,28 @@ class SagPlanner:
                 sx, sy, sz = sx * f, sy * f, sz * f
             x, y, z = x + sx, y + sy, z + sz
             if size <= STEP_TOL_M:
-                return (x, y, z), self._sum_squares((x, y, z), lin, d0, paid)
+                return (x, y, z), self._sum_squares((x, y, z), lin, grad, d0, paid), False
             if size > MAX_STEP_M:
                 # a new plan where the model is out of its range: end the pass here
-                return (x, y, z), self._sum_squares((x, y, z), lin, d0, paid)
+                return (x, y, z), self._sum_squares((x, y, z), lin, grad, d0, paid), True
         raise SagKinematicsError(
             f"the FPK with sag did not converge in {MAX_STEPS} steps (at {_fmt((x, y, z))})"
         )
 
     def _sum_squares(
-        self, p: Vec3, lin: SagSolution, d0: Sequence[float], paid: Sequence[float]
+        self,
+        p: Vec3,
+        lin: SagSolution,
+        grad: Sequence[Vec3],
+        d0: Sequence[float],
+        paid: Sequence[float],
     ) -> float:
         x0, y0, z0 = lin.position_m
         ex, ey, ez = p[0] - x0, p[1] - y0, p[2] - z0
         ss = 0.0
         for i, (ax, ay, az) in enumerate(self._anchors):
             length = math.sqrt((ax - p[0]) ** 2 + (ay - p[1]) ** 2 + (az - p[2]) ** 2)
-            gx, gy, gz = self._dd[i]
+            gx, gy, gz = grad[i]
             r = length - d0[i] - gx * ex - gy * ey - gz * ez - paid[i]
             ss += r * r
         return ss
@@ -358,6 +464,29 @@ class SagTensionCheck(TensionCheck):
             return self.reason(self.tensions(self.sag.solve(point_m)))
         except StaticsError as exc:
             return f"the cables cannot hold {self.mass_kg:g} kg there: {exc}"
+
+    def margins(
+        self, points_m: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """(margin to the limits shrunk by the margin, feasible) of each of M points (M, 3)
+        with sag, each solve started from the point before (a grid's neighbour); a point the
+        cables cannot hold is infeasible with margin ``SINGULAR_MARGIN_N``.  The
+        ``controller.core.feasible`` map of this rule.  Raises nothing for finite points."""
+        pts = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+        margin = np.full(pts.shape[0], SINGULAR_MARGIN_N)
+        ok = np.zeros(pts.shape[0], dtype=bool)
+        last: SagSolution | None = None
+        for k, row in enumerate(pts.tolist()):
+            if last is not None and math.dist(last.position_m, row) > 1.0:
+                last = None  # a far neighbour's tangents are no better than the chords
+            try:
+                last = self.sag.solve(row, last)
+            except StaticsError:
+                last = None
+                continue
+            margin[k] = last.margin_n - self.margin_n
+            ok[k] = margin[k] >= 0.0
+        return margin, ok
 
     def path_failure(
         self,

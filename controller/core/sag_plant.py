@@ -66,6 +66,15 @@ __all__ = ["SagPlant", "sag_equilibrium"]
 
 _NO_CABLE = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
+RESOLVE_M = 1e-4
+"""The catenaries are solved afresh at the start of a step when the effector or a cable's
+unstretched length has moved more than this since they last were; within it the linearisation
+about that solve stands (its error, quadratic in the distance, is below a nanometre of the rest
+pose), so an effector at rest costs no catenary solves."""
+MAX_LINEAR_STEP_S = 0.005
+"""A longer step (a caller that stalled) is taken in pieces of at most this, each linearised
+afresh."""
+
 
 def _vec3(name: str, value: Sequence[float]) -> Vec3:
     try:
@@ -143,6 +152,7 @@ class SagPlant:
         "_c",
         "_cables",
         "_l0",
+        "_lin",
         "_p",
         "_params",
         "_substeps",
@@ -173,6 +183,7 @@ class SagPlant:
         self._v = _vec3("velocity_mps", velocity_mps)
         self._l0 = _lengths(params.cables, "unstretched_m", unstretched_m)
         self._cables = self._solve(self._p, self._l0)
+        self._lin: tuple[Vec3, list[float]] = (self._p, list(self._l0))
         self._t = self._anchor_tensions(self._cables, self._l0)
         self._t0 = tuple(cable[11] for cable in self._cables)
         self._time_s = 0.0
@@ -281,15 +292,31 @@ class SagPlant:
         return self._substeps
 
     def net_force_n(self) -> Vec3:
-        """The static force on the effector at its pose: the cables' end forces and its weight
-        (zero at rest).  Raises nothing."""
+        """The static force on the effector at its pose: the cables' end forces (solved
+        exactly there) and its weight (zero at rest).  Raises PlantError where a catenary
+        cannot be solved."""
         fx = fy = 0.0
         fz = -self._params.weight_n
-        for h, v0, _s, _r, ux, uy, *_ in self._cables:
+        for h, v0, _s, _r, ux, uy, *_ in self._solve(self._p, self._l0):
             fx += h * ux
             fy += h * uy
             fz += v0
         return (fx, fy, fz)
+
+    def _forces_now(self, cable: int, dt_s: float = 0.0) -> tuple[float, float]:
+        """(H, V0) of cable `cable` by the step's linearisation, at the effector's pose (moved
+        on by its velocity for `dt_s`) and the cable's present unstretched length."""
+        h, v0, span0, rise0, _ux, _uy, k00, k01, k11, gh, gv, _t0 = self._cables[cable]
+        if not h > 0.0:
+            return 0.0, 0.0
+        ax, ay, az = self._anchors[cable]
+        px, py, pz = self._p
+        vx, vy, vz = self._v
+        px, py, pz = px + vx * dt_s, py + vy * dt_s, pz + vz * dt_s
+        ds = math.hypot(ax - px, ay - py) - span0
+        dr = az - pz - rise0
+        dl = self._l0[cable] - self._lin[1][cable]
+        return h + k00 * ds + k01 * dr + gh * dl, v0 + k01 * ds + k11 * dr + gv * dl
 
     def settle(self, unstretched_m: Sequence[float] | None = None) -> Vec3:
         """Put the effector at rest at the equilibrium of these lengths (default: the current).
@@ -304,6 +331,7 @@ class SagPlant:
         )
         eq = sag_equilibrium(self._params, l0, self._p)
         self._cables = self._solve(eq.position_m, l0)
+        self._lin = (eq.position_m, list(l0))
         self._l0 = list(l0)
         self._p = eq.position_m
         self._v = (0.0, 0.0, 0.0)
@@ -316,17 +344,13 @@ class SagPlant:
         its anchor end, the effector where its velocity takes it in `dt_s`: one Newton step
         on the anchor tension from the cable's last solution (a reel in torque control
         follows it step by step).  Raises nothing for a valid cable index."""
-        cab = self._cables[cable]
-        h, v0, _span, _rise, ux, uy, k00, k01, k11, gh, gv, _t0 = cab
+        gh, gv = self._cables[cable][9], self._cables[cable][10]
         l0 = self._l0[cable]
         w = self._w[cable]
-        if h <= 0.0:
+        h1, v0 = self._forces_now(cable, dt_s)
+        if h1 <= 0.0:
             return -math.inf  # slack: wind in until it pulls
-        vx, vy, vz = self._v
-        dspan = -(ux * vx + uy * vy) * dt_s
-        drise = -vz * dt_s
-        h1 = h + k00 * dspan + k01 * drise
-        v1 = v0 + k01 * dspan + k11 * drise + w * l0
+        v1 = v0 + w * l0
         t1 = math.hypot(h1, v1)
         # d T1 / d L0 = (H dH/dL0 + V1 (dV0/dL0 + w)) / T1
         slope = (h1 * gh + v1 * (gv + w)) / t1
@@ -345,10 +369,39 @@ class SagPlant:
         if not (0.0 < dt_s < math.inf):
             raise PlantError(f"dt_s must be finite and > 0, got {dt_s!r}")
         n = self._params.cables
-        l0a = self._l0
         l0b = _lengths(n, "unstretched_m", unstretched_m)
+        chunks = math.ceil(dt_s / MAX_LINEAR_STEP_S)
+        if chunks > 1:  # a long step (a stalled caller): linearised no longer than that
+            state = (self._cables, self._lin, self._p, self._v, self._t, self._t0, self._l0)
+            start = list(self._l0)
+            try:
+                for k in range(1, chunks + 1):
+                    f = k / chunks
+                    self._step(
+                        [a + (b - a) * f for a, b in zip(start, l0b, strict=True)], dt_s / chunks
+                    )
+            except PlantError:
+                self._cables, self._lin, self._p, self._v, self._t, self._t0, self._l0 = state
+                raise
+            self._time_s += dt_s - dt_s / chunks * chunks  # rounding only
+            return self._p
+        return self._step(l0b, dt_s)
+
+    def _step(self, l0b: list[float], dt_s: float) -> Vec3:
+        """`step` within ``MAX_LINEAR_STEP_S``: the catenaries solved afresh when the effector
+        or a length moved more than ``RESOLVE_M`` since they were (module docstring)."""
+        l0a = self._l0
         px, py, pz = self._p
-        cables = self._solve(self._p, l0a)
+        lin_p, lin_l0 = self._lin
+        if (
+            math.dist(lin_p, self._p) > RESOLVE_M
+            or max(abs(a - b) for a, b in zip(lin_l0, l0a, strict=True)) > RESOLVE_M
+        ):
+            cables = self._solve(self._p, l0a)
+            lin_l0 = list(l0a)
+            lin_p = self._p
+        else:
+            cables = self._cables
         params = self._params
         m = params.mass_kg
         c = params.effector_damping_n_s_per_m
@@ -381,6 +434,7 @@ class SagPlant:
                 self._anchors[i][2],
                 cab,
                 l0a[i],
+                l0a[i] - lin_l0[i],
                 l0b[i] - l0a[i],
                 (l0b[i] - l0a[i]) / dt_s,
                 self._w[i],
@@ -399,14 +453,14 @@ class SagPlant:
             fy = -c * wy
             fz = fz0 - c * wz
             t_out = []
-            for ax, ay, az, cab, l0_start, l0_change, l0_rate, w in rows:
+            for ax, ay, az, cab, l0_start, l0_off, l0_change, l0_rate, w in rows:
                 h0, v00, span0, rise0, _ux, _uy, k00, k01, k11, gh, gv, _t0 = cab
                 dx = ax - px
                 dy = ay - py
                 span = math.sqrt(dx * dx + dy * dy)
                 ds = span - span0
                 dr = az - pz - rise0
-                dl = l0_change * frac
+                dl = l0_off + l0_change * frac
                 hl = h0 + k00 * ds + k01 * dr + gh * dl
                 if hl > 0.0 and span > 0.0:
                     # rates of span and rise at the half-step velocity
@@ -425,7 +479,7 @@ class SagPlant:
                         fx += s * dx
                         fy += s * dy
                         fz += vt
-                        t_out.append(math.hypot(ht, vt + w * (l0_start + dl)))
+                        t_out.append(math.hypot(ht, vt + w * (l0_start + l0_change * frac)))
                         continue
                 t_out.append(0.0)
             if j:
@@ -449,6 +503,7 @@ class SagPlant:
         for i in slack:
             tensions.insert(i, 0.0)
         self._cables = cables
+        self._lin = (lin_p, lin_l0)
         self._p = (px, py, pz)
         self._v = (vx, vy, vz)
         self._t = tuple(tensions)

@@ -34,13 +34,28 @@ class SimDaemonRig:
     """`cablebot sim` and `cablebot run` as processes on a udp_multicast bus of their own, and
     a Zenoh client session to the daemon following its pose and the simulator's truth."""
 
-    def __init__(self, tmp_path: Path, plant_ea_n: float, model_ea_n: float | None) -> None:
+    def __init__(
+        self,
+        tmp_path: Path,
+        plant_ea_n: float,
+        model_ea_n: float | None,
+        *,
+        plant_mass_kg_per_m: float | None = None,
+        model_mass_kg_per_m: float | None = None,
+        payload_kg: float | None = None,
+    ) -> None:
+        """The paper robot's cables of EA `plant_ea_n` and mass per metre
+        `plant_mass_kg_per_m` (None: massless) in the simulator, `model_ea_n` and
+        `model_mass_kg_per_m` in the daemon's reels (None: rigid, massless)."""
+        sim = {"plant": "physical", "cable_ea_n": plant_ea_n, "watchdog_timeout_s": 4.0}
+        if plant_mass_kg_per_m is not None:
+            sim["cable_mass_kg_per_m"] = plant_mass_kg_per_m
         path, info = write_config(
             tmp_path,
             udp_bus(),
             rate_hz=250.0,
             loop={"publish_every": 5},
-            sim={"plant": "physical", "cable_ea_n": plant_ea_n, "watchdog_timeout_s": 4.0},
+            sim=sim,
             # the rigid model's errors reach most of a metre; the machine is shared: a
             # starved process must not fault a measurement of where the effector rests
             faults={
@@ -56,6 +71,10 @@ class SimDaemonRig:
                 reel.pop("cable_ea_n", None)
             else:
                 reel["cable_ea_n"] = model_ea_n
+            if model_mass_kg_per_m is not None:
+                reel["cable_mass_kg_per_m"] = model_mass_kg_per_m
+        if payload_kg is not None:
+            data["payload"] = {"mass_kg": payload_kg}
         data["limits"] = {**data["limits"], "max_speed_mps": 2.0, "default_speed_mps": 2.0}
         path.write_text(to_toml(data))
         self.prefix = str(info["prefix"])

@@ -17,7 +17,7 @@ from typing import Any
 from controller.core.commands import MAX_PATH_POINTS
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
 from controller.core.reel import ReelModel, spool_buildup
-from controller.core.statics import TensionCheck
+from controller.core.statics import G_MPS2, TensionCheck
 from controller.core.workspace import Workspace, WorkspaceError
 from controller.service.config.interfaces import _parse_bus, _parse_ros2, _parse_zenoh
 from controller.service.config.schema import (
@@ -97,6 +97,7 @@ def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
     ref = t.number("reference_length_m", _REEL_DEFAULTS["reference_length_m"], ge=0.0)
     max_torque = t.number("max_torque_nm", gt=0.0) if t.has("max_torque_nm") else None
     cable_ea = t.number("cable_ea_n", gt=0.0) if t.has("cable_ea_n") else None
+    cable_mass = t.number("cable_mass_kg_per_m", ge=0.0) if t.has("cable_mass_kg_per_m") else None
     if not t.errs.clean_since(mark) or node_id is None or anchor is None:
         return None
     try:
@@ -117,6 +118,7 @@ def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
         reel=model,
         max_torque_nm=max_torque,
         cable_ea_n=cable_ea,
+        cable_mass_kg_per_m=cable_mass,
     )
 
 
@@ -207,6 +209,9 @@ def _parse_sim(st: _Table, interface: str, loop: LoopConfig) -> SimConfig:
         ),
         plant=st.string("plant", d_sim.plant) or d_sim.plant,
         cable_ea_n=st.number("cable_ea_n", d_sim.cable_ea_n, gt=0.0),
+        cable_mass_kg_per_m=(
+            st.number("cable_mass_kg_per_m", ge=0.0) if st.has("cable_mass_kg_per_m") else None
+        ),
         torque_period_s=st.number("torque_period_s", d_sim.torque_period_s, ge=0.0, le=10.0),
     )
     if sim.plant not in SIM_PLANTS:
@@ -337,6 +342,7 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
     payload, tension = _parse_statics(top, errs, limits, limits_ok, reels, geometry, pup)
     _check_telemetry_and_plant(top, lt, ft, st, ht, loop, faults, sim, drive, payload, tension, pup)
     _check_stretch(top, lt, errs, loop, reels)
+    _check_sag(top, errs, loop, reels, limits if limits_ok else None, tension, geometry)
 
     errs.raise_if_any()
     assert reels is not None and geometry is not None  # no problems: both were built
@@ -436,6 +442,88 @@ def _check_stretch(
             lt.fail("stretch_tensions", '"measured" needs loop.torque_telemetry on')
         if reels is not None and not stretchy:
             lt.fail("stretch_tensions", '"measured" does nothing: no reel has cable_ea_n')
+
+
+def _check_sag(
+    top: _Table,
+    errs: _Errors,
+    loop: LoopConfig,
+    reels: Sequence[ReelConfig] | None,
+    limits: LimitsConfig | None,
+    tension: TensionLimits | None,
+    geometry: Geometry | None,
+) -> None:
+    """Heavy cables (`[[reels]] cable_mass_kg_per_m`) need `[payload]` and planned tensions
+    for the pose; a cable too heavy to hang within the tension limit anywhere in the workspace
+    is refused with the pose (`cable_self_weight_problem`)."""
+    heavy = [i for i, r in enumerate(reels or ()) if r.cable_mass_kg_per_m]
+    if not heavy:
+        return
+    if not top.has("payload"):
+        for i in heavy:
+            errs.add(
+                f"reels[{i}].cable_mass_kg_per_m",
+                "needs [payload] mass_kg (the sag follows the tensions that hold it)",
+            )
+        return
+    if loop.stretch_tensions == "measured":
+        errs.add(
+            "loop.stretch_tensions",
+            '"measured" is not modelled with heavy cables (reels\' cable_mass_kg_per_m): '
+            'use "planned"',
+        )
+    if reels is None or limits is None or tension is None or geometry is None:
+        return
+    for i, key, problem in cable_self_weight_problems(reels, limits, tension, geometry):
+        errs.add(f"reels[{i}].{key}", problem)
+
+
+def cable_self_weight_problems(
+    reels: Sequence[ReelConfig],
+    limits: LimitsConfig,
+    tension: TensionLimits,
+    geometry: Geometry,
+) -> list[tuple[int, str, str]]:
+    """(reel index, key, problem) for each heavy cable that cannot hold its own weight within
+    the tension limit minus its margin at a pose of the workspace: the least tension its
+    anchor end can carry over the span to the farthest corner of the workspace box, at the
+    floor and at the top (``catenary.least_anchor_tension``).  Raises nothing."""
+    from controller.core.catenary import least_anchor_tension
+
+    try:
+        box = Workspace.from_limits(limits, geometry).box()
+    except WorkspaceError:
+        return []
+    (x0, x1), (y0, y1), (z0, z1) = box
+    corners = [(x, y, z) for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)]
+    limit = tension.max_n - tension.margin_n
+    out = []
+    for i, r in enumerate(reels):
+        m = r.cable_mass_kg_per_m
+        if not m:
+            continue
+        ax, ay, az = r.anchor_m
+        worst = (0.0, corners[0])
+        for c in corners:
+            try:
+                t = least_anchor_tension(math.hypot(ax - c[0], ay - c[1]), az - c[2], m * G_MPS2)
+            except ValueError:
+                continue
+            if t > worst[0]:
+                worst = (t, c)
+        if worst[0] > limit:
+            at = "(" + ", ".join(f"{v:.3g}" for v in worst[1]) + ")"
+            out.append(
+                (
+                    i,
+                    "cable_mass_kg_per_m",
+                    f"{m:g} kg/m is too heavy: to reach the workspace's corner {at} m the cable "
+                    f"alone needs at least {worst[0]:.4g} N at its anchor, above {limit:.4g} N "
+                    f"({tension.max_source} {tension.max_n:.4g} N - tension_margin_n "
+                    f"{tension.margin_n:g} N)",
+                )
+            )
+    return out
 
 
 def _check_telemetry_and_plant(
@@ -592,18 +680,38 @@ def _parse_statics(
         return None, None
     tension = TensionLimits(min_n=lo, max_n=max_n, margin_n=margin, max_source=max_source)
     if power_up_m is not None:
-        problem = tension_problem(geometry, payload, tension, power_up_m)
+        problem = tension_problem(geometry, payload, tension, power_up_m, reels)
         if problem is not None:
             errs.add("homing.power_up_position_m", problem)
     return payload, tension
 
 
 def tension_check(
-    payload: PayloadConfig, tension: TensionLimits, geometry: Geometry
+    payload: PayloadConfig,
+    tension: TensionLimits,
+    geometry: Geometry,
+    reels: Sequence[ReelConfig] = (),
 ) -> TensionCheck:
-    """The `controller.core.statics.TensionCheck` of this payload and these limits.
+    """The tension rule of this payload and these limits: with heavy `reels` (a
+    `cable_mass_kg_per_m`) the rule with the cables' weight
+    (`controller.core.sag_plan.SagTensionCheck`), else the straight cables'
+    (`controller.core.statics.TensionCheck`).
 
     Raises StaticsInputError only for values validation refuses."""
+    weights = [(r.cable_mass_kg_per_m or 0.0) * G_MPS2 for r in reels]
+    if any(w > 0.0 for w in weights):
+        from controller.core.sag_plan import SagTensionCheck
+
+        return SagTensionCheck(
+            geometry.anchors_m,
+            payload.mass_kg,
+            tension.min_n,
+            tension.max_n,
+            tension.margin_n,
+            tension.max_source,
+            weights,
+            [r.cable_ea_n for r in reels],
+        )
     return TensionCheck(
         geometry.anchors_m,
         payload.mass_kg,
@@ -615,11 +723,15 @@ def tension_check(
 
 
 def tension_problem(
-    geometry: Geometry, payload: PayloadConfig, tension: TensionLimits, point_m: Vec3
+    geometry: Geometry,
+    payload: PayloadConfig,
+    tension: TensionLimits,
+    point_m: Vec3,
+    reels: Sequence[ReelConfig] = (),
 ) -> str | None:
     """Why the cables cannot hold `payload` at `point_m` within the tension limits and their
-    margin, or None when they can. Raises nothing."""
-    return tension_check(payload, tension, geometry).check(point_m)
+    margin (with heavy `reels`, their weight too), or None when they can. Raises nothing."""
+    return tension_check(payload, tension, geometry, reels).check(point_m)
 
 
 def _parse_reels(

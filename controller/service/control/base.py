@@ -161,10 +161,11 @@ class ControllerState:
         self.tension: TensionCheck | None = (
             None
             if cfg.tension is None or cfg.payload is None
-            else tension_check(cfg.payload, cfg.tension, cfg.geometry)
+            else tension_check(cfg.payload, cfg.tension, cfg.geometry, cfg.reels)
         )
         self.cables = CableModel.from_config(cfg, self.tension)
-        """Rigid or stretching cables: homing lengths, commanded lengths (IPK), pose (FPK)."""
+        """Rigid, stretching or heavy cables: homing lengths, commanded lengths (IPK), pose
+        (FPK)."""
         self._tension_step_m = tension_sample_step_m(cfg)
         self.planned_tensions_n: tuple[float, ...] | None = None
         """Tensions that hold the payload at the last good set-point (None: not known)."""
