@@ -64,6 +64,7 @@ __all__ = [
     "SlackCableError",
     "from_horizontal_force",
     "from_length",
+    "from_length_and_reach",
     "least_anchor_tension",
     "reach",
     "reach_derivatives",
@@ -304,8 +305,9 @@ def _from_length(
     weight_n_per_m: float,
     compliance_per_n: float,
     guess: tuple[float, float] | None = None,
-) -> CatenaryEnds:
-    """``from_length`` without the range guard."""
+) -> tuple[CatenaryEnds, Reach | None]:
+    """``from_length`` without the range guard, with the reach at the solution when the
+    Newton made it (None for the straight closed forms)."""
     span, rise, w, c, chord = _inputs(span_m, rise_m, weight_n_per_m, compliance_per_n)
     l0 = _check("unstretched_m", unstretched_m, positive=True)
     if w == 0.0 or span == 0.0:
@@ -320,13 +322,13 @@ def _from_length(
                 raise SlackCableError(
                     f"a vertical cable of {l0:.6g} m over {rise:.6g} m does not hold its weight"
                 )
-            return _ends(0.0, v0, l0, w, 0)
+            return _ends(0.0, v0, l0, w, 0), None
         if not chord > l0:
             raise SlackCableError(
                 f"a massless cable of {l0:.6g} m between points {chord:.6g} m apart is slack"
             )
         t = (chord / l0 - 1.0) / c
-        return _ends(t * span / chord, t * rise / chord, l0, w, 0)
+        return _ends(t * span / chord, t * rise / chord, l0, w, 0), None
     if c == 0.0 and not l0 > chord:
         raise CatenaryError(f"an inextensible cable of {l0:.6g} m cannot reach {chord:.6g} m")
     if guess is not None and guess[0] > 0.0 and math.isfinite(guess[0] + guess[1]):
@@ -339,7 +341,7 @@ def _from_length(
     norm = math.hypot(es, er)
     for it in range(MAX_ITERATIONS):
         if norm <= tol:
-            return _ends(h, v0, l0, w, it)
+            return _ends(h, v0, l0, w, it), r
         det = r.ds_dh * r.dr_dv - r.ds_dv * r.dr_dh
         if not (det != 0.0 and math.isfinite(det)):
             break
@@ -361,7 +363,7 @@ def _from_length(
             break
         h, v0, r, es, er, norm = h2, v2, r2, es2, er2, norm2
     if norm <= 1e3 * tol:  # converged to what rounding allows
-        return _ends(h, v0, l0, w, MAX_ITERATIONS)
+        return _ends(h, v0, l0, w, MAX_ITERATIONS), r
     raise CatenaryError(
         f"the catenary of {l0:.6g} m over span {span:.6g} m, rise {rise:.6g} m did not converge "
         f"(mismatch {norm:.3g} m)"
@@ -398,6 +400,13 @@ def _from_horizontal_force(
     if c == 0.0:
         return _ends(h, v0, l0, w, 0)
     tol = _TOL * (span + abs(rise) + l0)
+    # Start the stretch's correction near it: the same curve of unstretched length shorter by
+    # the mean strain, its weight (so V0) lighter by the difference; one Newton step then
+    # meets the tolerance where the strain is small.
+    t_mean = 0.5 * (math.hypot(h, v0) + math.hypot(h, v0 + w * l0))
+    shorter = l0 / (1.0 + c * t_mean)
+    v0 += 0.5 * w * (l0 - shorter)
+    l0 = shorter
     for it in range(MAX_ITERATIONS):
         r = reach_derivatives(h, v0, l0, w, c)
         es, er = r.span_m - span, r.rise_m - rise
@@ -445,11 +454,36 @@ def from_length(
     floats' range; ``SlackCableError`` for a massless cable no shorter than the distance or a
     vertical one not taut.
     """
+    return from_length_and_reach(
+        span_m, rise_m, unstretched_m, weight_n_per_m, compliance_per_n, guess
+    )[0]
+
+
+def from_length_and_reach(
+    span_m: float,
+    rise_m: float,
+    unstretched_m: float,
+    weight_n_per_m: float,
+    compliance_per_n: float,
+    guess: tuple[float, float] | None = None,
+) -> tuple[CatenaryEnds, Reach]:
+    """``from_length`` and the ``reach_derivatives`` at its solution (the Newton's last
+    evaluation: the cable's stiffness comes with it).  Raises as ``from_length``."""
     try:
-        ends = _from_length(span_m, rise_m, unstretched_m, weight_n_per_m, compliance_per_n, guess)
+        ends, r = _from_length(
+            span_m, rise_m, unstretched_m, weight_n_per_m, compliance_per_n, guess
+        )
+        if r is None:
+            r = reach_derivatives(
+                ends.h_n,
+                ends.v0_n,
+                ends.unstretched_m,
+                float(weight_n_per_m),
+                float(compliance_per_n),
+            )
     except (OverflowError, ZeroDivisionError) as exc:
         raise CatenaryError(f"the catenary of {unstretched_m!r} m is out of range: {exc}") from None
-    return _finite_ends(ends, f"of {unstretched_m!r} m")
+    return _finite_ends(ends, f"of {unstretched_m!r} m"), r
 
 
 def from_horizontal_force(

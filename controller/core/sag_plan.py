@@ -11,9 +11,10 @@ threads.
   linearised from it and each cable's catenary for its force in closed form (an elastic
   correction of a Newton step or two: ``SagStatics.from_horizontal``, about 30 us for four
   cables).  The linearisation's error grows with the square of the distance to the base:
-  within 1 cm, under 15 um of paid-out length on the paper robot with 3 mm steel rope and 5 kg
-  (``tests/core/test_sag_plan.py``), far less with lighter cables.  A move at 2 m/s and
-  500 Hz makes a new base every 1 cm (every fifth tick).
+  within 2.5 cm, under 0.1 mm of paid-out length on the paper robot with 3 mm steel rope and
+  5 kg (``tests/core/test_sag.py``), far less with lighter cables; a move at 2 m/s and 500 Hz
+  makes a new base every sixth tick.  Once the set-point is held, its plan is made exact
+  (``refine``): the lengths the robot rests on carry no linearisation error.
 * **FPK.** The paid-out lengths are the chords less what sag and stretch take up,
   ``L0_i(P) = |A_i - P| - d_i(P)``; ``d_i`` changes slowly with the pose, so it is linearised
   about a plan (the loop's set-point's, handed in, or one at the warm start) with the base's
@@ -64,13 +65,18 @@ __all__ = [
 
 Vec3 = tuple[float, float, float]
 
-PLAN_REUSE_M = 0.01
+PLAN_REUSE_M = 0.025
 """Plans within this distance of the last full solve are linearised from it."""
-FPK_REUSE_M = 0.025
+FPK_REUSE_M = 0.05
 """The FPK linearises about the plan handed in (the loop's set-point's) while the warm start
-is within this distance of it; farther, about a plan of its own at the warm start."""
-RELINEARISE_M = 0.01
-"""A pass of the FPK that ends farther than this from its plan is repeated about its result."""
+is within this distance of it (the effector lags a moving set-point by a few centimetres);
+farther, about a full solve of its own at the warm start.  The linearisation's error grows with
+the square of the distance: at 5 cm, up to 0.14 mm of pose on the paper robot with 3 mm steel
+(near a corner low down), 0.1 mm close under the anchors, micrometres elsewhere
+(``tests/core/test_sag.py``); at rest the pose is at the plan's point and the error nil."""
+RELINEARISE_M = 0.05
+"""A pass of the FPK about the set-point's plan that ends farther than this from it is
+repeated about a solve of its own at its result."""
 OWN_REUSE_M = 0.002
 """Without the set-point's plan near (disarmed), the FPK's own full solve and gradient are
 reused while the warm start is within this distance of them."""

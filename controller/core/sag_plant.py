@@ -66,11 +66,16 @@ __all__ = ["SagPlant", "sag_equilibrium"]
 
 _NO_CABLE = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
-RESOLVE_M = 1e-4
+RESOLVE_M = 5e-3
 """The catenaries are solved afresh at the start of a step when the effector or a cable's
-unstretched length has moved more than this since they last were; within it the linearisation
-about that solve stands (its error, quadratic in the distance, is below a nanometre of the rest
-pose), so an effector at rest costs no catenary solves."""
+unstretched length has moved more than this since they last were (a move at 1 m/s: every
+fifth millisecond); within it the linearisation about that solve stands, its force error
+quadratic in the distance (a few millinewtons on the paper robot's cables)."""
+RESOLVE_AT_REST_M = 1e-7
+"""Below ``SLOW_MPS`` they are solved afresh once the state has moved more than this: the
+effector comes to rest on exact catenaries, and at rest costs no solves."""
+SLOW_MPS = 1e-3
+"""An effector slower than this is coming to rest (``RESOLVE_AT_REST_M``)."""
 MAX_LINEAR_STEP_S = 0.005
 """A longer step (a caller that stalled) is taken in pieces of at most this, each linearised
 afresh."""
@@ -116,13 +121,12 @@ def _solve_cable(
     rise = anchor[2] - p[2]
     span = math.hypot(dx, dy)
     try:
-        ends = catenary.from_length(span, rise, l0, w, c, guess)
+        ends, r = catenary.from_length_and_reach(span, rise, l0, w, c, guess)
     except catenary.SlackCableError:
         return _NO_CABLE
     except catenary.CatenaryError as exc:
         raise PlantError(f"cable at {anchor}: {exc}") from None
     h, v0 = ends.h_n, ends.v0_n
-    r = catenary.reach_derivatives(h, v0, l0, w, c)
     det = r.ds_dh * r.dr_dv - r.ds_dv * r.dr_dh
     if not (det > 0.0 and math.isfinite(det)):
         return _NO_CABLE
@@ -190,11 +194,20 @@ class SagPlant:
         self._substeps = 0
 
     def _solve(self, p: Vec3, l0: Sequence[float]) -> list[tuple[float, ...]]:
-        """Every cable's catenary at `p` (warm-started from the last solution)."""
+        """Every cable's catenary at `p`, started from the last solution's linearisation
+        moved to `p` and `l0` (one Newton step then meets the tolerance)."""
         old = getattr(self, "_cables", None)
+        lin = getattr(self, "_lin", None)
         out = []
         for i, anchor in enumerate(self._anchors):
-            guess = None if old is None or old[i][0] <= 0.0 else (old[i][0], old[i][1])
+            guess = None
+            if old is not None and lin is not None and old[i][0] > 0.0:
+                h0, v0, span0, rise0, _ux, _uy, k00, k01, k11, gh, gv, _t0 = old[i]
+                ds = math.hypot(anchor[0] - p[0], anchor[1] - p[1]) - span0
+                dr = anchor[2] - p[2] - rise0
+                dl = l0[i] - lin[1][i]
+                h = h0 + k00 * ds + k01 * dr + gh * dl
+                guess = (h, v0 + k01 * ds + k11 * dr + gv * dl) if h > 0.0 else (h0, v0)
             out.append(_solve_cable(anchor, p, l0[i], self._w[i], self._c[i], guess))
         return out
 
@@ -393,10 +406,14 @@ class SagPlant:
         l0a = self._l0
         px, py, pz = self._p
         lin_p, lin_l0 = self._lin
-        if (
-            math.dist(lin_p, self._p) > RESOLVE_M
-            or max(abs(a - b) for a, b in zip(lin_l0, l0a, strict=True)) > RESOLVE_M
-        ):
+        moved = max(
+            math.dist(lin_p, self._p),
+            max(abs(a - b) for a, b in zip(lin_l0, l0a, strict=True)),
+            max(abs(a - b) for a, b in zip(l0a, l0b, strict=True)),
+        )
+        vx, vy, vz = self._v
+        slow = vx * vx + vy * vy + vz * vz < SLOW_MPS * SLOW_MPS
+        if moved > RESOLVE_M or (slow and moved > RESOLVE_AT_REST_M):
             cables = self._solve(self._p, l0a)
             lin_l0 = list(l0a)
             lin_p = self._p

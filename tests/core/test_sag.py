@@ -14,7 +14,13 @@ from hypothesis import strategies as st
 from controller.core.kinematics import Geometry
 from controller.core.plant import PlantParams
 from controller.core.sag import SagError, SagStatics
-from controller.core.sag_plan import PLAN_REUSE_M, RELINEARISE_M, SagPlanner, SagTensionCheck
+from controller.core.sag_plan import (
+    FPK_REUSE_M,
+    PLAN_REUSE_M,
+    RELINEARISE_M,
+    SagPlanner,
+    SagTensionCheck,
+)
 from controller.core.sag_plant import sag_equilibrium
 from controller.core.statics import CableStatics, TensionCheck
 from controller.core.stretch import CableStretch
@@ -145,7 +151,7 @@ def test_a_cable_that_would_hang_slack_is_a_named_error() -> None:
 
 @pytest.mark.parametrize(("per_m", "mass_kg"), [(DYNEEMA, 5.0), (STEEL, 5.0), (STEEL, 20.0)])
 @pytest.mark.parametrize("base", SIX_POSES)
-def test_linearised_plans_are_within_fifteen_micrometres(
+def test_linearised_plans_are_within_a_tenth_of_a_millimetre(
     per_m: float, mass_kg: float, base: tuple[float, ...]
 ) -> None:
     sag = sag_statics(per_m, mass_kg)
@@ -159,8 +165,8 @@ def test_linearised_plans_are_within_fifteen_micrometres(
         assert lin.iterations == 0  # linearised from the base
         exact = sag.solve(q, first)
         err = max(abs(a - b) for a, b in zip(lin.paid_out_m, exact.paid_out_m, strict=True))
-        assert err < 15e-6
-        assert lin.anchor_tensions_n == pytest.approx(exact.anchor_tensions_n, rel=1e-4)
+        assert err < 0.1e-3
+        assert lin.anchor_tensions_n == pytest.approx(exact.anchor_tensions_n, rel=1e-3)
         assert planner.planned(chords_m=exact.chords_m) is lin
 
 
@@ -183,7 +189,7 @@ def test_fpk_inverts_the_plan_cold_and_warm(
 def test_fpk_about_the_set_points_plan_finds_poses_near_it(per_m: float) -> None:
     """The lengths of a pose 5 mm to 2.4 cm from the set-point (the effector lagging or
     leading a moving set-point): the FPK linearised about the set-point's plan finds that pose
-    to a few micrometres, with no plan of its own within RELINEARISE_M (1 cm) of it."""
+    to ten micrometres, with no solve of its own within RELINEARISE_M of it."""
     sag = sag_statics(per_m)
     planner = SagPlanner(sag, Geometry(PAPER))
     target = (20.0, 10.0, 2.0)
@@ -195,7 +201,7 @@ def test_fpk_about_the_set_points_plan_finds_poses_near_it(per_m: float) -> None
         pose, _ = planner.fpk(paid, q, planned_at=target)
         if math.dist(q, target) <= RELINEARISE_M:
             assert len(planner._plans) == before  # linearised about the set-point's plan
-        assert math.dist(pose, q) < 5e-6
+        assert math.dist(pose, q) < 10e-6
 
 
 def test_tension_rule_refuses_what_the_straight_rule_allows() -> None:
@@ -278,3 +284,22 @@ def test_a_held_set_points_plan_is_made_exact() -> None:
     assert math.dist(pose, target) < 1e-9
     assert planner.refine(exact.chords_m) is exact  # exact already: nothing solved
     assert planner.refine((1.0, 2.0, 3.0, 4.0)) is None
+
+
+@pytest.mark.parametrize("per_m", [DYNEEMA, STEEL])
+@pytest.mark.parametrize("sp", [(20, 10, 2), (35, 20, 3), (-30, -18, 1), (0, 0, 5.5)])
+def test_fpk_error_while_lagging_a_moving_set_point(
+    per_m: float, sp: tuple[float, float, float]
+) -> None:
+    """The effector lags a moving set-point: the FPK about the set-point's plan, the pose up to
+    5 cm behind it, errs by at most 0.15 mm (the figures of FPK_REUSE_M), with no solve of its
+    own."""
+    sag = sag_statics(per_m)
+    planner = SagPlanner(sag, Geometry(PAPER))
+    planner.plan(sp)
+    lag = 0.95 * FPK_REUSE_M / math.sqrt(3.0)
+    p = (sp[0] - lag, sp[1] - lag, sp[2] - lag)
+    paid = sag.solve(p).paid_out_m
+    pose, _ = planner.fpk(paid, p, planned_at=sp)
+    assert planner._own is None
+    assert math.dist(pose, p) < 0.15e-3

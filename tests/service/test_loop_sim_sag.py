@@ -31,12 +31,16 @@ def sag_config(
     **kw: Any,
 ) -> RobotConfig:
     """The paper robot (EA 4.5e5 N in the plant and the controller) whose simulated cables weigh
-    `plant_mass_kg_per_m` and whose reels say `model_mass_kg_per_m` (None: massless)."""
+    `plant_mass_kg_per_m` and whose reels say `model_mass_kg_per_m` (None: massless). The
+    heavy plant and plans cost the process's threads more than stretch does: on a loaded
+    two-core host the simulator thread has been starved for 4 s, so the staleness faults and
+    the simulated watchdog get more room than the stretch rig's."""
     cfg = paper_config(EA_N, EA_N, f"test-sag-{uuid.uuid4().hex[:8]}", **kw)
     return replace(
         cfg,
         reels=tuple(replace(r, cable_mass_kg_per_m=model_mass_kg_per_m) for r in cfg.reels),
-        sim=replace(cfg.sim, cable_mass_kg_per_m=plant_mass_kg_per_m),
+        sim=replace(cfg.sim, cable_mass_kg_per_m=plant_mass_kg_per_m, watchdog_timeout_s=10.0),
+        faults=replace(cfg.faults, stale_timeout_s=8.0, heartbeat_timeout_s=8.0),
         payload=replace(cfg.payload, mass_kg=payload_kg),
     )
 
@@ -45,7 +49,7 @@ def sag_config(
     ("per_m", "payload_kg", "targets"),
     [
         (STEEL, 5.0, [(20.0, 10.0, 2.0), (35.0, 20.0, 3.0), (10.0, -5.0, 0.5)]),
-        (DYNEEMA, 20.0, [(-30.0, -18.0, 1.0), (35.0, 20.0, 3.0)]),
+        (DYNEEMA, 20.0, [(20.0, 10.0, 2.0), (35.0, 20.0, 3.0), (10.0, -5.0, 0.5)]),
     ],
 )
 def test_paper_robot_with_sag_is_within_a_millimetre(

@@ -109,6 +109,13 @@ Method
   per call (best of 5 x 500 calls, wall clock) of the loop's IPK and FPK with rigid cables and
   with every cable of the built-in robot at EA 2e5 N; target: each call with stretch under
   `TARGET_STRETCH_US`.
+* `sag_us` (`sag_us.*`): `controller.cli.sag_bench.sag_cost_us`, microseconds per call (best
+  of 5 runs, the thread's CPU time) of the loop's IPK and FPK with heavy cables, the built-in
+  robot's cables as 3 mm steel rope (EA 4.5e5 N, 0.036 kg/m): a tick's plan and paid-out
+  lengths, the full solve a move makes every 2.5 cm, the FPK at rest and moving 1 mm and 8 mm
+  with the set-point's plan, and without a set-point; target: each call the armed loop makes
+  every tick under `TARGET_STRETCH_US`. The compute section's table also shows a tick with
+  them.
 * `ros2_publish_us` (`ros2_publish_us.*`): `controller.service.ros2.bench.measure_publish_cost`,
   the median per sample of the JSON encoding (`json_encode_us`, the JSON publisher's thread),
   the ROS 2 encoding (`ros2_encode_us`, the ROS 2 node's thread) and the tick's added cost of
@@ -120,15 +127,15 @@ Method
   `command` sends nothing, armed and flying a 4 m loop at 1 m/s, publishing every tick to a
   publisher that drops the sample; the thread's CPU time of each `tick` over 5,000 ticks (2,000
   with `--quick`) after a warm-up, GC frozen as in the daemon; p50, p99 and p99 over the
-  period. The table also shows the same with cable stretch. No bus and no other process, so
-  the figure carries over between machines.
+  period. The table also shows the same with cable stretch and with cable sag. No bus and no
+  other process, so the figure carries over between machines.
 
 `--only SECTION ...` runs only those sections (`SECTIONS`: kinematics, statics, sim, decode,
-loops, estop, planning, stretch, ros2, compute); the JSON then holds their keys only.
+loops, estop, planning, stretch, sag, ros2, compute); the JSON then holds their keys only.
 
 Layout: `settings` (plans, targets, JSON keys), `timing` (percentiles, interleaved timing),
 `figures` (the micro-benchmarks: FPK, batch, statics, simulator, decode), `planning`,
-`stretch`, `ros2`, `compute` (one section each: its figures and rows), `helpers` (the helper
+`stretch`, `sag`, `ros2`, `compute` (one section each: its figures and rows), `helpers` (the helper
 processes: simulated drives, pose subscriber), `loop` (the daemon-like loop run, end-to-end
 matching), `estop` (the e-stop flood), `table` (rows and the table), `measure` (each section's
 figures and rows), `command` (`cablebot bench`), `__main__` (the helper processes' entry).
@@ -166,6 +173,7 @@ from controller.cli.bench.loop import (
 from controller.cli.bench.measure import measure
 from controller.cli.bench.planning import bench_planning_figures
 from controller.cli.bench.ros2 import bench_ros2
+from controller.cli.bench.sag import bench_sag
 from controller.cli.bench.settings import (
     CHILD_START_TIMEOUT_S,
     CIA402_RATE_HZ,
@@ -186,6 +194,7 @@ from controller.cli.bench.settings import (
     PLANNING_KEYS,
     QUICK,
     ROS2_KEYS,
+    SAG_KEYS,
     SECTIONS,
     SEED,
     SIM_TICK_S,
@@ -230,6 +239,7 @@ __all__ = [
     "PLANNING_KEYS",
     "QUICK",
     "ROS2_KEYS",
+    "SAG_KEYS",
     "SECTIONS",
     "SEED",
     "SIM_TICK_S",
@@ -259,6 +269,7 @@ __all__ = [
     "bench_loop",
     "bench_planning_figures",
     "bench_ros2",
+    "bench_sag",
     "bench_sim_plant",
     "bench_statics",
     "bench_stretch",

@@ -132,9 +132,10 @@ class EchoDriver:
         return self._stats
 
 
-def bench_compute(ticks: int, *, stretch: bool = False) -> dict[str, float]:
+def bench_compute(ticks: int, *, stretch: bool = False, sag: bool = False) -> dict[str, float]:
     """CPU time of `Controller.tick` per tick at `COMPUTE_RATE_HZ` on the built-in robot
-    (rigid cables, or with `stretch` every cable at EA 2e5 N), armed and flying
+    (rigid cables, or with `stretch` every cable at EA 2e5 N, or with `sag` every cable 3 mm
+    steel rope: `controller.cli.sag_bench.sag_config`), armed and flying
     `COMPUTE_PATH_M` at 1 m/s on an `EchoDriver`, publishing every tick to a publisher that
     drops the sample; `ticks` measured after a warm-up, GC frozen as the daemon does.
 
@@ -154,6 +155,10 @@ def bench_compute(ticks: int, *, stretch: bool = False) -> dict[str, float]:
     cfg = replace(cfg, loop=replace(cfg.loop, rate_hz=float(COMPUTE_RATE_HZ), publish_every=1))
     if stretch:
         cfg = replace(cfg, reels=tuple(replace(r, cable_ea_n=2e5) for r in cfg.reels))
+    if sag:
+        from controller.cli.sag_bench import sag_config
+
+        cfg = sag_config(cfg)
     assert cfg.homing.power_up_position_m is not None
     lengths = kinematics.ipk_point(cfg.geometry, cfg.homing.power_up_position_m)
     turns = [r.reel.position_rev(L) for r, L in zip(cfg.reels, lengths, strict=True)]
@@ -224,10 +229,11 @@ def bench_compute(ticks: int, *, stretch: bool = False) -> dict[str, float]:
 
 def measure_compute(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any], list[Row]]:
     """The no-transport section's JSON figures (`COMPUTE_KEYS`, rigid cables) and table rows
-    (rigid and with stretch). Raises BenchError."""
+    (rigid, with stretch and with sag). Raises BenchError."""
     log(f"controller compute per tick without transport ({p.compute_ticks:,} ticks) ...")
     f = bench_compute(p.compute_ticks)
     fs = bench_compute(p.compute_ticks, stretch=True)
+    fg = bench_compute(p.compute_ticks, sag=True)
     n = f"{f['ticks']:,} ticks at {COMPUTE_RATE_HZ} Hz, CPU time"
     rows = [
         Row("compute_per_tick.p50_us", f["p50_us"], "us", "", None, n),
@@ -247,6 +253,14 @@ def measure_compute(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any]
             "",
             None,
             f"p99 {fs['p99_us']:.1f}; EA 2e5 N on every cable",
+        ),
+        Row(
+            "  with cable sag p50",
+            fg["p50_us"],
+            "us",
+            "",
+            None,
+            f"p99 {fg['p99_us']:.1f}, max {fg['max_us']:.0f}; 3 mm steel on every cable",
         ),
     ]
     return {key: f[key] for key in COMPUTE_KEYS}, rows

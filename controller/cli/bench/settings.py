@@ -139,6 +139,7 @@ JSON_KEYS = (
     "estop_latency_flood_ms",
     "planning",
     "stretch_us",
+    "sag_us",
     "ros2_publish_us",
     "compute_per_tick",
 )
@@ -153,6 +154,7 @@ SECTIONS = (
     "estop",
     "planning",
     "stretch",
+    "sag",
     "ros2",
     "compute",
 )
@@ -198,6 +200,17 @@ STRETCH_KEYS = (
     "fpk_stretch_no_setpoint",
     "fpk_stretch_measured",
     "statics",
+)
+
+
+SAG_KEYS = (
+    "ipk_sag",
+    "ipk_sag_base",
+    "fpk_sag_rest",
+    "fpk_sag_moving",
+    "fpk_sag_fast",
+    "fpk_sag_no_setpoint",
+    "sag_solve",
 )
 
 
