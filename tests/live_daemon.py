@@ -10,21 +10,29 @@ from __future__ import annotations
 import math
 import queue
 import time
-from collections.abc import Iterator
+import tomllib
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from tests.daemon_procs import CABLEBOT, Proc, zenoh_session
+from tests.daemon_procs import CABLEBOT, Proc, to_toml, zenoh_session
 from tests.service.test_zenoh_daemon import RATE_HZ, Daemon, strict_json, write_config
 
 __all__ = ["RATE_HZ", "Daemon", "live_daemon", "wait_holding_at_rest"]
 
 
 @contextmanager
-def live_daemon(tmp_path: Path) -> Iterator[tuple[Daemon, Path]]:
-    """Start the daemon, wait until it holds, yield (daemon, config path); stop it after."""
+def live_daemon(
+    tmp_path: Path, tables: Mapping[str, Any] | None = None
+) -> Iterator[tuple[Daemon, Path]]:
+    """Start the daemon, wait until it holds, yield (daemon, config path); stop it after.
+    `tables` replace whole top-level tables of its robot file (e.g. `{"gcode": {...}}`)."""
     cfg, endpoint, prefix = write_config(tmp_path)
+    if tables:
+        data = tomllib.loads(cfg.read_text())
+        data.update(tables)
+        cfg.write_text(to_toml(data))
     proc = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "0"], "daemon")
     session = None
     try:

@@ -20,6 +20,7 @@ _MODULES: tuple[str, ...] = (
     "controller.cli.offline",  # ipk, fpk
     "controller.cli.statics_cmd",  # statics, workspace
     "controller.cli.configs",  # check-config, init-config
+    "controller.cli.import_rrf",  # import-rrf
     "controller.cli.monitor",  # monitor
     "controller.cli.jog",  # jog
     "controller.cli.demo",  # demo

@@ -21,7 +21,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
 from typing import Any
 
@@ -43,6 +43,7 @@ from controller.cli.formats import (
     path_remaining_m,
     status_tensions_n,
 )
+from controller.cli.pathcheck import PathFile, check_with_robot
 from controller.cli.session import (
     DEFAULT_ENDPOINT,
     DEFAULT_PREFIX,
@@ -136,6 +137,16 @@ _run = run_with_session
 # Verbs
 
 
+def _robot_precheck(
+    args: argparse.Namespace, speed: float | None, path: PathFile | None
+) -> Callable[[Any], None]:
+    """`pathcheck.check_with_robot` for this verb's arguments."""
+    what = "--speed" if args.speed is not None else f"{getattr(args, 'file', '')}: speed_mps"
+    return lambda session: check_with_robot(
+        session, args.prefix, args.timeout, speed, path, speed_option=what
+    )
+
+
 def _vec3(values: Sequence[float], what: str) -> list[float]:
     out = [float(v) for v in values]
     if len(out) != 3 or not all(math.isfinite(v) for v in out):
@@ -159,6 +170,12 @@ def load_path_file(path: str, *, stream: bool = False) -> dict[str, Any]:
     the points one command carries. Raises InputError for an unreadable, not UTF-8 or invalid
     file.
     """
+    return read_path_file(path, stream=stream)[0]
+
+
+def read_path_file(path: str, *, stream: bool = False) -> tuple[dict[str, Any], list[int] | None]:
+    """`load_path_file`, and the file's line number of every point (None for JSON, whose
+    points are named by their position). Raises as `load_path_file` does."""
     from controller.service.textfile import NotUtf8Error, read_text
 
     try:
@@ -169,6 +186,7 @@ def load_path_file(path: str, *, stream: bool = False) -> dict[str, Any]:
         raise InputError(f"{path}: {exc}") from None
     stripped = text.lstrip()
     payload: dict[str, Any]
+    line_of: list[int] | None = None
     if stripped.startswith(("[", "{")):
         try:
             data = json.loads(text, parse_constant=_no_constant)
@@ -182,6 +200,7 @@ def load_path_file(path: str, *, stream: bool = False) -> dict[str, Any]:
             raise InputError(f"{path}: expected a list of points or an object")
     else:
         points: list[list[float]] = []
+        line_of = []
         header_seen = False
         rows = csv.reader(io.StringIO(text.replace("\t", ",")))
         for n, row in enumerate(rows, start=1):
@@ -196,6 +215,7 @@ def load_path_file(path: str, *, stream: bool = False) -> dict[str, Any]:
                     continue
                 raise InputError(f"{path} line {n}: expected x,y,z, got {row}") from None
             points.append(_vec3(values, f"{path} line {n}"))
+            line_of.append(n)
         payload = {"points_m": points}
     from controller.core.commands import CommandError, parse_command
 
@@ -219,7 +239,7 @@ def load_path_file(path: str, *, stream: bool = False) -> dict[str, Any]:
         except (CommandError, ValueError) as exc:
             where = f" (points {i * MAX_PATH_POINTS_SENT} on)" if i else ""
             raise InputError(f"{path}{where}: {exc}") from None
-    return payload
+    return payload, line_of
 
 
 def _no_constant(name: str) -> Any:
@@ -383,7 +403,8 @@ def cmd_move(args: argparse.Namespace) -> int:
     except InputError as exc:
         print(f"cablebot: {exc}", file=sys.stderr)
         return EXIT_REFUSED
-    return _motion(args, "move", payload, [target])
+    precheck = None if speed is None else _robot_precheck(args, speed, None)
+    return _motion(args, "move", payload, [target], precheck)
 
 
 def cmd_path(args: argparse.Namespace) -> int:
@@ -392,7 +413,7 @@ def cmd_path(args: argparse.Namespace) -> int:
     if _bad_wait_timeout(args):
         return EXIT_USAGE
     try:
-        payload = load_path_file(args.file, stream=True)
+        payload, line_of = read_path_file(args.file, stream=True)
         speed = _speed(args.speed)
         if speed is not None:
             payload["speed_mps"] = speed
@@ -400,11 +421,16 @@ def cmd_path(args: argparse.Namespace) -> int:
         print(f"cablebot: {exc}", file=sys.stderr)
         return EXIT_REFUSED
     points = [[float(v) for v in p] for p in payload["points_m"]]
+    append = payload.get("append") is True
+    sent_speed = payload.get("speed_mps")
+    precheck = _robot_precheck(
+        args,
+        sent_speed if isinstance(sent_speed, int | float) else None,
+        PathFile(args.file, points, line_of, append),
+    )
     if len(points) > MAX_PATH_POINTS_SENT:
-        return _stream_path(
-            args, payload.get("speed_mps"), points, append=payload.get("append") is True
-        )
-    return _motion(args, "path", payload, points)
+        return _stream_path(args, sent_speed, points, append=append, precheck=precheck)
+    return _motion(args, "path", payload, points, precheck)
 
 
 def _stream_path(
@@ -413,6 +439,7 @@ def _stream_path(
     points: list[list[float]],
     *,
     append: bool = False,
+    precheck: Callable[[Any], None] | None = None,
 ) -> int:
     """Stream a long path (`pathstream.stream_points`), then with --wait follow it to its end
     as `_motion` does; Ctrl-C brakes to a hold (`_interrupted`). With `append` (the file's
@@ -420,6 +447,8 @@ def _stream_path(
     from controller.cli.pathstream import StreamRefused, stream_points
 
     def body(session: Any) -> int:
+        if precheck is not None:
+            precheck(session)
         poses: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # see `_wait_arrival`
         sub = None
         if args.wait:
@@ -503,9 +532,15 @@ def _stream_path(
 
 
 def _motion(
-    args: argparse.Namespace, verb: str, payload: dict[str, Any], points: list[list[float]]
+    args: argparse.Namespace,
+    verb: str,
+    payload: dict[str, Any],
+    points: list[list[float]],
+    precheck: Callable[[Any], None] | None = None,
 ) -> int:
     def body(session: Any) -> int:
+        if precheck is not None:
+            precheck(session)
         poses: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # see `_wait_arrival`
         sub = None
         if args.wait:  # subscribe first so no sample after the reply is missed
@@ -857,8 +892,8 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
             default=None,
             metavar="V",
             help=(
-                f"speed in m/s, at least {MIN_SPEED_MPS:g}; above the robot's maximum it runs at"
-                " the maximum"
+                f"speed in m/s, at least {MIN_SPEED_MPS:g} and at most the robot's"
+                " limits.max_speed_mps (a higher one is refused)"
             ),
         )
         p.add_argument(

@@ -1,11 +1,14 @@
 """`cablebot gcode FILE|-`: run a G-code job (docs/gcode.md).
 
 - `cablebot gcode FILE --dry-run [--config FILE] [--from X Y Z] [--json]` plans the whole job
-  offline with the robot's limits on the daemon's planner and prints its duration, length,
-  moves, bounding box and what is not driven or unsupported.
-- `cablebot gcode FILE [--config FILE] [--wait]` checks the job from the robot's set-point and
-  streams it to the daemon as a path and appends, resting at the job's waits; a progress line
-  on a terminal; Ctrl-C stops the job and brakes to a hold.
+  offline with the robot's limits on the daemon's planner, from the robot's power-up pose (or
+  `--from`), and prints its duration, length, moves, bounding box and what is not driven or
+  unsupported.
+- `cablebot gcode FILE [--config FILE] [--wait]` takes the robot from the daemon
+  (`controller.cli.daemon_robot`; a `--config` must describe the same robot), checks the job
+  from the robot's set-point and streams it to the daemon as a path and appends, resting at the
+  job's waits; a progress line on a terminal; Ctrl-C, SIGTERM and SIGHUP stop the job and brake
+  to a hold.
 
 `FILE` may be gzipped (`.gz`); `-` reads standard input. Exit codes: `controller.cli.exitcodes`.
 """
@@ -34,6 +37,7 @@ from controller.core.gcode_job import (
     GcodeFrame,
     Job,
     JobPlan,
+    Motion,
     Step,
     Sync,
     check_job,
@@ -53,9 +57,11 @@ class JobInputError(ValueError):
 
 # ------------------------------------------------------------------------------- reading
 def read_lines(path: str) -> list[str]:
-    """The text lines of `path` (gzipped when it ends in `.gz`; `-`: standard input). Bytes
-    that are not UTF-8 become U+FFFD (they can only stand in comments: the G-code words are
-    ASCII). Raises JobInputError when the file cannot be read."""
+    """The text lines of `path` (gzipped when it ends in `.gz`; `-`: standard input). Raises
+    JobInputError when the file cannot be read or is not UTF-8 text (a binary file: the
+    first bad byte, its line and column, as every text file the CLI reads)."""
+    from controller.service.textfile import NotUtf8Error, decode_utf8
+
     try:
         if path == "-":
             data = sys.stdin.buffer.read()
@@ -67,18 +73,27 @@ def read_lines(path: str) -> list[str]:
                 data = f.read()
     except (OSError, EOFError) as exc:
         raise JobInputError(f"{path}: {exc}") from None
-    lines = data.decode("utf-8", errors="replace").replace("\r\n", "\n").split("\n")
+    try:
+        text = decode_utf8(data)
+    except NotUtf8Error as exc:
+        raise JobInputError(f"{path}: {exc}") from None
+    lines = text.replace("\r\n", "\n").split("\n")
     if lines and lines[-1] == "":
         lines.pop()  # the newline that ends the last line
     return lines
 
 
 def parse_file(path: str, lines: Sequence[str]) -> list[Line]:
-    """Parse every line; raises JobInputError naming the file and the first bad line."""
+    """Parse every line. Raises JobInputError naming the file and the first bad line, or
+    saying that the file holds no G-code (empty, or only comments and blank lines)."""
     try:
-        return list(parse_lines(lines))
+        parsed = list(parse_lines(lines))
     except GcodeError as exc:
         raise JobInputError(f"{path}: {exc}") from None
+    if not any(ln.commands for ln in parsed):
+        what = "empty" if not any(s.strip() for s in lines) else "only comments and blank lines"
+        raise JobInputError(f"{path}: no G-code in it ({what}): nothing to run")
+    return parsed
 
 
 def frame_of(cfg: Any) -> GcodeFrame:
@@ -105,24 +120,53 @@ def load_job(path: str, cfg: Any, start_m: Sequence[float]) -> Job:
 
 def check_loaded(path: str, lines: Sequence[Line], cfg: Any, start_m: Sequence[float]) -> Job:
     """`load_job` for lines parsed already."""
-    from controller.core.workspace import Workspace
-    from controller.service.config import tension_check
-    from controller.service.control.base import tension_sample_step_m
+    from controller.cli.pathcheck import RobotRules
 
     try:
         job = interpret(lines, frame_of(cfg), start_m)
     except GcodeError as exc:
         raise JobInputError(f"{path}: {exc}") from None
-    ws = Workspace.from_limits(cfg.limits, cfg.geometry)
-    chk = (
-        None
-        if cfg.tension is None or cfg.payload is None
-        else tension_check(cfg.payload, cfg.tension, cfg.geometry)
-    )
-    failure = check_job(job, ws, chk, tension_sample_step_m(cfg))
+    rules = RobotRules.of(cfg)
+    failure = check_job(job, rules.workspace, rules.tension, rules.tension_step_m)
     if failure is not None:
-        raise JobInputError(f"{path}: line {failure[0]}: refused: {failure[1]}")
+        likely = "".join(f"; {w}" for w in job_warnings(job, cfg))  # a file in metres, say
+        raise JobInputError(f"{path}: line {failure[0]}: refused: {failure[1]}{likely}")
     return job
+
+
+def motion_bbox_m(job: Job) -> tuple[Vec3, Vec3]:
+    """The bounding box ((min x, y, z), (max x, y, z)) of the job's motions (where the job
+    goes, its start left out; the start alone for a job without motion). Raises nothing."""
+    lo = [math.inf] * 3
+    hi = [-math.inf] * 3
+    for act in job.actions:
+        if isinstance(act, Motion):
+            for p in act.points_m:
+                for i in range(3):
+                    lo[i] = min(lo[i], p[i])
+                    hi[i] = max(hi[i], p[i])
+    if lo[0] == math.inf:
+        return job.start_m, job.start_m
+    return (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2])
+
+
+def job_warnings(job: Job, cfg: Any) -> list[str]:
+    """What about the job cannot be meant on this robot (`controller.core.scale`: motions a
+    few millimetres across on a metre-scale robot, a file written in metres). Raises
+    nothing."""
+    from controller.core.scale import tiny_job_problem
+    from controller.core.workspace import Workspace
+
+    lo, hi = motion_bbox_m(job)
+    extent = max(h - low for low, h in zip(lo, hi, strict=True))
+    why = tiny_job_problem(extent, Workspace.from_limits(cfg.limits, cfg.geometry).box())
+    return [] if why is None else [why]
+
+
+def warn(messages: Sequence[str]) -> None:
+    """Print each warning on stderr ("cablebot: warning: ...")."""
+    for m in messages:
+        print(f"cablebot: warning: {m}", file=sys.stderr, flush=True)
 
 
 def plan(job: Job, cfg: Any) -> JobPlan:
@@ -134,9 +178,10 @@ def plan(job: Job, cfg: Any) -> JobPlan:
 
 
 # ------------------------------------------------------------------------------- reports
-def summary(job: Job, planned: JobPlan) -> dict[str, Any]:
-    """The dry run's figures as one JSON-ready dict."""
-    lo, hi = job.bbox_m
+def summary(job: Job, planned: JobPlan, start_from: str = "--from") -> dict[str, Any]:
+    """The dry run's figures as one JSON-ready dict (`start_from` says where the start came
+    from; `bbox_m` is the box of the job's motions, `motion_bbox_m`)."""
+    lo, hi = motion_bbox_m(job)
     return {
         "duration_s": round(planned.duration_s, 3),
         "motion_s": round(planned.motion_s, 3),
@@ -144,6 +189,7 @@ def summary(job: Job, planned: JobPlan) -> dict[str, Any]:
         "lines": job.lines,
         "path_m": round(job.path_m, 6),
         "start_m": list(job.start_m),
+        "start_from": start_from,
         "bbox_m": [list(lo), list(hi)],
         "accel_mps2": job.accel_mps2,
         "not_driven": dict(sorted(job.not_driven.items())),
@@ -166,8 +212,10 @@ def format_summary(s: dict[str, Any]) -> str:
     """The dry run's figures for a person."""
     lo, hi = s["bbox_m"]
     box = "  ".join(f"{a}={lo[i]:+.4f}..{hi[i]:+.4f}" for i, a in enumerate("xyz"))
+    start = "  ".join(f"{a}={v:+.4f}" for a, v in zip("xyz", s["start_m"], strict=True))
     return "\n".join(
         [
+            f"start      {start} m ({s.get('start_from', '--from')})",
             f"duration   {_hms(s['duration_s'])} ({s['duration_s']:.1f} s)",
             f"path       {s['path_m']:.3f} m in {s['moves']} moves ({s['lines']} lines)",
             f"bbox       {box} m",
@@ -188,6 +236,28 @@ def _config(path: str | None) -> Any:
     return load_config(path)
 
 
+def dry_run_start(cfg: Any, given: Sequence[float] | None) -> tuple[Vec3, str]:
+    """Where the dry run starts, and what that point is: `given` (`--from`), else where the
+    real run starts on a robot just started, its power-up pose, else (a robot without one)
+    the G-code origin. Raises JobInputError when `--from` is not finite or is a point the
+    robot may not be at (the reason blamed on `--from`, not on a line of the job)."""
+    from controller.core.workspace import Workspace
+
+    if given is None:
+        pup = cfg.homing.power_up_position_m
+        if pup is not None:
+            return (float(pup[0]), float(pup[1]), float(pup[2])), "the robot's power-up pose"
+        return tuple(cfg.gcode.origin_m), "the G-code origin: the robot has no power-up pose"
+    start = (float(given[0]), float(given[1]), float(given[2]))
+    if not all(math.isfinite(v) for v in start):
+        raise JobInputError(f"--from: expected three finite numbers, got {list(given)}")
+    why = Workspace.from_limits(cfg.limits, cfg.geometry).check_point(start)
+    if why is not None:
+        xyz = ", ".join(f"{v:g}" for v in start)
+        raise JobInputError(f"--from {xyz}: the robot cannot start there: {why}")
+    return start, "--from"
+
+
 def cmd_dry_run(args: argparse.Namespace) -> int:
     """`gcode FILE --dry-run`: plan offline and print the figures."""
     from controller.service.config import ConfigError
@@ -196,14 +266,16 @@ def cmd_dry_run(args: argparse.Namespace) -> int:
         cfg = _config(args.config)
     except (ConfigError, OSError) as exc:
         return _fail(str(exc))
-    start = tuple(args.start) if args.start is not None else cfg.gcode.origin_m
-    if not all(math.isfinite(v) for v in start):
-        return _fail(f"--from: expected three finite numbers, got {args.start}")
     try:
+        start, start_from = dry_run_start(cfg, args.start)
         job = load_job(args.file, cfg, start)
     except JobInputError as exc:
         return _fail(str(exc))
-    s = summary(job, plan(job, cfg))
+    warnings = job_warnings(job, cfg)
+    warn(warnings)
+    s = summary(job, plan(job, cfg), start_from)
+    if args.json:
+        s["warnings"] = warnings
     print(json.dumps(s) if args.json else format_summary(s), flush=True)
     return exitcodes.OK
 
@@ -379,17 +451,19 @@ class ZenohRobot:
 def cmd_stream(args: argparse.Namespace) -> int:
     """`gcode FILE`: check the job from the robot's set-point and stream it to the daemon."""
     from controller.cli import client
+    from controller.cli.daemon_robot import daemon_robot
     from controller.cli.formats import is_tty
     from controller.core.commands import C_DECODE_MAX_BYTES, MAX_PATH_POINTS_SENT
-    from controller.service.config import ConfigError
 
     try:
-        cfg = _config(args.config)
         lines = parse_file(args.file, read_lines(args.file))
-    except (ConfigError, OSError, JobInputError) as exc:
+    except JobInputError as exc:
         return _fail(str(exc))
 
     def body(session: Any) -> int:
+        # The daemon that flies the job is the authority on the robot: its [gcode] table,
+        # limits and planner interpret and check the job (a --config must agree with it).
+        cfg = daemon_robot(session, args.prefix, args.timeout, args.config).config
         robot = ZenohRobot(session, args)
         st = robot.status()
         state = st.get("state")
@@ -403,6 +477,7 @@ def cmd_stream(args: argparse.Namespace) -> int:
             job = check_loaded(args.file, lines, cfg, start)
         except JobInputError as exc:
             raise client.InputError(str(exc)) from None
+        warn(job_warnings(job, cfg))
         planned = plan(job, cfg)
         if job.accel_mps2 < cfg.limits.max_accel_mps2:
             print(
@@ -426,18 +501,21 @@ def cmd_stream(args: argparse.Namespace) -> int:
 
         streamer.on_wait = show
         try:
-            per_chunk = chunk_points(MAX_PATH_POINTS_SENT, C_DECODE_MAX_BYTES)
-            for step in chunks(job.actions, per_chunk):
-                report = streamer.send(step)
-                if report is not None and not args.json:  # M114, once the robot rests
-                    progress.clear()
-                    print(f"M114 (line {streamer.line}): {report}", flush=True)
-                show()
-                if isinstance(step, Estop):
-                    break
-            streamer.line = job.lines
-            if args.wait:
-                streamer.rest(time.monotonic() + args.wait_timeout)
+            # SIGTERM and SIGHUP stop the job as Ctrl-C does while it streams (a job cut off
+            # where its sender died is not the job asked for) and while --wait follows it.
+            with client.signals_interrupt():
+                per_chunk = chunk_points(MAX_PATH_POINTS_SENT, C_DECODE_MAX_BYTES)
+                for step in chunks(job.actions, per_chunk):
+                    report = streamer.send(step)
+                    if report is not None and not args.json:  # M114, once the robot rests
+                        progress.clear()
+                        print(f"M114 (line {streamer.line}): {report}", flush=True)
+                    show()
+                    if isinstance(step, Estop):
+                        break
+                streamer.line = job.lines
+                if args.wait:
+                    streamer.rest(time.monotonic() + args.wait_timeout)
         except KeyboardInterrupt:
             progress.clear()
             return client._interrupted(session, args)

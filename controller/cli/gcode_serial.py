@@ -29,11 +29,10 @@ import tty
 from contextlib import suppress
 from typing import Any
 
+from controller.cli import exitcodes
 from controller.cli.gcode import (
-    JobInputError,
     Streamer,
     ZenohRobot,
-    _config,
     _fail,
     chunk_points,
     frame_of,
@@ -148,15 +147,42 @@ class SerialJob:
             self.write("ok")
 
 
-def cmd_serial(args: argparse.Namespace) -> int:
-    """`gcode --serial [PATH]`: serve the line protocol on a pseudo-terminal until Ctrl-C."""
-    from controller.cli import client
-    from controller.service.config import ConfigError
+def serve(master: int, job: SerialJob, write: Any) -> None:
+    """Read the host's lines from the pseudo-terminal `master` and hand each to `job`, the
+    gathered motions flushed whenever the host pauses for `IDLE_S`; runs until interrupted
+    (KeyboardInterrupt). Raises what `job` raises (the daemon absent)."""
+    buf = b""
+    while True:
+        ready, _, _ = select.select([master], [], [], IDLE_S)
+        if not ready:
+            job.flush()
+            continue
+        try:
+            data = os.read(master, 4096)
+        except OSError:  # the host closed its end: wait for the next one
+            data = b""
+        if not data:
+            time.sleep(IDLE_S)
+            continue
+        buf += data
+        while True:
+            cut = min((i for i in (buf.find(b"\n"), buf.find(b"\r")) if i >= 0), default=-1)
+            if cut < 0:
+                if len(buf) > MAX_LINE_BYTES:
+                    buf = b""
+                    write("Error:line too long")
+                break
+            raw, buf = buf[:cut], buf[cut + 1 :]
+            if raw.strip():
+                job.line(raw.decode("utf-8", errors="replace"))
 
-    try:
-        cfg = _config(args.config)
-    except (ConfigError, OSError, JobInputError) as exc:
-        return _fail(str(exc))
+
+def cmd_serial(args: argparse.Namespace) -> int:
+    """`gcode --serial [PATH]`: serve the line protocol on a pseudo-terminal for the daemon's
+    robot until Ctrl-C, SIGTERM or SIGHUP (each stops the job: the robot brakes to a hold)."""
+    from controller.cli import client
+    from controller.cli.daemon_robot import daemon_robot
+
     master, slave = os.openpty()
     tty.setraw(slave)
     name = os.ttyname(slave)
@@ -175,35 +201,16 @@ def cmd_serial(args: argparse.Namespace) -> int:
         os.write(master, (text + "\n").encode("ascii", errors="replace"))
 
     def body(session: Any) -> int:
+        # The daemon's robot interprets the host's G-code (a --config must agree with it).
+        cfg = daemon_robot(session, args.prefix, args.timeout, args.config).config
         job = SerialJob(ZenohRobot(session, args), cfg, write)
         print(f"gcode: serial port {link or name}" + (f" -> {name}" if link else ""), flush=True)
-        buf = b""
         try:
-            while True:
-                ready, _, _ = select.select([master], [], [], IDLE_S)
-                if not ready:
-                    job.flush()
-                    continue
-                try:
-                    data = os.read(master, 4096)
-                except OSError:  # the host closed its end: wait for the next one
-                    data = b""
-                if not data:
-                    time.sleep(IDLE_S)
-                    continue
-                buf += data
-                while True:
-                    cut = min((i for i in (buf.find(b"\n"), buf.find(b"\r")) if i >= 0), default=-1)
-                    if cut < 0:
-                        if len(buf) > MAX_LINE_BYTES:
-                            buf = b""
-                            write("Error:line too long")
-                        break
-                    raw, buf = buf[:cut], buf[cut + 1 :]
-                    if raw.strip():
-                        job.line(raw.decode("utf-8", errors="replace"))
+            with client.signals_interrupt():  # SIGTERM, SIGHUP: stop the job as Ctrl-C does
+                serve(master, job, write)
         except KeyboardInterrupt:
             return client._interrupted(session, args)
+        return exitcodes.OK
 
     try:
         return client.run_with_session(args, body)

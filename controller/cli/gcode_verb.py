@@ -44,7 +44,15 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     p.add_argument(
         "file", metavar="FILE", nargs="?", help="G-code file (.gz read as gzip), - for stdin"
     )
-    p.add_argument("--config", default=None, metavar="FILE", help="robot TOML (default built-in)")
+    p.add_argument(
+        "--config",
+        default=None,
+        metavar="FILE",
+        help=(
+            "--dry-run: the robot TOML (default built-in); with a daemon its robot is used, and"
+            " a FILE that describes another robot is refused"
+        ),
+    )
     p.add_argument("--dry-run", action="store_true", help="plan offline, no daemon")
     p.add_argument(
         "--from",
@@ -53,7 +61,7 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         nargs=3,
         default=None,
         metavar="M",
-        help="--dry-run: start here (robot frame, m) instead of the G-code origin",
+        help="--dry-run: start here (robot frame, m) instead of the robot's power-up pose",
     )
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument(

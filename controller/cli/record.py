@@ -380,8 +380,11 @@ def cmd_record(args: argparse.Namespace) -> int:
     """Entry point of `cablebot record`: 0 when the file was written, 1 bad input (or FILE
     exists without `--force`), 2 a bad `--connect`, 3 no daemon alive on `--prefix`."""
     from controller.cli.client import EXIT_ABSENT, EXIT_OK, EXIT_REFUSED, EXIT_USAGE
+    from controller.cli.daemon_robot import check_config_with_daemon
     from controller.cli.session import (
         DaemonAbsent,
+        InputError,
+        Refused,
         UsageError,
         absent_message,
         live_prefixes,
@@ -424,6 +427,12 @@ def cmd_record(args: argparse.Namespace) -> int:
                 absent = DaemonAbsent(f"no daemon alive on {prefix}")
                 absent.live = tuple(live)
                 raise absent
+            try:  # the file attached must describe the robot recorded
+                cfg_path = None if args.config is None else str(args.config)
+                check_config_with_daemon(session, prefix, args.timeout, cfg_path)
+            except (InputError, Refused) as exc:
+                print(f"cablebot record: {exc}", file=sys.stderr)
+                return EXIT_REFUSED
             try:
                 out = open(args.file, "wb")  # noqa: SIM115 (closed in the finally below)
             except OSError as exc:
@@ -585,7 +594,7 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         "--config",
         default=None,
         metavar="FILE",
-        help="also store this robot TOML (the daemon's own configuration, from its status, "
-        "is stored in any case)",
+        help="also store this robot TOML, which must describe the daemon's robot (the daemon's "
+        "own configuration, from its status, is stored in any case)",
     )
     p.set_defaults(func=cmd_record)

@@ -712,7 +712,15 @@ def cmd_view(args: argparse.Namespace) -> int:
     """Entry point of `cablebot view`: runs until Ctrl-C / SIGTERM (exit 0); 1 bad input or the
     WebSocket port is taken; 2 a bad `--connect`; 3 no daemon answered."""
     from controller.cli.client import EXIT_ABSENT, EXIT_OK, EXIT_REFUSED, EXIT_USAGE
-    from controller.cli.session import DaemonAbsent, UsageError, normalize_endpoint, open_session
+    from controller.cli.daemon_robot import check_config_with_daemon
+    from controller.cli.session import (
+        DaemonAbsent,
+        InputError,
+        Refused,
+        UsageError,
+        normalize_endpoint,
+        open_session,
+    )
 
     try:
         args.connect = normalize_endpoint(args.connect)
@@ -743,6 +751,11 @@ def cmd_view(args: argparse.Namespace) -> int:
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         with open_session(args.connect, config_file=args.zenoh_config) as session:
+            try:
+                check_config_with_daemon(session, prefix, args.timeout, args.config)
+            except (InputError, Refused) as exc:
+                print(f"cablebot view: {exc}", file=sys.stderr)
+                return EXIT_REFUSED
             context = foxglove.Context()
             view = LiveView(
                 context,
@@ -870,7 +883,10 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         help=f"WebSocket port ({DEFAULT_PORT}; 0 = any)",
     )
     p.add_argument(
-        "--config", default=None, metavar="FILE", help="robot TOML, if the status carries none"
+        "--config",
+        default=None,
+        metavar="FILE",
+        help="robot TOML, if the status carries none (refused if the daemon runs another robot)",
     )
     p.add_argument(
         "--scene-hz",

@@ -171,6 +171,12 @@ def _max_path_points_sent() -> int:
 
 
 MAX_PATH_POINTS_SENT: Final = _max_path_points_sent()
+PATH_STREAM_HINT: Final = (
+    f'{MAX_PATH_POINTS:,} points a command; send more as appends ("append": true)'
+)
+"""How a path longer than one command carries is sent (in the refusals of a longer one; a
+longer path goes as a path of its first points, then chunks that append to it, as `cablebot
+path FILE` streams it)."""
 """The most points one `path` command surely carries: MAX_PATH_POINTS, or fewer when that many
 of the widest points (every coordinate as long as a float's JSON text gets, with a speed, as
 `json.dumps` writes them) would not fit in `MAX_PAYLOAD_BYTES["path"]`. A longer path is sent
@@ -219,7 +225,8 @@ def check_payload_size(verb: str, size: int) -> None:
     if limit is None:
         raise CommandError(f"unknown command {clip(verb)!r}; known: {', '.join(VERBS)}")
     if size > limit:
-        raise CommandError(f"payload too large: {size} bytes, {verb} takes at most {limit}")
+        more = f"; {PATH_STREAM_HINT}" if verb == "path" else ""
+        raise CommandError(f"payload too large: {size} bytes, {verb} takes at most {limit}{more}")
 
 
 def _check_depth(data: bytes) -> None:
@@ -370,7 +377,9 @@ def parse_command(verb: str, payload: bytes | str | None) -> Command:
         if not isinstance(pts, list) or not pts:
             raise CommandError("points_m: expected a non-empty list of [x, y, z]")
         if len(pts) > MAX_PATH_POINTS:
-            raise CommandError(f"points_m: at most {MAX_PATH_POINTS} points, got {len(pts)}")
+            raise CommandError(
+                f"points_m: at most {MAX_PATH_POINTS} points, got {len(pts)}; {PATH_STREAM_HINT}"
+            )
         points = tuple(_vec3(p, f"points_m[{i}]") for i, p in enumerate(pts))
         return Path(points, _speed(obj), _flag(obj, "append"))
     if verb == "home":

@@ -519,6 +519,24 @@ def interpret(lines: Iterable[Line], frame: GcodeFrame, start_m: Sequence[float]
 
 
 # ------------------------------------------------------------------------------ the check
+def motion_failure(
+    points: Sequence[Vec3],
+    start_m: Sequence[float] | None,
+    workspace: Workspace,
+    tension: TensionCheck | None = None,
+    tension_step_m: float = 0.05,
+) -> tuple[int, str] | None:
+    """The first of `points` (flown in order from `start_m`; None: the leg to the first point
+    is not checked) that leaves the workspace (a point or a straight leg) or, with `tension`,
+    the tension rule (legs sampled every `tension_step_m`), as (0-based index, reason); None
+    when the whole motion is allowed: the check of a whole job or path file before anything is
+    sent. Raises nothing."""
+    failure = workspace.path_failure(points, start_m, array=points_array(points))
+    if failure is None and tension is not None:
+        failure = tension.path_failure(points, start_m, tension_step_m)
+    return failure
+
+
 def check_job(
     job: Job,
     workspace: Workspace,
@@ -537,9 +555,7 @@ def check_job(
             owners.extend([act.line_no] * len(act.points_m))
     if not points:
         return None
-    failure = workspace.path_failure(points, job.start_m, array=points_array(points))
-    if failure is None and tension is not None:
-        failure = tension.path_failure(points, job.start_m, tension_step_m)
+    failure = motion_failure(points, job.start_m, workspace, tension, tension_step_m)
     if failure is None:
         return None
     k, why = failure

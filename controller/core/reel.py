@@ -22,6 +22,14 @@ fixed by ``reference_length_m`` (the length at which ``metres_per_rev`` holds), 
 only ``offset_rev``. The inverse solves the quadratic in closed form with the numerically stable
 root; it is valid while the metres per turn stay positive (the spool is not over-emptied).
 
+The same spool seen by its area: a radius falling linearly with the turns paid out is a radius
+whose square falls linearly with the cable paid out, ``r**2 = r_ref**2 - f * s`` with
+``f = spool_buildup_m_per_rev2 / (2 pi**2)`` (square ``2 pi r = metres_per_rev - b n`` and
+substitute ``s(n)``). ``f`` is RepRapFirmware's Hangprinter build-up factor (M666 Q, there in
+millimetres, times M666 O when several lines share one spool): the area each metre of wound
+line adds to the spool's side face, divided by pi (`spool_buildup_from_factor`). Its spool model
+is therefore this one, exactly.
+
 Torque and tension (ideal reel: no friction, no inertia). The work the motor does on the cable
 balances the work the cable's tension does on the effector: with the slope
 ``dL/drev = length_rate_mps(position_rev, 1.0)`` (metres of anchor-to-effector length per motor
@@ -223,3 +231,16 @@ def spool_buildup(cable_diameter_m: float, turns_per_layer: float = 1.0) -> floa
     if not (math.isfinite(turns_per_layer) and turns_per_layer > 0.0):
         raise ValueError(f"turns_per_layer must be finite and > 0, got {turns_per_layer!r}")
     return 2.0 * math.pi * cable_diameter_m / turns_per_layer
+
+
+def spool_buildup_from_factor(factor_m: float) -> float:
+    """Spool build-up in metres per turn per turn for an area build-up factor `factor_m`.
+
+    `factor_m` is how much the spool radius squared (m²) falls per metre of cable paid out
+    from the spool, RepRapFirmware's Hangprinter M666 Q in metres (times M666 O, the lines per
+    spool): ``2 pi**2 * factor_m`` (module docstring). Raises ValueError on a negative or
+    non-finite factor.
+    """
+    if not (math.isfinite(factor_m) and factor_m >= 0.0):
+        raise ValueError(f"spool build-up factor_m must be finite and >= 0, got {factor_m!r}")
+    return 2.0 * math.pi * math.pi * factor_m

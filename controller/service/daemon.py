@@ -269,8 +269,11 @@ def build_stack(cfg: Any, *, zenoh: bool = True, sim_cfg: Any | None = None) -> 
         iface = None
         if zenoh:
             from controller.service import zenoh_io
+            from controller.service.config import robot_description
 
-            iface = zenoh_io.ZenohInterface(cfg.zenoh, controller)
+            iface = zenoh_io.ZenohInterface(
+                cfg.zenoh, controller, robot=robot_description(cfg) if cfg.text else None
+            )
             try:
                 iface.open()
             except Exception as exc:

@@ -5,6 +5,9 @@ Key space, under a configurable prefix (default `cablebot/default`):
 - `<prefix>/pose`      publisher, one JSON sample per published tick (`PoseSample.to_json_bytes`)
 - `<prefix>/state`     publisher, `{"state", "reason", "stamp_ns"}` on every state change
 - `<prefix>/status`    queryable, `Controller.status()` plus this interface's statistics
+- `<prefix>/robot`     queryable, the robot description: `{"name", "source", "digest", "toml"}`
+  (the robot file's TOML text as loaded; `controller.service.config.robot_description`), which
+  clients take as the authority on the robot they drive
 - `<prefix>/cmd/<verb>` one queryable per verb of `controller.core.commands.VERBS`;
   JSON in, JSON out;
   a refusal is an error reply `{"error": reason}` (encoding application/json)
@@ -53,7 +56,7 @@ import os
 import socket
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -358,6 +361,8 @@ class ZenohInterface:
     until `open()`. `reply_timeout_s` bounds how long a command waits for the loop.
     `publish_thread` (default: the environment variable CABLEBOT_ZENOH_PUBLISH_THREAD if set,
     else `zcfg.publish_thread` if present, else True) selects the publisher-thread hand-off.
+    `robot` is the robot description served on `<prefix>/robot`
+    (`controller.service.config.robot_description`; None: no such queryable).
     """
 
     def __init__(
@@ -367,8 +372,11 @@ class ZenohInterface:
         *,
         reply_timeout_s: float = 2.0,
         publish_thread: bool | None = None,
+        robot: Mapping[str, Any] | None = None,
     ) -> None:
         self.zcfg = zcfg
+        self._robot_reply: bytes | None = None if robot is None else dumps(dict(robot))
+        """The answer of `<prefix>/robot`, encoded once (None: not declared)."""
         self.controller = controller
         self.prefix = str(_get(zcfg, "prefix", DEFAULT_PREFIX)).rstrip("/")
         self.reply_timeout_s = reply_timeout_s
@@ -427,6 +435,10 @@ class ZenohInterface:
             self._declared.append(
                 session.declare_queryable(f"{p}/status", self._on_status, complete=True)
             )
+            if self._robot_reply is not None:
+                self._declared.append(
+                    session.declare_queryable(f"{p}/robot", self._on_robot, complete=True)
+                )
             for verb in VERBS:
                 self._declared.append(
                     session.declare_queryable(
@@ -568,6 +580,15 @@ class ZenohInterface:
         except Exception as exc:
             log.exception("status query failed")
             _reply_err(query, f"internal error: {clip(str(exc))}")
+        finally:
+            _finish(query)
+
+    def _on_robot(self, query: zenoh.Query) -> None:
+        try:
+            if self._robot_reply is not None:
+                query.reply(f"{self.prefix}/robot", self._robot_reply, encoding=JSON)
+        except Exception as exc:
+            log.warning("robot query failed: %s", exc)
         finally:
             _finish(query)
 

@@ -382,3 +382,11 @@ def test_merge_runs_medians_and_sums() -> None:
     assert isinstance(got["ticks"], int)
     with pytest.raises(ValueError):
         bench.merge_runs([])
+
+
+def test_bench_compute_with_spool_buildup() -> None:
+    """The tick with every reel's spool building up flies the bench's path (no fault: the
+    controller's turns and lengths stay consistent) and is timed like the others."""
+    figures = bench.bench_compute(300, buildup=True)
+    assert all(_number(v) and v > 0.0 for v in figures.values()), figures
+    assert figures["moving_frac"] > 0.5

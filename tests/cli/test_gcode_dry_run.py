@@ -100,7 +100,9 @@ def test_stdin_from_and_the_summary(
     assert s["start_m"] == [1.0, 2.0, 3.0]
     assert s["moves"] == 2 and s["lines"] == 8
     assert s["path_m"] == pytest.approx(0.1 + 0.05 * 3.141592653589793, rel=1e-3)  # chords
-    assert s["bbox_m"][0] == pytest.approx([1.0, 2.0, 3.0])
+    assert s["start_from"] == "--from"
+    # the box of the job's motions (its start, the --from point, is not where it goes)
+    assert s["bbox_m"][0] == pytest.approx([1.1, 2.0, 3.0])
     assert s["bbox_m"][1] == pytest.approx([1.2, 2.05, 3.0], abs=1e-4)
     assert s["unsupported"] == {"G29": 1, "M999": 2}
     assert s["not_driven"] == {"M104": 1}

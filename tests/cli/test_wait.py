@@ -157,6 +157,8 @@ def test_path_file_append_is_sent_as_an_append(
     monkeypatch.setattr(client, "query", fake_query)
     monkeypatch.setattr(client, "_run", lambda args, body: body(_FakeSession()))
     monkeypatch.setattr(pathstream, "stream_points", one_chunk)
+    # no robot description to check the file against: the fake serves commands only
+    monkeypatch.setattr(client, "check_with_robot", lambda *_a, **_k: None)
     f = tmp_path / "more.json"
     pts = [[0.1 * (i % 7), 0.0, 2.0] for i in range(n_points)]
     f.write_text(json.dumps({"points_m": pts, "append": True}))

@@ -15,6 +15,7 @@ from controller.core.commands import (
     MAX_JSON_DEPTH,
     MAX_PATH_POINTS,
     MAX_PAYLOAD_BYTES,
+    PATH_STREAM_HINT,
     QUOTE_CHARS,
     VERBS,
     Arm,
@@ -167,8 +168,10 @@ def test_a_payload_over_the_byte_cap_is_refused_before_decoding(verb: str) -> No
     for too_big in (at_limit + b" ", at_limit.decode() + " ", b"[" * 10_000_000):
         with pytest.raises(CommandError) as info:
             parse_command(verb, too_big)
+        # a path names the points it carries and how to send more
+        hint = f"; {PATH_STREAM_HINT}" if verb == "path" else ""
         assert str(info.value) == (
-            f"payload too large: {len(too_big)} bytes, {verb} takes at most {limit}"
+            f"payload too large: {len(too_big)} bytes, {verb} takes at most {limit}{hint}"
         )
     with pytest.raises(CommandError, match="payload too large"):
         check_payload_size(verb, limit + 1)
@@ -390,3 +393,15 @@ def test_path_append_flag_parses_and_refuses_non_booleans() -> None:
         parse_command("path", too_many)
     with pytest.raises(CommandError, match="append"):
         parse_command("move", '{"position_m": [0, 0, 1], "append": true}')
+
+
+def test_a_path_too_long_for_one_command_names_the_point_limit_and_how_to_stream() -> None:
+    points = [[0.0, 0.0, 1.0 + i * 1e-4] for i in range(10_000)]
+    with pytest.raises(CommandError) as info:
+        parse_command("path", json.dumps({"points_m": points}))  # 490 kB: over the byte cap
+    reason = str(info.value)
+    assert reason.startswith("payload too large: ") and "1,000 points a command" in reason
+    assert '"append": true' in reason
+    with pytest.raises(CommandError) as info:  # within the bytes, over the points
+        parse_command("path", json.dumps({"points_m": [[0, 0, 1]] * 1001}))
+    assert str(info.value) == f"points_m: at most 1000 points, got 1001; {PATH_STREAM_HINT}"

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from controller.core.reel import ReelModel, spool_buildup
+from controller.core.reel import ReelModel, spool_buildup, spool_buildup_from_factor
 
 EPS = 2.0**-52
 
@@ -187,3 +187,102 @@ def test_round_trip_tension_torque_tension(m: ReelModel, p: float, tension: floa
 def test_round_trip_torque_tension_torque(m: ReelModel, p: float, tau: float) -> None:
     assume(_in_domain(m, p))
     assert m.torque_nm(p, m.tension_n(p, tau)) == pytest.approx(tau, rel=1e-12, abs=1e-12)
+
+
+# --- the build-up as RepRapFirmware's Hangprinter gives it (area factor) ---------------------
+
+
+def _rrf_turns(delta_m: float, r_m: float, q_m: float, u: float, o: float, gear: float) -> float:
+    """Motor turns for a line `delta_m` longer than at the origin, by RepRapFirmware's
+    Hangprinter spool model (HangprinterKinematics.cpp, Recalc and CartesianToMotorSteps):
+    k2 = -U*O*Q, k0 = 2*S_r/k2 with S_r = U*J*microsteps*H/(2*pi*L) steps per unit times
+    radius, steps = k0*(sqrt(R^2 + k2*delta) - R); turns = steps/(J*microsteps). Written out
+    here from that source as the independent reference."""
+    k2 = -u * o * q_m
+    k0_turns = 2.0 * (u * gear / (2.0 * math.pi)) / k2
+    return k0_turns * (math.sqrt(r_m * r_m + k2 * delta_m) - r_m)
+
+
+def test_buildup_factor_known_value() -> None:
+    # 2 pi^2 f: RepRapFirmware's default Q 0.007 mm gives 1.38e-4 m per turn per turn
+    assert spool_buildup_from_factor(7e-6) == pytest.approx(2 * math.pi**2 * 7e-6)
+    assert spool_buildup_from_factor(0.0) == 0.0
+    for bad in (-1e-6, math.nan, math.inf):
+        with pytest.raises(ValueError, match="factor_m"):
+            spool_buildup_from_factor(bad)
+
+
+def test_buildup_factor_is_the_radius_squared_falling_with_the_cable_paid_out() -> None:
+    """r^2 = r_ref^2 - f * s: the metres per turn at n turns, squared, against the spool."""
+    r0, f = 0.075, 1.28e-4
+    m = ReelModel.from_drum_radius(r0)
+    m = ReelModel(m.metres_per_rev, spool_buildup_m_per_rev2=spool_buildup_from_factor(f))
+    for n in (-20.0, -3.0, 0.0, 4.0, 25.0):
+        s = m.length_m(n)  # direct drive, no block: cable paid out from the spool
+        r = m.length_rate_mps(n, 1.0) / (2 * math.pi)  # metres per drum turn / 2 pi
+        assert r * r == pytest.approx(r0 * r0 - f * s, rel=1e-12)
+
+
+rrf_spools = st.fixed_dictionaries(
+    {
+        "r_m": st.floats(0.01, 0.2),
+        "q_m": st.floats(1e-7, 5e-4),
+        "u": st.integers(1, 8).map(float),
+        "o": st.integers(1, 4).map(float),
+        "gear": st.floats(1.0, 30.0),
+        "ref_m": st.floats(0.2, 10.0),
+    }
+)
+
+
+def _rrf_model(s: dict[str, float]) -> ReelModel:
+    return ReelModel(
+        metres_per_rev=2 * math.pi * s["r_m"],
+        gear_ratio=s["gear"],
+        mechanical_advantage=s["u"],
+        spool_buildup_m_per_rev2=spool_buildup_from_factor(s["q_m"] * s["o"]),
+        reference_length_m=s["ref_m"],
+    )
+
+
+@given(rrf_spools, st.floats(-1.0, 1.0))
+def test_buildup_factor_is_repraps_spool_model(s: dict[str, float], frac: float) -> None:
+    """The reel model with the factor turns exactly as RepRapFirmware's formula does, anywhere
+    its radius stays above half the origin's (the line on the spool moving 0..75 % of it)."""
+    reach = 0.75 * s["r_m"] ** 2 / (s["u"] * s["o"] * s["q_m"])  # r^2 down to a quarter
+    delta = frac * min(reach, 5.0 * s["ref_m"])
+    m = _rrf_model(s)
+    expected = _rrf_turns(delta, s["r_m"], s["q_m"], s["u"], s["o"], s["gear"])
+    got = m.position_rev(s["ref_m"] + delta)
+    assert got == pytest.approx(expected, rel=1e-9, abs=1e-9)
+    assert m.length_m(got) == pytest.approx(s["ref_m"] + delta, rel=1e-12, abs=1e-12)
+
+
+@given(rrf_spools, st.floats(-1.0, 1.0), st.floats(-1.0, 1.0))
+def test_buildup_factor_keeps_the_reel_monotonic(s: dict[str, float], a: float, b: float) -> None:
+    """More line out, more turns: position_rev is strictly increasing in the length over the
+    spool's reach (direction +1), and so is length_m in the turns."""
+    reach = 0.75 * s["r_m"] ** 2 / (s["u"] * s["o"] * s["q_m"])
+    span = min(reach, 5.0 * s["ref_m"])
+    la, lb = sorted((s["ref_m"] + a * span, s["ref_m"] + b * span))
+    assume(lb - la > 1e-9 * (1.0 + span))
+    m = _rrf_model(s)
+    pa, pb = m.position_rev(la), m.position_rev(lb)
+    assert pa < pb
+    assert m.length_m(pa) < m.length_m(pb)
+    assert m.length_rate_mps(pa, 1.0) > 0.0 and m.length_rate_mps(pb, 1.0) > 0.0
+
+
+@given(rrf_spools, st.floats(-5.0, 5.0))
+def test_zero_buildup_factor_is_the_plain_drum(s: dict[str, float], delta: float) -> None:
+    plain = ReelModel(
+        metres_per_rev=2 * math.pi * s["r_m"],
+        gear_ratio=s["gear"],
+        mechanical_advantage=s["u"],
+        reference_length_m=s["ref_m"],
+    )
+    zero = _rrf_model({**s, "q_m": 0.0})
+    length = s["ref_m"] + delta
+    assert zero.position_rev(length) == plain.position_rev(length)
+    assert zero.length_m(delta) == plain.length_m(delta)
+    assert zero == plain

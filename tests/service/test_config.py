@@ -255,6 +255,29 @@ def test_spool_buildup_options() -> None:
     assert "reels[0]: cannot cover limits.min_cable_m..max_cable_m" in err(data)
 
 
+def test_spool_buildup_factor() -> None:
+    """RepRapFirmware's area factor (M666 Q x O, in metres) is the same build-up as
+    spool_buildup_m_per_rev2 = 2 pi^2 x factor, and is one of the three ways to give it."""
+    data = edit("reels[0].spool_buildup_factor_m", 1.5e-6)
+    data["reels"][0]["reference_length_m"] = 48.0
+    cfg = parse(data)
+    assert cfg.reels[0].reel.spool_buildup_m_per_rev2 == pytest.approx(
+        2 * math.pi**2 * 1.5e-6, rel=1e-15
+    )
+    assert cfg.reels[1].reel.spool_buildup_m_per_rev2 == 0.0
+    for other, value in (("spool_buildup_m_per_rev2", 0.001), ("cable_diameter_m", 0.002)):
+        both = copy.deepcopy(data)
+        both["reels"][0][other] = value
+        assert "give either spool_buildup_factor_m or " in err(both)
+    for bad, why in (
+        (-1e-4, "must be >= 0"),
+        ("0.1 mm", "must be a number"),
+        (math.nan, "must be finite"),
+    ):
+        msg = err(edit("reels[0].spool_buildup_factor_m", bad))
+        assert f"reels[0].spool_buildup_factor_m: {why}" in msg, msg
+
+
 def test_defaults_of_optional_sections() -> None:
     data = base()
     for section in ("bus", "loop", "faults", "homing", "zenoh", "sim"):

@@ -127,7 +127,9 @@ Method
   `command` sends nothing, armed and flying a 4 m loop at 1 m/s, publishing every tick to a
   publisher that drops the sample; the thread's CPU time of each `tick` over 5,000 ticks (2,000
   with `--quick`) after a warm-up, GC frozen as in the daemon; p50, p99 and p99 over the
-  period. The table also shows the same with cable stretch and with cable sag. No bus and no
+  period. The table also shows the same with cable stretch, with every reel's spool
+  building up (`[[reels]] spool_buildup_factor_m`, `BENCH_BUILDUP_FACTOR_M`) and with cable
+  sag (every cable 3 mm steel rope). No bus and no
   other process, so the figure carries over between machines.
 
 `--only SECTION ...` runs only those sections (`SECTIONS`: kinematics, statics, sim, decode,

@@ -132,10 +132,18 @@ class EchoDriver:
         return self._stats
 
 
-def bench_compute(ticks: int, *, stretch: bool = False, sag: bool = False) -> dict[str, float]:
+BENCH_BUILDUP_FACTOR_M = 1.0e-6
+"""The spool build-up of the bench's build-up run (`[[reels]] spool_buildup_factor_m`): a
+0.5 m-per-turn drum whose metres per turn change by 2.5 % over the built-in robot's cables."""
+
+
+def bench_compute(
+    ticks: int, *, stretch: bool = False, buildup: bool = False, sag: bool = False
+) -> dict[str, float]:
     """CPU time of `Controller.tick` per tick at `COMPUTE_RATE_HZ` on the built-in robot
-    (rigid cables, or with `stretch` every cable at EA 2e5 N, or with `sag` every cable 3 mm
-    steel rope: `controller.cli.sag_bench.sag_config`), armed and flying
+    (rigid cables, or with `stretch` every cable at EA 2e5 N; with `buildup` every reel's spool
+    builds up by `BENCH_BUILDUP_FACTOR_M` from the power-up lengths; with `sag` every cable
+    3 mm steel rope: `controller.cli.sag_bench.sag_config`), armed and flying
     `COMPUTE_PATH_M` at 1 m/s on an `EchoDriver`, publishing every tick to a publisher that
     drops the sample; `ticks` measured after a warm-up, GC frozen as the daemon does.
 
@@ -145,6 +153,7 @@ def bench_compute(ticks: int, *, stretch: bool = False, sag: bool = False) -> di
     """
     from controller.core import kinematics
     from controller.core.commands import Arm, Path
+    from controller.core.reel import spool_buildup_from_factor
     from controller.core.states import State
     from controller.service.config import default_config
     from controller.service.loop import Controller
@@ -161,6 +170,15 @@ def bench_compute(ticks: int, *, stretch: bool = False, sag: bool = False) -> di
         cfg = sag_config(cfg)
     assert cfg.homing.power_up_position_m is not None
     lengths = kinematics.ipk_point(cfg.geometry, cfg.homing.power_up_position_m)
+    if buildup:
+        b = spool_buildup_from_factor(BENCH_BUILDUP_FACTOR_M)
+        cfg = replace(
+            cfg,
+            reels=tuple(
+                replace(r, reel=replace(r.reel, spool_buildup_m_per_rev2=b, reference_length_m=L))
+                for r, L in zip(cfg.reels, lengths, strict=True)
+            ),
+        )
     turns = [r.reel.position_rev(L) for r, L in zip(cfg.reels, lengths, strict=True)]
     clock = _Clock()
     driver = EchoDriver([r.node_id for r in cfg.reels], turns, clock)
@@ -233,6 +251,7 @@ def measure_compute(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any]
     log(f"controller compute per tick without transport ({p.compute_ticks:,} ticks) ...")
     f = bench_compute(p.compute_ticks)
     fs = bench_compute(p.compute_ticks, stretch=True)
+    fb = bench_compute(p.compute_ticks, buildup=True)
     fg = bench_compute(p.compute_ticks, sag=True)
     n = f"{f['ticks']:,} ticks at {COMPUTE_RATE_HZ} Hz, CPU time"
     rows = [
@@ -253,6 +272,15 @@ def measure_compute(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any]
             "",
             None,
             f"p99 {fs['p99_us']:.1f}; EA 2e5 N on every cable",
+        ),
+        Row(
+            "  with spool build-up p50",
+            fb["p50_us"],
+            "us",
+            "",
+            None,
+            f"p99 {fb['p99_us']:.1f}; spool_buildup_factor_m"
+            f" {BENCH_BUILDUP_FACTOR_M:g} on every reel",
         ),
         Row(
             "  with cable sag p50",

@@ -58,7 +58,7 @@ the defaults of the dataclasses.
 """
 
 from controller.service.config.interfaces import bus_option_names
-from controller.service.config.load import load_config
+from controller.service.config.load import load_config, robot_description, robot_digest
 from controller.service.config.parse import (
     parse_config,
     tension_check,
@@ -135,6 +135,8 @@ __all__ = [
     "load_config",
     "paper_robot_data",
     "parse_config",
+    "robot_description",
+    "robot_digest",
     "tension_check",
     "tension_problem",
 ]

@@ -16,7 +16,8 @@ from typing import Any
 
 from controller.core.commands import MAX_PATH_POINTS
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
-from controller.core.reel import ReelModel, spool_buildup
+from controller.core.reel import ReelModel, spool_buildup, spool_buildup_from_factor
+from controller.core.scale import speed_scale_problem
 from controller.core.statics import G_MPS2, TensionCheck
 from controller.core.workspace import Workspace, WorkspaceError
 from controller.service.config.interfaces import _parse_bus, _parse_ros2, _parse_zenoh
@@ -50,6 +51,7 @@ from controller.service.config.schema import (
     key_names,
 )
 from controller.service.config.tables import _Errors, _Table, _tname, _unknown
+from controller.service.config.tomltext import to_toml
 from drivers import busload, registry
 
 _REEL_KEYS = key_names(REEL_KEYS)
@@ -80,16 +82,22 @@ def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
         t.fail("direction", f"must be 1 or -1, got {direction}")
     ma = t.number("mechanical_advantage", _REEL_DEFAULTS["mechanical_advantage"], gt=0.0)
     buildup = 0.0
-    if t.has("spool_buildup_m_per_rev2") and (
-        t.has("cable_diameter_m") or t.has("turns_per_layer")
-    ):
+    by_diameter = t.has("cable_diameter_m") or t.has("turns_per_layer")
+    if t.has("spool_buildup_m_per_rev2") and by_diameter:
         t.fail_here(
             "give either spool_buildup_m_per_rev2 or cable_diameter_m/turns_per_layer, not both"
         )
-    elif t.has("cable_diameter_m") or t.has("turns_per_layer"):
+    elif t.has("spool_buildup_factor_m") and (by_diameter or t.has("spool_buildup_m_per_rev2")):
+        other = "cable_diameter_m/turns_per_layer" if by_diameter else "spool_buildup_m_per_rev2"
+        t.fail_here(f"give either spool_buildup_factor_m or {other}, not both")
+    elif by_diameter:
         d = t.number("cable_diameter_m", _REEL_DEFAULTS["cable_diameter_m"], ge=0.0)
         tpl = t.number("turns_per_layer", _REEL_DEFAULTS["turns_per_layer"], gt=0.0)
         buildup = spool_buildup(d, tpl)
+    elif t.has("spool_buildup_factor_m"):
+        factor_m = t.number("spool_buildup_factor_m", ge=0.0)
+        if math.isfinite(factor_m):  # else the problem is recorded: the reel is not built
+            buildup = spool_buildup_from_factor(factor_m)
     else:
         buildup = t.number(
             "spool_buildup_m_per_rev2", _REEL_DEFAULTS["spool_buildup_m_per_rev2"], ge=0.0
@@ -268,13 +276,15 @@ def _parse_faults(ft: _Table, loop: LoopConfig, sim: SimConfig) -> FaultConfig:
     return faults
 
 
-def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
+def parse_config(data: Mapping[str, Any], source: str, text: str | None = None) -> RobotConfig:
     """Validate an already-parsed TOML mapping and return the `RobotConfig`.
 
-    `source` names the origin (file path) in error messages. Raises one ConfigError listing
-    every problem found (each naming the key path): unknown keys, wrong types or units,
-    out-of-range values, duplicate node ids, unusable anchor geometry, an unknown bus interface
-    or interface option, a bad Zenoh endpoint or file, failed cross-checks.
+    `source` names the origin (file path) in error messages; `text` is the TOML text the
+    mapping was read from (None: written from the mapping, `tomltext.to_toml`). Raises one
+    ConfigError listing every problem found (each naming the key path): unknown keys, wrong
+    types or units, out-of-range values, duplicate node ids, unusable anchor geometry, an
+    unknown bus interface or interface option, a bad Zenoh endpoint or file, failed
+    cross-checks, a top speed that cannot be meant (`controller.core.scale`).
     """
     errs = _Errors(source)
     if not isinstance(data, Mapping):
@@ -318,6 +328,11 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         for i, r in enumerate(reels):
             errs.check(f"reels[{i}]", functools.partial(_check_reel_range, r, i, limits, source))
     limits_ok = limits_ok and errs.clean_since(mark)
+    if limits_ok and geometry is not None:
+        box = Workspace.from_limits(limits, geometry).box()
+        why = speed_scale_problem(limits.max_speed_mps, box)
+        if why is not None:
+            errs.add("limits.max_speed_mps", why)
 
     st = top.sub("sim")
     sim = _parse_sim(st, bus.interface, loop)
@@ -363,7 +378,17 @@ def parse_config(data: Mapping[str, Any], source: str) -> RobotConfig:
         tension=tension,
         ros2=ros2,
         gcode=gcode,
+        text=_robot_text(data) if text is None else text,
     )
+
+
+def _robot_text(data: Mapping[str, Any]) -> str:
+    """The TOML text of a valid robot mapping; "" if it holds a value TOML cannot write (a
+    robot built in code with, say, a tuple of numpy floats: it then has no description)."""
+    try:
+        return to_toml(data)
+    except (TypeError, ValueError):
+        return ""
 
 
 def _parse_gcode(top: _Table, limits: LimitsConfig | None) -> GcodeConfig:

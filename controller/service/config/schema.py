@@ -147,6 +147,14 @@ REEL_KEYS = (
     Key("cable_diameter_m", "cable diameter, for the spool build-up", 0.0),
     Key("turns_per_layer", "drum turns per layer of cable, for the spool build-up", 1.0),
     Key(
+        "spool_buildup_factor_m",
+        "the spool build-up as RepRapFirmware's Hangprinter gives it (M666 Q in metres, times "
+        "M666 O for several lines on one spool): the spool radius² falls by this × the cable "
+        "paid out from the spool; another way to give `spool_buildup_m_per_rev2` (2π² × this)",
+        shown="– (no build-up)",
+        unit="m²/m",
+    ),
+    Key(
         "reference_length_m",
         "cable length at which `metres_per_rev` holds (matters with build-up)",
         0.0,
@@ -640,6 +648,9 @@ class RobotConfig:
     drive: DriveConfig = field(default_factory=DriveConfig)
     ros2: Ros2Config = field(default_factory=lambda: Ros2Config())
     gcode: GcodeConfig = field(default_factory=lambda: GcodeConfig())
+    text: str = field(default="", compare=False, repr=False)
+    """The robot file's TOML text as loaded (for a robot built from a mapping, its TOML text):
+    what the daemon serves as its robot description on `<prefix>/robot`."""
 
     @property
     def node_ids(self) -> tuple[int, ...]:
