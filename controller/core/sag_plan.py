@@ -54,6 +54,7 @@ from controller.core.statics import (
 from controller.core.stretch import COLD_START_STRAINS, _normal_step
 
 __all__ = [
+    "CHECK_CACHE",
     "FPK_REUSE_M",
     "PLAN_REUSE_M",
     "RELINEARISE_M",
@@ -93,6 +94,8 @@ MAX_STEP_M = 0.5
 there, and the next pass plans where it ended."""
 COLD_PASSES = 40
 """Most passes of an FPK without a warm start."""
+CHECK_CACHE = 8
+"""Solutions ``SagTensionCheck.check`` keeps to linearise its later checks from."""
 SAG_PATH_MAX_SAMPLES = 4000
 """At most this many solves per path check with sag (``SagTensionCheck.path_failure``): the
 spacing grows to fit."""
@@ -408,7 +411,7 @@ class SagTensionCheck(TensionCheck):
     do.
     """
 
-    __slots__ = ("planner", "sag")
+    __slots__ = ("_near", "planner", "sag")
 
     def __init__(
         self,
@@ -424,6 +427,7 @@ class SagTensionCheck(TensionCheck):
         super().__init__(anchors_m, mass_kg, t_min_n, t_max_n, margin_n, max_source)
         self.sag = SagStatics(self.statics, self.mass_kg, weight_n_per_m, ea_n)
         self.planner = SagPlanner(self.sag, Geometry(self.statics.anchors_m))
+        self._near: list[tuple[SagSolution, tuple[Vec3, ...]]] = []
 
     def tensions(self, s: SagSolution) -> Tensions:
         """The `Tensions` of a sag solution (anchor-end tensions; its margin).  Raises
@@ -464,11 +468,42 @@ class SagTensionCheck(TensionCheck):
         )
 
     def check(self, point_m: Sequence[float]) -> str | None:
-        """None if the payload can be held at P by the rule with sag, else the reason (a full
-        solve; keeps nothing). Raises nothing."""
+        """None if the payload can be held at P by the rule with sag, else the reason.
+
+        The loop checks targets and, in velocity mode, points along the braking distance every
+        tick (``CHECK_CACHE`` of them): within ``PLAN_REUSE_M`` of a solution this check made
+        before, the horizontal forces are linearised from it and the catenaries solved in
+        closed form (tensions to about 0.1 N, against a margin of newtons); farther, a full
+        solve with its gradient, kept.  The cache is a hint any thread may share: its list
+        operations are atomic and its entries immutable.  Raises nothing."""
         try:
-            return self.reason(self.tensions(self.sag.solve(point_m)))
-        except StaticsError as exc:
+            p = (float(point_m[0]), float(point_m[1]), float(point_m[2]))
+            near = None
+            best = PLAN_REUSE_M
+            cache = list(self._near)
+            for entry in cache:
+                d = math.dist(entry[0].position_m, p)
+                if d <= best:
+                    near, best = entry, d
+            if near is not None:
+                sol, dh = near
+                bx, by, bz = sol.position_m
+                ex, ey, ez = p[0] - bx, p[1] - by, p[2] - bz
+                h = [
+                    h0 + g[0] * ex + g[1] * ey + g[2] * ez
+                    for h0, g in zip(sol.horizontal_n, dh, strict=True)
+                ]
+                found = self.sag.from_horizontal(p, h)
+            else:
+                guess = (
+                    min(cache, key=lambda e: math.dist(e[0].position_m, p))[0] if cache else None
+                )
+                found = self.sag.solve(p, guess)
+                self._near.append((found, self.sag.gradients(found)[0]))
+                if len(self._near) > CHECK_CACHE:
+                    self._near.pop(0)
+            return self.reason(self.tensions(found))
+        except (StaticsError, IndexError, ValueError) as exc:
             return f"the cables cannot hold {self.mass_kg:g} kg there: {exc}"
 
     def margins(

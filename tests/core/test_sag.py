@@ -6,6 +6,7 @@ massless cables equal to today's statics and stretch."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import pytest
 from hypothesis import assume, given, settings
@@ -303,3 +304,30 @@ def test_fpk_error_while_lagging_a_moving_set_point(
     pose, _ = planner.fpk(paid, p, planned_at=sp)
     assert planner._own is None
     assert math.dist(pose, p) < 0.15e-3
+
+
+def test_checks_along_a_braking_path_linearise_from_their_own_solves(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Velocity mode checks points ahead every tick: within PLAN_REUSE_M of a solve the check
+    made before, the tensions come from the linearised horizontal forces (no solve), within a
+    tenth of a newton of the exact ones; the verdicts are the exact solves'."""
+    chk = check(STEEL)
+    solves = 0
+    solve = SagStatics.solve
+
+    def counting(self: SagStatics, *a: Any, **k: Any) -> Any:
+        nonlocal solves
+        solves += 1
+        return solve(self, *a, **k)
+
+    monkeypatch.setattr(SagStatics, "solve", counting)
+    points = [(0.0, 0.0, 5.0 + 0.004 * k) for k in range(200)]  # up through the 495 N limit
+    verdicts = [chk.check(p) for p in points]
+    monkeypatch.setattr(SagStatics, "solve", solve)
+    assert solves <= 200 * 0.004 / PLAN_REUSE_M + 2
+    for p, why in zip(points, verdicts, strict=True):
+        exact = chk.sag.solve(p)
+        if abs(exact.margin_n - chk.margin_n) > 0.1:
+            assert (why is None) == (exact.margin_n >= chk.margin_n), (p, why)
+    assert verdicts[0] is None and verdicts[-1] is not None
