@@ -7,7 +7,8 @@ catenary: its mid-span drop below the chord and the cable the reel pays out beyo
 straight model (stretch included) would pay out.  The pose error unmodelled is the physical
 plant's rest pose (``controller.core.sag_plant.sag_equilibrium``) when the reels pay out the
 straight model's lengths, homed at the power-up pose as the controller homes (so the error is
-zero there): what a controller configured without `cable_mass_kg_per_m` would do to this robot.
+zero there; without a power-up pose, the lengths as commanded): what a controller configured
+without `cable_mass_kg_per_m` would do to this robot.
 """
 
 from __future__ import annotations
@@ -74,7 +75,7 @@ def sag_lines(
             return tuple(kinematics.ipk_point(cfg.geometry, p))
         return straight.ipk(p)[0]
 
-    offset: list[float] | None = None
+    offset: list[float] | None = [0.0] * len(masses)
     pu = cfg.homing.power_up_position_m
     if pu is not None:
         try:
@@ -112,12 +113,17 @@ def sag_lines(
                 error_m = None
         k = max(range(len(drops)), key=lambda j: drops[j])
         e = max(range(len(extra)), key=lambda j: abs(extra[j]))
-        unmodelled = "" if error_m is None else f"; unmodelled {error_m * 1e3:.1f} mm off"
+        unmodelled = ""
+        if error_m is not None:
+            small = 0.0 < error_m < 1e-4
+            off = f"{error_m * 1e6:.2f} um" if small else f"{error_m * 1e3:.1f} mm"
+            unmodelled = f"; unmodelled {off} off"
         if sol.margin_n < check.margin_n:
             unmodelled += " (beyond the tension limits there)"
+        more = f"{extra[e] * 1e3:+.1f} mm" if abs(extra[e]) >= 1e-4 else f"{extra[e] * 1e6:+.1f} um"
         rows.append(
             f"  {where:28s} drop {drops[k]:.3g} m (cable {k + 1}), "
-            f"{extra[e] * 1e3:+.1f} mm of cable (cable {e + 1}){unmodelled}"
+            f"{more} of cable (cable {e + 1}){unmodelled}"
         )
         out.append(
             {
@@ -133,7 +139,11 @@ def sag_lines(
         f"sag        cables of {'/'.join(f'{m:g}' for m in known)} kg/m hang in catenaries "
         "(modelled); the most any cable drops below its chord at mid-span, the cable paid out "
         "beyond a straight cable's, and how far the effector would hang from the pose without "
-        "the model (homed at the power-up pose):"
+        + (
+            "the model (homed at the power-up pose):"
+            if pu is not None
+            else "the model (no power-up pose: the lengths as commanded):"
+        )
     )
     return [head, *rows], out
 

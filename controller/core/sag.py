@@ -55,6 +55,7 @@ from controller.core.statics import (
 )
 
 __all__ = [
+    "GUESS_REUSE_M",
     "JACOBIAN_REUSE_M",
     "MAX_SAG_ITERATIONS",
     "SAG_TOL",
@@ -71,11 +72,22 @@ Newton = tuple[Matrix, Matrix, tuple[float, ...]]
 SAG_TOL = 1e-9
 """The solve has converged when every tangent at the effector is within this (rad) of its
 catenary's."""
+GUESS_REUSE_M = 0.25
+"""A solve starts from a solution within this distance (its sag angles and, within
+``JACOBIAN_REUSE_M``, its Newton matrix), farther from the chords.  Where the far cables sag
+deep the statics with sag can have a second self-consistent distribution, one cable hanging
+much deeper (at (-32, -2.5, 5.2) m with 3 mm steel and 5 kg, 0.29 m more of it paid out, the
+margin 67 N against 84 N): from the chords Newton finds the tauter one, and a solve that follows
+its neighbours in small steps stays on it, where one started a metre away may not."""
 JACOBIAN_REUSE_M = 0.05
 """A solve started from a solution within this distance takes its first Newton step with that
 solution's matrix (no finite differences)."""
 MAX_SAG_ITERATIONS = 60
-"""Most passes of one solve."""
+"""Most Newton steps of one solve."""
+FIXED_POINT_PASSES = 300
+"""Most passes of the fixed point a solve falls back to where Newton stalls (a kink of the
+planned distribution): it contracts by about the ratio of the sag angle to the chord's, 10 to
+100 passes."""
 
 
 class SagError(StaticsError):
@@ -183,13 +195,26 @@ class SagStatics:
 
     def solve(self, point_m: Sequence[float], guess: SagSolution | None = None) -> SagSolution:
         """The end forces of the cables that hold the payload at `point_m` (module docstring),
-        starting from the tangents of `guess` (a solution nearby) or from the chords.
+        starting from the tangents of `guess` (a solution within ``GUESS_REUSE_M``) or from
+        the chords.
 
         Raises ``StaticsInputError`` for a bad point, ``SingularConfiguration`` where the
         statics have no distribution (the point at an anchor, above every anchor, tangents
         that do not span space) and ``SagError`` when a cable would hang slack or the
-        iteration does not converge.
+        iteration does not converge (a solve from `guess` that fails is tried again from the
+        chords).
         """
+        if guess is None or not (
+            len(point_m) == 3 and math.dist(guess.position_m, point_m) <= GUESS_REUSE_M
+        ):
+            return self._solve(point_m, None)
+        try:
+            return self._solve(point_m, guess)
+        except SagError:
+            return self._solve(point_m, None)
+
+    def _solve(self, point_m: Sequence[float], guess: SagSolution | None) -> SagSolution:
+        """``solve`` from `guess` (or the chords) once."""
         if len(point_m) != 3:
             raise StaticsInputError(f"point_m needs 3 coordinates, got {len(point_m)}")
         px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
@@ -266,6 +291,22 @@ class SagStatics:
             else:
                 break
             theta, t, ends, res, norm = trial, t2, e2, r2, n2
+        # Newton stalled: the planned distribution has a kink there (the cables that bind it
+        # change), where the residuals have no derivative.  The fixed point "tangents ->
+        # tensions -> tangents" needs none: it contracts, slowly, to the same solution.
+        for it in range(FIXED_POINT_PASSES):
+            theta = [a - r for a, r in zip(theta, res, strict=True)]
+            try:
+                t, ends, res = self._pass(theta, spans, rises, horiz, where)
+            except SagError:
+                break
+            norm = max(abs(r) for r in res)
+            if norm <= SAG_TOL:
+                u = [
+                    (horiz[i][0] * math.cos(a), horiz[i][1] * math.cos(a), math.sin(a))
+                    for i, a in enumerate(theta)
+                ]
+                return self._solution(where, chords, ends, u, MAX_SAG_ITERATIONS + it, newton)
         low = min(range(self.n), key=lambda i: theta[i])
         if theta[low] < -0.5:  # past the fold: the cable hangs down from the effector
             raise SagError(

@@ -13,13 +13,14 @@ Each cable takes its static catenary shape for the effector's position at every 
 cable's own motion (its transverse waves, its inertia) is not simulated.  That is exact at rest,
 which is where the accuracy of the controller is measured, and the controller's model is a
 static one.  In motion it leaves out two things.  The cable's transverse modes are slow at this
-scale, not fast: a 48 m line of 8.3 g/m under 104 N has its first mode at sqrt(T / mu) / (2 L)
-= 1.2 Hz, 3 mm steel (36 g/m) 0.6 Hz, against the effector's own modes on those cables of
-1.6 Hz (vertical) to 12 Hz (horizontal) for 5 kg; so the plant shows no cable swing or
-its coupling with the effector's sway, which in a real rig rings on after a move and is damped
-by air drag.  And the cable's mass moves with the effector: about a third of a cable's mass
-along its length (0.13 kg of Dyneema, 0.58 kg of steel per 48 m cable against 5 kg of
-payload), so the plant's transients are a few to ten per cent quicker than the real rig's.
+scale, not fast: on the paper robot at (0, 0, 2) m with 5 kg, a 48 m line of 8.3 g/m under
+121 N has its first mode at sqrt(T / mu) / (2 L) = 1.3 Hz, 3 mm steel (36 g/m, 177 N) 0.7 Hz,
+against the effector's own modes on those cables of 1.4, 6.3 and 10 Hz (Dyneema) and 1.0, 4.2
+and 6.8 Hz (steel); so the plant shows no cable swing nor its coupling with the effector's
+sway, which in a real rig rings on after a move until air drag damps it.  And about a third of
+each cable's mass moves with the effector (0.13 kg of Dyneema, 0.57 kg of steel per 48 m cable,
+against 5 kg of payload), so the plant's transients are a few to ten per cent quicker than a
+real rig's.
 
 Step
 ----

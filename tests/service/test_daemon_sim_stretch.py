@@ -43,10 +43,13 @@ class SimDaemonRig:
         plant_mass_kg_per_m: float | None = None,
         model_mass_kg_per_m: float | None = None,
         payload_kg: float | None = None,
+        sim_in_process: bool = False,
     ) -> None:
         """The paper robot's cables of EA `plant_ea_n` and mass per metre
         `plant_mass_kg_per_m` (None: massless) in the simulator, `model_ea_n` and
-        `model_mass_kg_per_m` in the daemon's reels (None: rigid, massless)."""
+        `model_mass_kg_per_m` in the daemon's reels (None: rigid, massless); with
+        `sim_in_process` the daemon runs the simulated drives itself (`[sim] enabled`, on the
+        same udp_multicast bus) and no `cablebot sim` is started."""
         sim = {"plant": "physical", "cable_ea_n": plant_ea_n, "watchdog_timeout_s": 4.0}
         if plant_mass_kg_per_m is not None:
             sim["cable_mass_kg_per_m"] = plant_mass_kg_per_m
@@ -54,6 +57,7 @@ class SimDaemonRig:
             tmp_path,
             udp_bus(),
             rate_hz=250.0,
+            sim_enabled=sim_in_process,
             loop={"publish_every": 5},
             sim=sim,
             # the rigid model's errors reach most of a metre; the machine is shared: a
@@ -78,7 +82,9 @@ class SimDaemonRig:
         data["limits"] = {**data["limits"], "max_speed_mps": 2.0, "default_speed_mps": 2.0}
         path.write_text(to_toml(data))
         self.prefix = str(info["prefix"])
-        self.sim = Proc([*CABLEBOT, "sim", "--config", str(path)], "sim")
+        self.sim: Proc | None = (
+            None if sim_in_process else Proc([*CABLEBOT, "sim", "--config", str(path)], "sim")
+        )
         self.daemon: Proc | None = None
         self.session: Any = None
         self._lock = threading.Lock()
@@ -86,7 +92,8 @@ class SimDaemonRig:
         self._truth: dict[str, Any] | None = None
         self._truths: queue.Queue[tuple[float, Vec3]] = queue.Queue()
         try:
-            self.sim.wait_line("READY", 60.0)
+            if self.sim is not None:
+                self.sim.wait_line("READY", 60.0)
             self.daemon = Proc(
                 [*CABLEBOT, "run", "--config", str(path), "--status-every", "0"], "daemon"
             )
@@ -113,7 +120,8 @@ class SimDaemonRig:
             return self._pose, self._truth
 
     def log(self) -> str:
-        return self.sim.log() + "\n" + (self.daemon.log() if self.daemon else "")
+        sim = self.sim.log() if self.sim is not None else ""
+        return sim + "\n" + (self.daemon.log() if self.daemon else "")
 
     def wait(self, pred: Callable[[], bool], timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s
@@ -131,6 +139,9 @@ class SimDaemonRig:
             lambda: (p := self.latest()[0]) is not None and bool(p["valid"]), 60.0, "a valid pose"
         )
         self.wait(lambda: self.latest()[1] is not None, 30.0, "the truth")
+        if self.sim is None:  # the daemon's own simulated drives: it arms itself
+            self.wait(lambda: self.state() == "HOLDING", 30.0, "HOLDING")
+            return
         reply = zquery(self.session, f"{self.prefix}/cmd/arm", {}, 10.0)
         assert "error" not in reply, reply
         self.wait(lambda: self.state() == "HOLDING", 30.0, "HOLDING")
@@ -186,7 +197,8 @@ class SimDaemonRig:
             self.session = None
         if self.daemon is not None:
             self.daemon.terminate(10.0)
-        self.sim.terminate(10.0)
+        if self.sim is not None:
+            self.sim.terminate(10.0)
 
 
 def test_sim_process_and_daemon_with_stretch_are_within_a_millimetre(tmp_path: Path) -> None:

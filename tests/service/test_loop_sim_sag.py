@@ -45,6 +45,7 @@ def sag_config(
     )
 
 
+@pytest.mark.timeout(400)  # three moves of up to 40 m at 2 m/s, each settling to 20 um/s
 @pytest.mark.parametrize(
     ("per_m", "payload_kg", "targets"),
     [
