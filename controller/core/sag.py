@@ -310,9 +310,9 @@ class SagStatics:
         low = min(range(self.n), key=lambda i: theta[i])
         if theta[low] < -0.5:  # past the fold: the cable hangs down from the effector
             raise SagError(
-                f"cable {low + 1} would hang slack at {_fmt(where)}: it leaves the effector "
-                f"{math.degrees(-theta[low]):.0f} degrees downward and the payload cannot pull "
-                "it taut against its weight"
+                f"cable {low + 1} would hang slack at {_fmt(where)}: its tangent at the effector "
+                "turns downward as its tension falls, and no distribution of the tension rule "
+                "pulls it taut against its weight"
             )
         raise SagError(
             f"the tensions with sag did not settle at {_fmt(where)} (tangents off by "
