@@ -30,6 +30,12 @@ class BusError(DriverError):
     """
 
 
+class ArmRefused(DriverError):
+    """The driver cannot arm now and sent nothing (CiA 402: a restarted drive is being
+    configured again beside the loop); the message names the drives and why. Arming again
+    later can succeed."""
+
+
 @dataclass(slots=True)
 class AxisReading:
     """Latest known state of one reel motor (one drive axis).
@@ -82,6 +88,10 @@ class AxisReading:
     it was sent; CiA 402: a statusword answering a SYNC sent after it); -inf = none yet.
     While it is older than `command_stamp_s` the status fields still show the drive's state
     before the command (see `status_fresh`)."""
+    count_epoch: int = 0
+    """How many times the drive's position count started afresh (CiA 402: a drive whose
+    position after a restart is not the one before, as an incremental encoder's): positions
+    of different epochs are not comparable, so homing offsets taken before no longer hold."""
 
     def status_fresh(self) -> bool:
         """True if `ready`, `fault` and `state_name` come from a report that answers the last
@@ -107,6 +117,7 @@ class AxisReading:
             self.torque_stamp_s,
             self.command_stamp_s,
             self.status_stamp_s,
+            self.count_epoch,
         )
 
     def encoder_age_s(self, now_s: float) -> float:
@@ -148,6 +159,10 @@ class BusStats:
     """Polls that read past their frame cap to catch up with a backlog (after a loop stall)."""
     commands_heard: int = 0
     """Host-to-drive commands heard on the bus (own frames echoed back, or another master's)."""
+    conflicts: int = 0
+    """Frames heard that only a bus master sends and this host did not send (CiA 402: another
+    SYNC producer): two masters on one bus. The loop faults on it by name (`last_conflict`)."""
+    last_conflict: str | None = None
 
     def count(self, kind: str, *, decode_error: bool = False) -> None:
         """Count one received frame that was not taken, by `kind`: a decode error
@@ -187,6 +202,12 @@ class BusStats:
         self.count_bus_error(f"CAN error frame 0x{error_id:x}")
         self.errors_by_kind["error_frame"] = self.errors_by_kind.get("error_frame", 0) + 1
 
+    def count_conflict(self, text: str) -> None:
+        """Count one frame of another bus master (`text` names it). Raises nothing."""
+        self.conflicts += 1
+        self.last_conflict = text
+        self.errors_by_kind["another_master"] = self.errors_by_kind.get("another_master", 0) + 1
+
     def count_rx_overrun(self, lost: int) -> None:
         """Count `lost` frames the kernel dropped because the receive queue was full (the loop
         did not poll in time): dropped frames of kind "rx_overrun", not bus errors (the
@@ -209,6 +230,8 @@ class BusStats:
             self.untimed_frames,
             self.catch_up_polls,
             self.commands_heard,
+            self.conflicts,
+            self.last_conflict,
         )
 
 

@@ -110,6 +110,16 @@ def frame_message(arb_id: int, data: bytes, is_remote: bool) -> can.Message:
     )
 
 
+def echoes_own_frames(bus: object) -> bool:
+    """Whether `bus` hands this host's own frames back to it: python-can's udp_multicast does
+    (every socket of the group hears every datagram), and so does a bus opened with
+    `receive_own_messages`; SocketCAN (own frames off) and virtual do not. Raises nothing."""
+    return (
+        type(bus).__name__ == "UdpMulticastBus"
+        or getattr(bus, "receive_own_messages", False) is True
+    )
+
+
 def enlarge_receive_buffer(bus: can.BusABC, size_bytes: int = UDP_RCVBUF_BYTES) -> int:
     """Ask for a `size_bytes` receive buffer on a udp_multicast bus's socket (see the module
     docstring); return the size the kernel granted (as getsockopt reports it), 0 if the bus

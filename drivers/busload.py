@@ -4,7 +4,8 @@ Pure. Each drive family's tick is a list of frames (`tick_frames`); the bits of 
 from `drivers.cia402.busload` (47 + 8 x data bytes from start-of-frame to the intermission, plus
 stuff bits). The stuff bits depend on the frame's bits: `typical` counts half the worst case
 (four simulated CiA 402 drives measured 1317 bits per tick, this gives 1311; none gives 1187,
-the worst case 1435), `worst` the bound. The load is `bits per tick x rate / bitrate`.
+the worst case 1435), `worst` the bound. The load is `bits per tick x rate / bitrate`; a real
+bus is refused a rate at which a tick's worst case does not fit in its period.
 
 What a tick carries, per axis:
 
@@ -21,6 +22,7 @@ Heartbeats (a few per second) add well under 1 % and are left out.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -30,7 +32,7 @@ from drivers.cia402.busload import FIXED_BITS, worst_case_bits
 DEFAULT_BITRATE = 1_000_000
 """The bit rate assumed when the configuration gives none (SocketCAN's is set by `ip link`)."""
 MAX_PERCENT = 100.0
-"""A configuration whose typical load is above this is refused: the bus cannot carry it."""
+"""A configuration whose worst-case load is above this is refused: the bus cannot carry it."""
 SIMULATED_INTERFACES = frozenset({"virtual", "udp_multicast"})
 """Buses without bit times: their load is stated (at the assumed bit rate), never refused."""
 
@@ -82,14 +84,17 @@ class BusLoad:
         return 100.0 * self.worst_bits_per_tick * self.rate_hz / self.bitrate
 
     def refusal(self) -> str | None:
-        """Why the bus cannot carry this rate (a real bus over `MAX_PERCENT`), or None."""
-        if not self.enforced or self.percent <= MAX_PERCENT:
+        """Why the bus cannot carry this rate, or None: on a real bus, a tick's frames with
+        every possible stuff bit must fit in its period (worst case at most `MAX_PERCENT`)."""
+        if not self.enforced or self.worst_percent <= MAX_PERCENT:
             return None
-        fits_hz = MAX_PERCENT / 100.0 * self.bitrate / self.bits_per_tick
+        fits_hz = MAX_PERCENT / 100.0 * self.bitrate / self.worst_bits_per_tick
         return (
-            f"{self.rate_hz:g} Hz needs {self.percent:.0f} % of the {self.bitrate} bit/s bus "
-            f"({self.frames_per_tick:g} frames, {self.bits_per_tick:.0f} bits per tick): it "
-            f"cannot carry it; at most {fits_hz:.0f} Hz fits, or split the drives over two buses"
+            f"{self.rate_hz:g} Hz needs {self.percent:.0f} % of the {self.bitrate} bit/s bus, "
+            f"{self.worst_percent:.0f} % in the worst case ({self.frames_per_tick:g} frames, "
+            f"{self.bits_per_tick:.0f} bits per tick, {self.worst_bits_per_tick:.0f} with every "
+            f"stuff bit): it cannot carry it; at most {math.floor(fits_hz):d} Hz fits, or split "
+            "the drives over two buses"
         )
 
     def as_dict(self) -> dict[str, Any]:

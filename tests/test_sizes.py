@@ -21,9 +21,9 @@ def product_files() -> list[Path]:
     return sorted(p for d in PRODUCT for p in (ROOT / d).rglob("*.py"))
 
 
-def module_name(path: Path) -> str:
+def module_name(path: Path, root: Path | None = None) -> str:
     """The dotted module name of a product file (a package's `__init__` is the package)."""
-    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    parts = list(path.relative_to(ROOT if root is None else root).with_suffix("").parts)
     if parts[-1] == "__init__":
         parts.pop()
     return ".".join(parts)
@@ -62,34 +62,64 @@ def oversized(path: Path) -> list[str]:
     return bad
 
 
-def import_graph() -> dict[str, set[str]]:
-    """For each product module, the product modules it imports (anywhere in the file).
+def is_package(path: Path) -> bool:
+    """Whether a product file is a package's `__init__`."""
+    return path.name == "__init__.py"
 
-    `from package import name` counts as importing `package.name` when that is a module, else
-    `package`.
+
+def ancestors(name: str) -> list[str]:
+    """The enclosing packages of a dotted name, outermost first: a.b.c -> [a, a.b]."""
+    parts = name.split(".")
+    return [".".join(parts[:i]) for i in range(1, len(parts))]
+
+
+def absolute(importer: str, package: bool, module: str | None, level: int) -> str:
+    """The absolute module a (possibly relative) `from` import names."""
+    if level == 0:
+        return module or ""
+    base = importer if package else importer.rpartition(".")[0]
+    for _ in range(level - 1):
+        base = base.rpartition(".")[0]
+    return f"{base}.{module}" if module else base
+
+
+def import_graph(files: list[Path] | None = None, root: Path | None = None) -> dict[str, set[str]]:
+    """For each product module, the product modules whose code runs or is read when it imports.
+
+    Python runs a package's `__init__` before any module in it, so importing `a.b.c` depends on
+    the packages `a` and `a.b` too, except those enclosing the importer itself (already imported
+    when the importer runs). `from package import name` reads the package's namespace: it
+    depends on the package's `__init__` wherever the importer lives, and on `package.name` when
+    that is a module. Relative imports are resolved.
     """
-    modules = {module_name(p): p for p in product_files()}
+    root = ROOT if root is None else root
+    paths = product_files() if files is None else files
+    modules = {module_name(p, root): p for p in paths}
+
+    def nearest(target: str) -> str:
+        while target and target not in modules:
+            target = target.rpartition(".")[0]
+        return target
+
     graph: dict[str, set[str]] = {}
     for name, path in modules.items():
-        edges: set[str] = set()
+        package = is_package(path)
+        own = set(ancestors(name)) | ({name} if package else set())
+        implied: set[str] = set()  # enclosing packages, run first unless they enclose us
+        direct: set[str] = set()
         for node in ast.walk(ast.parse(path.read_text())):
-            targets: list[str] = []
             if isinstance(node, ast.Import):
-                targets = [a.name for a in node.names]
-            elif isinstance(node, ast.ImportFrom) and node.module:
-                targets = [
-                    f"{node.module}.{a.name}"
-                    if f"{node.module}.{a.name}" in modules
-                    else node.module
-                    for a in node.names
-                ]
-            for target in targets:
-                # the nearest product module the name lies in
-                while target and target not in modules:
-                    target = target.rpartition(".")[0]
-                if target and target != name:
-                    edges.add(target)
-        graph[name] = edges
+                for alias in node.names:
+                    implied.update(ancestors(alias.name))
+                    direct.add(alias.name)
+            elif isinstance(node, ast.ImportFrom):
+                source = absolute(name, package, node.module, node.level)
+                implied.update(ancestors(source))
+                direct.add(source)
+                if source in modules and is_package(modules[source]):
+                    direct.update(f"{source}.{alias.name}" for alias in node.names)
+        targets = {nearest(t) for t in implied - own} | {nearest(t) for t in direct}
+        graph[name] = {t for t in targets if t and t != name}
     return graph
 
 
@@ -156,3 +186,68 @@ def test_the_limits_see_an_offender(tmp_path: Path) -> None:
 def test_the_cycle_check_sees_a_cycle() -> None:
     graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
     assert cycles(graph) == [["a", "b", "c"]]
+
+
+def write_tree(root: Path, files: dict[str, str]) -> list[Path]:
+    """Write a small source tree under root, return its files."""
+    paths = []
+    for rel, text in files.items():
+        path = root / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+        paths.append(path)
+    return paths
+
+
+def test_the_cycle_check_sees_a_cycle_through_a_package_init(tmp_path: Path) -> None:
+    # the package's __init__ imports driver; driver reads a sibling through the package's
+    # namespace, so importing the sibling this way runs (or re-enters) the __init__
+    files = write_tree(
+        tmp_path,
+        {
+            "pkg/__init__.py": "from pkg.driver import Driver\n",
+            "pkg/driver.py": "from pkg import profile\nclass Driver: ...\n",
+            "pkg/profile.py": "X = 1\n",
+        },
+    )
+    assert cycles(import_graph(files, tmp_path)) == [["pkg", "pkg.driver"]]
+
+
+def test_the_cycle_check_sees_a_relative_import_of_the_package(tmp_path: Path) -> None:
+    files = write_tree(
+        tmp_path,
+        {
+            "pkg/__init__.py": "from .driver import Driver\n",
+            "pkg/driver.py": "from . import profile\nclass Driver: ...\n",
+            "pkg/profile.py": "X = 1\n",
+        },
+    )
+    assert cycles(import_graph(files, tmp_path)) == [["pkg", "pkg.driver"]]
+
+
+def test_the_cycle_check_sees_an_outside_import_that_runs_a_package_init(tmp_path: Path) -> None:
+    # importing pkg.profile from outside runs pkg/__init__, which imports user
+    files = write_tree(
+        tmp_path,
+        {
+            "pkg/__init__.py": "from pkg.driver import Driver\n",
+            "pkg/driver.py": "import user\nclass Driver: ...\n",
+            "pkg/profile.py": "X = 1\n",
+            "user.py": "from pkg.profile import X\n",
+        },
+    )
+    assert cycles(import_graph(files, tmp_path)) == [["pkg", "pkg.driver", "user"]]
+
+
+def test_the_cycle_check_passes_a_sibling_imported_by_its_module_name(tmp_path: Path) -> None:
+    files = write_tree(
+        tmp_path,
+        {
+            "pkg/__init__.py": "from pkg.driver import Driver\n",
+            "pkg/driver.py": "from pkg.profile import X\nimport pkg.profile\nclass Driver: ...\n",
+            "pkg/profile.py": "X = 1\n",
+        },
+    )
+    graph = import_graph(files, tmp_path)
+    assert graph["pkg.driver"] == {"pkg.profile"}
+    assert cycles(graph) == []

@@ -74,13 +74,31 @@ def version() -> str:
         return "unknown"
 
 
+def verb_list(parser: argparse.ArgumentParser) -> str:
+    """Every verb of the parser with its one-line help, one verb a line, for a bare `cablebot`."""
+    verbs = _subcommands(parser)
+    if verbs is None:
+        return ""
+    entries = [(a.dest, " ".join((a.help or "").split())) for a in verbs._choices_actions]
+    width = max(len(name) for name, _ in entries)
+    return "\n".join(f"  {name:<{width}}  {text}" for name, text in entries)
+
+
 def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
-    """`parser.parse_args(argv)`, with the errors a user can act on: an unknown verb gets the
-    closest known one ("did you mean"), and arguments a verb does not take are reported with
-    that verb's usage rather than the top-level one. Exits 2 (argparse) on a usage error."""
+    """`parser.parse_args(argv)`, with the errors a user can act on: a bare `cablebot` lists the
+    verbs, an unknown verb or option gets the closest known one ("did you mean"), and arguments
+    a verb does not take are reported with that verb's usage rather than the top-level one.
+    Exits 2 (argparse) on a usage error."""
     from controller.core.suggest import closest
 
     verbs = _subcommands(parser)
+    if not argv:
+        parser.print_usage(sys.stderr)
+        print(
+            f"commands:\n{verb_list(parser)}\n`cablebot COMMAND -h` describes one",
+            file=sys.stderr,
+        )
+        parser.exit(2)
     first = next((a for a in argv if not a.startswith("-")), None)
     if first is not None and verbs is not None and first not in verbs.choices:
         hint = closest(first, verbs.choices)
@@ -90,8 +108,26 @@ def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespa
         )
     args, extras = parser.parse_known_args(argv)
     if extras:
-        _innermost(parser, args).error(f"unrecognized arguments: {' '.join(extras)}")
+        verb = _innermost(parser, args)
+        verb.error(f"unrecognized arguments: {' '.join(extras)}" + _option_hints(verb, extras))
     return args
+
+
+def _option_hints(parser: argparse.ArgumentParser, extras: list[str]) -> str:
+    """ "; did you mean ..." for each unknown option among `extras` close to one of the
+    parser's own options, or ""."""
+    from controller.core.suggest import closest
+
+    options = [s for a in parser._actions for s in a.option_strings if s.startswith("--")]
+    hints = []
+    for word in extras:
+        typed = word.split("=", 1)[0]
+        if not typed.startswith("--"):
+            continue
+        hint = closest(typed, options)
+        if hint is not None:
+            hints.append(f"{typed}: did you mean {hint}?")
+    return "".join(f"; {h}" for h in hints)
 
 
 def _subcommands(parser: argparse.ArgumentParser) -> argparse._SubParsersAction[Any] | None:

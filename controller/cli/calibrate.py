@@ -90,15 +90,16 @@ def auto_poses(
     summary lacks the anchors or limits, or the region holds too few poses.
     """
     from controller.core.calibration import CalibrationError, spread_poses
-    from controller.core.kinematics import Geometry, KinematicsError
+    from controller.core.kinematics import KinematicsError
     from controller.core.statics import TensionCheck
-    from controller.core.workspace import Workspace
+    from controller.core.workspace import Workspace, layout_geometry
     from controller.service.config import LimitsConfig
 
     try:
         anchors = [tuple(float(c) for c in r["anchor_m"]) for r in summary["reels"]]
-        geom = Geometry(anchors)
-        ws = Workspace.from_limits(LimitsConfig(**summary["limits"]), geom)
+        limits = LimitsConfig(**summary["limits"])
+        geom = layout_geometry(anchors, limits)
+        ws = Workspace.from_limits(limits, geom)
         ten, load = summary.get("tension"), summary.get("payload")
         tension = (
             None
@@ -286,6 +287,22 @@ def read_sample(
     return revs, [float(v) for v in pose]
 
 
+def same_pose_as(
+    pose: Sequence[float], earlier: Sequence[Sequence[float]]
+) -> tuple[int, float] | None:
+    """The 1-based number of the earlier sample nearest `pose` and the distance to it (m) when
+    it is closer than the calibration's `DISTINCT_POSE_M` (the fit counts the two as one
+    pose), else None. Raises nothing."""
+    from controller.core.calibration import DISTINCT_POSE_M
+
+    best: tuple[int, float] | None = None
+    for i, other in enumerate(earlier, start=1):
+        d = math.dist(pose, other)
+        if d < DISTINCT_POSE_M and (best is None or d < best[1]):
+            best = (i, d)
+    return best
+
+
 def _open_out(path: str, force: bool) -> IO[str]:
     if os.path.exists(path) and not force:
         raise InputError(f"{path} exists (use --force to overwrite)")
@@ -355,6 +372,7 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
 
         fh = _open_out(args.out, args.force)
         n_rows = 0
+        recorded: list[list[float]] = []
         try:
             fh.write(
                 samples_preamble(
@@ -378,6 +396,16 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
                     + " ".join(f"{nid}:{r:.4f}" for nid, r in zip(node_ids, revs, strict=True)),
                     flush=True,
                 )
+                same = same_pose_as(pose, recorded)
+                if same is not None:
+                    print(
+                        f"cablebot: warning: sample {n_rows} is sample {same[0]}'s pose again "
+                        f"({same[1] * 1e3:.2f} mm apart): the fit counts them as one pose; "
+                        "move the robot to a new pose before the next sample",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                recorded.append(pose)
 
             if targets is not None:
                 travel_m, total_s = auto_estimate_s(
@@ -558,6 +586,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
             samples,
             settings,
             pose_height_m=z_hi - z_lo,
+            hanging=cfg.geometry.hanging,
         )
     except (CalibrationError, CalibrationUnavailable) as exc:
         return refuse(str(exc))

@@ -526,7 +526,7 @@ def _stream_path(
             return EXIT_OK
         moving = status().get("state") == "MOVING"
         tail = points[-MAX_PATH_POINTS_SENT:]
-        return _wait_arrival(args, "path", poses, tail, seen_moving=not moving)
+        return _wait_arrival(args, "path", poses, tail, seen_moving=not moving, status=status)
 
     return _run(args, body)
 
@@ -566,7 +566,14 @@ def _motion(
         # must not count as arrival. Unless the motion is already over, wait to see it move.
         status = query(session, _key(args, "status"), None, args.timeout)
         moving = isinstance(status, dict) and status.get("state") == "MOVING"
-        return _wait_arrival(args, verb, poses, points, seen_moving=not moving)
+        return _wait_arrival(
+            args,
+            verb,
+            poses,
+            points,
+            seen_moving=not moving,
+            status=lambda: query(session, _key(args, "status"), None, args.timeout),
+        )
 
     return _run(args, body)
 
@@ -635,16 +642,20 @@ def _wait_arrival(
     points: list[list[float]],
     *,
     seen_moving: bool = True,
+    status: Callable[[], Any] | None = None,
 ) -> int:
     """Follow the pose until it is within 1 mm of the last point in a still state (HOLDING).
 
     With `seen_moving` False, HOLDING samples count only after a MOVING one (the motion was
     still running when the wait began, and older samples may stand where the path ends).
+    When the robot holds away from the end, `status()` (the daemon's status) says whether it
+    is settling there (its set-point is the end) or the motion ended elsewhere: stopped by
+    another client's `stop`, or replaced by another command (Failed at once, with the reason).
 
     On a terminal (and without `--json`) one line shows the distance still to travel, rewritten
     in place. At the end it prints "arrived: <pose>" (with `--json` a line
-    `{"arrived": true, "pose": <the pose sample>}`). Raises WaitTimeout, Refused (the robot
-    left the motion states) or DaemonAbsent.
+    `{"arrived": true, "pose": <the pose sample>}`). Raises WaitTimeout, Failed (the robot
+    left the motion states, or the motion ended short of its end) or DaemonAbsent.
     """
     end = points[-1]
     line = StatusLine(sys.stdout, enabled=is_tty(sys.stdout) and not args.json)
@@ -654,6 +665,7 @@ def _wait_arrival(
     last: dict[str, Any] | None = None
     legs: list[tuple[list[float], list[float]]] | None = None
     leg = 0
+    asked = False  # the status was asked during this hold (settling, or ended elsewhere)
     try:
         while True:
             now = time.monotonic()
@@ -682,6 +694,7 @@ def _wait_arrival(
                 continue
             if state == "MOVING":
                 seen_moving = True
+                asked = False
             if state == "HOLDING" and seen_moving and math.dist(pos, end) <= ARRIVED_TOL_M:
                 line.clear()
                 if args.json:
@@ -689,6 +702,9 @@ def _wait_arrival(
                 else:
                     print(f"arrived: {format_pose(last)}", flush=True)
                 return EXIT_OK
+            if state == "HOLDING" and seen_moving and status is not None and not asked:
+                asked = True
+                _check_held_for(status(), end, last)
             if legs is None:
                 starts = [list(pos), *points[:-1]]
                 legs = list(zip(starts, points, strict=True))
@@ -700,6 +716,22 @@ def _wait_arrival(
             )
     finally:
         line.clear()
+
+
+def _check_held_for(st: Any, end: Sequence[float], last: dict[str, Any]) -> None:
+    """Raise Failed when the status `st` holds a set-point away from `end`: the motion waited
+    on ended there (stopped, or replaced by another command), not at its end."""
+    if not isinstance(st, dict) or st.get("state") != "HOLDING":
+        return
+    sp = st.get("setpoint_m")
+    if not isinstance(sp, list) or len(sp) != 3 or math.dist(sp, end) <= ARRIVED_TOL_M:
+        return  # settling on the end point
+    why = st.get("reason") or "another command took over"
+    pos = last.get("position_m") or sp
+    raise Failed(
+        f"the motion ended {math.dist(pos, end):.3f} m short of {format_xyz(end)}: {why}; "
+        f"{format_pose(last)}"
+    )
 
 
 def list_daemons(session: Any, timeout_s: float) -> list[dict[str, Any]]:

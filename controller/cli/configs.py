@@ -1,4 +1,4 @@
-"""`cablebot check-config FILE` and `cablebot init-config --example NAME [OUT]`.
+"""`cablebot check-config FILE` (or `--config FILE`) and `cablebot init-config --example NAME`.
 
 `check-config` validates a robot file (every problem at once, as `load_config` reports them)
 and prints what it means: anchors, the footprint, the workspace box, the cable lengths the
@@ -117,12 +117,108 @@ def workspace_cable_range_m(
     return shortest, longest
 
 
+def sample_workspace(cfg: Any, ws: Any, points: int = 30_000) -> dict[str, Any]:
+    """The workspace's shape (`Workspace.inside_points` without the cable lengths) sampled at
+    the centres of a regular grid of about `points` cells over its box: its volume, the
+    shortest and longest cable it needs, and (with a payload) the fraction of it where the
+    cables hold the payload by the tension rule (limits and margin). Raises nothing for a
+    valid configuration."""
+    import numpy as np
+
+    ranges = ws.box()
+    box = math.prod(hi - lo for lo, hi in ranges)
+    step = (box / points) ** (1.0 / 3.0)
+    counts = [max(1, round((hi - lo) / step)) for lo, hi in ranges]
+    axes = [
+        lo + (np.arange(k) + 0.5) * (hi - lo) / k
+        for (lo, hi), k in zip(ranges, counts, strict=True)
+    ]
+    cell = math.prod((hi - lo) / k for (lo, hi), k in zip(ranges, counts, strict=True))
+    grid = np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
+    kept = grid[ws.inside_points(grid, lengths=False)]
+    anchors = np.asarray(cfg.anchors_m, dtype=np.float64)
+    lengths = np.sqrt(((kept[:, None, :] - anchors[None]) ** 2).sum(axis=2))
+    out: dict[str, Any] = {
+        "step_m": step,
+        "points": int(kept.shape[0]),
+        "volume_m3": kept.shape[0] * cell,
+        "cable_range_m": [float(lengths.min()), float(lengths.max())] if kept.size else None,
+    }
+    if cfg.payload is not None and cfg.tension is not None and kept.size:
+        from controller.service.config import tension_check
+
+        chk = tension_check(cfg.payload, cfg.tension, cfg.geometry)
+        _, margin, _, limiting = chk.statics.solve_batch(kept, chk.mass_kg)
+        held = (limiting >= 0) & (margin >= chk.margin_n)
+        out["held_fraction"] = float(held.mean())
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # Describing a configuration
 
 
+def _volume(v: float) -> str:
+    return f"{v:,.0f}" if v >= 100.0 else f"{v:.4g}"
+
+
 def _range(lo: float, hi: float) -> str:
     return f"{lo:+.3f}..{hi:+.3f} m"
+
+
+def _workspace_lines(
+    cfg: Any, ws: Any, anchors: Sequence[Sequence[float]], work: Sequence[Point2]
+) -> tuple[list[str], tuple[float, float], dict[str, Any]]:
+    """check-config's `workspace` and `volume` lines, the cable range the workspace needs and
+    the JSON of the workspace. Raises ValueError when the cables hold the payload nowhere."""
+    lim = cfg.limits
+    top_z = ws.top_z_m
+    lines: list[str] = []
+    (x_lo, x_hi), (y_lo, y_hi), _ = ws.box()
+    sampled = sample_workspace(cfg, ws)
+    radius = "" if ws.print_radius_m is None else f", within {ws.print_radius_m:g} m of the origin"
+    if ws.hanging:
+        lo, hi = workspace_cable_range_m(anchors, work, lim.floor_z_m, top_z)
+        lines.append(
+            f"workspace  x {_range(x_lo, x_hi)}, y {_range(y_lo, y_hi)},"
+            f" z {_range(lim.floor_z_m, top_z)} (footprint shrunk by {lim.xy_margin_m:g} m,"
+            f" {polygon_area_m2(work):.3f} m²{radius})"
+        )
+    else:
+        lo, hi = sampled["cable_range_m"] or (0.0, 0.0)
+        lines.append(
+            f"workspace  among the anchors: their hull shrunk by {lim.xy_margin_m:g} m across"
+            f" the plan view, z {_range(lim.floor_z_m, top_z)}{radius}"
+            f" (x {_range(x_lo, x_hi)}, y {_range(y_lo, y_hi)}, {polygon_area_m2(work):.3f} m²"
+            " seen from above)"
+        )
+    held = sampled.get("held_fraction")
+    volume = (
+        f"volume     {_volume(sampled['volume_m3'])} m³ (sampled on a"
+        f" {sampled['step_m'] * 1e3:.0f} mm grid)"
+    )
+    if held is not None and cfg.payload is not None:
+        volume += (
+            f"; the {cfg.payload.mass_kg:g} kg payload is held within the tension limits in"
+            f" {held * 100.0:.1f} % of it"
+        )
+        if held == 0.0:
+            raise ValueError(
+                f"{cfg.source}: the cables cannot hold the {cfg.payload.mass_kg:g} kg payload "
+                "anywhere in the workspace within the tension limits (limits.min_tension_n.."
+                "max_tension_n, tension_margin_n): the anchors do not surround it from above"
+            )
+    lines.append(volume)
+    data = {
+        "polygon_m": [list(p) for p in work],
+        "x_m": [x_lo, x_hi],
+        "y_m": [y_lo, y_hi],
+        "z_m": [lim.floor_z_m, top_z],
+        "among_anchors": not ws.hanging,
+        "volume_m3": sampled["volume_m3"],
+        "held_fraction": held,
+    }
+    return lines, (lo, hi), data
 
 
 def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
@@ -163,13 +259,8 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
         "node_ids": list(cfg.node_ids),
         "footprint_m": [list(p) for p in footprint],
     }
-    (x_lo, x_hi), (y_lo, y_hi), _ = ws.box()
-    lo, hi = workspace_cable_range_m(anchors, work, lim.floor_z_m, top_z)
-    lines.append(
-        f"workspace  x {_range(x_lo, x_hi)}, y {_range(y_lo, y_hi)},"
-        f" z {_range(lim.floor_z_m, top_z)} (footprint shrunk by {lim.xy_margin_m:g} m,"
-        f" {polygon_area_m2(work):.3f} m²)"
-    )
+    ws_lines, (lo, hi), ws_data = _workspace_lines(cfg, ws, anchors, work)
+    lines.append(ws_lines[0])
     lines.append(
         f"cables     allowed {lim.min_cable_m:.3f}..{lim.max_cable_m:.3f} m;"
         f" the workspace needs {lo:.3f}..{hi:.3f} m"
@@ -186,13 +277,8 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
             f"parts of the workspace need cables down to {lo:.3f} m, shorter than"
             f" min_cable_m ({lim.min_cable_m:g} m): moves there will be refused"
         )
-    data["workspace"] = {
-        "polygon_m": [list(p) for p in work],
-        "x_m": [x_lo, x_hi],
-        "y_m": [y_lo, y_hi],
-        "z_m": [lim.floor_z_m, top_z],
-        "cable_range_m": [lo, hi],
-    }
+    lines.append(ws_lines[1])
+    data["workspace"] = {**ws_data, "cable_range_m": [lo, hi]}
     lines.append(
         f"limits     speed {lim.max_speed_mps:g} m/s (default {lim.default_speed_mps:g}),"
         f" accel {lim.max_accel_mps2:g} m/s², cable speed {lim.max_cable_speed_mps:g} m/s"
@@ -206,6 +292,7 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
         )
     else:
         lines.append("statics    no [payload]: cable tensions are not checked")
+    (x_lo, x_hi), (y_lo, y_hi), _ = ws.box()
     stretch = _stretch_lines(cfg, ((x_lo + x_hi) / 2.0, (y_lo + y_hi) / 2.0), lim.floor_z_m, top_z)
     if stretch is not None:
         lines.append(stretch[0])
@@ -346,10 +433,21 @@ def invalid_report(file: str, exc: BaseException) -> dict[str, Any]:
 
 
 def cmd_check_config(args: argparse.Namespace) -> int:
-    """`cablebot check-config FILE`: validate and describe; exit 1 with every problem (with
-    `--json` also as a JSON object on stdout, see `invalid_report`)."""
+    """`cablebot check-config FILE` (or `--config FILE`, as every other verb names its robot
+    file): validate and describe; exit 1 with every problem (with `--json` also as a JSON
+    object on stdout, see `invalid_report`), 2 without a file or with two different ones."""
     from controller.service.config import ConfigError, load_config
 
+    if args.file is not None and args.config is not None and args.file != args.config:
+        print(
+            f"cablebot check-config: two files, {args.file} and --config {args.config}: name one",
+            file=sys.stderr,
+        )
+        return exitcodes.USAGE
+    args.file = args.file if args.file is not None else args.config
+    if args.file is None:
+        print("cablebot check-config: name the robot file: check-config FILE", file=sys.stderr)
+        return exitcodes.USAGE
     try:
         cfg = load_config(args.file)
         lines, notes, data = describe(cfg)
@@ -409,7 +507,10 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
         "check-config",
         help="validate a robot file and print what it means (exit 1 on problems)",
     )
-    p.add_argument("file", metavar="FILE", help="robot TOML file")
+    p.add_argument("file", nargs="?", default=None, metavar="FILE", help="robot TOML file")
+    p.add_argument(
+        "--config", default=None, metavar="FILE", help="the robot TOML file (instead of FILE)"
+    )
     p.add_argument("--json", action="store_true", help="print the description as JSON")
     p.set_defaults(func=cmd_check_config)
 

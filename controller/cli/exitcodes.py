@@ -13,7 +13,8 @@ OK: Final = 0
 REFUSED: Final = 1
 """The daemon refused the command (its reason is printed), the input (numbers, a path or
 configuration file) is invalid, `run` or `sim` could not start (Zenoh, bus), or the robot stopped
-(FAULT/ESTOPPED/DISARMED) while `--wait`ed on."""
+(FAULT/ESTOPPED/DISARMED) or its motion ended short of the end (another client's `stop`, or
+another command) while `--wait`ed on."""
 USAGE: Final = 2
 """Usage error (argparse: unknown option, missing argument, bad `--connect`); for `run`, `sim`
 and `demo` also a configuration error: restarting cannot help."""
@@ -35,7 +36,8 @@ TABLE: Final[tuple[tuple[int, str], ...]] = (
         REFUSED,
         "refused by the daemon (its reason is printed), invalid input, or `run` or `sim` could not"
         " start (Zenoh, bus);"
-        " a `--wait`ed motion ended in FAULT, ESTOPPED or DISARMED",
+        " a `--wait`ed motion ended in FAULT, ESTOPPED or DISARMED, or short of its end (another"
+        " client's `stop`, another command)",
     ),
     (
         USAGE,

@@ -117,6 +117,10 @@ def format_status(st: dict[str, Any]) -> str:
             f" dropped {bus.get('dropped')}"
             f"  commands heard {bus.get('commands_heard', 0)} (own echoes or another master)"
         )
+        if bus.get("conflicts"):
+            lines.append(
+                f"           another master heard {bus['conflicts']}x: {bus.get('last_conflict')}"
+            )
     z = st.get("zenoh")
     if z:
         put = z.get("pose_put") or {}
@@ -128,12 +132,10 @@ def format_status(st: dict[str, Any]) -> str:
             f" {_us(put.get('p50_us'))}/{_us(put.get('p99_us'))}, tick cost p50/p99"
             f" {_us(tick.get('p50_us'))}/{_us(tick.get('p99_us'))}"
         )
-        lines.append(
-            "commands   "
-            + ", ".join(f"{k} {v}" for k, v in cmds.items())
-            + f"; set-points ok {(z.get('setpoints') or {}).get('ok')}"
-            f" bad {(z.get('setpoints') or {}).get('bad')}"
-        )
+        lines.append("commands   " + ", ".join(f"{k} {v}" for k, v in cmds.items()))
+    stream = st.get("stream")
+    if z or isinstance(stream, dict):
+        lines.append(setpoints_line((z or {}).get("setpoints"), stream))
     cfg = st.get("config")
     if isinstance(cfg, dict) and "name" in cfg:
         loop_cfg = cfg.get("loop") or {}
@@ -142,6 +144,21 @@ def format_status(st: dict[str, Any]) -> str:
             f" {len(cfg.get('reels') or [])} reels, loop {loop_cfg.get('rate_hz')} Hz"
         )
     return "\n".join(lines)
+
+
+def setpoints_line(received: Any, stream: Any) -> str:
+    """The status line of the streamed set-points: how many arrived (and were malformed), how
+    many the daemon refused (with the last reason) and discarded (not armed)."""
+    parts = []
+    if isinstance(received, dict):
+        ok, bad = received.get("ok") or 0, received.get("bad") or 0
+        parts += [f"received {ok + bad}", f"malformed {bad}"]
+    if isinstance(stream, dict):
+        for kind, last in (("refused", "last_refusal"), ("discarded", "last_discard")):
+            n = stream.get(kind) or 0
+            why = stream.get(last)
+            parts.append(f"{kind} {n}" + (f" (last: {why})" if n and why else ""))
+    return "set-points " + ", ".join(parts)
 
 
 def format_xyz(p: Sequence[Any], digits: int = 3) -> str:

@@ -46,8 +46,8 @@ SPEED_FIGURE = "speed"
 SPEED_WINDOW_S = 0.05
 """Speeds are differences of positions at least this far apart in time (less noise)."""
 SETPOINT_SPEED_WINDOW_S = 0.15
-"""The same for the set-point, from status samples: they are stamped when the reply arrives,
-with the jitter of a query, so over a longer window."""
+"""The same for the set-point of a recording whose status samples are dated only by the reply's
+arrival (before the daemon stamped them): with the jitter of a query, so over a longer window."""
 MAX_POINTS = 20000
 """Lines are thinned to about this many points (a long run stays quick to draw)."""
 MAX_MARKERS = 400
@@ -100,8 +100,10 @@ class Trace:
     `residual_m` (NaN while not valid), `state`. Status rows (M): `status_t_s`,
     `setpoint_m` (M, 3, NaN without a set-point), `status_position_m` (M, 3): the daemon's pose
     in the same status reply; `setpoint_source` says how often they were taken;
-    `requested_speed_mps` (M, NaN off a path): the speed the path asked for. `shape`: the
-    robot, if known. `waypoints`: the points the run stopped at, if it did.
+    `requested_speed_mps` (M, NaN off a path): the speed the path asked for;
+    `setpoint_stamped`: the status rows are dated by the daemon's tick that computed the
+    set-point (else by the reply's arrival, with a query's jitter). `shape`: the robot, if
+    known. `waypoints`: the points the run stopped at, if it did.
     """
 
     title: str
@@ -115,6 +117,7 @@ class Trace:
     status_position_m: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
     setpoint_source: str = "status samples"
     requested_speed_mps: FloatArray = field(default_factory=lambda: np.zeros(0))
+    setpoint_stamped: bool = False
     shape: RobotShape | None = None
     waypoints: Waypoints | None = None
     notes: list[str] = field(default_factory=list)
@@ -159,6 +162,7 @@ def trace_from_recording(path: Path, prefix: str | None = None) -> Trace:
     st_sp: list[tuple[float, float, float]] = []
     st_pos: list[tuple[float, float, float]] = []
     st_speed: list[float] = []
+    n_stamped = 0
     try:
         for m in rec.messages():
             if prefix is None:
@@ -173,7 +177,10 @@ def trace_from_recording(path: Path, prefix: str | None = None) -> Trace:
                 states.append(str(p.get("state")))
             elif m.topic == f"{prefix}/status":
                 s = json.loads(m.data)
-                st_t.append(m.log_time_ns)
+                stamp = s.get("setpoint_stamp_ns")
+                stamped = isinstance(stamp, int) and not isinstance(stamp, bool) and stamp > 0
+                n_stamped += stamped
+                st_t.append(stamp if stamped else m.log_time_ns)
                 st_sp.append(_xyz(s.get("setpoint_m")))
                 st_pos.append(_xyz((s.get("pose") or {}).get("position_m")))
                 want = (s.get("path") or {}).get("speed_mps")
@@ -197,6 +204,11 @@ def trace_from_recording(path: Path, prefix: str | None = None) -> Trace:
     else:
         notes.append("the recording holds no configuration: no robot drawn")
     t0 = pose_t[0]
+    # Replies can arrive out of order on a loaded machine: the rows in the daemon's time order.
+    order = np.argsort(np.asarray(st_t, dtype=np.int64), kind="stable")
+    st_t, st_sp, st_pos, st_speed = (
+        [rows[i] for i in order] for rows in (st_t, st_sp, st_pos, st_speed)
+    )
     return Trace(
         title=f"{path.name} ({prefix})",
         t_s=(np.asarray(pose_t, dtype=np.float64) - t0) * 1e-9,
@@ -208,6 +220,7 @@ def trace_from_recording(path: Path, prefix: str | None = None) -> Trace:
         setpoint_m=np.asarray(st_sp, dtype=np.float64).reshape(-1, 3),
         status_position_m=np.asarray(st_pos, dtype=np.float64).reshape(-1, 3),
         requested_speed_mps=np.asarray(st_speed, dtype=np.float64),
+        setpoint_stamped=n_stamped > 0,  # by a daemon that stamps (rows without a set-point: NaN)
         shape=shape,
         notes=notes,
     )
@@ -658,7 +671,8 @@ def plot_speed(tr: Trace, out_dir: Path, name: str) -> Path:
         if len(t):
             sl = _thin(len(t))
             ax.plot(t[sl], v[sl], color="#1f77b4", lw=0.9, label="measured (FPK poses)")
-        t, v = speed_mps(tr.status_t_s, tr.setpoint_m, SETPOINT_SPEED_WINDOW_S)
+        window = SPEED_WINDOW_S if tr.setpoint_stamped else SETPOINT_SPEED_WINDOW_S
+        t, v = speed_mps(tr.status_t_s, tr.setpoint_m, window)
         if len(t):
             style: dict[str, Any] = {"marker": "o", "ms": 3} if len(t) <= MAX_MARKERS else {}
             sl = _thin(len(t))

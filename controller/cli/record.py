@@ -278,6 +278,31 @@ class RecordedMessage:
     data: bytes
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The bytes every MCAP file starts (and ends) with."""
+
+
+def _unreadable_reason(path: Path, exc: BaseException) -> str:
+    """Why a file that did not yield its first MCAP record is not a recording, for people."""
+    import struct
+
+    from mcap.exceptions import EndOfFile
+
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            head = f.read(len(MCAP_MAGIC))
+    except OSError:
+        return str(exc) or type(exc).__name__
+    if size == 0:
+        return "the file is empty (0 bytes)"
+    if head != MCAP_MAGIC[: len(head)]:
+        return "not an MCAP file (it does not start with MCAP's magic bytes)"
+    if len(head) < len(MCAP_MAGIC) or isinstance(exc, EndOfFile | struct.error):
+        return f"the file is cut off after {size} bytes, before its first record"
+    return str(exc) or f"{type(exc).__name__} reading its first record"
+
+
 @dataclass
 class Recording:
     """A cablebot MCAP file, read front to back (works on a file cut short by a kill).
@@ -316,7 +341,8 @@ class Recording:
                     break
                 except Exception as exc:
                     if not started:  # not an MCAP file (bad magic) or an empty one
-                        raise McapError(f"{self.path}: not a cablebot recording: {exc}") from exc
+                        reason = _unreadable_reason(self.path, exc)
+                        raise McapError(f"not a cablebot recording: {reason}") from exc
                     self.error = f"{type(exc).__name__}: {exc}"  # a cut or damaged tail
                     break
                 started = True

@@ -76,7 +76,8 @@ def replay_items(
 class Replayer:
     """Puts replay items on a Zenoh session at their times and answers status queries.
 
-    `run(items, stop)` returns the number of samples put; it stops early when `stop` is set.
+    `run(items, stop)` returns the number of samples put; it stops early when `stop` is set
+    (then `ended` is False: the items were not all read).
     """
 
     def __init__(self, session: Any, rate: float) -> None:
@@ -86,6 +87,7 @@ class Replayer:
         self._status: dict[str, bytes] = {}
         self._queryables: dict[str, Any] = {}
         self.put = 0
+        self.ended = False
 
     def _publisher(self, key: str) -> Any:
         pub = self._publishers.get(key)
@@ -127,13 +129,14 @@ class Replayer:
     def run(self, items: Iterator[ReplayItem], stop: threading.Event) -> int:
         """Republish `items` at their times (scaled by 1/rate); returns how many were put."""
         start = time.monotonic()
+        self.ended = False
         for item in items:
             due = start + item.at_s / self.rate
             delay = due - time.monotonic()
             if delay > 0 and stop.wait(delay):
-                break
+                return self.put
             if stop.is_set():
-                break
+                return self.put
             if item.is_status:
                 self._status[item.key] = item.data
                 if item.key not in self._queryables:
@@ -141,6 +144,7 @@ class Replayer:
                 continue
             self._publisher(item.key).put(item.data)
             self.put += 1
+        self.ended = True
         return self.put
 
     def close(self) -> None:
@@ -255,6 +259,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
             n = replayer.run(replay_items(recording.messages(), recorded_prefix, prefix), stop)
             if not args.loop or stop.is_set():
                 break
+        if not replayer.ended:  # a signal: the file was not read to its end
+            print(f"replay stopped after {n} samples", flush=True)
+            return EXIT_OK
         cut = "" if recording.complete else " (the file ends early: the recorder was stopped)"
         print(f"replayed {n} samples{cut}", flush=True)
         return EXIT_OK

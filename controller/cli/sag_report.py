@@ -88,7 +88,7 @@ def sag_lines(
     out: list[dict[str, Any]] = []
     w = sag.weight_n_per_m
     for name, p in poses:
-        where = f"{name} ({', '.join(f'{v:g}' for v in p)})"
+        where = f"{name} ({', '.join(f'{v:.4g}' for v in p)})"
         try:
             sol = sag.solve(p)
             base = straight_paid(p)
@@ -98,10 +98,13 @@ def sag_lines(
         drops = []
         for i, (ax, ay, az) in enumerate(cfg.anchors_m):
             span = ((ax - p[0]) ** 2 + (ay - p[1]) ** 2) ** 0.5
-            ends = catenary.from_horizontal_force(
-                span, az - p[2], sol.horizontal_n[i], w[i], _compliance(eas[i])
-            )
-            drops.append(catenary.sag(ends, span, az - p[2], w[i], _compliance(eas[i]))[0])
+            try:
+                ends = catenary.from_horizontal_force(
+                    span, az - p[2], sol.horizontal_n[i], w[i], _compliance(eas[i])
+                )
+                drops.append(catenary.sag(ends, span, az - p[2], w[i], _compliance(eas[i]))[0])
+            except catenary.CatenaryError:  # a vertical cable hangs along its chord
+                drops.append(0.0)
         extra = [a - b for a, b in zip(sol.paid_out_m, base, strict=True)]
         error_m: float | None = None
         if offset is not None:

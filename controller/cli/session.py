@@ -44,7 +44,8 @@ class Refused(RuntimeError):
 
 class Failed(Refused):
     """The daemon accepted the command, which then did not complete: the robot went FAULT,
-    ESTOPPED or DISARMED while the CLI followed it; the message says what happened. (A
+    ESTOPPED or DISARMED, or the motion ended short of its end (stopped, replaced), while the
+    CLI followed it; the message says what happened. (A
     `Refused` for the handlers that only need "it did not work"; printed as
     "accepted, then ...", not as a refusal.)"""
 

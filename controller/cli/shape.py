@@ -56,8 +56,8 @@ class RobotShape:
         Raises ShapeError when the anchors or limits are missing, not finite, or make no
         workspace.
         """
-        from controller.core.kinematics import Geometry, KinematicsError
-        from controller.core.workspace import Workspace
+        from controller.core.kinematics import KinematicsError
+        from controller.core.workspace import Workspace, layout_geometry
         from controller.service.config import LimitsConfig
 
         try:
@@ -66,7 +66,7 @@ class RobotShape:
                 for a in (r["anchor_m"] for r in summary["reels"])
             )
             given: dict[str, Any] = {
-                k: int(v) if k == "max_queued_points" else float(v)
+                k: int(v) if k == "max_queued_points" else None if v is None else float(v)
                 for k, v in summary["limits"].items()
             }
             limits_cfg = LimitsConfig(**given)
@@ -75,7 +75,7 @@ class RobotShape:
         if not all(math.isfinite(c) for a in anchors for c in a):
             raise ShapeError(f"anchors are not finite: {anchors}")
         try:
-            geometry = Geometry(anchors)
+            geometry = layout_geometry(anchors, limits_cfg)
             ws = Workspace.from_limits(limits_cfg, geometry)
         except (KinematicsError, ValueError) as exc:  # WorkspaceError is a ValueError
             raise ShapeError(f"configuration summary: {exc}") from exc

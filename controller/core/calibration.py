@@ -538,11 +538,13 @@ def _solve(
     a_start: FloatArray,
     o_start: FloatArray,
     p_start: FloatArray,
-    z_max: float,
+    z_max: float | None,
     prior: FloatArray,
 ) -> tuple[FloatArray, FloatArray, FloatArray, bool]:
     """Least squares over the anchors (a_cfg + basis @ z), offsets and poses; `prior` (h, f)
-    adds the residuals prior @ z (the pull toward the configured anchors)."""
+    adds the residuals prior @ z (the pull toward the configured anchors). `z_max` keeps
+    every pose below it (a hanging robot); None leaves the poses free (among the anchors,
+    whose other cables tell a pose from its mirror image)."""
     try:
         from scipy.optimize import least_squares
     except ImportError as exc:
@@ -555,11 +557,14 @@ def _solve(
     rows = np.arange(k * n)
     cable = rows % n
     pose = rows // n
-    # Pose k is (x, y, w) with z = z_max - exp(w): every pose stays below z_max.
+    # Pose k is (x, y, w) with z = z_max - exp(w): every pose stays below z_max (hanging);
+    # (x, y, z) itself among the anchors.
 
     def unpack(x: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         a = a_cfg + (basis @ x[:nf]).reshape(n, 3)
         q = x[nf + n :].reshape(k, 3)
+        if z_max is None:
+            return a, x[nf : nf + n], q
         p = np.column_stack([q[:, 0], q[:, 1], z_max - np.exp(np.minimum(q[:, 2], 30.0))])
         return a, x[nf : nf + n], p
 
@@ -579,12 +584,19 @@ def _solve(
         ef = e.reshape(-1, 3)
         j[rows, nf + n + 3 * pose] = -ef[:, 0]
         j[rows, nf + n + 3 * pose + 1] = -ef[:, 1]
-        j[rows, nf + n + 3 * pose + 2] = ef[:, 2] * (z_max - p[pose, 2])
+        if z_max is None:
+            j[rows, nf + n + 3 * pose + 2] = -ef[:, 2]
+        else:
+            j[rows, nf + n + 3 * pose + 2] = ef[:, 2] * (z_max - p[pose, 2])
         j[k * n :, :nf] = prior
         return j
 
-    q0 = np.column_stack(
-        [p_start[:, 0], p_start[:, 1], np.log(np.maximum(z_max - p_start[:, 2], 1e-9))]
+    q0 = (
+        p_start
+        if z_max is None
+        else np.column_stack(
+            [p_start[:, 0], p_start[:, 1], np.log(np.maximum(z_max - p_start[:, 2], 1e-9))]
+        )
     )
     x0 = np.concatenate([basis.T @ (a_start - a_cfg).ravel(), o_start, q0.ravel()])
     res = least_squares(
@@ -603,13 +615,19 @@ def _solve(
 
 
 def _starting_point(
-    a_cfg: FloatArray, reels0: Sequence[ReelModel], samples: Samples, problem: _Problem
-) -> tuple[FloatArray, float, FloatArray]:
+    a_cfg: FloatArray,
+    reels0: Sequence[ReelModel],
+    samples: Samples,
+    problem: _Problem,
+    hanging: bool,
+) -> tuple[FloatArray, float | None, FloatArray]:
     """The solve's start: the believed poses (lowered where needed), the height every pose
-    stays below, and the offsets that fit them. Raises CalibrationError when every pose is
-    at or above the lowest anchor or a reel cannot reach the believed lengths."""
-    n = a_cfg.shape[0]
-    k = samples.n_poses
+    stays below (None among the anchors), and the offsets that fit them. Raises
+    CalibrationError when every pose of a hanging robot is at or above the lowest anchor or a
+    reel cannot reach the believed lengths."""
+    if not hanging:
+        p_free = samples.believed_m.copy()
+        return p_free, None, _offsets(a_cfg, reels0, samples, problem, p_free)
     # Starting point: the configured anchors, the believed poses and the offsets that fit them.
     # A pose believed near the anchors' height (the controller's FPK of inconsistent lengths
     # meets the anchor plane there) starts a little lower. During the solve every pose stays
@@ -626,6 +644,20 @@ def _starting_point(
         )
     p0[:, 2] = np.minimum(p0[:, 2], a_low - START_BELOW_ANCHORS_RATIO * height)
     z_max = a_low - 0.5 * (a_low - float(p0[:, 2].max()))
+    return p0, z_max, _offsets(a_cfg, reels0, samples, problem, p0)
+
+
+def _offsets(
+    a_cfg: FloatArray,
+    reels0: Sequence[ReelModel],
+    samples: Samples,
+    problem: _Problem,
+    p0: FloatArray,
+) -> FloatArray:
+    """The reel offsets that fit the poses `p0` with the configured anchors (mean over the
+    poses). Raises CalibrationError when a reel cannot reach the believed lengths."""
+    n = a_cfg.shape[0]
+    k = samples.n_poses
     dist0, _ = problem.units(a_cfg, p0)
     o0 = np.empty(n)
     for i, reel in enumerate(reels0):
@@ -638,8 +670,7 @@ def _starting_point(
             )
         except ValueError as exc:
             raise CalibrationError(f"reel of cable {i + 1}: {exc}") from exc
-
-    return p0, z_max, o0
+    return o0
 
 
 def _add_warnings(
@@ -673,6 +704,75 @@ def _add_warnings(
             warnings.append(f"anchor {i + 1} is poorly determined (±{anchor_std[i] * 1e3:.2g} mm)")
 
 
+def _inside_gate(anchors_m: FloatArray, poses_m: FloatArray) -> Gate:
+    """Among the anchors: every fitted pose inside the fitted anchors' hull (a pose outside
+    is a mirror image, or the anchors moved where no robot could be)."""
+    from controller.core.kinematics import Geometry, KinematicsError
+
+    try:
+        faces = Geometry(anchors_m, hanging=False).hull_faces
+    except KinematicsError as exc:
+        return Gate("inside_hull", False, f"the fitted anchors have no hull to work in: {exc}")
+    tol = 1e-6 * float(np.ptp(anchors_m, axis=0).max())
+    out = sum(
+        1
+        for x, y, z in poses_m.tolist()
+        if any(nx * x + ny * y + nz * z > c + tol for nx, ny, nz, c, _ in faces)
+    )
+    return Gate(
+        "inside_hull",
+        out == 0,
+        f"{out} pose(s) fitted outside the anchors' hull (a mirror solution)"
+        if out
+        else "every pose fitted inside the anchors' hull",
+    )
+
+
+def _gates(
+    st: Settings,
+    rms_dof: float,
+    rms: float,
+    worst: float,
+    free_bad: int,
+    held: int,
+    converged: bool,
+    a: FloatArray,
+    p: FloatArray,
+    hanging: bool,
+) -> tuple[Gate, ...]:
+    """The quality gates of a calibration (module docstring)."""
+    inside_gate = _inside_gate(a, p) if not hanging else None
+    high = int(np.sum(p[:, 2] >= float(a[:, 2].min())))
+    return (
+        Gate(
+            "rms",
+            rms_dof <= st.max_rms_m,
+            f"RMS residual per redundant equation {rms_dof * 1e3:.3g} mm <= "
+            f"{st.max_rms_m * 1e3:g} mm (plain RMS {rms * 1e3:.3g} mm)",
+        ),
+        Gate(
+            "worst",
+            worst <= st.max_residual_m,
+            f"worst residual {worst * 1e3:.3g} mm <= {st.max_residual_m * 1e3:g} mm",
+        ),
+        Gate(
+            "observable",
+            free_bad == 0,
+            f"{free_bad} direction(s) seen worse than {st.hold_std_m * 1e3:g} mm left free, "
+            f"{held} held near the configured values",
+        ),
+        Gate("converged", converged, "the least-squares solve converged"),
+        inside_gate
+        or Gate(
+            "below_anchors",
+            high <= 0,
+            f"{high} pose(s) fitted above the lowest anchor (a mirror solution)"
+            if high
+            else "every pose fitted below the anchors",
+        ),
+    )
+
+
 def calibrate(
     anchors_m: Any,
     reels: Sequence[ReelModel],
@@ -680,11 +780,16 @@ def calibrate(
     settings: Settings | None = None,
     *,
     pose_height_m: float | None = None,
+    hanging: bool = True,
 ) -> Calibration:
     """Estimate the anchors and reel offsets that best explain `samples`.
 
     `pose_height_m` is the height range the workspace allows poses (floor to top), when
     known: poses that use it well are not warned about as nearly coplanar however wide.
+    `hanging` (the layout's `Geometry.hanging`): the effector hangs below every anchor, and
+    the solve keeps every pose below them (a pose in the anchors' plane is a second solution
+    no hanging robot can be in); False: the effector works among its anchors (a Hangprinter),
+    the poses are free and the last gate asks that they stay inside the anchors' hull.
 
     `anchors_m` (N, 3) and `reels` are the configuration's, in cable order (the reels' own
     offsets are ignored). See the module docstring for the model, the frame convention, the
@@ -703,7 +808,7 @@ def calibrate(
     reels0 = [replace(r, offset_rev=0.0) for r in reels]
     problem = _Problem(reels0, samples.motor_rev)
 
-    p0, z_max, o0 = _starting_point(a_cfg, reels0, samples, problem)
+    p0, z_max, o0 = _starting_point(a_cfg, reels0, samples, problem, hanging)
 
     q = orthogonal_complement(rigid_basis(a_cfg))
     dq = q.shape[1]
@@ -774,33 +879,8 @@ def calibrate(
     free_bad = [float(v) for v in free_std if v > st.hold_std_m]
     _add_warnings(warnings, directions, anchor_std, bool(coplanar), st)
 
-    high = int(np.sum(p[:, 2] >= float(a[:, 2].min())))
-    gates = (
-        Gate(
-            "rms",
-            rms_dof <= st.max_rms_m,
-            f"RMS residual per redundant equation {rms_dof * 1e3:.3g} mm <= "
-            f"{st.max_rms_m * 1e3:g} mm (plain RMS {rms * 1e3:.3g} mm)",
-        ),
-        Gate(
-            "worst",
-            worst <= st.max_residual_m,
-            f"worst residual {worst * 1e3:.3g} mm <= {st.max_residual_m * 1e3:g} mm",
-        ),
-        Gate(
-            "observable",
-            not free_bad,
-            f"{len(free_bad)} direction(s) seen worse than {st.hold_std_m * 1e3:g} mm left free, "
-            f"{held_c.shape[1]} held near the configured values",
-        ),
-        Gate("converged", converged, "the least-squares solve converged"),
-        Gate(
-            "below_anchors",
-            high <= 0,
-            f"{high} pose(s) fitted above the lowest anchor (a mirror solution)"
-            if high
-            else "every pose fitted below the anchors",
-        ),
+    gates = _gates(
+        st, rms_dof, rms, worst, len(free_bad), held_c.shape[1], converged, a, p, hanging
     )
     return Calibration(
         node_ids=samples.node_ids,

@@ -1,14 +1,15 @@
 """Pre-tension before homing: every reel winds at a set torque until the reels are still.
 
-Pure module (no I/O, no threads). A suspended robot's cables may hang slack or unevenly tight
-before it is homed: encoder turns then say little about where the effector is. The pre-tension
-puts every reel in torque control, each pulling with the tension statics gives its cable at the
-home pose (`controller.core.statics`), so the effector is drawn to that pose: with fixed
-tensions t_i, the potential ``sum_i t_i |A_i - P| + m g z`` is convex in P, and its one minimum
-is where ``sum_i t_i u_i = m g e_z``, the home pose itself. Slack cables are wound in, tight ones
-eased out, and when every reel has been still for a while the home pose is declared there
-(the offsets that make the encoders say it), as Hangprinter users home with their motors in
-torque mode.
+Pure module (no I/O, no threads). A robot's cables may hang slack or unevenly tight before it
+is homed: encoder turns then say little about where the effector is. The pre-tension puts every
+reel in torque control, each pulling with the tension statics gives its cable at the home pose
+(`controller.core.statics`), so the effector is drawn to that pose: with fixed tensions t_i,
+the potential ``sum_i t_i |A_i - P| + m g z`` is convex in P whatever the layout (a
+Hangprinter's low lines pull down, and their terms are convex all the same), and its one
+minimum is where ``sum_i t_i u_i = m g e_z``, the home pose itself. Slack cables are wound
+in, tight ones eased out, and when every reel has been still for a while the home pose is
+declared there (the offsets that make the encoders say it), as Hangprinter users home with
+their motors in torque mode.
 
 `PretensionRun` is one such run, fed by the control loop every tick (which turns its tensions
 into motor torques through the reel model at the reels' turns of that tick, so a spool that

@@ -124,18 +124,12 @@ class SagSolution:
     for a solve started from this one."""
 
 
-def _solve_along(statics: CableStatics, u: list[Vec3], weight_n: float) -> list[float]:
-    """The statics' tension distribution (farthest from the limits) along the directions `u`
-    for a vertical force `weight_n`.  Raises ``SingularConfiguration`` as the statics do.
-
-    The seam to the statics: the solve of ``CableStatics`` with directions given instead of
-    the chords'."""
-    n = statics.n_cables
-    if n == 3:
-        return statics._solve3(u, weight_n)
-    if n == 4:
-        return statics._solve4_parts(u, weight_n)[0]
-    return statics._solve_lp(u, weight_n)
+def _solve_along(statics: CableStatics, u: list[Vec3], weight_n: float) -> tuple[float, ...]:
+    """The statics' tension distribution (farthest from the limits) for cables pulling along
+    the directions `u` that hold a weight `weight_n` (``CableStatics.solve_directions``).
+    Raises ``SingularConfiguration`` as the statics do (``StaticsInputError`` for directions
+    that are not unit vectors, which the tangents always are)."""
+    return statics.solve_directions(u, (0.0, 0.0, weight_n)).tensions_n
 
 
 class SagStatics:
@@ -250,7 +244,7 @@ class SagStatics:
             try:
                 t, ends, res = self._pass(start, spans, rises, horiz, where)
                 theta = start
-            except SagError:
+            except (SagError, SingularConfiguration):
                 t, ends, res = self._pass(theta, spans, rises, horiz, where)
         else:
             t, ends, res = self._pass(theta, spans, rises, horiz, where)
@@ -274,14 +268,17 @@ class SagStatics:
             if reuse is not None:
                 newton, reuse = reuse, None
             else:
-                newton = self._newton_matrix(theta, t, ends, spans, rises, horiz)
+                try:
+                    newton = self._newton_matrix(theta, t, ends, spans, rises, horiz)
+                except SingularConfiguration:
+                    break
             step = _gauss([list(row) for row in newton[0]], [-r for r in res])
             alpha = 1.0
             for _ in range(30):
                 trial = [a + alpha * d for a, d in zip(theta, step, strict=True)]
                 try:
                     t2, e2, r2 = self._pass(trial, spans, rises, horiz, where)
-                except SagError:
+                except (SagError, SingularConfiguration):  # a step too far: shorter
                     alpha *= 0.5
                     continue
                 n2 = max(abs(r) for r in r2)
@@ -298,7 +295,7 @@ class SagStatics:
             theta = [a - r for a, r in zip(theta, res, strict=True)]
             try:
                 t, ends, res = self._pass(theta, spans, rises, horiz, where)
-            except SagError:
+            except (SagError, SingularConfiguration):
                 break
             norm = max(abs(r) for r in res)
             if norm <= SAG_TOL:
@@ -307,8 +304,10 @@ class SagStatics:
                     for i, a in enumerate(theta)
                 ]
                 return self._solution(where, chords, ends, u, MAX_SAG_ITERATIONS + it, newton)
-        low = min(range(self.n), key=lambda i: theta[i])
-        if theta[low] < -0.5:  # past the fold: the cable hangs down from the effector
+        # past the fold: a cable leaves the effector far below its chord
+        below = [theta[i] - math.atan2(rises[i], spans[i]) for i in range(self.n)]
+        low = min(range(self.n), key=lambda i: below[i])
+        if below[low] < -0.5:
             raise SagError(
                 f"cable {low + 1} would hang slack at {_fmt(where)}: its tangent at the effector "
                 "turns downward as its tension falls, and no distribution of the tension rule "
@@ -329,7 +328,11 @@ class SagStatics:
         for i, a in enumerate(theta):
             hx, hy = horiz[i]
             ca = math.cos(a)
-            out.append((hx * ca, hy * ca, math.sin(a)) if spans[i] > 0.0 else (0.0, 0.0, 1.0))
+            out.append(
+                (hx * ca, hy * ca, math.sin(a))
+                if spans[i] > 0.0
+                else (0.0, 0.0, 1.0 if a > 0.0 else -1.0)
+            )
         return out
 
     def _pass(
@@ -339,7 +342,7 @@ class SagStatics:
         rises: Sequence[float],
         horiz: Sequence[tuple[float, float]],
         where: Vec3,
-    ) -> tuple[list[float], list[catenary.CatenaryEnds], list[float]]:
+    ) -> tuple[tuple[float, ...], list[catenary.CatenaryEnds], list[float]]:
         """The statics along the tangent elevations `theta`, each cable's catenary for its
         horizontal force, and how far each catenary's own tangent is from `theta` (rad):
         (tensions, ends, residuals).  Raises SagError for a cable that would hang slack."""
@@ -435,9 +438,21 @@ class SagStatics:
         try:
             if span > 0.0:
                 return catenary.from_horizontal_force(span, rise, h, w, c)
-            # straight up: rise = L0 (1 + c V0 + c w L0 / 2)
-            b = 1.0 + c * v
-            l0 = 2.0 * rise / (b + math.sqrt(b * b + 2.0 * c * w * rise))
+            if rise > 0.0:
+                # straight up: rise = L0 (1 + c V0 + c w L0 / 2)
+                b = 1.0 + c * v
+                l0 = 2.0 * rise / (b + math.sqrt(b * b + 2.0 * c * w * rise))
+            else:
+                # straight down, pulled with -v: -rise = L0 (1 - c v - c w L0 / 2), its tension
+                # falling by its weight toward the anchor
+                b = 1.0 - c * v
+                disc = b * b - 2.0 * c * w * -rise
+                l0 = 2.0 * -rise / (b + math.sqrt(disc)) if disc > 0.0 else math.inf
+                if not (-v - w * l0 > 0.0):
+                    raise catenary.SlackCableError(
+                        f"a cable straight down under the effector pulled with {-v:.4g} N "
+                        "does not hold its own weight"
+                    )
             return catenary.CatenaryEnds(0.0, v, v + w * l0, abs(v), abs(v + w * l0), l0, 0)
         except catenary.SlackCableError as exc:
             raise SagError(f"cable {i + 1} would hang slack at {_fmt(where)}: {exc}") from None

@@ -143,6 +143,12 @@ def _solve_cable(
     return (h, v0, span, rise, ux, uy, k00, k01, k11, gh, gv, ends.t0_n)
 
 
+def _pulls(cab: Sequence[float]) -> bool:
+    """True for a cable that pulls: with a horizontal force, or straight along the vertical
+    with a vertical one (``_NO_CABLE``: slack)."""
+    return cab[0] > 0.0 or (cab[2] == 0.0 and cab[1] != 0.0)
+
+
 class SagPlant:
     """The simulated robot with heavy cables: the interface of `CablePlant` (state, `step`,
     `settle`), the cables hanging in catenaries (module docstring).
@@ -320,8 +326,9 @@ class SagPlant:
     def _forces_now(self, cable: int, dt_s: float = 0.0) -> tuple[float, float]:
         """(H, V0) of cable `cable` by the step's linearisation, at the effector's pose (moved
         on by its velocity for `dt_s`) and the cable's present unstretched length."""
-        h, v0, span0, rise0, _ux, _uy, k00, k01, k11, gh, gv, _t0 = self._cables[cable]
-        if not h > 0.0:
+        cab = self._cables[cable]
+        h, v0, span0, rise0, _ux, _uy, k00, k01, k11, gh, gv, _t0 = cab
+        if not _pulls(cab):
             return 0.0, 0.0
         ax, ay, az = self._anchors[cable]
         px, py, pz = self._p
@@ -362,8 +369,9 @@ class SagPlant:
         l0 = self._l0[cable]
         w = self._w[cable]
         h1, v0 = self._forces_now(cable, dt_s)
-        if h1 <= 0.0:
+        if h1 <= 0.0 and not _pulls(self._cables[cable]):
             return -math.inf  # slack: wind in until it pulls
+        h1 = max(h1, 0.0)
         v1 = v0 + w * l0
         t1 = math.hypot(h1, v1)
         # d T1 / d L0 = (H dH/dL0 + V1 (dV0/dL0 + w)) / T1
@@ -426,7 +434,7 @@ class SagPlant:
         zeta = params.cable_damping_ratio
         stiff = 0.0
         for cab in cables:
-            if cab[0] > 0.0:
+            if _pulls(cab):
                 stiff += cab[6] + cab[8] + (cab[0] / cab[2] if cab[2] > 0.0 else 0.0)
         w2 = stiff / m
         if not w2 > 0.0:
@@ -458,9 +466,9 @@ class SagPlant:
                 self._w[i],
             )
             for i, cab in enumerate(cables)
-            if cab[0] > 0.0
+            if _pulls(cab)
         ]
-        slack = [i for i, cab in enumerate(cables) if not cab[0] > 0.0]
+        slack = [i for i, cab in enumerate(cables) if not _pulls(cab)]
         vx, vy, vz = self._v
         wx, wy, wz = vx, vy, vz
         j = 0
@@ -480,26 +488,28 @@ class SagPlant:
                 dr = az - pz - rise0
                 dl = l0_off + l0_change * frac
                 hl = h0 + k00 * ds + k01 * dr + gh * dl
-                if hl > 0.0 and span > 0.0:
-                    # rates of span and rise at the half-step velocity
-                    sd = -(dx * wx + dy * wy) / span
-                    rd = -wz
-                    ht = hl + beta * (k00 * sd + k01 * rd + gh * l0_rate)
-                    if ht > 0.0:
-                        vt = (
-                            v00
-                            + k01 * ds
-                            + k11 * dr
-                            + gv * dl
-                            + beta * (k01 * sd + k11 * rd + gv * l0_rate)
-                        )
-                        s = ht / span
-                        fx += s * dx
-                        fy += s * dy
-                        fz += vt
-                        t_out.append(math.hypot(ht, vt + w * (l0_start + l0_change * frac)))
-                        continue
-                t_out.append(0.0)
+                # rates of span and rise at the half-step velocity
+                sd = -(dx * wx + dy * wy) / span if span > 0.0 else 0.0
+                rd = -wz
+                ht = hl + beta * (k00 * sd + k01 * rd + gh * l0_rate)
+                vt = (
+                    v00
+                    + k01 * ds
+                    + k11 * dr
+                    + gv * dl
+                    + beta * (k01 * sd + k11 * rd + gv * l0_rate)
+                )
+                if span > 0.0 and hl > 0.0 and ht > 0.0:
+                    s = ht / span
+                    fx += s * dx
+                    fy += s * dy
+                elif not (span == 0.0 and h0 == 0.0 and vt != 0.0):
+                    t_out.append(0.0)  # slack until the next solve
+                    continue
+                else:
+                    ht = 0.0  # straight along the vertical: no horizontal pull
+                fz += vt
+                t_out.append(math.hypot(ht, vt + w * (l0_start + l0_change * frac)))
             if j:
                 vx = wx + hh * fx * inv_m
                 vy = wy + hh * fy * inv_m
@@ -546,8 +556,8 @@ def _net(params: PlantParams, cables: Sequence[tuple[float, ...]]) -> tuple[np.n
         stiff += k11 * np.outer(z, z)
         if span > 0.0:
             stiff += h / span * (np.diag([1.0, 1.0, 0.0]) - np.outer(u, u))
-        elif t0 > 0.0:  # vertical: the pendulum stiffness of a straight cable
-            stiff += t0 / max(_r, 1e-9) * np.diag([1.0, 1.0, 0.0])
+        elif t0 > 0.0:  # vertical: its sideways stiffness is k00 in every horizontal way
+            stiff += k00 * np.diag([1.0, 1.0, 0.0])
     return force, stiff
 
 

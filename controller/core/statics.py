@@ -1,28 +1,42 @@
-"""Statics of a point-mass cable robot: cable tensions that hold the effector still.
+"""Statics of a point-mass cable robot: cable tensions that supply a force on the effector.
 
 Pure module: ``math`` and ``numpy`` only (``scipy`` for more than four cables, imported when
 first needed), no I/O, no global state.
 
 Model
 -----
-A point mass ``m`` at P hangs from N straight massless cables; ``u_i`` is the unit vector from
-P to anchor ``A_i`` (z up).  In equilibrium ``sum_i t_i u_i = m g e_z`` (``g = G_MPS2``), and
-each tension must stay within ``t_min_n <= t_i <= t_max_n``.  The distance of a distribution to
-the limits is ``min_i min(t_i - t_min_n, t_max_n - t_i)``; the answer is the equilibrium
-distribution that maximises it, and that maximum is ``margin_n`` (negative when no distribution
-keeps every cable in range: then it is the distribution that violates the limits least, and
-``limiting_cable`` is the cable that cannot be kept in range).
+N straight massless cables pull on one point P; ``u_i`` is the unit vector along cable ``i``
+from P toward its anchor ``A_i`` (z up), whatever its direction: a cable may pull up, sideways
+or down (a Hangprinter's low anchors).  The cables must supply a force ``f`` on P:
+``sum_i t_i u_i = f``.  For a point mass ``m`` at rest, ``f = m g e_z`` (``g = G_MPS2``:
+``solve``); an accelerating payload needs ``f = m (g e_z + a)``, and a caller with its own
+cable directions (the tangents of sagging cables) hands them in (``solve_force``,
+``solve_directions``: the core every solve runs through).  Each tension must stay within
+``t_min_n <= t_i <= t_max_n``.  The distance of a distribution to the limits is
+``min_i min(t_i - t_min_n, t_max_n - t_i)``; the answer is the equilibrium distribution that
+maximises it, and that maximum is ``margin_n`` (negative when no distribution keeps every
+cable in range: then it is the distribution that violates the limits least, and
+``limiting_cable`` is the cable that cannot be kept in range; nothing is clamped).
 
-* N = 3: ``U t = m g e_z`` has the unique solution (Cramer's rule).
+* N = 3: ``U t = f`` has the unique solution (Cramer's rule).
 * N = 4: the solutions are ``t = t_p + lambda n`` (``t_p`` the minimum-norm solution, ``n``
   the null vector of the 3x4 matrix U, its signed 3x3 minors).  The distance to each limit is
   a linear function of lambda; the largest smallest distance, a max-min of eight lines in one
   variable, is the smallest crossing value of a rising and a falling line (LP duality), and
   lambda is the middle of the interval where every line is at least that value.  Closed form,
   no iteration, vectorised for maps.
-* N > 4: the linear program "maximise s subject to U t = m g e_z, t_min + s <= t_i <=
-  t_max - s" (``scipy.optimize.linprog``, HiGHS), solved in units of the weight and then
-  projected back onto ``U t = m g e_z`` so equilibrium holds to rounding.
+* N > 4: the max-min rule is the linear program "maximise s subject to U t = f, t_min + s <=
+  t_i <= t_max - s": the distribution nearest the middle of the tension range in the max norm.
+  With two or more spare dimensions its optimum can jump from one vertex to another as the
+  pose moves (by tens of newtons on an eight-cable cube), so the planned distribution adds a
+  small strictly convex term (``tension_many.regularised``): its largest distance from the
+  middle is at most ``REGULARISE`` (5 %) more than the max-min's, it is unique and moves
+  continuously, and where it would leave the limits while the max-min keeps them the
+  max-min's vertex is taken.  ``controller.core.tension_many`` solves both in plain floats
+  (the max-min through its dual, by pivots from the last optimal pair of cables; the strictly
+  convex one by an active set started from the last pose's), so the tick does one small 3x3
+  solve; ``scipy.optimize.linprog`` only settles a degenerate tie beyond rounding.  No
+  closed-form derivative: callers take differences.
 
 ``feasible`` is ``margin_n >= 0``.  Cable *indices* in data are 0-based; cable *names* in
 messages are 1-based (``cable 1`` is row 0), as in ``controller.core.kinematics``.
@@ -39,12 +53,12 @@ corners, needs more than 500 N.  ``tests/test_statics.py`` checks these.
 Errors (nothing here returns NaN or inf)
 ---------------------------------------
 * ``StaticsInputError``: wrong shapes, non-finite numbers, ``mass_kg <= 0``, limits not
-  ``0 <= t_min_n < t_max_n``.
+  ``0 <= t_min_n < t_max_n``, cable directions that are not unit vectors.
 * ``SingularConfiguration``: P at (within ``ANCHOR_TOL_M`` of) an anchor; no cable pulls
-  upward (P at or above every anchor, e.g. in the plane of level anchors); the cable directions
-  do not span space (``sqrt(det(U U^T)) < RANK_TOL``: coplanar directions, P on the line of
-  two anchors, coincident or parallel cables for N = 3).
-* ``SolverUnavailable``: N > 4 without scipy.
+  along the force (for the weight: P at or above every anchor, e.g. in the plane of level
+  anchors); the cable directions do not span space (``sqrt(det(U U^T)) < RANK_TOL``:
+  coplanar directions, P on the line of two anchors, coincident or parallel cables for N = 3).
+* ``SolverUnavailable``: a degenerate tie of N > 4 cables without scipy.
 
 The batch form never raises for a bad row: singular or non-finite rows get ``feasible`` False,
 ``limiting`` ``SINGULAR_ROW`` (-1), tensions 0.0 and margin ``SINGULAR_MARGIN_N`` (finite).
@@ -60,14 +74,27 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from controller.core.tension_math import (
-    RANK_TOL,
-    SLACK,
-    TRIPLES4,
-    det3,
-    maxmin_lambda,
-    triple_solve,
+from controller.core.statics_errors import (
+    SingularConfiguration,
+    SolverUnavailable,
+    StaticsError,
+    StaticsInputError,
 )
+from controller.core.tension_batch import ANCHOR_TOL_M, UP_TOL, batch_closed, batch_margin
+from controller.core.tension_derivative import derivative34
+from controller.core.tension_many import (
+    MANY_TOL,
+    REGULARISE,
+    Pairs,
+    PairSolution,
+    best_pairs,
+    least_squares_pair,
+    pair_solution,
+    pivot_solve,
+    project,
+    regularised,
+)
+from controller.core.tension_math import RANK_TOL, TRIPLES4, det3, maxmin_lambda
 
 __all__ = [
     "ANCHOR_TOL_M",
@@ -76,6 +103,7 @@ __all__ = [
     "RANK_TOL",
     "SINGULAR_MARGIN_N",
     "SINGULAR_ROW",
+    "UNIT_TOL",
     "CableStatics",
     "SingularConfiguration",
     "SolverUnavailable",
@@ -90,46 +118,34 @@ __all__ = [
 G_MPS2 = 9.80665
 """Standard gravity (m/s^2)."""
 
-ANCHOR_TOL_M = 1e-9
-"""P closer than this to an anchor has no cable direction."""
-
-UP_TOL = 1e-12
-"""A cable whose unit vector rises by at most this pulls no weight up."""
-
 SINGULAR_ROW = -1
 """``limiting`` of a batch row with no distribution (singular configuration or bad input)."""
 
 SINGULAR_MARGIN_N = -1.0e300
 """``margin`` of a batch row with no distribution: finite, below any real margin."""
 
+UNIT_TOL = 1e-6
+"""A cable direction handed to ``solve_directions`` must have a length within this of 1."""
+
 _BATCH_CHUNK = 65536  # rows per vectorised chunk: bounds the temporaries (~30 MB for N = 4)
 
+_UP: tuple[float, float, float] = (0.0, 0.0, 1.0)
+"""The direction of the force that holds a weight."""
 
-class StaticsError(ValueError):
-    """Base class of the errors of this module."""
-
-
-class StaticsInputError(StaticsError):
-    """Bad input: wrong shape, non-finite number, non-positive mass, inverted limits."""
-
-
-class SingularConfiguration(StaticsError):
-    """No tension distribution exists or is defined at this pose (see the module docstring)."""
-
-
-class SolverUnavailable(StaticsError):
-    """More than four cables need scipy's linear-programming solver, which is not installed."""
+Vec3 = tuple[float, float, float]
 
 
 @dataclass(frozen=True, slots=True)
 class Tensions:
     """The equilibrium tension distribution farthest from the limits at one pose.
 
-    ``tensions_n``: one tension per cable (N), balancing the weight.  ``margin_n``: the smallest
+    ``tensions_n``: one tension per cable (N), supplying the force (the weight, for
+    ``CableStatics.solve``).  ``margin_n``: the smallest
     distance of any tension to either limit (negative when infeasible).  ``limiting_cable``:
     0-based index of the cable at that smallest distance (when infeasible, the cable that cannot
     be kept in range), ``limiting_bound`` which limit it is nearest to or beyond.  ``method``:
-    ``"unique"`` (N = 3), ``"closed-form"`` (N = 4) or ``"lp"`` (N > 4).  ``derivative``:
+    ``"unique"`` (N = 3), ``"closed-form"`` (N = 4) or ``"lp"`` (N > 4, the linear program
+    made strictly convex).  ``derivative``:
     d t_i / d P (one row per cable, N/m) when asked of ``CableStatics.solve`` and it has one
     (``tension_derivative``), else None.
     """
@@ -175,6 +191,28 @@ def _check_mass(mass_kg: float) -> float:
     return m
 
 
+def _check_force(force_n: Sequence[float]) -> tuple[float, Vec3]:
+    """(magnitude, unit direction) of a force; (0, e_z) for no force."""
+    try:
+        count = len(force_n)
+    except TypeError:
+        raise StaticsInputError(f"force_n must be 3 numbers, got {force_n!r}") from None
+    if count != 3:
+        raise StaticsInputError(f"force_n needs 3 components, got {count}")
+    try:
+        fx, fy, fz = float(force_n[0]), float(force_n[1]), float(force_n[2])
+    except (TypeError, ValueError):
+        raise StaticsInputError(f"force_n must be 3 numbers, got {force_n!r}") from None
+    mag = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if not _finite(mag):
+        raise StaticsInputError(f"force_n ({fx}, {fy}, {fz}) is not finite")
+    if mag == 0.0:
+        return 0.0, _UP
+    if fx == 0.0 and fy == 0.0:  # along z: exactly the unit vector (the weight's fast path)
+        return abs(fz), (0.0, 0.0, 1.0 if fz > 0.0 else -1.0)
+    return mag, (fx / mag, fy / mag, fz / mag)
+
+
 def _check_tension_limits(t_min_n: float, t_max_n: float) -> tuple[float, float]:
     try:
         lo, hi = float(t_min_n), float(t_max_n)
@@ -203,6 +241,38 @@ def _anchor_array(anchors_m: ArrayLike) -> NDArray[np.float64]:
     return a
 
 
+def _solve3(u: list[Vec3], mag: float, dirn: Vec3) -> list[float]:
+    """The three tensions of ``U t = mag * dirn`` (Cramer)."""
+    (ax, ay, az), (bx, by, bz), (cx, cy, cz) = u
+    det = det3(ax, ay, az, bx, by, bz, cx, cy, cz)
+    if not abs(det) >= RANK_TOL:
+        raise SingularConfiguration(
+            "the three cable directions are coplanar (det = "
+            f"{det:.3g}): they cannot balance the weight"
+        )
+    fx, fy, fz = dirn
+    if fx == 0.0 and fy == 0.0:
+        # Along z (the weight): the numerators are z of pairwise cross products.
+        w = mag * fz
+        return [
+            w * (bx * cy - by * cx) / det,
+            w * (cx * ay - cy * ax) / det,
+            w * (ax * by - ay * bx) / det,
+        ]
+    # Cramer: t_a = f . (u_b x u_c) / det, and cyclically.
+    return [
+        mag
+        * (fx * (by * cz - bz * cy) + fy * (bz * cx - bx * cz) + fz * (bx * cy - by * cx))
+        / det,
+        mag
+        * (fx * (cy * az - cz * ay) + fy * (cz * ax - cx * az) + fz * (cx * ay - cy * ax))
+        / det,
+        mag
+        * (fx * (ay * bz - az * by) + fy * (az * bx - ax * bz) + fz * (ax * by - ay * bx))
+        / det,
+    ]
+
+
 class CableStatics:
     """Tension solver for one anchor layout and one pair of tension limits.
 
@@ -211,25 +281,42 @@ class CableStatics:
     ``0 <= t_min_n < t_max_n``.
     """
 
-    __slots__ = ("_anchors_t", "anchors_m", "n_cables", "t_max_n", "t_min_n")
+    __slots__ = (
+        "_anchors_t",
+        "_hint",
+        "_pairs",
+        "_signs",
+        "_signs_g",
+        "anchors_m",
+        "n_cables",
+        "t_max_n",
+        "t_min_n",
+    )
 
     def __init__(self, anchors_m: ArrayLike, t_min_n: float, t_max_n: float) -> None:
         self.anchors_m = _anchor_array(anchors_m)
         self.n_cables = int(self.anchors_m.shape[0])
         self.t_min_n, self.t_max_n = _check_tension_limits(t_min_n, t_max_n)
-        self._anchors_t: tuple[tuple[float, float, float], ...] = tuple(
+        self._anchors_t: tuple[Vec3, ...] = tuple(
             (float(r[0]), float(r[1]), float(r[2])) for r in self.anchors_m.tolist()
         )
+        self._pairs = Pairs.of(self.n_cables) if self.n_cables > 4 else None
+        # N > 4: the last max-min vertex's pair and the last planned distribution's bound
+        # cables, tried first: they only save time (each answer is checked to be the optimum).
+        self._hint: tuple[int, int] | None = None
+        self._signs: list[float] | None = None
+        self._signs_g: Vec3 = (math.inf, math.inf, math.inf)
 
     # -- single pose -------------------------------------------------------------------------
 
-    def _units(self, point_m: Sequence[float]) -> list[tuple[float, float, float]]:
+    def _directions(self, point_m: Sequence[float]) -> tuple[list[Vec3], float]:
+        """The unit vectors from P toward the anchors, and the largest z among them."""
         if len(point_m) != 3:
             raise StaticsInputError(f"point_m needs 3 coordinates, got {len(point_m)}")
         px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
         if not (_finite(px) and _finite(py) and _finite(pz)):
             raise StaticsInputError(f"point_m ({px}, {py}, {pz}) is not finite")
-        units: list[tuple[float, float, float]] = []
+        units: list[Vec3] = []
         up = -1.0
         for i, (ax, ay, az) in enumerate(self._anchors_t):
             dx, dy, dz = ax - px, ay - py, az - pz
@@ -243,6 +330,27 @@ class CableStatics:
             if uz > up:
                 up = uz
             units.append((dx / d, dy / d, uz))
+        return units, up
+
+    def _units(self, point_m: Sequence[float]) -> list[Vec3]:
+        """The unit vectors at P of a weight's solve: some cable must pull up."""
+        # ``_directions`` written out: the per-tick path of every hanging robot.
+        if len(point_m) != 3:
+            raise StaticsInputError(f"point_m needs 3 coordinates, got {len(point_m)}")
+        px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
+        if not (_finite(px) and _finite(py) and _finite(pz)):
+            raise StaticsInputError(f"point_m ({px}, {py}, {pz}) is not finite")
+        units: list[Vec3] = []
+        up = -1.0
+        for ax, ay, az in self._anchors_t:
+            dx, dy, dz = ax - px, ay - py, az - pz
+            d = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if not d > ANCHOR_TOL_M:
+                return self._directions(point_m)[0]  # raises, naming the anchor
+            uz = dz / d
+            if uz > up:
+                up = uz
+            units.append((dx / d, dy / d, uz))
         if not up > UP_TOL:
             raise SingularConfiguration(
                 f"P = ({px:.6g}, {py:.6g}, {pz:.6g}) m is at or above every anchor: no cable "
@@ -250,10 +358,24 @@ class CableStatics:
             )
         return units
 
+    @staticmethod
+    def _check_along(u: Sequence[Vec3], mag: float, dirn: Vec3) -> None:
+        """SingularConfiguration when no cable pulls along the force (none can supply it)."""
+        if mag == 0.0:
+            return
+        fx, fy, fz = dirn
+        best = max(x * fx + y * fy + z * fz for x, y, z in u)
+        if not best > UP_TOL:
+            raise SingularConfiguration(
+                f"no cable pulls along the force ({mag * fx:.4g}, {mag * fy:.4g}, "
+                f"{mag * fz:.4g}) N: it cannot be supplied"
+            )
+
     def solve(self, point_m: Sequence[float], mass_kg: float, derivative: bool = False) -> Tensions:
-        """The equilibrium tensions farthest from the limits for a mass ``mass_kg`` at P; with
-        `derivative`, also their derivative with respect to P (``tension_derivative``, sharing
-        the solve's cable directions and null vector: about two thirds of a solve more).
+        """The equilibrium tensions farthest from the limits for a mass ``mass_kg`` at rest at
+        P (the cables supply its weight); with `derivative`, also their derivative with
+        respect to P (``tension_derivative``, sharing the solve's cable directions and null
+        vector: about two thirds of a solve more).
 
         Raises ``StaticsInputError`` (bad point or mass), ``SingularConfiguration`` (see the
         module docstring), ``SolverUnavailable`` (N > 4 without scipy) and ``StaticsError``
@@ -261,19 +383,155 @@ class CableStatics:
         """
         m = _check_mass(mass_kg)
         u = self._units(point_m)
-        w = m * G_MPS2
+        return self._distribute(u, m * G_MPS2, _UP, point_m if derivative else None)
+
+    def solve_force(
+        self, point_m: Sequence[float], force_n: Sequence[float], derivative: bool = False
+    ) -> Tensions:
+        """The equilibrium tensions farthest from the limits for straight cables from P to
+        the anchors that supply the force `force_n` (N) on P: the weight ``(0, 0, m g)`` at
+        rest, ``m (g e_z + a)`` for a payload accelerating at ``a``.  With `derivative`, also
+        d t / d P at a fixed force (``tension_derivative``).
+
+        Raises ``StaticsInputError`` (bad point or force), ``SingularConfiguration`` (P at an
+        anchor, no cable pulling along the force, directions not spanning space) and what
+        ``solve`` raises for N > 4.
+        """
+        mag, dirn = _check_force(force_n)
+        u, _ = self._directions(point_m)
+        self._check_along(u, mag, dirn)
+        return self._distribute(u, mag, dirn, point_m if derivative else None)
+
+    def solve_directions(
+        self, units: Sequence[Sequence[float]], force_n: Sequence[float]
+    ) -> Tensions:
+        """The core of every solve: the equilibrium tensions farthest from the limits for
+        cables pulling along `units` (one unit vector per cable, from the effector along the
+        cable: toward a straight cable's anchor, along a sagging cable's tangent) that supply
+        the force `force_n` (N) on the effector.
+
+        Raises ``StaticsInputError`` for a wrong count, a non-finite number or a direction
+        whose length is not 1 (within ``UNIT_TOL``) and ``SingularConfiguration`` when no
+        cable pulls along the force or the directions do not span space.
+        """
+        n = self.n_cables
+        if len(units) != n:
+            raise StaticsInputError(f"need {n} cable directions, got {len(units)}")
+        u: list[Vec3] = []
+        for i, v in enumerate(units):
+            try:
+                x, y, z = (float(c) for c in v)
+            except (TypeError, ValueError):
+                raise StaticsInputError(
+                    f"cable {i + 1}: direction must be 3 numbers, got {v!r}"
+                ) from None
+            length = math.sqrt(x * x + y * y + z * z)
+            if not abs(length - 1.0) <= UNIT_TOL:  # also catches NaN and inf
+                raise StaticsInputError(
+                    f"cable {i + 1}: direction ({x}, {y}, {z}) is not a unit vector"
+                )
+            u.append((x, y, z))
+        mag, dirn = _check_force(force_n)
+        self._check_along(u, mag, dirn)
+        return self._distribute(u, mag, dirn, None)
+
+    def _distribute(
+        self,
+        u: list[Vec3],
+        mag: float,
+        dirn: Vec3,
+        point_m: Sequence[float] | None,
+    ) -> Tensions:
+        """The distribution for directions `u` and the force ``mag * dirn``; with `point_m`
+        (straight cables to the anchors from there) its derivative too."""
         nv: list[float] | None = None
+        d = None
         if self.n_cables == 3:
-            t = self._solve3(u, w)
+            t = _solve3(u, mag, dirn)
             method = "unique"
         elif self.n_cables == 4:
-            t, nv = self._solve4_parts(u, w)
+            t, nv = self._solve4_parts(u, mag, dirn)
             method = "closed-form"
         else:
-            t = self._solve_lp(u, w)
+            t = self._solve_many(u, mag, dirn)
+            total = sum(t)
+            if total - total != 0.0:  # never a NaN or inf out of the pair arithmetic
+                raise SingularConfiguration("tensions overflow: the configuration is singular")
             method = "lp"
-        d = self._derivative(point_m, u, t, nv) if derivative and self.n_cables <= 4 else None
+            point_m = None  # no closed-form derivative: callers take differences
+        if point_m is not None:
+            d = derivative34(self._anchors_t, self.t_min_n, self.t_max_n, point_m, u, t, nv)
         return self._result(t, method, d)
+
+    def _solve_many(self, u: list[Vec3], mag: float, dirn: Vec3) -> list[float]:
+        """N > 4: the planned distribution (``controller.core.tension_many``): the max-min
+        rule made strictly convex (``regularised``), warm-started from the last pose's bound
+        cables, else from the max-min vertex; the max-min vertex itself where the strictly
+        convex answer leaves the limits but the vertex keeps them (the limits decide, not the
+        smoothing)."""
+        assert self._pairs is not None
+        lo, hi = self.t_min_n, self.t_max_n
+        c = 0.5 * (lo + hi)
+        r = 0.5 * (hi - lo)
+        n = len(u)
+        fx, fy, fz = dirn
+        gx, gy, gz = mag * fx, mag * fy, mag * fz
+        for x, y, z in u:
+            gx -= c * x
+            gy -= c * y
+            gz -= c * z
+        g = (gx, gy, gz)
+        scale = hi + mag
+        tol = MANY_TOL * scale
+        eps = 2.0 * REGULARISE / (n * r)
+        signs = self._signs
+        lx, ly, lz = self._signs_g
+        self._signs_g = g
+        # The last bound cables are likely to hold when g barely moved (the tick); a pose far
+        # away (a map, a check of a distant target) goes straight to the vertex.
+        near = abs(gx - lx) + abs(gy - ly) + abs(gz - lz) < 0.05 * scale
+        if signs is not None and near:
+            res = regularised(u, g, eps, signs, tol, 1)
+            if res is not None and res[1] <= r:
+                self._signs = res[2]
+                return project(u, (mag * fx, mag * fy, mag * fz), [c + v for v in res[0]])
+        vertex = self._vertex(u, g, scale, near)
+        res = regularised(u, g, eps, vertex.signs, tol, 4 * n)
+        if res is None or (res[1] > r >= vertex.rho):
+            return project(u, (mag * fx, mag * fy, mag * fz), [c + v for v in vertex.d])
+        self._signs = res[2]
+        return project(u, (mag * fx, mag * fy, mag * fz), [c + v for v in res[0]])
+
+    def _vertex(self, u: list[Vec3], g: Vec3, scale: float, near: bool) -> PairSolution:
+        """The max-min distribution's vertex (``tension_many``): the dual simplex from the
+        last optimal pair (`near`: the last pose's), or from the two cables nearest the middle
+        in the least-squares distribution, else every pair, else the linear program (a tie
+        beyond rounding)."""
+        assert self._pairs is not None
+        a, b = (self._hint if near else None) or least_squares_pair(u, g)
+        sol = pivot_solve(u, g, a, b, scale, 2 * len(u))
+        if sol is not None:
+            self._hint = (sol.a, sol.b)
+            return sol
+        pairs, span = best_pairs(u, g, self._pairs)
+        if not span >= RANK_TOL:
+            raise SingularConfiguration(
+                f"the cable directions do not span space (sqrt(det(U U^T)) = {span:.3g}): "
+                "they cannot balance the weight"
+            )
+        for a, b in pairs:
+            sol = pair_solution(u, g, a, b, scale)
+            if sol is not None and sol.optimal:
+                return sol
+        c = 0.5 * (self.t_min_n + self.t_max_n)
+        fx = g[0] + c * sum(v[0] for v in u)
+        fy = g[1] + c * sum(v[1] for v in u)
+        fz = g[2] + c * sum(v[2] for v in u)
+        mag, dirn = _check_force((fx, fy, fz))
+        t = self._solve_lp(u, mag, dirn)
+        d = [x - c for x in t]
+        rho = max(abs(x) for x in d)
+        return PairSolution(0, 1, d, rho, True, False, [0.0] * len(u), (0.0, 0.0, 0.0), d)
 
     def _result(
         self,
@@ -306,27 +564,8 @@ class CableStatics:
             derivative=derivative,
         )
 
-    @staticmethod
-    def _solve3(u: list[tuple[float, float, float]], w: float) -> list[float]:
-        (ax, ay, az), (bx, by, bz), (cx, cy, cz) = u
-        det = det3(ax, ay, az, bx, by, bz, cx, cy, cz)
-        if not abs(det) >= RANK_TOL:
-            raise SingularConfiguration(
-                "the three cable directions are coplanar (det = "
-                f"{det:.3g}): they cannot balance the weight"
-            )
-        # Cramer with right-hand side (0, 0, w): the numerators are z of pairwise cross products.
-        return [
-            w * (bx * cy - by * cx) / det,
-            w * (cx * ay - cy * ax) / det,
-            w * (ax * by - ay * bx) / det,
-        ]
-
-    def _solve4(self, u: list[tuple[float, float, float]], w: float) -> list[float]:
-        return self._solve4_parts(u, w)[0]
-
     def _solve4_parts(
-        self, u: list[tuple[float, float, float]], w: float
+        self, u: list[Vec3], mag: float, dirn: Vec3
     ) -> tuple[list[float], list[float]]:
         """The four tensions and the null vector n (n_j = (-1)^j D_j) they were found with."""
         # D_j: determinant of the triple without cable j; the null vector is n_j = (-1)^j D_j.
@@ -335,6 +574,8 @@ class CableStatics:
         tp = [0.0, 0.0, 0.0, 0.0]
         n = [0.0, 0.0, 0.0, 0.0]
         nn = 0.0
+        fx, fy, fz = dirn
+        along_z = fx == 0.0 and fy == 0.0
         for j, (a, b, c) in enumerate(TRIPLES4):
             ax, ay, az = u[a]
             bx, by, bz = u[b]
@@ -342,17 +583,28 @@ class CableStatics:
             d = det3(ax, ay, az, bx, by, bz, cx, cy, cz)
             n[j] = -d if j & 1 else d
             nn += d * d
-            # D_j^2 t^(j) = D_j * (Cramer numerators)
-            tp[a] += d * (bx * cy - by * cx)
-            tp[b] += d * (cx * ay - cy * ax)
-            tp[c] += d * (ax * by - ay * bx)
+            # D_j^2 t^(j) = D_j * (Cramer numerators: dirn . pairwise cross products)
+            if along_z:  # the sign of fz goes into the scale below
+                tp[a] += d * (bx * cy - by * cx)
+                tp[b] += d * (cx * ay - cy * ax)
+                tp[c] += d * (ax * by - ay * bx)
+            else:
+                tp[a] += d * (
+                    fx * (by * cz - bz * cy) + fy * (bz * cx - bx * cz) + fz * (bx * cy - by * cx)
+                )
+                tp[b] += d * (
+                    fx * (cy * az - cz * ay) + fy * (cz * ax - cx * az) + fz * (cx * ay - cy * ax)
+                )
+                tp[c] += d * (
+                    fx * (ay * bz - az * by) + fy * (az * bx - ax * bz) + fz * (ax * by - ay * bx)
+                )
         norm = math.sqrt(nn)
         if not norm >= RANK_TOL:
             raise SingularConfiguration(
                 f"the four cable directions do not span space (sqrt(det(U U^T)) = {norm:.3g}): "
                 "they cannot balance the weight"
             )
-        scale = w / nn
+        scale = (mag * fz if along_z else mag) / nn
         tp = [x * scale for x in tp]
         s = [x / norm for x in n]
         lam = maxmin_lambda(tp, s, self.t_min_n, self.t_max_n)
@@ -371,17 +623,19 @@ class CableStatics:
         w = m * G_MPS2
         nv: list[float] | None = None
         if self.n_cables == 3:
-            t = self._solve3(u, w)
+            t = _solve3(u, w, _UP)
         elif self.n_cables == 4:
-            t, nv = self._solve4_parts(u, w)
+            t, nv = self._solve4_parts(u, w, _UP)
         else:
-            t = self._solve_lp(u, w)
+            t = self._solve_many(u, w, _UP)
         total = sum(t)
         if total - total != 0.0:  # overflow on a pathological pose: never return inf
             raise SingularConfiguration("tensions overflow: the configuration is singular")
         if self.n_cables > 4:
             return tuple(t), None
-        return tuple(t), self._derivative(point_m, u, t, nv)
+        return tuple(t), derivative34(
+            self._anchors_t, self.t_min_n, self.t_max_n, point_m, u, t, nv
+        )
 
     def tension_derivative(
         self, point_m: Sequence[float], tensions_n: Sequence[float]
@@ -395,9 +649,9 @@ class CableStatics:
         the falling line of ``maxmin_lambda`` that cross at its optimum), which fixes the
         null-space part.  Where the binding pair changes (a kink of the distribution) this is
         the derivative on the side the tensions `tensions_n` belong to.  Returns None for more
-        than four cables (a linear program: no closed form here) and where no line pair binds
-        (a cable whose tension does not depend on the null space, a degenerate tie).  Raises
-        ``StaticsInputError`` for a bad point or a wrong count of tensions and
+        than four cables (no closed form: callers take differences) and where no line pair
+        binds (a cable whose tension does not depend on the null space, a degenerate tie).
+        Raises ``StaticsInputError`` for a bad point or a wrong count of tensions and
         ``SingularConfiguration`` where ``solve`` would.
         """
         nc = self.n_cables
@@ -405,206 +659,17 @@ class CableStatics:
             raise StaticsInputError(f"need {nc} tensions, got {len(tensions_n)}")
         if nc > 4:
             return None
-        return self._derivative(point_m, self._units(point_m), tensions_n, None)
-
-    def _derivative(
-        self,
-        point_m: Sequence[float],
-        u: list[tuple[float, float, float]],
-        tensions_n: Sequence[float],
-        nv: list[float] | None,
-    ) -> tuple[tuple[float, float, float], ...] | None:
-        """``tension_derivative`` from the unit vectors `u` at P and, for four cables, the null
-        vector `nv` of ``_solve4_parts`` (None: computed here)."""
-        nc = self.n_cables
-        px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
-        g11 = g12 = g13 = g22 = g23 = g33 = 0.0
-        for i, (ax, ay, az) in enumerate(self._anchors_t):
-            ux, uy, uz = u[i]
-            dx, dy, dz = ax - px, ay - py, az - pz
-            k = float(tensions_n[i]) / math.sqrt(dx * dx + dy * dy + dz * dz)
-            g11 += k * (1.0 - ux * ux)
-            g22 += k * (1.0 - uy * uy)
-            g33 += k * (1.0 - uz * uz)
-            g12 -= k * ux * uy
-            g13 -= k * ux * uz
-            g23 -= k * uy * uz
-        gc = ((g11, g12, g13), (g12, g22, g23), (g13, g23, g33))  # columns (symmetric)
-        if nc == 3:
-            x = triple_solve(u, (0, 1, 2), gc)
-            if x is None:
-                raise SingularConfiguration(
-                    "the three cable directions are coplanar: they cannot balance the weight"
-                )
-            return (x[0], x[1], x[2])
-        # Four cables: a particular solution on the best-conditioned triple, plus mu n.
-        if nv is None:
-            nv = []
-            for q, (a, b, c) in enumerate(TRIPLES4):
-                ax, ay, az = u[a]
-                bx, by, bz = u[b]
-                cx, cy, cz = u[c]
-                d = det3(ax, ay, az, bx, by, bz, cx, cy, cz)
-                nv.append(-d if q & 1 else d)
-        j = 0
-        for q in range(1, 4):
-            if abs(nv[q]) > abs(nv[j]):
-                j = q
-        triple = TRIPLES4[j]
-        xt = triple_solve(u, triple, gc)
-        if xt is None:
-            raise SingularConfiguration(
-                "the four cable directions do not span space: they cannot balance the weight"
-            )
-        rows: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * 4
-        for q, i in enumerate(triple):
-            rows[i] = xt[q]
-        # The binding pair: the lowest rising and the lowest falling distance-to-limit line in
-        # the null-space coordinate (rising: grows along +n); sigma = +1 for t - t_min, -1 for
-        # t_max - t.  Lines tied with the lowest (a symmetric pose: the robot's centre) are
-        # candidates; per axis the pair whose lines stay lowest on the + side is taken (the
-        # forward derivative, the same on both sides where the tensions are smooth).
-        lo, hi = self.t_min_n, self.t_max_n
-        n0, n1, n2, n3 = nv
-        flat_nv = 1e-12 * max(abs(n0), abs(n1), abs(n2), abs(n3))
-        fast = self._one_pair(tensions_n, nv, rows, flat_nv)
-        if fast is not None:
-            return fast
-        big = hi
-        best_r = best_f = flat = math.inf
-        lines: list[tuple[float, int, float, bool]] = []  # (distance, cable, sigma, rising)
-        for i in range(4):
-            ti = float(tensions_n[i])
-            if abs(ti) > big:
-                big = abs(ti)
-            ni = nv[i]
-            d_lo, d_hi = ti - lo, hi - ti
-            if abs(ni) <= flat_nv:
-                flat = min(flat, d_lo, d_hi)
-                continue
-            if ni > 0.0:  # t - t_min rises along +n, t_max - t falls
-                lines.append((d_lo, i, 1.0, True))
-                lines.append((d_hi, i, -1.0, False))
-                best_r = min(best_r, d_lo)
-                best_f = min(best_f, d_hi)
-            else:
-                lines.append((d_hi, i, -1.0, True))
-                lines.append((d_lo, i, 1.0, False))
-                best_r = min(best_r, d_hi)
-                best_f = min(best_f, d_lo)
-        tol = 1e-9 * (big + hi)
-        if best_r == math.inf or best_f == math.inf or flat <= max(best_r, best_f) + tol:
-            return None  # no crossing, or a flat line binds
-        cand_r = [(i, sg) for d, i, sg, up in lines if up and d <= best_r + tol]
-        cand_f = [(i, sg) for d, i, sg, up in lines if not up and d <= best_f + tol]
-        pairs: list[tuple[int, float, int, float, float, float, float]] = []
-        for r_i, r_sig in cand_r:
-            xr = rows[r_i]
-            for f_i, f_sig in cand_f:
-                cn = r_sig * nv[r_i] - f_sig * nv[f_i]
-                if abs(cn) > 0.0:
-                    xf = rows[f_i]
-                    pairs.append(
-                        (
-                            r_i,
-                            r_sig,
-                            f_i,
-                            f_sig,
-                            -(r_sig * xr[0] - f_sig * xf[0]) / cn,
-                            -(r_sig * xr[1] - f_sig * xf[1]) / cn,
-                            -(r_sig * xr[2] - f_sig * xf[2]) / cn,
-                        )
-                    )
-        if not pairs:
-            return None
-        if len(pairs) == 1:
-            _, _, _, _, m0, m1, m2 = pairs[0]
-            return tuple(
-                [
-                    (rows[i][0] + m0 * nv[i], rows[i][1] + m1 * nv[i], rows[i][2] + m2 * nv[i])
-                    for i in range(4)
-                ]
-            )
-        cols: list[list[float]] = []
-        for k in range(3):
-            col: list[float] | None = None
-            for r_i, r_sig, f_i, f_sig, *mus in pairs:
-                mk = mus[k]
-                dc = [rows[i][k] + mk * nv[i] for i in range(4)]
-                if col is None:
-                    col = dc
-                rate_r = r_sig * dc[r_i] - tol
-                rate_f = f_sig * dc[f_i] - tol
-                if all(sg * dc[i] >= rate_r for i, sg in cand_r) and all(
-                    sg * dc[i] >= rate_f for i, sg in cand_f
-                ):
-                    col = dc
-                    break
-            assert col is not None
-            cols.append(col)
-        return tuple([(cols[0][i], cols[1][i], cols[2][i]) for i in range(4)])
-
-    def _one_pair(
-        self,
-        tensions_n: Sequence[float],
-        nv: list[float],
-        rows: list[tuple[float, float, float]],
-        flat_nv: float,
-    ) -> tuple[tuple[float, float, float], ...] | None:
-        """``_derivative``'s usual case for four cables, without its candidate lists: one
-        rising and one falling line lowest by more than the tolerance and no flat line near
-        them bind on both sides.  None when that is not the case (``_derivative`` then
-        decides)."""
-        lo, hi = self.t_min_n, self.t_max_n
-        big = hi
-        br = bf = second_r = second_f = flat = math.inf
-        ir = jf = -1
-        sig_r = sig_f = 0.0
-        for i in range(4):
-            ti = float(tensions_n[i])
-            if ti > big:
-                big = ti
-            elif -ti > big:
-                big = -ti
-            ni = nv[i]
-            d_lo = ti - lo
-            d_hi = hi - ti
-            if -flat_nv <= ni <= flat_nv:
-                flat = min(flat, d_lo, d_hi)
-                continue
-            if ni > 0.0:
-                dr, gr, df, gf = d_lo, 1.0, d_hi, -1.0
-            else:
-                dr, gr, df, gf = d_hi, -1.0, d_lo, 1.0
-            if dr < br:
-                second_r, br, ir, sig_r = br, dr, i, gr
-            elif dr < second_r:
-                second_r = dr
-            if df < bf:
-                second_f, bf, jf, sig_f = bf, df, i, gf
-            elif df < second_f:
-                second_f = df
-        tol = 1e-9 * (big + hi)
-        if not (ir >= 0 and second_r > br + tol and second_f > bf + tol):
-            return None
-        if not flat > max(br, bf) + tol:
-            return None
-        cn = sig_r * nv[ir] - sig_f * nv[jf]
-        if cn == 0.0:
-            return None
-        xr = rows[ir]
-        xf = rows[jf]
-        m0 = -(sig_r * xr[0] - sig_f * xf[0]) / cn
-        m1 = -(sig_r * xr[1] - sig_f * xf[1]) / cn
-        m2 = -(sig_r * xr[2] - sig_f * xf[2]) / cn
-        return tuple(
-            [
-                (rows[i][0] + m0 * nv[i], rows[i][1] + m1 * nv[i], rows[i][2] + m2 * nv[i])
-                for i in range(4)
-            ]
+        return derivative34(
+            self._anchors_t,
+            self.t_min_n,
+            self.t_max_n,
+            point_m,
+            self._units(point_m),
+            tensions_n,
+            None,
         )
 
-    def _solve_lp(self, u: list[tuple[float, float, float]], w: float) -> list[float]:
+    def _solve_lp(self, u: list[Vec3], mag: float, dirn: Vec3) -> list[float]:
         um = np.array(u, dtype=np.float64).T  # (3, N)
         gram = um @ um.T
         rank = math.sqrt(max(float(np.linalg.det(gram)), 0.0))
@@ -613,9 +678,10 @@ class CableStatics:
                 f"the cable directions do not span space (sqrt(det(U U^T)) = {rank:.3g}): "
                 "they cannot balance the weight"
             )
-        t = _lp_maxmin(um, w, self.t_min_n, self.t_max_n)
-        # Project onto U t = w (the LP meets it only to its tolerance).
-        r = np.array([0.0, 0.0, w]) - um @ t
+        f = mag * np.array(dirn, dtype=np.float64)
+        t = _lp_maxmin(um, f, self.t_min_n, self.t_max_n)
+        # Project onto U t = f (the LP meets it only to its tolerance).
+        r = f - um @ t
         t = t + um.T @ np.linalg.solve(gram, r)
         if not np.isfinite(t).all():
             raise SingularConfiguration("tensions overflow: the configuration is singular")
@@ -652,10 +718,10 @@ class CableStatics:
         for start in range(0, rows, _BATCH_CHUNK):
             sl = slice(start, min(rows, start + _BATCH_CHUNK))
             if nc <= 4:
-                t, ok = _batch_closed(self.anchors_m, p[sl], w, lo, hi)
+                t, ok = batch_closed(self.anchors_m, p[sl], w, lo, hi)
             else:
-                t, ok = self._batch_lp(p[sl], m)
-            mg, lim = _batch_margin(t, lo, hi)
+                t, ok = self._batch_many(p[sl], m)
+            mg, lim = batch_margin(t, lo, hi)
             ok &= np.isfinite(mg)
             tens[sl] = np.where(ok[:, None], t, 0.0)
             margin[sl] = np.where(ok, mg, SINGULAR_MARGIN_N)
@@ -663,25 +729,33 @@ class CableStatics:
         feasible = (limiting != SINGULAR_ROW) & (margin >= 0.0)
         return tens, margin, feasible, limiting
 
-    def _batch_lp(
+    def _batch_many(
         self, p: NDArray[np.float64], mass_kg: float
     ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """N > 4 on rows of points: the single-pose solve row by row (each starts from the
+        row before: neighbouring points of a map share their bound cables)."""
         t = np.zeros((p.shape[0], self.n_cables))
         ok = np.zeros(p.shape[0], dtype=bool)
         for k, row in enumerate(p.tolist()):
-            try:
-                r = self.solve(row, mass_kg)
-            except SolverUnavailable:
-                raise
-            except StaticsError:  # singular or non-finite row (or, never seen, an LP failure)
-                continue
-            t[k] = r.tensions_n
-            ok[k] = True
+            t[k], ok[k] = self._row(row, mass_kg)
         return t, ok
 
+    def _row(self, point: list[float], mass_kg: float) -> tuple[Any, bool]:
+        """One batch row by the single-pose solve: (tensions, True), or (0, False) where it
+        is singular or not finite."""
+        try:
+            return self.solve(point, mass_kg).tensions_n, True
+        except SolverUnavailable:
+            raise
+        except StaticsError:
+            return 0.0, False
 
-def _lp_maxmin(um: NDArray[np.float64], w: float, lo: float, hi: float) -> NDArray[np.float64]:
-    """Max-min tensions for N > 4 by linear programming, in units of the weight ``w``."""
+
+def _lp_maxmin(
+    um: NDArray[np.float64], f: NDArray[np.float64], lo: float, hi: float
+) -> NDArray[np.float64]:
+    """Max-min tensions for N > 4 by linear programming, in units of the force (or of
+    ``hi`` when there is none)."""
     try:
         from scipy.optimize import linprog
     except ImportError:
@@ -689,12 +763,15 @@ def _lp_maxmin(um: NDArray[np.float64], w: float, lo: float, hi: float) -> NDArr
             "more than four cables need scipy (scipy.optimize.linprog); install scipy"
         ) from None
     nc = um.shape[1]
+    w = float(np.sqrt(f @ f))
+    if not w > 0.0:
+        w = hi
     lo_w, hi_w = lo / w, hi / w
     # Variables x = (t / w, s / w); minimise -s.
     c = np.zeros(nc + 1)
     c[-1] = -1.0
     a_eq = np.hstack([um, np.zeros((3, 1))])
-    b_eq = np.array([0.0, 0.0, 1.0])
+    b_eq = f / w
     eye = np.eye(nc)
     ones = np.ones((nc, 1))
     a_ub = np.vstack([np.hstack([-eye, ones]), np.hstack([eye, ones])])
@@ -712,91 +789,6 @@ def _lp_maxmin(um: NDArray[np.float64], w: float, lo: float, hi: float) -> NDArr
         raise StaticsError(f"the tension linear program failed: {res.message}")
     x: NDArray[np.float64] = np.asarray(res.x[:nc], dtype=np.float64) * w
     return x
-
-
-def _batch_margin(
-    t: NDArray[np.float64], lo: float, hi: float
-) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """Smallest distance to a limit per row and the cable (0-based) at it."""
-    d = np.minimum(t - lo, hi - t)
-    with np.errstate(invalid="ignore"):
-        d = np.where(np.isfinite(d), d, -np.inf)
-    lim = np.argmin(d, axis=1).astype(np.int64)
-    mg = np.take_along_axis(d, lim[:, None], axis=1)[:, 0]
-    return mg, lim
-
-
-def _batch_closed(
-    anchors: NDArray[np.float64], p: NDArray[np.float64], w: float, lo: float, hi: float
-) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """Vectorised N = 3 / N = 4 tensions; ``ok`` False for singular or non-finite rows (their
-    tensions are garbage, possibly NaN, and are replaced by the caller)."""
-    nc = anchors.shape[0]
-    rows = p.shape[0]
-    ok = np.asarray(np.isfinite(p).all(axis=1), dtype=np.bool_)
-    p = np.where(ok[:, None], p, 0.0)
-    with np.errstate(all="ignore"):
-        dv = anchors[None, :, :] - p[:, None, :]  # (M, N, 3)
-        dist = np.sqrt(np.einsum("mij,mij->mi", dv, dv))
-        ok &= (dist > ANCHOR_TOL_M).all(axis=1)
-        u = dv / np.where(dist > ANCHOR_TOL_M, dist, 1.0)[:, :, None]
-        ok &= (u[:, :, 2] > UP_TOL).any(axis=1)
-        ux, uy, uz = u[:, :, 0], u[:, :, 1], u[:, :, 2]
-        if nc == 3:
-            a, b, c = 0, 1, 2
-            det = (
-                ux[:, a] * (uy[:, b] * uz[:, c] - uz[:, b] * uy[:, c])
-                - uy[:, a] * (ux[:, b] * uz[:, c] - uz[:, b] * ux[:, c])
-                + uz[:, a] * (ux[:, b] * uy[:, c] - uy[:, b] * ux[:, c])
-            )
-            ok &= np.abs(det) >= RANK_TOL
-            inv = w / np.where(ok, det, 1.0)
-            t = np.empty((rows, 3))
-            t[:, a] = (ux[:, b] * uy[:, c] - uy[:, b] * ux[:, c]) * inv
-            t[:, b] = (ux[:, c] * uy[:, a] - uy[:, c] * ux[:, a]) * inv
-            t[:, c] = (ux[:, a] * uy[:, b] - uy[:, a] * ux[:, b]) * inv
-            return t, ok
-        # N = 4: cz[k, l] = z of u_k x u_l, shared by the four triples.
-        cz = ux[:, :, None] * uy[:, None, :] - uy[:, :, None] * ux[:, None, :]  # (M, 4, 4)
-        tp = np.zeros((rows, 4))
-        n = np.empty((rows, 4))
-        for j, (a, b, c) in enumerate(TRIPLES4):
-            d = (
-                ux[:, a] * (uy[:, b] * uz[:, c] - uz[:, b] * uy[:, c])
-                - uy[:, a] * (ux[:, b] * uz[:, c] - uz[:, b] * ux[:, c])
-                + uz[:, a] * cz[:, b, c]
-            )
-            n[:, j] = -d if j & 1 else d
-            tp[:, a] += d * cz[:, b, c]
-            tp[:, b] += d * cz[:, c, a]
-            tp[:, c] += d * cz[:, a, b]
-        nn = np.einsum("mi,mi->m", n, n)
-        norm = np.sqrt(nn)
-        ok &= norm >= RANK_TOL
-        nn_safe = np.where(ok, nn, 1.0)
-        tp *= (w / nn_safe)[:, None]
-        s = n / np.where(ok, norm, 1.0)[:, None]
-        rising = s >= 0.0
-        ra = np.where(rising, tp - lo, hi - tp)  # (M, 4)
-        fa = np.where(rising, hi - tp, tp - lo)
-        r = np.abs(s)
-        den = r[:, :, None] + r[:, None, :]  # rising i, falling j
-        valid = den > 0.0
-        v = (ra[:, :, None] * r[:, None, :] + fa[:, None, :] * r[:, :, None]) / np.where(
-            valid, den, 1.0
-        )
-        v = np.where(valid, v, np.inf)
-        best = v.reshape(rows, 16).min(axis=1)
-        pos = r > 0.0
-        r_safe = np.where(pos, r, 1.0)
-        big = np.maximum(np.abs(tp).max(axis=1), hi)
-        floor = (best - SLACK * (big + hi))[:, None]
-        lam_lo = np.where(pos, (floor - ra) / r_safe, -np.inf).max(axis=1)
-        lam_hi = np.where(pos, (fa - floor) / r_safe, np.inf).min(axis=1)
-        lam = 0.5 * (lam_lo + lam_hi)
-        t = tp + lam[:, None] * s
-        ok &= np.isfinite(t).all(axis=1)
-    return t, ok
 
 
 PATH_MAX_SAMPLES = 200_000
@@ -842,6 +834,14 @@ class TensionCheck:
         """The payload's tension distribution at P (``CableStatics.solve``, with its derivative
         when asked); raises as it does."""
         return self.statics.solve(point_m, self.mass_kg, derivative)
+
+    def solve_force(
+        self, point_m: Sequence[float], force_n: Sequence[float], derivative: bool = False
+    ) -> Tensions:
+        """The distribution at P when the cables must supply `force_n` (N) instead of the
+        payload's weight (e.g. ``m (g e_z + a)`` for the payload accelerating at ``a``):
+        ``CableStatics.solve_force``; raises as it does.  Judge it with ``reason``."""
+        return self.statics.solve_force(point_m, force_n, derivative)
 
     def reason(self, result: Tensions) -> str | None:
         """None if `result` passes, else why: the cable (1-based), its tension and the bound."""

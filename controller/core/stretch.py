@@ -386,7 +386,7 @@ class CableStretch:
             if not (0.0 < v < math.inf):
                 raise KinematicsError(f"cable {i + 1}: length must be finite and > 0, got {v!r}")
         if self.rigid:
-            res = fpk(self.geometry, paid)
+            res = fpk(self.geometry, paid, guess_m)
             g = res.position_m
             return StretchFpk((float(g[0]), float(g[1]), float(g[2])), res.residual_m, (), 0)
         if guess_m is None:
@@ -531,11 +531,17 @@ class CableStretch:
             f"FPK with stretch did not converge in {MAX_ITERATIONS} steps (at {_fmt((x, y, z))})"
         )
 
-    def fpk_measured(self, paid_m: Sequence[float], tensions_n: Sequence[float]) -> StretchFpk:
+    def fpk_measured(
+        self,
+        paid_m: Sequence[float],
+        tensions_n: Sequence[float],
+        guess_m: Sequence[float] | None = None,
+    ) -> StretchFpk:
         """The pose of cables paid out by `paid_m` stretched by measured `tensions_n`: one rigid
-        FPK of the stretched lengths.  Raises what ``stretched_m`` and ``kinematics.fpk``
+        FPK of the stretched lengths (seeded by `guess_m`, the last pose, where the effector
+        works among its anchors).  Raises what ``stretched_m`` and ``kinematics.fpk``
         raise."""
-        res = fpk(self.geometry, self.stretched_m(paid_m, tensions_n))
+        res = fpk(self.geometry, self.stretched_m(paid_m, tensions_n), guess_m)
         g = res.position_m
         return StretchFpk(
             (float(g[0]), float(g[1]), float(g[2])),

@@ -6,13 +6,19 @@ tick's set-point, cable lengths and cable speeds), configuration validation (the
 the power-up pose), the Zenoh interface's pre-check, the offline verbs (`cablebot ipk`),
 `check-config`, `view`, `plot`, `calibrate --auto`, the demo and the benchmark.
 
-The rule (`Workspace`):
+The rule (`Workspace`) has two shapes, after the layout (`Geometry.hanging`):
 
-* plan view: inside the anchors' plan-view convex hull (`Geometry.footprint_m`) with every edge
-  moved `xy_margin_m` inwards (`footprint_contains` is the same test for any polygon and
-  margin);
-* height: `floor_z_m <= z <= top_z_m`, where `top_z_m` is the lowest anchor minus
+* a robot hanging below every anchor (the paper's robot, camera rigs): in plan view, inside
+  the anchors' plan-view convex hull (`Geometry.footprint_m`) with every edge moved
+  `xy_margin_m` inwards (`footprint_contains` is the same test for any polygon and margin);
+  in height, `floor_z_m <= z <= top_z_m`, where `top_z_m` is the lowest anchor minus
   `top_margin_m`;
+* an effector among its anchors, some below it (a Hangprinter): inside the anchors' convex hull
+  (`Geometry.hull_faces`) with every face moved in so that at each height the cross-section is
+  the hull's shrunk by `xy_margin_m` (`workspace_shape.shrunk_faces`), `floor_z_m <= z`, and
+  `z <= top_z_m`, the highest anchor minus `top_margin_m`;
+* either: optionally `z <= ceiling_z_m`, and within `print_radius_m` of the origin in plan
+  view (RepRapFirmware's M669 P); which shape a robot file gets is `effector_hangs`'s rule;
 * cables: every length in `[min_cable_m, max_cable_m]`; no length changing faster than
   `max_cable_speed_mps` between two set-points;
 * a straight segment: both ends allowed, and no cable shorter than `min_cable_m` on the way
@@ -20,8 +26,10 @@ The rule (`Workspace`):
 * a path: every point, and every leg from the point before (and from a start, if given).
 
 Each check returns None when the value is allowed and otherwise a reason string that names the
-limit and the value, used verbatim in a `CommandRefused` or a fault. The point and length
-checks also come as a `Violation` (which limit, which cable, the value and the bound) for
+limit and the value, used verbatim in a `CommandRefused` or a fault. The tension rule
+(`controller.core.statics.TensionCheck`: every cable within its limits while holding the
+payload) is applied beside this one by its users; together they are the workspace. The point
+and length checks also come as a `Violation` (which limit, which cable, the value and the bound) for
 callers that word their own message, such as configuration validation naming the TOML keys.
 
 `Workspace(geometry, xy_margin_m=..., ...)` takes plain floats; `Workspace.from_limits(limits,
@@ -49,7 +57,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from controller.core.kinematics import Geometry
+from controller.core.kinematics import Geometry, KinematicsError
+from controller.core.kinematics.geometry import _convex_hull
+from controller.core.workspace_shape import Face, disk_polygon, shrunk_faces, solid_vertices
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -109,6 +119,29 @@ class LimitsLike(Protocol):
     def max_cable_speed_mps(self) -> float:
         """Fastest allowed change of a cable length (m/s)."""
         ...
+
+
+def effector_hangs(
+    anchors_m: Sequence[Sequence[float]], floor_z_m: float, top_margin_m: float
+) -> bool:
+    """True when the workspace hangs below every anchor: the floor is below the lowest anchor
+    minus `top_margin_m`, or the anchors lie in one plane (no hull to work in among them).
+    Otherwise some anchors are at or below the workspace (a Hangprinter's low anchors) and
+    the effector works among them.  Raises nothing."""
+    if floor_z_m < min(float(a[2]) for a in anchors_m) - top_margin_m:
+        return True
+    try:
+        Geometry(anchors_m, hanging=False)
+    except KinematicsError:
+        return True
+    return False
+
+
+def layout_geometry(anchors_m: Sequence[Sequence[float]], limits: LimitsLike) -> Geometry:
+    """The `Geometry` of `anchors_m` for these limits, hanging or among the anchors as
+    `effector_hangs` says.  Raises KinematicsError for unusable anchors."""
+    hangs = effector_hangs(anchors_m, float(limits.floor_z_m), float(limits.top_margin_m))
+    return Geometry(anchors_m, hanging=hangs)
 
 
 @dataclass(frozen=True, slots=True)
@@ -188,6 +221,23 @@ def _clip(polygon_m: Sequence[Vec2], planes: Sequence[HalfPlane]) -> tuple[Vec2,
     return tuple(out)
 
 
+def _convex_outline(points: Sequence[Vec2]) -> tuple[Vec2, ...]:
+    """The counter-clockwise convex hull of plan-view points (collinear ones dropped)."""
+    return tuple(_convex_hull([(float(x), float(y)) for x, y in points]))
+
+
+def _outside_faces(faces: Sequence[Face], x: float, y: float, z: float) -> tuple[float, int]:
+    """How far (x, y, z) lies outside the faces (<= 0 inside) and which face (NaN: NaN)."""
+    worst = -math.inf
+    k = -1
+    for i, (nx, ny, nz, c) in enumerate(faces):
+        d = nx * x + ny * y + nz * z - c
+        if not d <= worst:
+            worst = d
+            k = i
+    return worst, k
+
+
 def footprint_contains(
     polygon_m: Sequence[Sequence[float]], x_m: float, y_m: float, margin_m: float = 0.0
 ) -> bool:
@@ -211,19 +261,27 @@ class Workspace:
     """Every limit of one robot (see the module docstring).
 
     Raises WorkspaceError (naming the limit) for a non-finite limit, `floor_z_m` not below the
-    top, `min_cable_m` not below `max_cable_m`, or an `xy_margin_m` that leaves no plan-view
-    area (even the anchors' centroid outside the shrunk polygon).
+    top, `min_cable_m` not below `max_cable_m`, a ceiling not above the floor, a print radius
+    not > 0, or margins and bounds that leave no workspace (a hanging robot: even the anchors'
+    centroid outside the shrunk polygon).
     """
 
     __slots__ = (
+        "_anchor_top_z_m",
         "_anchors",
+        "_faces",
+        "_names",
         "_planes",
+        "_radius2",
+        "ceiling_z_m",
         "floor_z_m",
         "footprint_m",
+        "hanging",
         "max_cable_m",
         "max_cable_speed_mps",
         "min_cable_m",
         "polygon_m",
+        "print_radius_m",
         "top_margin_m",
         "top_z_m",
         "xy_margin_m",
@@ -232,7 +290,12 @@ class Workspace:
     footprint_m: tuple[Vec2, ...]
     """The anchors' plan-view convex hull, counter-clockwise."""
     polygon_m: tuple[Vec2, ...]
-    """The workspace's plan view: `footprint_m` shrunk by `xy_margin_m`, counter-clockwise."""
+    """The workspace's plan view, counter-clockwise: `footprint_m` shrunk by `xy_margin_m`
+    (hanging), or the outline of the solid among the anchors seen from above; within a
+    polygon inscribed in the print radius when there is one."""
+    top_z_m: float
+    """The highest allowed z: the lowest (hanging) or highest (among the anchors) anchor minus
+    `top_margin_m`, or `ceiling_z_m` when that is lower."""
 
     def __init__(
         self,
@@ -244,6 +307,8 @@ class Workspace:
         min_cable_m: float,
         max_cable_m: float,
         max_cable_speed_mps: float,
+        ceiling_z_m: float | None = None,
+        print_radius_m: float | None = None,
     ) -> None:
         values = {
             "xy_margin_m": xy_margin_m,
@@ -253,45 +318,99 @@ class Workspace:
             "max_cable_m": max_cable_m,
             "max_cable_speed_mps": max_cable_speed_mps,
         }
+        if ceiling_z_m is not None:
+            values["ceiling_z_m"] = ceiling_z_m
+        if print_radius_m is not None:
+            values["print_radius_m"] = print_radius_m
         for name, value in values.items():
             if not math.isfinite(value):
                 raise WorkspaceError(name, f"must be a finite number, got {value!r}")
         anchors = [(float(a[0]), float(a[1]), float(a[2])) for a in geometry.anchors_m.tolist()]
         self._anchors: tuple[Vec3, ...] = tuple(anchors)
+        self.hanging = bool(geometry.hanging)
         self.footprint_m = tuple((float(x), float(y)) for x, y in geometry.footprint_m)
         self.xy_margin_m = float(xy_margin_m)
         self.floor_z_m = float(floor_z_m)
         self.top_margin_m = float(top_margin_m)
-        self.top_z_m = min(a[2] for a in anchors) - self.top_margin_m
+        heights = [a[2] for a in anchors]
+        self._anchor_top_z_m = (min(heights) if self.hanging else max(heights)) - self.top_margin_m
+        self.ceiling_z_m = None if ceiling_z_m is None else float(ceiling_z_m)
+        self.top_z_m = min(self._anchor_top_z_m, math.inf if ceiling_z_m is None else ceiling_z_m)
+        self.print_radius_m = None if print_radius_m is None else float(print_radius_m)
+        self._radius2 = math.inf if print_radius_m is None else float(print_radius_m) ** 2
         self.min_cable_m = float(min_cable_m)
         self.max_cable_m = float(max_cable_m)
         self.max_cable_speed_mps = float(max_cable_speed_mps)
-        self._planes = _half_planes(self.footprint_m, self.xy_margin_m)
-        if not self.floor_z_m < self.top_z_m:
+        if not self.floor_z_m < self._anchor_top_z_m:
+            which = "lowest" if self.hanging else "highest"
             raise WorkspaceError(
                 "floor_z_m",
-                f"{self.floor_z_m:g} m must be below the lowest anchor minus top_margin_m "
-                f"({self.top_z_m:g} m)",
+                f"{self.floor_z_m:g} m must be below the {which} anchor minus top_margin_m "
+                f"({self._anchor_top_z_m:g} m)",
             )
+        if self.ceiling_z_m is not None and not self.floor_z_m < self.ceiling_z_m:
+            raise WorkspaceError(
+                "ceiling_z_m",
+                f"{self.ceiling_z_m:g} m must be above floor_z_m ({self.floor_z_m:g} m)",
+            )
+        if self.print_radius_m is not None and not self.print_radius_m > 0.0:
+            raise WorkspaceError("print_radius_m", f"must be > 0 m, got {self.print_radius_m:g}")
         if not self.min_cable_m < self.max_cable_m:
             raise WorkspaceError(
                 "min_cable_m",
                 f"{self.min_cable_m:g} m must be < max_cable_m ({self.max_cable_m:g} m)",
             )
-        cx = sum(a[0] for a in anchors) / len(anchors)
-        cy = sum(a[1] for a in anchors) / len(anchors)
-        if _outside_by(self._planes, cx, cy) > 0.0:
+        self._faces: tuple[Face, ...] = ()
+        self._names: tuple[str, ...] = ()
+        if self.hanging:
+            self._planes = _half_planes(self.footprint_m, self.xy_margin_m)
+            cx = sum(a[0] for a in anchors) / len(anchors)
+            cy = sum(a[1] for a in anchors) / len(anchors)
+            if _outside_by(self._planes, cx, cy) > 0.0:
+                raise WorkspaceError(
+                    "xy_margin_m",
+                    f"{self.xy_margin_m:g} m leaves no workspace (even the anchors' centroid is "
+                    "outside the shrunk plan-view polygon)",
+                )
+            self.polygon_m = _clip(self.footprint_m, self._planes)
+        else:
+            self._among(geometry)
+        if self.print_radius_m is not None:
+            disk = disk_polygon(self.print_radius_m)
+            clipped = _clip(self.polygon_m, _half_planes(disk, 0.0))
+            if len(clipped) < 3:
+                raise WorkspaceError(
+                    "print_radius_m",
+                    f"{self.print_radius_m:g} m about the origin leaves no workspace (the "
+                    "workspace's plan view does not reach that circle)",
+                )
+            self.polygon_m = clipped
+
+    def _among(self, geometry: Geometry) -> None:
+        """The solid among the anchors: shrunk faces, and its outline from above; raises
+        WorkspaceError when the margins and bounds leave nothing."""
+        self._faces = shrunk_faces(geometry.hull_faces, self.xy_margin_m)
+        self._names = tuple(
+            "cables " + ", ".join(str(k + 1) for k in f[4]) for f in geometry.hull_faces
+        )
+        corners = solid_vertices(self._faces, self.floor_z_m, self.top_z_m)
+        outline = _convex_outline([(c[0], c[1]) for c in corners])
+        if len(outline) < 3:
             raise WorkspaceError(
                 "xy_margin_m",
-                f"{self.xy_margin_m:g} m leaves no workspace (even the anchors' centroid is "
-                "outside the shrunk plan-view polygon)",
+                f"{self.xy_margin_m:g} m leaves no workspace inside the anchors' hull between "
+                f"floor_z_m ({self.floor_z_m:g} m) and {self.top_z_m:g} m",
             )
-        self.polygon_m = _clip(self.footprint_m, self._planes)
+        self.polygon_m = outline
+        self._planes = _half_planes(outline, 0.0)
 
     @classmethod
     def from_limits(cls, limits: LimitsLike, geometry: Geometry) -> Workspace:
         """The workspace of `limits` (any object with the `LimitsLike` attributes, such as the
-        service's `LimitsConfig`) for `geometry`. Raises WorkspaceError as the constructor."""
+        service's `LimitsConfig`, and optionally `ceiling_z_m` and `print_radius_m`) for
+        `geometry`. Raises WorkspaceError as the constructor."""
+        ceiling = getattr(limits, "ceiling_z_m", None)
+        radius = getattr(limits, "print_radius_m", None)
         return cls(
             geometry,
             xy_margin_m=float(limits.xy_margin_m),
@@ -300,6 +419,8 @@ class Workspace:
             min_cable_m=float(limits.min_cable_m),
             max_cable_m=float(limits.max_cable_m),
             max_cable_speed_mps=float(limits.max_cable_speed_mps),
+            ceiling_z_m=None if ceiling is None else float(ceiling),
+            print_radius_m=None if radius is None else float(radius),
         )
 
     # ------------------------------------------------------------------ shape
@@ -313,9 +434,12 @@ class Workspace:
         return (min(xs), max(xs)), (min(ys), max(ys)), (self.floor_z_m, self.top_z_m)
 
     def contains_xy(self, x_m: float, y_m: float) -> bool:
-        """True when (x, y) is inside the shrunk plan-view polygon (NaN: False). Raises
-        nothing."""
-        return _inside(_outside_by(self._planes, x_m, y_m))
+        """True when (x, y) is inside the workspace's plan view (`polygon_m`'s rule without
+        the polygon: the shrunk footprint and the print radius; among the anchors the solid's
+        outline from above) (NaN: False). Raises nothing."""
+        return _inside(_outside_by(self._planes, x_m, y_m)) and (
+            x_m * x_m + y_m * y_m <= self._radius2
+        )
 
     # ------------------------------------------------------------------ points and lengths
 
@@ -325,45 +449,27 @@ class Workspace:
         Non-finite points break ``position``. Raises nothing.
         """
         x, y, z = p[0], p[1], p[2]
-        out = _outside_by(self._planes, x, y)
+        faces = self._faces
+        face = -1
+        if faces:
+            out, face = _outside_faces(faces, x, y, z)
+        else:
+            out = _outside_by(self._planes, x, y)
         # The per-tick path: one comparison chain (a NaN or an infinity fails it).
-        if _inside(out) and self.floor_z_m - TOL_M <= z <= self.top_z_m + TOL_M:
+        if (
+            _inside(out)
+            and self.floor_z_m - TOL_M <= z <= self.top_z_m + TOL_M
+            and x * x + y * y <= self._radius2
+        ):
             return None
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-            return Violation(
-                "position", None, math.nan, math.nan, f"position ({x}, {y}, {z}) is not finite"
-            )
-        if not _inside(out):
-            return Violation(
-                "xy_margin_m",
-                None,
-                out,
-                self.xy_margin_m,
-                f"(x, y) = ({x:.4g}, {y:.4g}) m is {out:.4g} m outside the anchors' plan-view "
-                f"polygon shrunk by xy_margin_m ({self.xy_margin_m:g} m)",
-            )
-        if z < self.floor_z_m - TOL_M:
-            return Violation(
-                "floor_z_m",
-                None,
-                z,
-                self.floor_z_m,
-                f"z={z:.4g} m below the floor (floor_z_m {self.floor_z_m:g} m)",
-            )
-        return Violation(
-            "top_margin_m",
-            None,
-            z,
-            self.top_z_m,
-            f"z={z:.4g} m above the anchor plane minus margin ({self.top_z_m:.4g} m)",
-        )
+        return _violation(self, x, y, z, out, face)
 
     def check_point(self, p: Sequence[float]) -> str | None:
         """None if `p` (m) is in the workspace, else the reason (limit and value).
 
-        Workspace: inside the anchors' plan-view polygon shrunk by xy_margin_m and
-        floor_z_m <= z <= lowest anchor z - top_margin_m. Non-finite points are refused.
-        Raises nothing.
+        Workspace: see the module docstring (hanging: inside the anchors' plan-view polygon
+        shrunk by xy_margin_m and floor_z_m <= z <= lowest anchor z - top_margin_m). Non-finite
+        points are refused. Raises nothing.
         """
         v = self.point_violation(p)
         return None if v is None else v.reason
@@ -478,22 +584,30 @@ class Workspace:
                     )
         return None
 
-    def inside_points(self, points: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
+    def inside_points(
+        self, points: np.ndarray[Any, Any], lengths: bool = True
+    ) -> np.ndarray[Any, Any]:
         """For an (M, 3) array of points: True where `check_target` would pass (the workspace
-        and every cable length, with the same tolerance), vectorised; False for a non-finite
-        point. Raises ValueError if `points` is not (M, 3)."""
+        and, unless `lengths` is False, every cable length, with the same tolerance),
+        vectorised; False for a non-finite point. Raises ValueError if `points` is not
+        (M, 3)."""
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"points must have shape (M, 3), got {pts.shape}")
         x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
         with np.errstate(invalid="ignore", over="ignore"):
             ok = np.isfinite(pts).all(axis=1)
-            for nx, ny, c in self._planes:
-                ok &= nx * x + ny * y - c <= TOL_M
+            if self._faces:
+                for fx, fy, fz, fc in self._faces:
+                    ok &= fx * x + fy * y + fz * z - fc <= TOL_M
+            else:
+                for nx, ny, c in self._planes:
+                    ok &= nx * x + ny * y - c <= TOL_M
+            ok &= x * x + y * y <= self._radius2
             ok &= (z >= self.floor_z_m - TOL_M) & (z <= self.top_z_m + TOL_M)
             lo = self.min_cable_m - TOL_M
             hi = self.max_cable_m + TOL_M
-            for q in self._anchors:
+            for q in self._anchors if lengths else ():
                 rel = pts - q
                 length = np.sqrt(np.einsum("ij,ij->i", rel, rel))
                 ok &= (length >= lo) & (length <= hi)
@@ -575,8 +689,14 @@ class Workspace:
         x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
             bad = ~np.isfinite(pts).all(axis=1)
-            for nx, ny, c in self._planes:
-                bad |= nx * x + ny * y - c > TOL_M - _SCREEN_M
+            if self._faces:
+                for fx, fy, fz, fc in self._faces:
+                    bad |= fx * x + fy * y + fz * z - fc > TOL_M - _SCREEN_M
+            else:
+                for nx, ny, c in self._planes:
+                    bad |= nx * x + ny * y - c > TOL_M - _SCREEN_M
+            if self.print_radius_m is not None:
+                bad |= x * x + y * y > (self.print_radius_m - _SCREEN_M) ** 2
             bad |= z < self.floor_z_m - TOL_M + _SCREEN_M
             bad |= z > self.top_z_m + TOL_M - _SCREEN_M
             lo = self.min_cable_m - TOL_M + _SCREEN_M
@@ -621,6 +741,77 @@ class Workspace:
         else:
             out[1:] |= leg_bad
         return out
+
+
+def _violation(ws: Workspace, x: float, y: float, z: float, out: float, face: int) -> Violation:
+    """The limit a point outside the workspace breaks, with its reason (``point_violation``'s
+    slow path: `out` is how far outside the plan-view polygon or the faces it is, `face` the
+    face (-1: hanging))."""
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        return Violation(
+            "position", None, math.nan, math.nan, f"position ({x}, {y}, {z}) is not finite"
+        )
+    if not _inside(out):
+        if face >= 0:
+            return Violation(
+                "xy_margin_m",
+                None,
+                out,
+                ws.xy_margin_m,
+                f"({x:.4g}, {y:.4g}, {z:.4g}) m is {out:.4g} m outside the anchors' hull "
+                f"(the face of {ws._names[face]}) shrunk by xy_margin_m "
+                f"({ws.xy_margin_m:g} m)",
+            )
+        return Violation(
+            "xy_margin_m",
+            None,
+            out,
+            ws.xy_margin_m,
+            f"(x, y) = ({x:.4g}, {y:.4g}) m is {out:.4g} m outside the anchors' plan-view "
+            f"polygon shrunk by xy_margin_m ({ws.xy_margin_m:g} m)",
+        )
+    r2 = x * x + y * y
+    if not r2 <= ws._radius2:
+        r = math.sqrt(r2)
+        return Violation(
+            "print_radius_m",
+            None,
+            r,
+            float(ws.print_radius_m or 0.0),
+            f"(x, y) = ({x:.4g}, {y:.4g}) m is {r:.4g} m from the origin, beyond "
+            f"print_radius_m ({ws.print_radius_m:g} m)",
+        )
+    if z < ws.floor_z_m - TOL_M:
+        return Violation(
+            "floor_z_m",
+            None,
+            z,
+            ws.floor_z_m,
+            f"z={z:.4g} m below the floor (floor_z_m {ws.floor_z_m:g} m)",
+        )
+    if ws.ceiling_z_m is not None and ws.ceiling_z_m < ws._anchor_top_z_m:
+        return Violation(
+            "ceiling_z_m",
+            None,
+            z,
+            ws.ceiling_z_m,
+            f"z={z:.4g} m above the ceiling (ceiling_z_m {ws.ceiling_z_m:g} m)",
+        )
+    if not ws.hanging:
+        return Violation(
+            "top_margin_m",
+            None,
+            z,
+            ws.top_z_m,
+            f"z={z:.4g} m above the highest anchor minus top_margin_m ({ws.top_z_m:.4g} m)",
+        )
+    return Violation(
+        "top_margin_m",
+        None,
+        z,
+        ws.top_z_m,
+        f"z={z:.4g} m above the anchor plane minus margin ({ws.top_z_m:.4g} m)",
+    )
 
 
 def points_array(points: Sequence[Sequence[float]]) -> np.ndarray[Any, Any] | None:

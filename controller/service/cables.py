@@ -172,11 +172,11 @@ class CableModel:
             return self.sag.fpk(lengths_m, None, at)
         s = self.stretch
         if s is None:
-            res = kinematics.fpk(self.geometry, lengths_m)
+            res = kinematics.fpk(self.geometry, lengths_m, guess_m)
             p = res.position_m
             return (float(p[0]), float(p[1]), float(p[2])), float(res.residual_m)
         if self.measured and measured_n is not None and None not in measured_n:
-            m = s.fpk_measured(lengths_m, [float(t) for t in measured_n if t is not None])
+            m = s.fpk_measured(lengths_m, [float(t) for t in measured_n if t is not None], guess_m)
             return m.position_m, m.residual_m
         if guess_m is not None and all(map(math.isfinite, guess_m)):
             try:

@@ -42,9 +42,13 @@ from controller.core.commands import Arm
 from controller.core.motion import BRAKE_ACCEL_SHARE
 from controller.core.states import State
 from controller.service.runner import start_loop
+from controller.service.stream_log import StreamLog
 
 log = logging.getLogger("cablebot.daemon")
 
+RESTORED_POSE_WAIT_S = 1.0
+"""How long after every reel answered a pose from the state file's offsets may take to appear
+before the start-up warns that they give none."""
 STOP_MARGIN_S = 0.5
 STOP_MARGIN_FACTOR = 1.25
 """Shutdown waits for braking: the set-point's speed / max acceleration, times this factor (a
@@ -375,6 +379,10 @@ class StartupWatch:
     * With `want_arm`, submits Arm once every reel has answered.
     * Sends READY=1 once every reel has answered and, with `want_arm`, the arm has been tried
       (holding, faulted or refused: the daemon is up and its status says how it is).
+    * Once every reel has answered, looks at the pose the state file's homing offsets give and
+      warns (`offsets.restored_pose_problem`) when it lies outside the workspace or more than
+      `faults.tracking_max_m` from the power-up pose, or is no pose at all after
+      `RESTORED_POSE_WAIT_S`: the offsets are stale when a drive restarted since.
 
     STATUS= follows the controller's state (or names the nodes waited for). Raises nothing.
     """
@@ -404,6 +412,9 @@ class StartupWatch:
         self._warned: set[int] = set()
         self._seen: set[int] = set()
         self._last_status: str | None = None
+        self._restored_from: float | None = None
+        """When every reel first answered, until the restored pose has been looked at."""
+        self._restored_done = getattr(controller, "home_source", None) != "state_file"
         self._bus_name = f"{cfg.bus.interface} {cfg.bus.channel}"
         from drivers import registry
 
@@ -433,6 +444,8 @@ class StartupWatch:
             for n in sorted(answered):
                 log.info("%s node %d answered after %.1f s", self._title, n, now - self._started)
             self._warned -= answered
+        if not silent and not self._restored_done:
+            self._look_at_restored_pose(now)
         if self.want_arm and self.arm_future is None and not silent:
             self.arm_future = self.controller.submit(Arm())
             log.info("auto-arm requested (every reel answered)")
@@ -451,6 +464,31 @@ class StartupWatch:
         self.notifier.notify("READY=1")
         log.info("ready: %s", status_line(self.controller.status()))
         return True
+
+    def _look_at_restored_pose(self, now: float) -> None:
+        """Warn once about a pose from stale state-file offsets (class docstring)."""
+        from controller.service.offsets import restored_pose_problem
+
+        ctl = self.controller
+        if self._restored_from is None:
+            self._restored_from = now
+        if ctl.home_source != "state_file":  # homed again meanwhile
+            self._restored_done = True
+            return
+        pose = ctl.pose_m if ctl.pose_valid else None
+        if pose is None and now - self._restored_from < RESTORED_POSE_WAIT_S:
+            return  # the loop solves it within a tick or two of the readings
+        self._restored_done = True
+        homing = self.cfg.homing
+        problem = restored_pose_problem(
+            pose,
+            ctl.workspace.check_point,
+            homing.power_up_position_m,
+            float(self.cfg.faults.tracking_max_m),
+            str(homing.state_file),
+        )
+        if problem is not None:
+            log.warning("%s", problem)
 
     def _status(self, text: str) -> None:
         if text != self._last_status:
@@ -540,8 +578,10 @@ def run_daemon(
         want_arm=auto_arm if auto_arm is not None else _auto_arm(cfg),
         status_every_s=status_every_s,
     )
+    stream_log = StreamLog(controller)
     next_status = time.monotonic() + status_every_s
     while not shutdown.is_set():
+        stream_log.step()
         if rt_report:
             log.info("loop thread: %s", "; ".join(rt_report))
             rt_report.clear()

@@ -221,3 +221,47 @@ def parse_record(
         home_position_m=(float(pos[0]), float(pos[1]), float(pos[2])),
         wall_time_s=float(wall),
     )
+
+
+def restored_pose_problem(
+    pose_m: Sequence[float] | None,
+    check_point: Any,
+    power_up_m: Sequence[float] | None,
+    far_m: float,
+    state_file: str,
+) -> str | None:
+    """Why the pose a state file's offsets give at start-up is not to be believed, or None.
+
+    `check_point(p)` is the workspace's rule (a reason, or None inside); a pose more than
+    `far_m` from the configured power-up pose is suspect too (a drive that restarted counts
+    from zero again, where the offsets were saved against other turns). The text names the
+    pose, what is wrong with it and how to home again. Raises nothing.
+    """
+
+    def xyz(p: Sequence[float]) -> str:
+        return "[" + ", ".join(f"{float(v):.4f}" for v in p) + "]"
+
+    if pose_m is None:
+        found = "give no valid pose with the drives' readings"
+    else:
+        problems = []
+        outside = check_point(pose_m)
+        if outside is not None:
+            problems.append(f"outside the workspace ({outside})")
+        if power_up_m is not None and math.dist(pose_m, power_up_m) > far_m:
+            problems.append(
+                f"{math.dist(pose_m, power_up_m):.3f} m from the power-up pose {xyz(power_up_m)}"
+            )
+        if not problems:
+            return None
+        found = f"put the effector at {xyz(pose_m)} m, " + " and ".join(problems)
+    again = (
+        f"; or remove {state_file} and restart to home at the power-up pose"
+        if power_up_m is not None
+        else ""
+    )
+    return (
+        f"the homing offsets from {state_file} {found}: they are stale if a drive restarted "
+        "since they were saved (its encoder counts from zero again). Support the effector at a "
+        f"known pose and run `cablebot home X Y Z`{again}"
+    )

@@ -84,8 +84,8 @@ def sim_plant(cfg: Any, turns: Sequence[float]) -> Any:
     from controller.core.sag_plant import SagPlant
 
     sag = SagStatics(check.statics, check.mass_kg, params.cable_weight_n_per_m, [ea] * len(reels))
-    horizontal = sag.solve(pose).horizontal_n
-    return ReelPlant(params, reels, pose, turns, plant=SagPlant.at_pose(params, pose, horizontal))
+    lengths = sag.solve(pose).paid_out_m  # the catenaries that hold it there, at rest
+    return ReelPlant(params, reels, pose, turns, plant=SagPlant(params, pose, lengths))
 
 
 def sim_bank(cfg: Any, bus: Any) -> Any:

@@ -22,15 +22,22 @@ receive path fills, so while `configure` runs a temporary receive thread is the 
 reader, through python-can's `recv` (the loop thread is blocked in `configure` meanwhile, and
 `poll` reads nothing until it returns); it is joined before `configure` returns. SDO requests
 and NMT commands leave through canopen's `network.send_message`, bounded by `send_timeout_s`.
+A drive that restarts (NMT boot-up) loses that set-up: `arm` then configures it again on a
+worker thread beside the loop (`drivers.cia402.reconfigure`), and refuses (`ArmRefused`) until
+it is done, while `poll` stays the bus's only reader and keeps cycling the other drives, so
+their SYNC and set-points never pause for the SDO exchanges.
 
 The SocketCAN fast path (`drivers.socketcan_fast`, the default on a python-can SocketCAN bus,
 `fast_path`): `poll()` takes the frames off the bus's kernel socket in batches (`recvmmsg`, no
 `can.Message` per frame), and a cycle's RPDOs and SYNC leave in one `sendmmsg` per 64 frames
 (one call for up to 31 drives with both RPDOs, two RPDOs and the SYNC). Kernel filters
 pass only our drives' TPDO1 (0x180 + n), EMCY (0x080 + n), SDO answers (0x580 + n) and
-heartbeats (0x700 + n), and error frames: other nodes' and other hosts' frames never reach
-Python (they are not counted as `unknown_cob_id` or `not_for_host`), and frames the kernel
-dropped from a full receive queue (a loop stall) are counted as dropped, kind "rx_overrun".
+heartbeats (0x700 + n), the SYNC (0x080) and error frames: other nodes' and other hosts' frames
+never reach Python (they are not counted as `unknown_cob_id` or `not_for_host`), and frames the
+kernel dropped from a full receive queue (a loop stall) are counted as dropped, kind
+"rx_overrun". A SYNC heard is another producer's (the fast path never hears its own frames; on a
+bus that echoes them, udp_multicast, no more are taken as ours than were sent): two masters on
+one bus, counted in `stats.conflicts` and named in `stats.last_conflict`; the loop faults on it.
 Every other interface keeps python-can's path: one `recv` and one `send` per frame.
 
 Cyclic operation: each `command()` writes every drive's RPDOs and then produces one SYNC (the
@@ -88,14 +95,22 @@ import canopen
 from canopen.nmt import NMT_STATES
 from canopen.pdo import PdoMap
 
-from drivers.base import AxisReading, BusError, BusStats
-from drivers.cia402 import profile
-from drivers.cia402.profile import DriveState, Goal
+from drivers.base import ArmRefused, AxisReading, BusError, BusStats
+from drivers.bus import echoes_own_frames
+from drivers.cia402.profile import (
+    CW_FAULT_RESET,
+    DriveState,
+    Goal,
+    controlword_for,
+    emcy_text,
+    interpolation_period,
+)
 from drivers.cia402.receive import (
     SYNC_RING,
     CiA402Receive,
     DriveRecord,
 )
+from drivers.cia402.reconfigure import ConfigJob, PdoMapping
 from drivers.cia402.sdo_config import (
     SYNC_COB_ID,
     configure_node,
@@ -136,8 +151,11 @@ _SYNC_FRAME = (SYNC_COB_ID, b"", False)
 
 def kernel_filters(node_ids: Iterable[int]) -> list[tuple[int, int]]:
     """The fast path's kernel receive filters for drives `node_ids`: (id, mask) pairs passing
-    their TPDO1, EMCY, SDO answers and heartbeats. Raises nothing."""
-    return [(base + n, 0x7FF) for n in node_ids for base in (0x180, 0x080, 0x580, 0x700)]
+    the SYNC (another producer's: the fast path never hears its own frames) and the drives'
+    TPDO1, EMCY, SDO answers and heartbeats. Raises nothing."""
+    return [(SYNC_COB_ID, 0x7FF)] + [
+        (base + n, 0x7FF) for n in node_ids for base in (0x180, 0x080, 0x580, 0x700)
+    ]
 
 
 def send_failure(stats: BusStats, can_id: int, exc: BaseException) -> str:
@@ -231,7 +249,7 @@ class CiA402Reels(CiA402Receive):
             raise ValueError(f"velocity_units_per_rps must be finite and > 0, got {vel_units!r}")
         if max_frames_per_poll <= 0:
             raise ValueError("max_frames_per_poll must be > 0")
-        self._interp = profile.interpolation_period(period_s)
+        self._interp = interpolation_period(period_s)
         heartbeat_ms = round(heartbeat_period_s * 1000.0)
         if not 1 <= heartbeat_ms <= 0xFFFF:
             raise ValueError(f"heartbeat_period_s {heartbeat_period_s!r} is not 1..65535 ms")
@@ -267,7 +285,7 @@ class CiA402Reels(CiA402Receive):
         self._readings: tuple[AxisReading, ...] = tuple(d.reading for d in self._drives)
         self._tpdo_by_cob: dict[int, DriveRecord] = {}
         # Frames a host sends (ours echoed back, or another master's): never for us.
-        self._host_cob_ids: set[int] = {0x000, SYNC_COB_ID} | {0x600 + n for n in ids}
+        self._host_cob_ids: set[int] = {0x000} | {0x600 + n for n in ids}
         # What canopen gets: our drives' heartbeats and EMCY (SDO answers while configuring).
         self._canopen_cob_ids = frozenset({0x700 + n for n in ids} | {0x080 + n for n in ids})
         self._sdo_answer_ids = frozenset(0x580 + n for n in ids)
@@ -275,11 +293,19 @@ class CiA402Reels(CiA402Receive):
         self._last_sync_s = -math.inf
         self._syncs_sent = 0
         self._sync_times = array("d", [-math.inf]) * SYNC_RING
+        self._syncs_heard = 0
+        """SYNCs heard on a bus that echoes this host's own frames and taken as ours."""
+        self._sync_echoes = echoes_own_frames(bus)
         self._command_sync = 0
         """Index of the first SYNC after the last state-changing command (`arm`, `disarm`,
         `estop`): only statuswords answering it or a later one tell the drives' state since."""
         self._cycled_since_poll = False
         self._configuring = False
+        """True while the blocking `configure` runs (its pump is the bus's only reader)."""
+        self._sdo_expected = False
+        """True while SDO answers are awaited (`configure`, or a `ConfigJob`)."""
+        self._config_job: ConfigJob | None = None
+        self._config_failure: str | None = None
         self._tx_frames: list[tuple[int, bytes, bool]] = []
         self._fast = open_fast_path(
             bus, kernel_filters(ids), fast_path=fast_path, send_timeout_s=send_timeout_s
@@ -297,24 +323,30 @@ class CiA402Reels(CiA402Receive):
 
         Blocks: about 36 SDO exchanges per drive, each waiting at most `sdo_timeout_s` for its
         answer (a drive that does not answer fails at its first). Call it before cyclic
-        operation (`arm` calls it for drives not yet configured or restarted since). Raises
+        operation, never from the loop (`arm` configures drives not yet configured or restarted
+        since beside the loop, `ConfigJob`; a job under way is waited for first). Raises
         ConfigureError naming the first drive and step that failed (the drives before it stay
         configured), KeyError for a node not ours.
         """
         todo = [self._by_node[n] for n in (self.node_ids if node_ids is None else node_ids)]
         if not todo:
             return
+        job = self._config_job
+        if job is not None:  # one SDO client per drive at a time: let the job end first
+            job.join(len(job.drives) * 40 * self._sdo_timeout_s)
+            self._take_config_job()
         stop = threading.Event()
         pump = threading.Thread(target=self._pump, args=(stop,), name="cia402-sdo", daemon=True)
-        self._configuring = True
+        self._configuring = self._sdo_expected = True
         pump.start()
         try:
             for d in todo:
-                self._configure_drive(d)
+                self._forget_tpdo(d)
+                self._use_mapping(d, *self._configure_mapping(d))
         finally:
             stop.set()
             pump.join(5.0)
-            self._configuring = False
+            self._configuring = self._sdo_expected = False
 
     def _pump(self, stop: threading.Event) -> None:
         """While `configure` runs: the bus's only reader (python-can's `recv`, on either path),
@@ -331,10 +363,15 @@ class CiA402Reels(CiA402Receive):
                 self._stats.frames_rx += 1
                 self._handle(msg)
 
-    def _configure_drive(self, d: DriveRecord) -> None:
+    def _forget_tpdo(self, d: DriveRecord) -> None:
+        """Drive `d` is about to be configured: out of the cycle, its TPDOs no longer decoded."""
         d.configured = False
         self._tpdo_by_cob = {c: x for c, x in self._tpdo_by_cob.items() if x is not d}
-        rpdo1, rpdo2, tpdo1 = configure_node(
+
+    def _configure_mapping(self, d: DriveRecord) -> PdoMapping:
+        """Configure drive `d` by SDO (blocking; any thread: it touches only canopen's node);
+        its PDO mappings. Raises ConfigureError naming the node and step."""
+        return configure_node(
             d.node,
             d.node_id,
             heartbeat_ms=self._heartbeat_ms,
@@ -342,7 +379,25 @@ class CiA402Reels(CiA402Receive):
             velocity_offset=self._velocity_offset,
             torque=self._torque,
         )
-        self._use_mapping(d, rpdo1, rpdo2, tpdo1)
+
+    def _take_config_job(self) -> None:
+        """The loop's thread takes over a finished `ConfigJob`: its drives configured (but one
+        that restarted again meanwhile), its failure kept for the next `arm`'s refusal."""
+        job = self._config_job
+        if job is None or not job.done():
+            return
+        self._config_job = None
+        self._sdo_expected = False
+        for d, mapping in job.results:
+            if not job.restarted_since(d):
+                self._use_mapping(d, *mapping)
+        self._config_failure = job.error
+
+    @property
+    def configuring(self) -> tuple[int, ...]:
+        """Node ids being configured beside the loop (after a restart) now; () if none."""
+        job = self._config_job
+        return () if job is None or job.done() else tuple(job.node_ids)
 
     def _use_mapping(
         self, d: DriveRecord, rpdo1: PdoMap, rpdo2: PdoMap | None, tpdo1: PdoMap
@@ -375,6 +430,8 @@ class CiA402Reels(CiA402Receive):
         """
         if self._configuring:
             return 0  # the `configure` pump is the bus's only reader meanwhile
+        if self._config_job is not None and self._config_job.done():
+            self._take_config_job()
         fast = self._fast
         handled = self._drain_bus() if fast is None else self._drain_fast(fast)
         self._stats.frames_rx += handled
@@ -409,7 +466,7 @@ class CiA402Reels(CiA402Receive):
             d.torque,
             None if emcy is None else emcy.code,
             None if emcy is None else emcy.register,
-            None if emcy is None else profile.emcy_text(emcy.code),
+            None if emcy is None else emcy_text(emcy.code),
         )
 
     def bad_frames(self, node_id: int) -> int:
@@ -437,8 +494,8 @@ class CiA402Reels(CiA402Receive):
             if not d.configured:
                 continue
             state = d.state
-            cw = profile.controlword_for(goal, state, d.fault_reset)
-            if cw == profile.CW_FAULT_RESET:
+            cw = controlword_for(goal, state, d.fault_reset)
+            if cw == CW_FAULT_RESET:
                 d.fault_reset = False  # one edge per arm
             if state is not enabled:
                 # Not following set-points: hold where the reel is when it starts to.
@@ -551,14 +608,40 @@ class CiA402Reels(CiA402Receive):
     def arm(self) -> None:
         """Bring every drive to Operation enabled, holding where its reel is.
 
-        Configures (blocking, see `configure`) drives not configured yet or restarted since;
-        sends a fault reset edge to a faulted drive; the state machine then advances one
-        transition per cycle (confirmation: `ready`, axis_state 8). Raises ConfigureError if a
-        drive cannot be configured, BusError if a send fails.
+        Sends a fault reset edge to a faulted drive; the state machine then advances one
+        transition per cycle (confirmation: `ready`, axis_state 8). A drive not configured
+        (restarted since it was) is first configured again by SDO beside the loop (a
+        `ConfigJob` on a worker thread; `poll` keeps cycling the other drives meanwhile and
+        takes the job over when it is done): the arm is refused until then.
+
+        Raises ArmRefused, changing nothing else, while a drive is not configured (naming the
+        drives, and why the last try failed if it did); BusError if a send fails.
         """
-        pending = [d.node_id for d in self._drives if not d.configured]
+        self._take_config_job()
+        job = self._config_job
+        if job is not None:
+            raise ArmRefused(
+                f"node{'s' if len(job.drives) > 1 else ''} {_ids(job.node_ids)} still being "
+                "configured by SDO after a restart; arm again in a moment"
+            )
+        pending = [d for d in self._drives if not d.configured]
         if pending:
-            self.configure(pending)
+            for d in pending:
+                self._forget_tpdo(d)
+            self._sdo_expected = True
+            self._config_job = ConfigJob(pending, self._configure_mapping).start()
+            failed = self._config_failure
+            self._config_failure = None
+            why = (
+                "restarted (NMT boot-up) and lost its set-up"
+                if all(d.restarted for d in pending)
+                else "not configured yet"
+            )
+            raise ArmRefused(
+                f"node{'s' if len(pending) > 1 else ''} {_ids(d.node_id for d in pending)} "
+                f"{why}: being configured by SDO beside the loop; arm again in a moment"
+                + ("" if failed is None else f" (the last try failed: {failed})")
+            )
         fault_states = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
         for d in self._drives:
             d.fault_reset = d.state in fault_states
@@ -601,6 +684,11 @@ class CiA402Reels(CiA402Receive):
         """Run one cycle (held set-points, SYNC): every drive answers with its TPDO, read by
         the next `poll()`. Raises BusError if a send fails."""
         self._cycle()
+
+
+def _ids(node_ids: Iterable[int]) -> str:
+    """ "1, 3" for node ids 1 and 3."""
+    return ", ".join(str(n) for n in node_ids)
 
 
 _DRIVER_OPTIONS = frozenset(
@@ -647,7 +735,7 @@ def check_options(options: Mapping[str, Any], period_s: float) -> list[tuple[str
     uses. Returns (key path, problem) pairs; empty if none. Raises nothing."""
     problems: list[tuple[str, str]] = []
     try:
-        profile.interpolation_period(period_s)
+        interpolation_period(period_s)
     except ValueError as exc:
         problems.append(("loop.rate_hz", f"{exc}: CiA 402 drives need a period like 1, 2 or 4 ms"))
     eds = options.get("eds")

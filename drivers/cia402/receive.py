@@ -22,8 +22,8 @@ from canopen.emcy import EmcyError
 from canopen.nmt import NMT_STATES
 
 from drivers.base import AxisReading, BusStats
-from drivers.cia402 import profile
-from drivers.cia402.profile import DriveState
+from drivers.cia402.profile import NO_EMCY_CODE, DriveState, drive_state, emcy_text
+from drivers.cia402.sdo_config import SYNC_COB_ID
 from drivers.socketcan_fast import (
     CAN_EFF_FLAG,
     CAN_ERR_FLAG,
@@ -36,6 +36,13 @@ from drivers.socketcan_fast import (
 NMT_OPERATIONAL = 5
 NMT_BOOT_UP = 0
 
+ANOTHER_SYNC_PRODUCER = (
+    "another SYNC producer on the bus: a SYNC (0x080) this host did not send (two CANopen "
+    "masters on one bus: stop the other one)"
+)
+COUNT_KEPT_REV = 0.01
+"""A restarted drive whose first position is within this of its last one kept its count (an
+absolute encoder; the reel is braked while the drive restarts); farther, a new count began."""
 SYNC_RING = 4096
 """SYNCs whose send times are kept, to tell which SYNC a drive's TPDO answers."""
 MAX_ANSWER_DELAY_S = 1.0
@@ -49,7 +56,9 @@ class DriveRecord:
     __slots__ = (
         "actual_counts",
         "bad_frames",
+        "boots",
         "configured",
+        "counts_before_restart",
         "emcy",
         "fault_reset",
         "ff_units",
@@ -78,6 +87,11 @@ class DriveRecord:
         self.reading = AxisReading(node_id)
         self.configured = False
         self.restarted = False
+        self.boots = 0
+        self.counts_before_restart: int | None = None
+        """Position actual when the drive was last heard before a restart (its first position
+        after it tells whether the count survived)."""
+        """NMT boot-ups heard from the drive (a restart while it was being configured)."""
         self.statusword: int | None = None
         self.state: DriveState | None = None
         self.nmt_state: int | None = None
@@ -115,8 +129,11 @@ class CiA402Receive:
     _canopen_cob_ids: frozenset[int]
     _sdo_answer_ids: frozenset[int]
     _configuring: bool
+    _sdo_expected: bool
     _last_sync_s: float
     _syncs_sent: int
+    _syncs_heard: int
+    _sync_echoes: bool
     _sync_times: array[float]
     _command_sync: int
 
@@ -180,11 +197,14 @@ class CiA402Receive:
         if can_id & CAN_EFF_FLAG:
             self._stats.count("extended_id", decode_error=True)
             return
+        if can_id == SYNC_COB_ID:
+            self._on_sync_heard()
+            return
         if can_id in self._host_cob_ids or can_id & CAN_RTR_FLAG:
             self._stats.count("not_for_host")
             return
         if can_id in self._sdo_answer_ids:
-            if not self._configuring:  # nobody waits for it: not queued for later
+            if not self._sdo_expected:  # nobody waits for it: not queued for later
                 self._stats.count("sdo_unsolicited")
                 return
         elif can_id not in self._canopen_cob_ids:
@@ -200,6 +220,16 @@ class CiA402Receive:
             if owner is not None:
                 owner.bad_frames += 1
 
+    def _on_sync_heard(self) -> None:
+        """A SYNC heard: this host's own, echoed back by a bus that echoes (udp_multicast: no
+        more of them than were sent), else another SYNC producer's: two masters on the bus,
+        counted as a conflict (`BusStats.conflicts`; the loop faults on it by name)."""
+        if self._sync_echoes and self._syncs_heard < self._syncs_sent:
+            self._syncs_heard += 1
+            self._stats.count("not_for_host")
+            return
+        self._stats.count_conflict(ANOTHER_SYNC_PRODUCER)
+
     def _on_tpdo(self, d: DriveRecord, data: bytes | bytearray) -> None:
         layout = d.tpdo1
         if len(data) != layout.size:
@@ -209,6 +239,11 @@ class CiA402Receive:
         values = layout.unpack(data)
         counts = values[1]
         r = d.reading
+        before = d.counts_before_restart
+        if before is not None:
+            d.counts_before_restart = None
+            if abs(counts - before) > COUNT_KEPT_REV * self.counts_per_rev:
+                r.count_epoch += 1  # a new count: positions before and after do not compare
         cpr = self.counts_per_rev
         t_sample = self._last_sync_s
         prev = d.prev_counts
@@ -247,8 +282,14 @@ class CiA402Receive:
             d.reading.heartbeat_stamp_s = now_s = self._clock()
             if not d.configured:  # no TPDOs: its status is its NMT state (and restart)
                 d.reading.status_stamp_s = now_s
+            if state == NMT_BOOT_UP:
+                d.boots += 1
             if state == NMT_BOOT_UP and d.configured:
-                # The drive restarted: its PDO set-up and mode are back to their defaults.
+                # The drive restarted: its PDO set-up and mode are back to their defaults, and
+                # its position count may have started afresh (judged on its next position).
+                if d.actual_counts is not None:
+                    d.counts_before_restart = d.actual_counts
+                d.prev_counts = None  # no velocity across the restart
                 d.configured = False
                 d.restarted = True
                 self._tpdo_by_cob = {c: x for c, x in self._tpdo_by_cob.items() if x is not d}
@@ -272,7 +313,7 @@ class CiA402Receive:
 
     def _refresh(self, d: DriveRecord) -> None:
         """Derive the reading's state fields from statusword, NMT state, EMCY and restarts."""
-        state = d.state = None if d.statusword is None else profile.drive_state(d.statusword)
+        state = d.state = None if d.statusword is None else drive_state(d.statusword)
         r = d.reading
         nmt = d.nmt_state
         fault: str | None = None
@@ -288,7 +329,7 @@ class CiA402Receive:
             if state is DriveState.FAULT or state is DriveState.FAULT_REACTION_ACTIVE:
                 emcy = d.emcy
                 fault = (
-                    f"EMCY 0x{emcy.code:04X} {profile.emcy_text(emcy.code)}"
+                    f"EMCY 0x{emcy.code:04X} {emcy_text(emcy.code)}"
                     if emcy is not None
                     else f"{state.value} (no EMCY received)"
                 )
@@ -305,4 +346,4 @@ class CiA402Receive:
         if fault is None:
             r.axis_error = 0
         else:
-            r.axis_error = d.emcy.code if d.emcy is not None else profile.NO_EMCY_CODE
+            r.axis_error = d.emcy.code if d.emcy is not None else NO_EMCY_CODE

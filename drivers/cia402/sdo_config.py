@@ -16,7 +16,7 @@ from canopen.sdo.base import SdoVariable
 from canopen.sdo.exceptions import SdoAbortedError, SdoError
 
 from drivers.base import DriverError
-from drivers.cia402 import profile
+from drivers.cia402.profile import CYCLIC_SYNCHRONOUS_POSITION
 
 SYNC_COB_ID = 0x80
 RPDO1_OBJECTS = (0x6040, 0x607A)
@@ -76,7 +76,7 @@ def configure_node(
         step = "0x1017 heartbeat producer time"
         write(node.sdo[0x1017], heartbeat_ms)
         step = "0x6060 modes of operation"
-        write(node.sdo[0x6060], profile.CYCLIC_SYNCHRONOUS_POSITION)
+        write(node.sdo[0x6060], CYCLIC_SYNCHRONOUS_POSITION)
         step = "0x60C2 interpolation time period"
         value, index = interp
         write(node.sdo[0x60C2][1], value)
@@ -179,7 +179,7 @@ def check_mode(node: canopen.RemoteNode) -> None:
     deadline = time.monotonic() + _MODE_DISPLAY_WAIT_S
     while True:
         shown = int(node.sdo[0x6061].raw)
-        if shown == profile.CYCLIC_SYNCHRONOUS_POSITION:
+        if shown == CYCLIC_SYNCHRONOUS_POSITION:
             return
         if time.monotonic() >= deadline:
             raise ConfigureError(

@@ -33,7 +33,8 @@ Fault injection: `silence(True)` (no frames in or out), `set_error(code)` (EMCY 
 and Fault; a fault reset clears it, unless `persistent`), `send_corrupt(n)` (wrong-length
 TPDO1 frames), `drift(rate)` (position actual drifts from the true position),
 `power_cycle()` (a restart: boot-up, the object dictionary back to its defaults, position
-actual from 0 as an incremental encoder does).
+actual from 0 as an incremental encoder does), `hold_sdo(True)` (SDO requests are taken but
+answered only once released: a drive busy for a while).
 """
 
 from __future__ import annotations
@@ -200,7 +201,67 @@ class _Pdo:
     last: bytes | None = None
 
 
-class SimCiA402Drive:
+class _InjectedFaults:
+    """The fault injection of `SimCiA402Drive` (a mixin: the drive owns the state below)."""
+
+    _lock: threading.RLock
+    _silent: bool
+    _sdo_held: list[tuple[int, bytes, float]] | None
+    _sdo_released: list[tuple[int, bytes, float]]
+    _pending_error: tuple[int, bool] | None
+    _pending_corrupt: int
+    _drift_rate_rps: float
+
+    def _zero_here(self) -> None:
+        raise NotImplementedError
+
+    def _power_up(self) -> None:
+        raise NotImplementedError
+
+    def silence(self, silent: bool = True) -> None:
+        """Go silent (no frames received or sent), or speak again."""
+        with self._lock:
+            self._silent = silent
+
+    def hold_sdo(self, hold: bool = True) -> None:
+        """Hold SDO requests unanswered (True), or answer the held ones with the next step and
+        every later one at once (False)."""
+        with self._lock:
+            if hold:
+                if self._sdo_held is None:
+                    self._sdo_held = []
+            elif self._sdo_held is not None:
+                self._sdo_released.extend(self._sdo_held)
+                self._sdo_held = None
+
+    def set_error(self, code: int, *, persistent: bool = False) -> None:
+        """Raise error `code` with the next step: EMCY, Fault (power stage off). A fault reset
+        clears it unless `persistent`. Raises ValueError unless 0x1000 <= code <= 0xFFFF."""
+        if not 0x1000 <= code <= 0xFFFF:
+            raise ValueError(f"EMCY error code 0x1000..0xFFFF expected, got 0x{code:x}")
+        with self._lock:
+            self._pending_error = (code, persistent)
+
+    def send_corrupt(self, count: int = 1) -> None:
+        """Emit `count` wrong-length (5 byte) TPDO1 frames with the next step."""
+        with self._lock:
+            self._pending_corrupt += count
+
+    def drift(self, rate_rev_per_s: float) -> None:
+        """Let position actual drift from the true position at this rate."""
+        if not math.isfinite(rate_rev_per_s):
+            raise ValueError("drift rate must be finite")
+        with self._lock:
+            self._drift_rate_rps = rate_rev_per_s
+
+    def power_cycle(self) -> None:
+        """Restart the drive: boot-up, dictionary defaults, position actual from 0."""
+        with self._lock:
+            self._zero_here()
+            self._power_up()
+
+
+class SimCiA402Drive(_InjectedFaults):
     """One simulated CiA 402 servo drive; thread-safe (an internal lock guards every method)."""
 
     def __init__(
@@ -255,6 +316,8 @@ class SimCiA402Drive:
         self.syncs_received = 0
         self.rpdos_applied = 0
         self._silent = False
+        self._sdo_held: list[tuple[int, bytes, float]] | None = None
+        self._sdo_released: list[tuple[int, bytes, float]] = []
         self._drift_rate_rps = 0.0
         self._pending_corrupt = 0
         self._pending_error: tuple[int, bool] | None = None
@@ -548,7 +611,9 @@ class SimCiA402Drive:
             if self._pdo_dirty:
                 self._rebuild_pdos()
             operational = self.node.nmt.state == _NMT_OPERATIONAL
-            if arb_id == self._sync_cob:
+            if self._sdo_held is not None and arb_id == 0x600 + self.node_id:
+                self._sdo_held.append((arb_id, bytes(data), timestamp))
+            elif arb_id == self._sync_cob:
                 if operational:
                     self._on_sync()
             elif arb_id in self._rpdos:
@@ -579,6 +644,11 @@ class SimCiA402Drive:
                 self._pending_error = None
                 self.error_persistent = persistent
                 self._fault(code)
+            if self._sdo_held is None and self._sdo_released:
+                for arb_id, data, stamp in self._sdo_released:
+                    with contextlib.suppress(Exception):
+                        self.network.notify(arb_id, bytearray(data), stamp)
+                self._sdo_released = []
             if dt_s > 0.0:
                 self._move(dt_s)
                 self._drift_rev = self._drift_rev + self._drift_rate_rps * dt_s
@@ -660,39 +730,6 @@ class SimCiA402Drive:
             self.accel_rps2 = (v_new - v) / h
             self.position_rev = p_new
             self.velocity_rps = v_new
-
-    # --- fault injection ------------------------------------------------------------------
-
-    def silence(self, silent: bool = True) -> None:
-        """Go silent (no frames received or sent), or speak again."""
-        with self._lock:
-            self._silent = silent
-
-    def set_error(self, code: int, *, persistent: bool = False) -> None:
-        """Raise error `code` with the next step: EMCY, Fault (power stage off). A fault reset
-        clears it unless `persistent`. Raises ValueError unless 0x1000 <= code <= 0xFFFF."""
-        if not 0x1000 <= code <= 0xFFFF:
-            raise ValueError(f"EMCY error code 0x1000..0xFFFF expected, got 0x{code:x}")
-        with self._lock:
-            self._pending_error = (code, persistent)
-
-    def send_corrupt(self, count: int = 1) -> None:
-        """Emit `count` wrong-length (5 byte) TPDO1 frames with the next step."""
-        with self._lock:
-            self._pending_corrupt += count
-
-    def drift(self, rate_rev_per_s: float) -> None:
-        """Let position actual drift from the true position at this rate."""
-        if not math.isfinite(rate_rev_per_s):
-            raise ValueError("drift rate must be finite")
-        with self._lock:
-            self._drift_rate_rps = rate_rev_per_s
-
-    def power_cycle(self) -> None:
-        """Restart the drive: boot-up, dictionary defaults, position actual from 0."""
-        with self._lock:
-            self._zero_here()
-            self._power_up()
 
 
 class SimCiA402Bank(ThreadedSimBank):

@@ -65,7 +65,8 @@ cable). Without a coupling the torque is 0: the kinematic simulator knows no loa
 Fault injection for tests: `silence(True)` (no frames in or out), `set_axis_error(code)` (disarm
 with that error, reported by heartbeat), `send_corrupt()` (a wrong-length encoder frame),
 `send_nan()` (an encoder frame with a NaN position), `drift(rate)` (encoder estimate drifts from
-the true position at `rate` rev/s).
+the true position at `rate` rev/s), `reboot()` (IDLE without errors, as after a reset; with
+`silence` before it, the heartbeat gap of a reboot).
 """
 
 from __future__ import annotations
@@ -210,6 +211,20 @@ class SimODriveAxis:
             self.axis_error |= code
             self.disarm_reason = code
             self._disarm()
+
+    def reboot(self) -> None:
+        """Restart the axis as firmware does after a reset: IDLE, no error, position control in
+        passthrough, holding where the reel is (the position is kept: an absolute encoder, or an
+        incremental one whose count survives a reset of the processor only)."""
+        with self._lock:
+            self._disarm()
+            self.axis_error = 0
+            self.disarm_reason = 0
+            self.control_mode = cs.ControlMode.POSITION_CONTROL
+            self.input_mode = cs.InputMode.PASSTHROUGH
+            self.input_pos_rev = self.position_rev
+            self.input_vel_rps = 0.0
+            self.input_torque_nm = 0.0
 
     def send_corrupt(self, count: int = 1) -> None:
         """Emit `count` wrong-length (5 byte) encoder frames with the next step."""

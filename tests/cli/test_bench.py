@@ -40,6 +40,7 @@ TOP_KEYS = {
     "sag_us",
     "ros2_publish_us",
     "compute_per_tick",
+    "layouts",
 }
 NEW_SECTION_KEYS = {
     "planning": {
@@ -133,7 +134,12 @@ def test_bench_quick_json(tmp_path: Path) -> None:
     rtf = data["sim_plant_rtf"]
     assert set(rtf) == {"position", "torque"} and all(_number(v) and v > 0.0 for v in rtf.values())
     _check_new_sections(data)
-    for key in TOP_KEYS - {"loop", "estop_latency_flood_ms", "sim_plant_rtf", *NEW_SECTION_KEYS}:
+    assert list(data["layouts"]) == list(bench.LAYOUTS)
+    for fig in data["layouts"].values():
+        assert set(fig) == set(bench.LAYOUT_KEYS)
+        assert all(_number(v) and v > 0.0 for v in fig.values()), fig
+    skip = {"loop", "estop_latency_flood_ms", "sim_plant_rtf", "layouts", *NEW_SECTION_KEYS}
+    for key in TOP_KEYS - skip:
         assert _number(data[key]), (key, data[key])
         assert data[key] > 0.0, (key, data[key])
     assert data["fpk_simplified_us"] < 1e3 and data["fpk_general_us"] < 1e3
@@ -157,6 +163,7 @@ def test_bench_quick_json(tmp_path: Path) -> None:
         "stretch_us.fpk_stretch_moving",
         "ros2_publish_us.tick_handoff_us",
         "compute_per_tick.p99_us",
+        "layouts.cube-8.statics_over_paper4",
         "repeats",
     ):
         assert name in table
@@ -285,6 +292,20 @@ def test_bench_statics_piece() -> None:
     }
     assert all(_number(v) and v > 0.0 for v in figures.values()), figures
     assert figures["statics_batch_us"] < figures["statics_us"]
+
+
+def test_bench_layouts_piece() -> None:
+    """Every layout's statics and FPK per call (random poses and a path a tick apart) and the
+    ratios to the paper robot's, which are its own 1.0."""
+    from controller.cli.bench.layouts import bench_layouts
+
+    figures = bench_layouts(repeats=1, n_poses=10)
+    assert list(figures) == list(bench.LAYOUTS)
+    for name, fig in figures.items():
+        assert set(fig) == set(bench.LAYOUT_KEYS), name
+        assert all(_number(v) and v > 0.0 for v in fig.values()), (name, fig)
+    assert figures["paper-4"]["statics_over_paper4"] == 1.0
+    assert figures["paper-4"]["fpk_over_paper4"] == 1.0
 
 
 def test_bench_sim_plant_piece() -> None:

@@ -336,6 +336,10 @@ def test_collect_manual_records_the_pose_at_each_enter(
     assert res.returncode == 0, res.stdout + res.stderr + _daemon_state(desk_daemon)
     _, rows = read_rows(out)
     assert len(rows) == 2
+    # the robot did not move between the two: the second sample is the first pose again
+    assert "warning: sample 2 is sample 1's pose again" in res.stderr, res.stderr
+    assert "move the robot to a new pose before the next sample" in res.stderr
+    assert "sample 1 is" not in res.stderr
     session = zenoh_session(endpoint)
     try:
         st = zquery(session, f"{prefix}/status")
@@ -371,6 +375,21 @@ def test_collect_manual_records_the_pose_at_each_enter(
     )
     assert gone.returncode == exitcodes.NO_DAEMON, gone.stderr
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_a_sample_at_an_earlier_pose_is_named() -> None:
+    from controller.cli.calibrate import same_pose_as
+    from controller.core.calibration import DISTINCT_POSE_M
+
+    earlier = [[0.0, 0.0, 0.3], [0.1, 0.0, 0.3], [0.1, 0.0004, 0.3]]
+    found = same_pose_as([0.1, 0.0003, 0.3], earlier)
+    assert found is not None and found[0] == 3 and found[1] == pytest.approx(1e-4)
+    assert same_pose_as([0.0, 0.0, 0.3 + 0.9 * DISTINCT_POSE_M], earlier) == (
+        1,
+        pytest.approx(0.9 * DISTINCT_POSE_M),
+    )
+    assert same_pose_as([0.0, 0.0, 0.3 + DISTINCT_POSE_M], earlier) is None
+    assert same_pose_as([0.0, 0.0, 0.3], []) is None
 
 
 @pytest.mark.parametrize("config", [None, DESK])

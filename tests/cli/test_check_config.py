@@ -37,7 +37,7 @@ def test_desk_file_is_described(capsys: pytest.CaptureFixture[str]) -> None:
     ) in out
     # the desk file's own comment: anchor to the far bottom corner of the workspace is 1.54 m
     assert "cables     allowed 0.100..1.600 m; the workspace needs 0.122..1.559 m" in out
-    assert "loop       1000 Hz, pose published at 100 Hz" in out
+    assert "loop       500 Hz, pose published at 100 Hz" in out
     assert (
         "statics    payload 0.5 kg, cable tensions 0.5..20 N (maximum from"
         " limits.max_tension_n), commands 0.5 N inside"
@@ -45,6 +45,23 @@ def test_desk_file_is_described(capsys: pytest.CaptureFixture[str]) -> None:
     assert "bus        socketcan can0, 1000000 bit/s" in out
     assert "zenoh      peer, listen tcp/127.0.0.1:7447, prefix cablebot/desk" in out
     assert lines[-1] == f"ok: {path} is valid"
+
+
+def test_config_option_names_the_file_as_for_every_other_verb(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    desk = str(REPO / "config" / "desk.toml")
+    code, out, err = run(capsys, "check-config", "--config", desk)
+    assert code == exitcodes.OK, err
+    assert out.splitlines()[-1] == f"ok: {desk} is valid"
+    code, out, _ = run(capsys, "check-config", desk, "--config", desk)
+    assert code == exitcodes.OK
+    paper = str(REPO / "config" / "paper-acre.toml")
+    code, out, err = run(capsys, "check-config", desk, "--config", paper)
+    assert code == exitcodes.USAGE and out == ""
+    assert f"two files, {desk} and --config {paper}: name one" in err
+    code, out, err = run(capsys, "check-config")
+    assert code == exitcodes.USAGE and "name the robot file" in err
 
 
 def test_json_description(capsys: pytest.CaptureFixture[str]) -> None:
@@ -61,7 +78,7 @@ def test_every_problem_is_printed_and_exit_is_1(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     text = (REPO / "config" / "desk.toml").read_text()
-    text = text.replace("rate_hz = 1000.0", 'rate_hz = "fast"')
+    text = text.replace("rate_hz = 500.0", 'rate_hz = "fast"')
     text = text.replace("max_speed_mps = 0.3", "max_speed_mps = -1")
     text = text.replace("[limits]", "[limits]\nmax_cabel_m = 3")
     bad = tmp_path / "bad.toml"

@@ -72,3 +72,36 @@ def test_ctrl_c_on_move_wait_brakes_to_a_hold_unless_detached(tmp_path: Path) ->
         assert d.status()["state"] == "MOVING"  # the motion goes on
         kind, _ = d.query("cmd/stop")
         assert kind == "ok"
+
+
+@pytest.mark.slow
+def test_another_clients_stop_ends_a_move_wait_at_once(tmp_path: Path) -> None:
+    """`move --wait` whose motion another client stops reports the stop as soon as the robot
+    holds (exit 1, the reason named), as it does an e-stop, not after `--wait-timeout`."""
+    with live_daemon(tmp_path) as (d, _cfg):
+        wait_holding_at_rest(d, 30.0)
+        cli = _start_move(d, "--wait-timeout", "600")
+        kind, _ = d.query("cmd/stop")
+        assert kind == "ok"
+        t_stop = time.monotonic()
+        rc = cli.p.wait(60.0)
+        waited_s = time.monotonic() - t_stop
+        assert rc == exitcodes.REFUSED, cli.log()
+        line = cli.wait_line("accepted, then the motion ended", 5.0, stderr=True)
+        assert "stopped by a `stop` command" in line, line
+        assert "short of x=+10.000 y=+0.000 z=+2.000 m" in line, line
+        assert waited_s < 30.0, (waited_s, cli.log())  # braking takes 0.25 s at 0.5 m/s
+        st = d.status()
+        assert st["state"] == "HOLDING" and st["reason"] == "stopped by a `stop` command", st
+        # a motion that arrives carries no such reason
+        target = [v + 0.01 for v in st["setpoint_m"]]
+        done = Proc(
+            [
+                *CABLEBOT,
+                *("move", *(f"{v:.6f}" for v in target), "--wait"),
+                *("--connect", d.endpoint, "--prefix", d.prefix),
+            ],
+            "move-again",
+        )
+        assert done.p.wait(60.0) == exitcodes.OK, done.log()
+        assert d.status()["reason"] is None

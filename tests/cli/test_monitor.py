@@ -32,7 +32,13 @@ CAPTURE_FILE = os.environ.get("CABLEBOT_MONITOR_CAPTURE")
 
 
 class Tmux:
-    """A private tmux server (its own socket) with one session running a command."""
+    """A private tmux server (its own socket) with one session running a command.
+
+    The pane's shell stays after the command (its exit status goes to a file): the screen
+    keeps what the command left, as a user's terminal does. A pane whose shell ended would
+    print tmux's "Pane is dead" on its last row, scrolling the top line out of the screen: a
+    command whose last words are on the first row would seem to have printed nothing.
+    """
 
     def __init__(self, command: list[str], width: int = 110, height: int = 40) -> None:
         exe = shutil.which("tmux")
@@ -55,12 +61,12 @@ class Tmux:
             str(REPO),
             # GNU readline, once loaded in this process, exports COLUMNS/LINES (80x24 without a
             # terminal); they would fix the monitor's width: the pane's own size must count.
-            # The shell writes the command's exit status to a file: tmux 3.3 does not always
-            # fill #{pane_dead_status}.
+            # The shell writes the command's exit status to a file (tmux 3.3 does not always
+            # fill #{pane_dead_status}), then stays (see the class docstring).
             "--",
             "sh",
             "-c",
-            'env -u COLUMNS -u LINES "$@"; echo $? > "$0"',
+            'env -u COLUMNS -u LINES "$@"; echo $? > "$0"; exec sleep 86400',
             str(self.status_file),
             *command,
         )
@@ -140,6 +146,24 @@ def tmux_available() -> None:
         if running_under_ci():
             pytest.fail("tmux is not installed: CI must run the monitor in a real terminal")
         pytest.skip("tmux is not installed (.ci/run installs it)")
+
+
+def test_a_command_s_last_line_stays_on_the_screen_after_it_ends(tmux_available: None) -> None:
+    """The capture shows what a user sees once a command is over: here its one line, on the
+    first row, for seconds after it ended."""
+    term = Tmux([sys.executable, "-c", "print('gcode: done: 3 lines')"])
+    try:
+        deadline = time.monotonic() + 30.0
+        while term.dead_status() is None:
+            assert time.monotonic() < deadline, term.screen()
+            time.sleep(0.02)
+        assert term.dead_status() == 0
+        for _ in range(20):  # 2 s: long after tmux has handled the command's end
+            screen = term.screen()
+            assert screen.splitlines()[0] == "gcode: done: 3 lines", screen
+            time.sleep(0.1)
+    finally:
+        term.kill()
 
 
 @pytest.fixture

@@ -65,7 +65,10 @@ def test_the_examples_are_found_through_the_package() -> None:
     assert config_cmd.find_example("desk") == config_cmd.examples_dir() / "desk.toml"
     with pytest.raises(
         FileNotFoundError,
-        match=re.escape("there are: cablebot@.service, cia402-desk.toml, cia402-sim.toml, desk"),
+        match=re.escape(
+            "there are: cablebot@.service, cia402-desk.toml, cia402-sim.toml, "
+            "circle-stretch.toml, desk"
+        ),
     ):
         config_cmd.find_example("nope")
 

@@ -5,6 +5,7 @@ not move along is shown on the scale of the motion."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -197,3 +198,92 @@ def test_the_speed_figure_draws_set_point_measured_and_requested(
     assert labels == ["measured (FPK poses)", "set-point", "requested"]
     requested = ax.get_lines()[2].get_ydata()
     assert np.allclose(requested, 0.3)
+
+
+@pytest.mark.parametrize(
+    ("content", "reason"),
+    [
+        (b"", "the file is empty (0 bytes)"),
+        (b"x,y,z\n0,0,2\n", "not an MCAP file (it does not start with MCAP's magic bytes)"),
+        (b"\x89MCAP0\r\n", "the file is cut off after 8 bytes, before its first record"),
+        (b"\x89MC", "the file is cut off after 3 bytes, before its first record"),
+    ],
+)
+def test_a_file_that_is_no_recording_is_named_with_its_reason(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], content: bytes, reason: str
+) -> None:
+    from controller.cli import exitcodes, main
+
+    path = tmp_path / "run.csv"
+    path.write_bytes(content)
+    assert main(["plot", str(path), "--out", str(tmp_path / "out")]) == exitcodes.REFUSED
+    err = capsys.readouterr().err
+    assert err == f"cablebot plot: cannot read {path}: not a cablebot recording: {reason}\n"
+    assert main(["replay", str(path)]) == exitcodes.REFUSED
+    err = capsys.readouterr().err
+    assert err == f"cablebot replay: cannot read {path}: not a cablebot recording: {reason}\n"
+
+
+def _square_side_recording(path: Path, *, stamped: bool) -> None:
+    """A recording of a set-point moving at 0.5 m/s along x for 2 s (pose at 250 Hz), with the
+    status sampled at 20 Hz whose replies reach the recorder late by 0 to 60 ms, some after
+    the next one (as on a loaded machine); `stamped`: the daemon dates each set-point."""
+    from controller.cli.record import McapRecorder
+
+    pytest.importorskip("mcap")
+    rng = np.random.default_rng(7)
+    t0_ns = 1_800_000_000 * 10**9
+    prefix = "cablebot/sq"
+    msgs: list[tuple[int, str, bytes]] = []
+    for k in range(500):
+        t_ns = t0_ns + k * 4_000_000
+        x = 0.5 * k * 0.004
+        pose = {
+            "seq": k,
+            "stamp_ns": t_ns,
+            "position_m": [x, 0.0, 2.0],
+            "cable_lengths_m": [1.0, 1.0, 1.0, 1.0],
+            "residual_m": 0.0,
+            "valid": True,
+            "state": "MOVING",
+        }
+        msgs.append((t_ns + 1_000_000, f"{prefix}/pose", json.dumps(pose).encode()))
+    for k in range(40):
+        t_ns = t0_ns + k * 50_000_000
+        x = 0.5 * k * 0.05
+        status: dict[str, Any] = {
+            "state": "MOVING",
+            "setpoint_m": [x, 0.0, 2.0],
+            "pose": {"valid": True, "position_m": [x, 0.0, 2.0]},
+            "path": {"speed_mps": 0.5},
+        }
+        if stamped:
+            status["setpoint_stamp_ns"] = t_ns
+        late_ns = int(rng.uniform(0.0, 60e6))
+        msgs.append((t_ns + late_ns, f"{prefix}/status", json.dumps(status).encode()))
+    with open(path, "wb") as out:
+        rec = McapRecorder(out, prefix, flush_s=1.0)
+        for recv_ns, key, data in sorted(msgs):
+            rec.add(key, data, recv_ns)
+        rec.close()
+
+
+def test_the_set_point_speed_is_dated_by_the_daemon_not_by_the_replys_arrival(
+    tmp_path: Path,
+) -> None:
+    """Status replies late and out of order made a steady 0.5 m/s set-point look like dips to
+    half speed and spikes; dated by the tick that computed it, it is 0.5 m/s throughout."""
+    stamped = tmp_path / "stamped.mcap"
+    _square_side_recording(stamped, stamped=True)
+    tr = plot.trace_from_recording(stamped)
+    assert tr.setpoint_stamped
+    assert np.all(np.diff(tr.status_t_s) > 0)  # in the daemon's order
+    _, v = plot.speed_mps(tr.status_t_s, tr.setpoint_m, plot.SPEED_WINDOW_S)
+    assert np.allclose(v, 0.5, atol=1e-6), v
+    # an older recording (no stamps): dated by arrival, the same run is off by far more
+    old = tmp_path / "old.mcap"
+    _square_side_recording(old, stamped=False)
+    tr_old = plot.trace_from_recording(old)
+    assert not tr_old.setpoint_stamped
+    _, v_old = plot.speed_mps(tr_old.status_t_s, tr_old.setpoint_m, plot.SPEED_WINDOW_S)
+    assert np.nanmax(np.abs(v_old - 0.5)) > 0.1

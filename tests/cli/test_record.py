@@ -421,6 +421,30 @@ def test_replay_rate(run: Run) -> None:
     assert on_time >= 0.8 * len(offsets), (on_time, len(offsets), span, rec_span)
 
 
+def test_replay_stopped_by_sigterm_says_so_of_a_complete_file(run: Run) -> None:
+    """Stopped mid-way, replay says it stopped; it never blames the complete file."""
+    recording = Recording(run.path)
+    n_recorded = sum(1 for _ in recording.messages())
+    assert recording.complete and n_recorded > 10
+    proc, endpoint = _replay(run, "--rate", "0.05")  # 20x slower: still replaying when killed
+    got: queue.Queue[bytes] = queue.Queue()
+    session = zenoh_session(endpoint, 30.0)
+    try:
+        session.declare_subscriber(f"{run.prefix}/pose", lambda s: got.put(s.payload.to_bytes()))
+        got.get(timeout=30.0)  # under way
+    finally:
+        session.close()
+    proc.p.send_signal(signal.SIGTERM)
+    try:
+        assert proc.p.wait(timeout=30.0) == exitcodes.OK, proc.log()
+    finally:
+        proc.terminate()
+    line = proc.wait_line("replay stopped after", 5.0)
+    n = int(line.split("after ")[1].split()[0])
+    assert 1 <= n < n_recorded, line
+    assert "ends early" not in proc.log()
+
+
 def test_replay_refuses_a_prefix_with_a_live_daemon(run: Run, robot: tuple[Daemon, Path]) -> None:
     d, _ = robot
     assert d.prefix == run.prefix

@@ -37,6 +37,34 @@ def test_extra_arguments_show_the_verbs_usage(capsys: pytest.CaptureFixture[str]
     assert err.splitlines()[-1].endswith("unrecognized arguments: --bogus")
 
 
+def test_a_mistyped_option_gets_did_you_mean(capsys: pytest.CaptureFixture[str]) -> None:
+    err = usage_error(capsys, "move", "1", "2", "3", "--sped", "3")
+    assert err.startswith("usage: cablebot move ")
+    assert err.splitlines()[-1] == (
+        "cablebot move: error: unrecognized arguments: --sped 3; --sped: did you mean --speed?"
+    )
+    err = usage_error(capsys, "calibrate", "collect", "x.csv", "--atuo=3")
+    assert err.splitlines()[-1].endswith("--atuo: did you mean --auto?")
+    err = usage_error(capsys, "status", "--zzzz")
+    assert err.splitlines()[-1] == "cablebot status: error: unrecognized arguments: --zzzz"
+
+
+def test_a_bare_cablebot_lists_every_verb_one_line_each(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from controller.cli import build_parser
+
+    err = usage_error(capsys)
+    lines = err.splitlines()
+    assert lines[0].startswith("usage: cablebot ")
+    listed = [line.split()[0] for line in lines if line.startswith("  ")]
+    verbs = next(a for a in build_parser()._actions if a.dest == "command")
+    assert listed == list(verbs.choices)  # type: ignore[attr-defined]
+    assert "  check-config  validate a robot file and print what it means" in err
+    assert "  move          move in a straight line to X Y Z" in err
+    assert lines[-1] == "`cablebot COMMAND -h` describes one"
+
+
 def test_version(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exc:
         main(["--version"])

@@ -55,6 +55,61 @@ def test_a_motion_already_over_is_arrival_at_once() -> None:
     assert poses.qsize() == 1
 
 
+def test_a_hold_short_of_the_end_after_another_clients_stop_fails_at_once() -> None:
+    poses: queue.Queue[bytes] = queue.Queue()
+    for seq, (state, x) in enumerate([("MOVING", 20.5), ("MOVING", 20.9), ("HOLDING", 21.0)]):
+        poses.put(_sample(seq, state, x))
+    asked: list[int] = []
+
+    def status() -> dict[str, Any]:
+        asked.append(1)
+        return {
+            "state": "HOLDING",
+            "reason": "stopped by a `stop` command",
+            "setpoint_m": [21.0, 0.0, 2.0],
+        }
+
+    args = _args()
+    args.wait_timeout = 120.0
+    t0 = time.monotonic()
+    with pytest.raises(client.Failed) as info:
+        client._wait_arrival(args, "move", poses, [[30.0, 0.0, 2.0]], status=status)
+    assert time.monotonic() - t0 < 5.0
+    assert str(info.value).startswith(
+        "the motion ended 9.000 m short of x=+30.000 y=+0.000 z=+2.000 m: "
+        "stopped by a `stop` command; "
+    )
+    assert asked == [1]
+
+
+def test_a_hold_settling_on_the_end_asks_once_and_arrives() -> None:
+    poses: queue.Queue[bytes] = queue.Queue()
+    for seq, (state, x) in enumerate(
+        [("MOVING", 20.5), ("HOLDING", 20.995), ("HOLDING", 20.998), ("HOLDING", 21.0)]
+    ):
+        poses.put(_sample(seq, state, x))
+    asked: list[int] = []
+
+    def status() -> dict[str, Any]:
+        asked.append(1)
+        return {"state": "HOLDING", "reason": None, "setpoint_m": [21.0, 0.0, 2.0]}
+
+    rc = client._wait_arrival(_args(), "move", poses, [[21.0, 0.0, 2.0]], status=status)
+    assert rc == client.EXIT_OK and asked == [1]
+
+
+def test_a_motion_replaced_by_another_command_fails_naming_it() -> None:
+    poses: queue.Queue[bytes] = queue.Queue()
+    for seq, (state, x) in enumerate([("MOVING", 20.5), ("HOLDING", 5.0)]):
+        poses.put(_sample(seq, state, x))
+
+    def status() -> dict[str, Any]:
+        return {"state": "HOLDING", "reason": None, "setpoint_m": [5.0, 0.0, 2.0]}
+
+    with pytest.raises(client.Failed, match=r"short of .*: another command took over"):
+        client._wait_arrival(_args(), "move", poses, [[21.0, 0.0, 2.0]], status=status)
+
+
 class _NoSub:
     def undeclare(self) -> None:
         pass

@@ -128,7 +128,7 @@ def test_newton_takes_a_few_steps_where_a_fixed_point_takes_dozens(
     passes = 0
     move = math.inf
     while move > 1e-9 and passes < 200:
-        t = sag.statics._solve4_parts(u, sag.weight_n)[0]
+        t = sag.statics.solve_directions(u, (0.0, 0.0, sag.weight_n)).tensions_n
         new = []
         for i, (ax, ay, az) in enumerate(PAPER):
             dx, dy = ax - px, ay - py
@@ -331,3 +331,35 @@ def test_checks_along_a_braking_path_linearise_from_their_own_solves(
         if abs(exact.margin_n - chk.margin_n) > 0.1:
             assert (why is None) == (exact.margin_n >= chk.margin_n), (p, why)
     assert verdicts[0] is None and verdicts[-1] is not None
+
+
+HANGPRINTER = [
+    (0.0, -1.61098, -0.13153),
+    (1.31422, 1.26814, -0.12128),
+    (-1.41573, 0.70761, -0.12182),
+    (0.0, 0.0, 2.29983),
+]
+
+
+@pytest.mark.parametrize("target", [(0.0, 0.0, 0.3), (0.3, 0.2, 0.5), (-0.4, 0.1, 1.2)])
+def test_a_hangprinter_with_heavy_lines_is_put_where_it_is_asked(
+    target: tuple[float, float, float],
+) -> None:
+    """Anchors below the effector (their cables pull down and sideways) and one above; at
+    (0, 0, 0.3) m the top cable hangs straight down its vertical. The paid-out lengths put
+    the physical plant at the target and the FPK finds it."""
+    per_m, ea, mass = 0.0005, 2.0e4, 1.0
+    sag = SagStatics(CableStatics(HANGPRINTER, 3.0, 70.0), mass, [per_m * G] * 4, [ea] * 4)
+    sol = sag.solve(target)
+    params = PlantParams(HANGPRINTER, ea, mass, cable_mass_kg_per_m=per_m)
+    rest = sag_equilibrium(params, sol.paid_out_m, guess_m=(target[0], target[1], target[2]))
+    assert math.dist(rest.position_m, target) < 1e-7
+    planner = SagPlanner(sag, Geometry(HANGPRINTER))
+    planner.plan(target)
+    pose, _ = planner.fpk(sol.paid_out_m, target, planned_at=target)
+    assert math.dist(pose, target) < 1e-9
+    # the low cables pull down: their anchor ends carry less than their effector ends
+    assert all(
+        t1 < t0
+        for t0, t1 in zip(sol.effector_tensions_n[:3], sol.anchor_tensions_n[:3], strict=True)
+    )

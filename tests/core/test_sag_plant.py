@@ -270,3 +270,30 @@ def test_reel_in_torque_control_pulls_its_tension_at_the_anchor() -> None:
         rp.step(rp.positions_rev, 1e-3, pulls_nm=[torque, None, None, None])
     assert rp.tensions_n[0] == pytest.approx(want, rel=1e-4)
     assert rp.torques_nm[0] == torque
+
+
+def test_a_cable_straight_down_its_vertical_holds_the_effector() -> None:
+    """A Hangprinter's effector right under its top anchor: that cable has no horizontal force
+    and still carries most of the weight; the plant stays at rest and pulls back sideways."""
+    from controller.core.sag import SagStatics
+    from controller.core.statics import CableStatics
+
+    anchors = [
+        (0.0, -1.61098, -0.13153),
+        (1.31422, 1.26814, -0.12128),
+        (-1.41573, 0.70761, -0.12182),
+        (0.0, 0.0, 2.29983),
+    ]
+    params = PlantParams(anchors, 2.0e4, 1.0, cable_mass_kg_per_m=0.0005)
+    sag = SagStatics(CableStatics(anchors, 3.0, 70.0), 1.0, [0.0005 * G] * 4, [2.0e4] * 4)
+    pose = (0.0, 0.0, 0.3)
+    lengths = sag.solve(pose).paid_out_m
+    plant = SagPlant(params, pose, lengths)
+    for _ in range(2000):
+        plant.step(lengths, 1e-3)
+    assert math.dist(plant.position_m, pose) < 1e-9
+    aside = SagPlant(params, (0.01, 0.0, 0.3), lengths)
+    assert aside.net_force_n()[0] < -100.0  # pulled back toward the vertical
+    for _ in range(3000):
+        aside.step(lengths, 1e-3)
+    assert math.dist(aside.position_m, pose) < 1e-4

@@ -386,14 +386,22 @@ def test_six_cables_centre_shares_equally() -> None:
 
 
 def test_more_than_four_cables_without_scipy(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Without scipy, N > 4 is a named error (single and batch); N <= 4 needs no scipy."""
-    monkeypatch.setitem(sys.modules, "scipy.optimize", None)  # import now raises ImportError
+    """Without scipy, N > 4 gives the same answers (single and batch): the pair solve needs
+    none; only a degenerate tie it cannot settle needs the linear program, and then says so."""
     statics = CableStatics(hexagon(10.0, 6.0), 5.0, 300.0)
-    with pytest.raises(SolverUnavailable, match="scipy"):
-        statics.solve((0.0, 0.0, 2.0), 10.0)
-    with pytest.raises(SolverUnavailable, match="scipy"):
-        statics.solve_batch(np.zeros((2, 3)), 10.0)
+    pts = np.array([[0.0, 0.0, 2.0], [3.0, -2.0, 1.0], [-6.0, 4.0, 4.5]])
+    with_scipy = [statics.solve(q, 10.0).tensions_n for q in pts]
+    batch_with = statics.solve_batch(pts, 10.0)[0]
+    monkeypatch.setitem(sys.modules, "scipy.optimize", None)  # import now raises ImportError
+    fresh = CableStatics(hexagon(10.0, 6.0), 5.0, 300.0)
+    assert [fresh.solve(q, 10.0).tensions_n for q in pts] == with_scipy
+    assert np.array_equal(fresh.solve_batch(pts, 10.0)[0], batch_with)
     assert solve_tensions(PAPER, (0.0, 0.0, 2.0), 5.0, 5.0, 500.0).feasible
+    # a tie the pairs cannot settle (none of them optimal): the fallback names scipy
+    monkeypatch.setattr("controller.core.statics.pivot_solve", lambda *a: None)
+    monkeypatch.setattr("controller.core.statics.pair_solution", lambda *a: None)
+    with pytest.raises(SolverUnavailable, match="scipy"):
+        CableStatics(hexagon(10.0, 6.0), 5.0, 300.0).solve((1.0, 2.0, 3.0), 10.0)
 
 
 # -- properties (hypothesis) -----------------------------------------------------------------

@@ -35,8 +35,8 @@ def test_four_cia402_drives_at_1_khz_need_132_percent_of_1_mbit() -> None:
     assert round(load.percent) == 131 and round(load.worst_percent) == 144
     refusal = load.refusal()
     assert refusal is not None
-    assert "1000 Hz needs 131 % of the 1000000 bit/s bus" in refusal
-    assert "at most 763 Hz fits" in refusal
+    assert "1000 Hz needs 131 % of the 1000000 bit/s bus, 144 % in the worst case" in refusal
+    assert "at most 696 Hz fits" in refusal  # 1e6 / 1435 worst-case bits per tick
     half = busload.estimate(
         "cia402", 4, {}, rate_hz=500.0, interface="socketcan", bitrate=1_000_000
     )
@@ -57,7 +57,7 @@ def test_cia402_options_change_the_frames() -> None:
 def test_odrive_tick_frames() -> None:
     """4 Set_Input_Pos out and 4 encoder estimates back: 8 frames; RTR polls and torque
     telemetry add theirs (torque RTR every 10 ms at 500 Hz: a fifth of a round per tick)."""
-    plain = busload.estimate("odrive", 4, {}, rate_hz=1000.0, interface="socketcan", bitrate=None)
+    plain = busload.estimate("odrive", 4, {}, rate_hz=500.0, interface="socketcan", bitrate=None)
     assert plain.frames_per_tick == 8 and plain.bits_per_tick == 8 * 123
     assert plain.bitrate_assumed and plain.refusal() is None
     polled = busload.estimate(
@@ -70,6 +70,43 @@ def test_odrive_tick_frames() -> None:
     assert sum(f.count for f in torque) == pytest.approx(8 + 2 * 4 * 0.2)
     with pytest.raises(ValueError, match="no bus-load rule"):
         busload.tick_frames("stepper", 4, {}, rate_hz=1e3)
+
+
+def test_a_tick_that_fits_only_without_its_worst_case_stuff_bits_is_refused() -> None:
+    """Four ODrives at 1 kHz: 98 % of 1 Mbit/s typically, 108 % with every stuff bit. A tick
+    that may not fit in its period is over the bus's capacity, not a remark."""
+    load = busload.estimate(
+        "odrive", 4, {}, rate_hz=1000.0, interface="socketcan", bitrate=1_000_000
+    )
+    assert round(load.percent) == 98 and round(load.worst_percent) == 108
+    refusal = load.refusal()
+    assert refusal is not None
+    assert "1000 Hz needs 98 % of the 1000000 bit/s bus, 108 % in the worst case" in refusal
+    assert "at most 925 Hz fits" in refusal  # 1e6 / 1080
+    assert (
+        busload.estimate(
+            "odrive", 4, {}, rate_hz=925.0, interface="socketcan", bitrate=1_000_000
+        ).refusal()
+        is None
+    )
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in (REPO / "config").glob("*.toml")))
+def test_every_shipped_robot_file_is_valid(name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["check-config", str(REPO / "config" / name)]) == exitcodes.OK, (
+        capsys.readouterr().err
+    )
+
+
+def test_desk_file_states_its_bus_load_truly(capsys: pytest.CaptureFixture[str]) -> None:
+    """The desk file's own comment gives its bus load: check-config must say the same."""
+    path = REPO / "config" / "desk.toml"
+    text = path.read_text()
+    assert "49 % of 1 Mbit/s, 54 % in the worst case" in text
+    assert main(["check-config", str(path)]) == exitcodes.OK
+    out = capsys.readouterr().out
+    assert "at 500 Hz: 49 % of 1000000 bit/s (worst 54 %)" in out
+    assert "note:" not in out
 
 
 def test_simulated_bus_is_stated_not_refused() -> None:

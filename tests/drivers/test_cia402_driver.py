@@ -17,7 +17,7 @@ from typing import Any, cast
 import can
 import pytest
 
-from drivers.base import NEVER_S, BusError, ReelDriver
+from drivers.base import NEVER_S, ArmRefused, BusError, ReelDriver
 from drivers.bus import open_bus
 from drivers.cia402 import CiA402Reels, ConfigureError, busload
 from drivers.cia402.profile import DriveState
@@ -408,8 +408,10 @@ def test_restarted_drive_is_a_fault_until_arm_configures_it_again(rig: Rig) -> N
     assert (r4.ready, r4.axis_state, r4.axis_error) == (False, 1, 0x1000)
     assert not rig.driver.drive_status(4).configured
     rig.driver.disarm()
-    rig.driver.arm()  # configures node 4 again (blocking), then enables every drive
-    assert rig.driver.drive_status(4).configured
+    with pytest.raises(ArmRefused, match="node 4 restarted"):
+        rig.driver.arm()  # configures node 4 again beside the loop; refused until done
+    assert poll_until(rig.driver, lambda: rig.driver.drive_status(4).configured)
+    rig.driver.arm()  # enables every drive
     assert poll_until(rig.driver, lambda: all(x.ready for x in rig.r))
     assert r4.fault is None and r4.position_rev == 0.0  # its encoder counts from 0 again
 

@@ -94,12 +94,27 @@ def rig() -> Iterator[FastRig]:
     r.close()
 
 
-def test_kernel_filters_pass_tpdo1_emcy_sdo_answers_and_heartbeats() -> None:
+def test_kernel_filters_pass_sync_tpdo1_emcy_sdo_answers_and_heartbeats() -> None:
     got = kernel_filters((1, 127))
     assert sorted(got) == sorted(
-        (c, 0x7FF) for c in (0x181, 0x081, 0x581, 0x701, 0x1FF, 0x0FF, 0x5FF, 0x77F)
+        (c, 0x7FF) for c in (0x080, 0x181, 0x081, 0x581, 0x701, 0x1FF, 0x0FF, 0x5FF, 0x77F)
     )
-    assert len(sf.can_filters_for(got)) == 8 * 8
+    assert len(sf.can_filters_for(got)) == 9 * 8
+
+
+def test_another_sync_producer_on_the_fast_path_is_a_named_conflict(rig: FastRig) -> None:
+    # The fast path never hears its own frames: a SYNC it receives is another master's.
+    rig.driver.command([0.0] * 4)
+    assert [c for c, _ in rig.sent()].count(0x080) == 1  # ours went out, not echoed back
+    rig.driver.poll()
+    assert rig.driver.stats.conflicts == 0
+    rig.peer.send(_raw(0x080, b""))
+    rig.peer.send(_raw(0x080, b"\x05"))  # a SYNC with its counter (CiA 301)
+    rig.driver.poll()
+    st = rig.driver.stats
+    assert st.conflicts == 2 and st.errors_by_kind["another_master"] == 2
+    assert st.last_conflict is not None and "another SYNC producer" in st.last_conflict
+    assert st.commands_heard == 0 and st.dropped == 0
 
 
 def test_not_socketcan_keeps_python_can() -> None:

@@ -18,7 +18,7 @@ from typing import Any, cast
 import can
 import pytest
 
-from controller.core.commands import Arm, Disarm, Estop, Move, Reset
+from controller.core.commands import Arm, Disarm, Estop, Home, Move, Reset
 from controller.core.states import State
 from controller.service.loop import Controller
 from drivers.bus import open_bus
@@ -66,7 +66,7 @@ DEADLINE_SCALE = 4.0 * slow_factor_value()
 
 
 class Rig:
-    def __init__(self, heartbeat_period_s: float = 0.1) -> None:
+    def __init__(self, heartbeat_period_s: float = 0.1, sdo_timeout_s: float = 0.3) -> None:
         channel = f"test-cia402-loop-{uuid.uuid4().hex[:8]}"
         base = make_config(
             bus={"interface": "virtual", "channel": channel},
@@ -97,6 +97,7 @@ class Rig:
             counts_per_rev=CPR,
             period_s=1.0 / RATE_HZ,
             heartbeat_period_s=heartbeat_period_s,
+            sdo_timeout_s=sdo_timeout_s,
         )
         self.driver.configure()
         self.pub = RecordingPublisher()
@@ -226,3 +227,67 @@ def test_an_arm_right_after_a_disarm_is_judged_on_answers_to_it_from_a_late_driv
         assert rig.ctl.state is State.HOLDING, rig.ctl.reason
         time.sleep(0.005)
     assert all(x.ready for x in rig.driver.read())
+
+
+@pytest.fixture
+def patient_rig() -> Iterator[Rig]:
+    r = Rig(sdo_timeout_s=10.0)  # a held SDO answer is still awaited when it is released
+    yield r
+    r.close()
+
+
+def test_a_restarted_drive_is_configured_beside_the_running_loop(patient_rig: Rig) -> None:
+    # The loop keeps ticking (and cycling the other drives) while node 3 is configured again;
+    # the arm is refused by name until it is done.
+    rig = patient_rig
+    rig.arm()
+    rig.bank.axis(3).power_cycle()
+    rig.wait(lambda: rig.ctl.state is State.FAULT, 2.0, "FAULT")
+    assert str(rig.ctl.reason).startswith("axis_error: node 3 restarted"), rig.ctl.reason
+    rig.ctl.submit(Reset()).result(timeout=2.0)
+    rig.bank.axis(3).hold_sdo(True)
+    with pytest.raises(Exception, match=r"not_ready: arm: node 3 restarted .* by SDO beside"):
+        rig.ctl.submit(Arm()).result(timeout=2.0)
+    ticks = rig.ctl.ticks
+    rig.wait(lambda: rig.ctl.ticks >= ticks + 50, 2.0, "ticks while node 3 is configured")
+    assert rig.driver.configuring == (3,)
+    rig.bank.axis(3).hold_sdo(False)
+    rig.wait(lambda: rig.driver.drive_status(3).configured, 5.0, "node 3 configured")
+    assert rig.ctl.state is State.DISARMED
+
+
+def test_another_sync_producer_faults_the_loop_by_name_and_holds_off_the_arm(rig: Rig) -> None:
+    rig.arm()
+    other = open_bus("virtual", rig.cfg.bus.channel)
+    try:
+        other.send(can.Message(arbitration_id=0x080, data=b"", is_extended_id=False))
+        rig.wait(lambda: rig.ctl.state is State.FAULT, 2.0, "FAULT")
+        assert str(rig.ctl.reason).startswith("bus_conflict: another SYNC producer"), rig.ctl.reason
+        rig.ctl.submit(Reset()).result(timeout=2.0)
+        with pytest.raises(Exception, match=r"bus_conflict: another SYNC producer .* s ago"):
+            rig.ctl.submit(Arm()).result(timeout=2.0)
+        assert rig.ctl.status()["bus"]["conflicts"] == 1
+    finally:
+        other.shutdown()
+
+
+def test_a_drive_that_lost_its_count_is_homed_again_before_an_arm(patient_rig: Rig) -> None:
+    # The simulated drive's incremental encoder counts from 0 after a restart: the offsets
+    # taken before no longer hold. No pose from them, the arm refused by name until `home`.
+    rig = patient_rig
+    rig.arm()
+    held_at = rig.ctl.pose_m
+    assert held_at is not None
+    rig.bank.axis(3).power_cycle()
+    rig.wait(lambda: rig.ctl.state is State.FAULT, 2.0, "FAULT")
+    rig.ctl.submit(Reset()).result(timeout=2.0)
+    with pytest.raises(Exception, match="not_ready: arm: node 3"):
+        rig.ctl.submit(Arm()).result(timeout=2.0)
+    rig.wait(lambda: rig.driver.reading(3).count_epoch == 1, 5.0, "node 3's new count")
+    rig.wait(lambda: not rig.ctl.pose_valid, 1.0, "no pose from the old offsets")
+    with pytest.raises(Exception, match=r"not homed: count_lost: node 3's position count"):
+        rig.ctl.submit(Arm()).result(timeout=2.0)
+    rig.ctl.submit(Home(held_at)).result(timeout=2.0)
+    rig.wait(lambda: rig.ctl.pose_valid, 1.0, "the pose again")
+    assert math.dist(rig.ctl.pose_m, held_at) < 1e-6  # type: ignore[arg-type]
+    rig.arm()

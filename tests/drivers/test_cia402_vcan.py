@@ -111,11 +111,13 @@ def test_fast_path_kernel_filter_and_error_frames(
     vcan_bus_factory: Callable[..., can.BusABC],
     slow_factor: float,
 ) -> None:
-    """Only our drives' TPDO1/EMCY/SDO-answer/heartbeat frames and error frames reach Python:
-    another node's frames, SDO requests, SYNC, RPDOs, extended ids and remote frames stay in
-    the kernel, and the counters show none of them."""
+    """Only our drives' TPDO1/EMCY/SDO-answer/heartbeat frames, another master's SYNC and error
+    frames reach Python: another node's frames, SDO requests, RPDOs, extended ids and remote
+    frames stay in the kernel, and the counters show none of them. Our own SYNC is never heard
+    back; another's is a named conflict (two masters on one bus)."""
     driver = _driver(driver_bus, slow_factor, fast=True)
     assert driver.fast_path
+    driver.request_encoders()  # our own SYNC: not handed back by the kernel
     tx = vcan_bus_factory()
     ours = NODES[1]
     plan = [
@@ -138,8 +140,9 @@ def test_fast_path_kernel_filter_and_error_frames(
     assert driver.reading(ours).heartbeat_stamp_s > NEVER_S
     assert driver.drive_status(ours).nmt_state == "PRE-OPERATIONAL"
     s = driver.stats
-    assert taken == 2 == s.frames_rx, s
-    assert s.errors_by_kind == {"error_frame": 1}, s
+    assert taken == 3 == s.frames_rx, s
+    assert s.errors_by_kind == {"error_frame": 1, "another_master": 1}, s
+    assert s.conflicts == 1 and "another SYNC producer" in str(s.last_conflict)
     assert s.last_error == "CAN error frame 0x4"
     assert s.decode_errors == 0 and s.commands_heard == 0
     # A stock socket on the same interface heard what the filter kept away.

@@ -80,3 +80,29 @@ def test_check_config_shows_the_stretch() -> None:
     lines, _, data = describe(parse_config(data_with(None), "t.toml"))
     assert not [ln for ln in lines if ln.startswith("stretch")]
     assert "stretch" not in data
+
+
+def test_the_shipped_circle_stretch_file_and_its_rigid_twin() -> None:
+    """docs/cable-stretch.md flies the circle with config/circle-stretch.toml and with the same
+    file without its reels' `cable_ea_n` lines (one grep): the physical plant in both, the
+    stretch model in the first only."""
+    import tomllib
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "config" / "circle-stretch.toml").read_text()
+    stretch = parse_config(tomllib.loads(text), "circle-stretch.toml")
+    rigid_text = "".join(
+        line.replace("circle-stretch", "circle-rigid")
+        for line in text.splitlines(keepends=True)
+        if "stretch model" not in line
+    )
+    rigid = parse_config(tomllib.loads(rigid_text), "circle-rigid.toml")
+    for cfg in (stretch, rigid):
+        assert cfg.sim.plant == "physical" and cfg.sim.cable_ea_n == 2e5
+        assert cfg.payload is not None and cfg.payload.mass_kg == 5.0
+    assert [r.cable_ea_n for r in stretch.reels] == [2e5] * 4
+    assert [r.cable_ea_n for r in rigid.reels] == [None] * 4
+    assert (stretch.zenoh.prefix, rigid.zenoh.prefix) == (
+        "cablebot/circle-stretch",
+        "cablebot/circle-rigid",
+    )

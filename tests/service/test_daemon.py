@@ -247,7 +247,8 @@ def test_sd_notify_ready_watchdog_status_and_sigint(tmp_path: Path) -> None:
         assert daemon.p.wait(10) == 0, daemon.log()
         assert time.monotonic() - t0 < 2.0, daemon.log()
         last = daemon.wait_line("stopped in", 2, stderr=True)
-        assert ": HOLDING pose" in last, last
+        # braked to a hold by the shutdown, and the state says so
+        assert ": HOLDING (stopped by the daemon's shutdown) pose" in last, last
     finally:
         daemon.kill()
         sock.close()
@@ -270,3 +271,39 @@ def test_daemon_refuses_to_start_when_its_zenoh_port_is_taken(tmp_path: Path) ->
     err = "\n".join(d.err)
     assert rc == 1, err
     assert "ARMING" not in err and "HOLDING" not in err
+
+
+def test_start_up_warns_when_the_state_file_puts_the_effector_far_from_the_power_up_pose(
+    tmp_path: Path,
+) -> None:
+    """Offsets saved with the effector declared at (0, 0, 6), then a restart on drives that
+    count from their power-up turns again (the simulated ones do): the restored pose is 4 m
+    from the power-up pose (0, 0, 2), and the start-up says so, naming how to re-home."""
+    cfg, info = write_config(
+        tmp_path, {"interface": "virtual", "channel": f"t-{random.random()}"}, sim_enabled=True
+    )
+    daemon = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "0"], "d1")
+    try:
+        daemon.wait_line("ready:", 30, stderr=True)
+        session = zenoh_session(info["endpoint"])
+        try:
+            assert zquery(session, f"{info['prefix']}/cmd/disarm").get("ok") is True
+            r = zquery(session, f"{info['prefix']}/cmd/home", {"position_m": [0.0, 0.0, 6.0]})
+            assert r.get("saved") is True, r
+        finally:
+            session.close()
+    finally:
+        assert daemon.terminate() == 0, daemon.log()
+    assert "the homing offsets from" not in daemon.log()  # the first start was believable
+    daemon = Proc([*CABLEBOT, "run", "--config", str(cfg), "--status-every", "0"], "d2")
+    try:
+        line = daemon.wait_line("the homing offsets from", 30, stderr=True)
+    finally:
+        assert daemon.terminate() == 0, daemon.log()
+    assert "WARNING" in line, line
+    assert (
+        f"the homing offsets from {info['state_file']} put the effector at "
+        "[0.0000, 0.0000, 6.0000] m, 4.000 m from the power-up pose [0.0000, 0.0000, 2.0000]"
+    ) in line, line
+    assert "run `cablebot home X Y Z`" in line
+    assert f"or remove {info['state_file']} and restart to home at the power-up pose" in line

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import signal
 import subprocess
+import time
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -99,4 +100,48 @@ def test_home_with_pretension_through_the_daemon_then_move(tmp_path: Path) -> No
     finally:
         if daemon is not None:
             daemon.kill()
+        assert sim.terminate() == 0, sim.log()
+
+
+def test_home_with_pretension_is_refused_on_the_kinematic_simulator_before_anything_moves(
+    tmp_path: Path,
+) -> None:
+    """The shipped paper robot's set-up: `cablebot sim` in its own process with the kinematic
+    plant (nothing hangs on the reels). `home --pretension` is refused by name; the reels never
+    leave position control and the pose stays where it was."""
+    cfg, info = write_config(
+        tmp_path, udp_bus(), sim={"watchdog_timeout_s": 3.0}, faults={"heartbeat_timeout_s": 2.0}
+    )
+    sim = Proc([*CABLEBOT, "sim", "--config", str(cfg)], "sim")
+    daemon: Proc | None = None
+    try:
+        sim.wait_line("READY", 60)
+        daemon = Proc([*CABLEBOT, "run", "--config", str(cfg)], "daemon")
+        daemon.wait_line("ready:", 60, stderr=True)
+        armed = _cli(info, "arm", timeout_s=60)
+        assert armed.returncode == 0, armed.stderr
+        session = zenoh_session(info["endpoint"])
+        try:
+            deadline = time.monotonic() + 30.0
+            while (st := zquery(session, f"{info['prefix']}/status"))["state"] != "HOLDING":
+                assert time.monotonic() < deadline, st
+                time.sleep(0.1)
+            before = st["pose"]["position_m"]
+            done = _cli(info, "home", "0", "0", "2", "--pretension", timeout_s=60)
+            assert done.returncode == 1, f"{done.stdout}\n{done.stderr}"
+            assert done.stdout == ""
+            assert done.stderr.startswith(
+                "cablebot: refused: pretension: the reels are the kinematic simulator's "
+                "(simulated drives on udp_multicast "
+            ), done.stderr
+            assert 'give the robot file [sim] plant = "physical"' in done.stderr
+            st = zquery(session, f"{info['prefix']}/status")
+            assert st["state"] == "HOLDING", st
+            assert math.dist(st["pose"]["position_m"], before) < 1e-4
+        finally:
+            session.close()
+        assert "PRETENSIONING" not in daemon.log()
+    finally:
+        if daemon is not None:
+            assert daemon.terminate() == 0, daemon.log()
         assert sim.terminate() == 0, sim.log()

@@ -216,6 +216,43 @@ def test_path_visits_points_and_stop_decelerates_to_hold() -> None:
     )
 
 
+def test_a_hold_a_stop_braked_to_carries_the_stop_as_its_reason() -> None:
+    """The HOLDING a `stop` braked to says so (a client waiting on the motion reads it); an
+    arrival does not, nor does a motion that replaced the braking."""
+    rig = Rig()
+    rig.arm()
+    rig.do(Move(_target(rig, 3.0)))
+    rig.tick(250)
+    rig.do(Stop())
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert rig.ctl.reason == "stopped by a `stop` command"
+    assert rig.pub.states[-1][:2] == ("HOLDING", "stopped by a `stop` command")
+    # arrival: no reason
+    rig.do(Move(_target(rig, 0.5)))
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert rig.ctl.reason is None and rig.pub.states[-1][:2] == ("HOLDING", None)
+    # a stop while holding changes nothing
+    rig.do(Stop())
+    rig.tick(5)
+    assert rig.ctl.reason is None and rig.pub.states[-1][:2] == ("HOLDING", None)
+    # a move taken while the stop brakes replaces the braking: its arrival is no stop
+    rig.do(Move(_target(rig, 3.0)))
+    rig.tick(250)
+    rig.do(Stop())
+    rig.tick(2)
+    back = _target(rig, 1.0)
+    rig.do(Move(back))
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert _dist(rig.ctl.setpoint_m, back) < 1e-9
+    assert rig.ctl.reason is None
+    # the daemon's shutdown brakes a motion the same way, and says so
+    rig.do(Move(_target(rig, 3.0)))
+    rig.tick(250)
+    rig.ctl.begin_shutdown()
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert rig.ctl.reason == "stopped by the daemon's shutdown"
+
+
 def test_streamed_setpoints_are_rate_limited() -> None:
     rig = Rig()
     rig.arm()
@@ -561,6 +598,24 @@ def test_pose_json_schema_and_no_nan() -> None:
     assert obj["cable_lengths_m"] == [None, 2.0] and obj["residual_m"] is None
 
 
+def test_status_dates_the_set_point_by_the_tick_that_computed_it() -> None:
+    """A status read between ticks (or answered late) gives the set-point with the wall time
+    of its tick, not of the read: a plot of the set-point's speed needs that time."""
+    rig = Rig()
+    assert rig.ctl.status()["setpoint_stamp_ns"] is None  # no set-point yet
+    rig.arm()
+    rig.do(Move(_target(rig, 1.0)))
+    rig.tick(100)
+    tick_ns = rig.clock.wall_ns()
+    sp = rig.ctl.setpoint_m
+    rig.clock.advance(0.0013)  # the status is read 1.3 ms after the tick
+    st = rig.ctl.status()
+    assert st["setpoint_m"] == list(sp)  # type: ignore[arg-type]
+    assert abs(st["setpoint_stamp_ns"] - tick_ns) <= 1, (st["setpoint_stamp_ns"], tick_ns)
+    rig.tick()
+    assert abs(rig.ctl.status()["setpoint_stamp_ns"] - rig.clock.wall_ns()) <= 1
+
+
 def test_published_poses_and_states() -> None:
     cfg = make_config(loop={"rate_hz": RATE_HZ, "publish_every": 5})
     rig = Rig(cfg)
@@ -822,6 +877,39 @@ def test_fpk_is_solved_only_when_the_encoder_lengths_change() -> None:
     assert rig.ctl.fpk_solves == solves + 1
     assert rig.ctl.state is State.FAULT
     assert rig.ctl.reason is not None and rig.ctl.reason.startswith("residual:")
+
+
+def test_a_residual_fault_names_the_reading_that_lags() -> None:
+    # A drive gone quiet mid-move: its reading stays while the others move on, and the residual
+    # passes its limit before that reading is stale. The fault says which node lags.
+    rig = _armed_rig(stale_timeout_s=0.05)
+    rig.driver.silent = {rig.driver.node_ids[2]}
+    rig.tick(10)  # 20 ms: not stale yet
+    rig.driver.follow = False
+    rig.driver.readings[1].position_rev += 2.0
+    rig.tick()
+    assert rig.ctl.state is State.FAULT
+    reason = str(rig.ctl.reason)
+    assert reason.startswith("residual:") and "slack or slipped cable" in reason, reason
+    node = rig.driver.node_ids[2]
+    assert f"; node {node}'s reading is 0.022 s old)" in reason, reason
+
+
+def test_arm_is_refused_while_the_cables_disagree() -> None:
+    # Disarmed, a cable slipped: the pose has a residual above the limit. Arming would fault on
+    # it at once; the arm is refused by name, and `home` puts it right.
+    rig = Rig()
+    rig.tick(5)
+    assert rig.ctl.state is State.DISARMED and rig.ctl.pose_valid
+    rig.driver.readings[1].position_rev += 2.0
+    rig.tick()
+    assert rig.ctl.residual_m is not None and rig.ctl.residual_m > 0.01
+    reason = rig.refused(Arm())
+    assert reason.startswith("residual: ") and "home at a known pose" in reason, reason
+    assert rig.ctl.state is State.DISARMED
+    rig.do(Home(rig.start))
+    rig.arm()
+    assert rig.ctl.state is State.HOLDING
 
 
 # ------------------------------------------------------------------------ streamed set-points

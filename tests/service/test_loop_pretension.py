@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -14,9 +15,11 @@ from controller.core import kinematics
 from controller.core.commands import Disarm, Estop, Move, Pretension, Stop
 from controller.core.states import State
 from controller.core.statics import solve_tensions
+from controller.service.config import load_config
 from tests.fakes import make_config
 from tests.service.test_loop import DT, RATE_HZ, Rig
 
+REPO = Path(__file__).resolve().parents[2]
 SETTLE_S = 2.0  # the default
 SETTLE_TICKS = int((SETTLE_S + 0.5) * RATE_HZ)
 
@@ -28,8 +31,12 @@ def _statics(rig: Rig, p: tuple[float, float, float]) -> tuple[float, ...]:
 
 
 def _rig_cfg(**homing: Any) -> Any:
-    """The built-in robot on real (fake) drives: its kinematic simulator off."""
-    cfg = make_config(loop={"rate_hz": RATE_HZ}, sim={"enabled": False})
+    """The built-in robot on real (fake) drives: its kinematic simulator off, a real bus."""
+    cfg = make_config(
+        loop={"rate_hz": RATE_HZ},
+        sim={"enabled": False},
+        bus={"interface": "socketcan", "channel": "can0"},
+    )
     return replace(cfg, homing=replace(cfg.homing, **homing)) if homing else cfg
 
 
@@ -276,8 +283,31 @@ def test_pretension_is_refused_on_the_kinematic_simulator() -> None:
     rig = Rig()  # the built-in robot: in-process simulated reels with nothing hanging on them
     rig.arm()
     why = rig.refused(Pretension(rig.start))
-    assert "the kinematic simulator carries no load" in why and 'plant = "physical"' in why
+    assert why.startswith(
+        "pretension: the reels are the kinematic simulator's (simulated drives on virtual "
+        'cablebot-default, run in the daemon, [sim] plant = "kinematic"): it carries no load'
+    ), why
+    assert 'give the robot file [sim] plant = "physical"' in why
     assert rig.state() is State.HOLDING
+
+
+def test_pretension_is_refused_on_the_kinematic_simulator_of_another_process() -> None:
+    """The shipped paper robot's reels: `cablebot sim` runs them on a udp_multicast bus with
+    the kinematic plant; the daemon knows it from the robot file and refuses before anything
+    moves (no torque mode entered)."""
+    cfg = load_config(REPO / "config" / "paper-acre.toml")
+    assert not cfg.sim.enabled and cfg.sim.plant == "kinematic" and cfg.kinematic_sim
+    rig = Rig(replace(cfg, loop=replace(cfg.loop, rate_hz=RATE_HZ, realtime=False)))
+    rig.arm()
+    why = rig.refused(Pretension(rig.start))
+    assert why.startswith(
+        "pretension: the reels are the kinematic simulator's (simulated drives on "
+        "udp_multicast 239.74.0.1, run by `cablebot sim`"
+    ), why
+    assert "enter_torque_mode" not in rig.driver.calls
+    assert rig.state() is State.HOLDING
+    physical = replace(cfg, sim=replace(cfg.sim, plant="physical"))
+    assert not physical.kinematic_sim
 
 
 def test_an_axis_that_does_not_enter_closed_loop_faults_after_the_arm_timeout() -> None:

@@ -20,6 +20,7 @@ from controller.service.offsets import (
     load_offsets,
     make_record,
     parse_record,
+    restored_pose_problem,
     save_offsets,
 )
 
@@ -169,3 +170,38 @@ def test_torn_file_detection_works(tmp_path: Path) -> None:
     path.write_text(good[: len(good) // 2])
     with pytest.raises(HomingError):
         load_offsets(path)
+
+
+def _floor_rule(p: Any) -> str | None:
+    return f"z={p[2]:.4g} m below the floor (0 m)" if p[2] < 0.0 else None
+
+
+def test_a_restored_pose_below_the_floor_is_named_with_how_to_home_again() -> None:
+    text = restored_pose_problem([0.0, 0.0, -1.3087], _floor_rule, [0.0, 0.0, 2.0], 1.0, "s.json")
+    assert text is not None
+    assert text.startswith(
+        "the homing offsets from s.json put the effector at [0.0000, 0.0000, -1.3087] m, "
+        "outside the workspace (z=-1.309 m below the floor (0 m)) and 3.309 m from the "
+        "power-up pose [0.0000, 0.0000, 2.0000]: they are stale if a drive restarted"
+    )
+    assert "run `cablebot home X Y Z`; or remove s.json and restart" in text
+    # without a power-up pose: the workspace alone, and no "remove" advice
+    text = restored_pose_problem([0.0, 0.0, -1.3087], _floor_rule, None, 1.0, "s.json")
+    assert text is not None and "power-up" not in text and text.endswith("`cablebot home X Y Z`")
+
+
+def test_a_restored_pose_inside_and_near_the_power_up_pose_is_believed() -> None:
+    assert restored_pose_problem([0.0, 0.1, 2.0], _floor_rule, [0.0, 0.0, 2.0], 0.5, "s") is None
+    assert restored_pose_problem([9.0, 0.0, 2.0], _floor_rule, None, 0.5, "s") is None
+    far = restored_pose_problem([0.0, 0.6, 2.0], _floor_rule, [0.0, 0.0, 2.0], 0.5, "s")
+    assert far is not None and "0.600 m from the power-up pose" in far
+    assert "outside" not in far
+
+
+def test_offsets_that_give_no_pose_are_named() -> None:
+    text = restored_pose_problem(None, _floor_rule, [0.0, 0.0, 2.0], 0.5, "s.json")
+    assert text is not None
+    assert text.startswith(
+        "the homing offsets from s.json give no valid pose with the drives' readings: they "
+        "are stale"
+    )

@@ -385,6 +385,29 @@ def test_streamed_setpoints_are_followed(daemon: Daemon) -> None:
     ensure_state(daemon, "HOLDING")
 
 
+def test_a_streamed_set_point_outside_the_workspace_is_shown_and_logged_as_refused(
+    daemon: Daemon,
+) -> None:
+    ensure_state(daemon, "HOLDING")
+    before = daemon.status()["stream"]["refused"]
+    pub = daemon.session.declare_publisher(f"{daemon.prefix}/setpoint")
+    try:
+        deadline = time.monotonic() + 20.0
+        while daemon.status()["stream"]["refused"] == before:
+            pub.put(json.dumps({"position_m": [0.0, 0.0, 90.0]}))
+            assert time.monotonic() < deadline, daemon.proc.log()
+            time.sleep(0.1)
+    finally:
+        pub.undeclare()
+    cli = daemon.cli("status")
+    assert cli.returncode == 0, cli.stderr
+    line = next(ln for ln in cli.stdout.splitlines() if ln.startswith("set-points "))
+    assert "refused" in line and "(last: z=90 m above the anchor plane" in line, line
+    logged = daemon.proc.wait_line("streamed set-point refused: z=90 m", 10.0, stderr=True)
+    assert "WARNING" in logged, logged
+    ensure_state(daemon, "HOLDING")
+
+
 # ------------------------------------------------------------------------------ refusals
 
 # (verb, payload, expected reason fragment), refused while HOLDING

@@ -131,16 +131,25 @@ Method
   building up (`[[reels]] spool_buildup_factor_m`, `BENCH_BUILDUP_FACTOR_M`) and with cable
   sag (every cable 3 mm steel rope). No bus and no
   other process, so the figure carries over between machines.
+* `layouts` (`layouts.<layout>.*`, `controller.cli.bench.layouts`): the statics (`solve`) and
+  the FPK (1 mm of length noise) of every layout of `LAYOUTS` (the paper robot, three cables
+  hanging, the Hangprinter v4 and five-anchor files, eight anchors at a box's corners), per
+  call at random poses of the workspace and along a path in 1 mm steps (the FPK seeded by the
+  last pose), all interleaved in one run; ratios to the paper robot's figures of the same
+  kind. Target: eight cables at most `TARGET_LAYOUT_OVER_PAPER4` times the paper robot's four
+  at random poses, for the statics and the FPK.
 
 `--only SECTION ...` runs only those sections (`SECTIONS`: kinematics, statics, sim, decode,
-loops, estop, planning, stretch, sag, ros2, compute); the JSON then holds their keys only.
+loops, estop, planning, stretch, sag, ros2, compute, layouts); the JSON then holds their
+keys only.
 
 Layout: `settings` (plans, targets, JSON keys), `timing` (percentiles, interleaved timing),
 `figures` (the micro-benchmarks: FPK, batch, statics, simulator, decode), `planning`,
-`stretch`, `sag`, `ros2`, `compute` (one section each: its figures and rows), `helpers` (the helper
-processes: simulated drives, pose subscriber), `loop` (the daemon-like loop run, end-to-end
-matching), `estop` (the e-stop flood), `table` (rows and the table), `measure` (each section's
-figures and rows), `command` (`cablebot bench`), `__main__` (the helper processes' entry).
+`stretch`, `sag`, `ros2`, `compute`, `layouts` (one section each: its figures and rows),
+`helpers` (the helper processes: simulated drives, pose subscriber), `loop` (the daemon-like
+loop run, end-to-end matching), `estop` (the e-stop flood), `table` (rows and the table),
+`measure` (each section's figures and rows), `command` (`cablebot bench`), `__main__` (the
+helper processes' entry).
 """
 
 from __future__ import annotations
@@ -188,6 +197,8 @@ from controller.cli.bench.settings import (
     ESTOP_KEYS,
     FULL,
     JSON_KEYS,
+    LAYOUT_KEYS,
+    LAYOUTS,
     LENGTH_NOISE_M,
     LOOP_KEYS,
     LOOP_RATES_HZ,
@@ -207,6 +218,7 @@ from controller.cli.bench.settings import (
     TARGET_DECODE_FRAMES_PER_S,
     TARGET_ESTOP_FLOOD_P99_MS,
     TARGET_JITTER_P99_FRAC,
+    TARGET_LAYOUT_OVER_PAPER4,
     TARGET_OVERRUN_FRAC,
     TARGET_SCIPY_OVER_FPK4,
     TARGET_SIM_RTF,
@@ -233,6 +245,8 @@ __all__ = [
     "ESTOP_KEYS",
     "FULL",
     "JSON_KEYS",
+    "LAYOUTS",
+    "LAYOUT_KEYS",
     "LENGTH_NOISE_M",
     "LOOP_KEYS",
     "LOOP_RATES_HZ",
@@ -252,6 +266,7 @@ __all__ = [
     "TARGET_DECODE_FRAMES_PER_S",
     "TARGET_ESTOP_FLOOD_P99_MS",
     "TARGET_JITTER_P99_FRAC",
+    "TARGET_LAYOUT_OVER_PAPER4",
     "TARGET_OVERRUN_FRAC",
     "TARGET_SCIPY_OVER_FPK4",
     "TARGET_SIMPLIFIED_OVER_GENERAL",

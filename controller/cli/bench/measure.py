@@ -15,6 +15,7 @@ from controller.cli.bench.figures import (
     bench_statics,
     bench_three_spheres,
 )
+from controller.cli.bench.layouts import measure_layouts
 from controller.cli.bench.loop import bench_loop, merge_runs
 from controller.cli.bench.planning import measure_planning
 from controller.cli.bench.ros2 import measure_ros2
@@ -465,6 +466,9 @@ def measure(
         rows += part
     if "compute" in sections:
         result["compute_per_tick"], part = measure_compute(p, log)
+        rows += part
+    if "layouts" in sections:
+        result["layouts"], part = measure_layouts(p, log)
         rows += part
     # The JSON keeps the documented order whatever ran.
     result = {key: result[key] for key in JSON_KEYS if key in result}

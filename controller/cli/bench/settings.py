@@ -142,6 +142,7 @@ JSON_KEYS = (
     "sag_us",
     "ros2_publish_us",
     "compute_per_tick",
+    "layouts",
 )
 
 
@@ -157,6 +158,7 @@ SECTIONS = (
     "sag",
     "ros2",
     "compute",
+    "layouts",
 )
 """The benchmark's sections, in the order they run (`cablebot bench --only NAME ...`)."""
 
@@ -230,3 +232,18 @@ COMPUTE_KEYS = ("ticks", "p50_us", "p99_us", "p99_frac")
 
 class BenchError(RuntimeError):
     """A figure could not be measured (a helper process failed, no samples, ...)."""
+
+
+LAYOUTS = ("paper-4", "triangle-3", "hangprinter-4", "hangprinter-5", "cube-8")
+"""The layouts section's robots: the paper robot (the reference), three cables hanging from a
+triangle, the Hangprinter v4 and five-anchor files, eight anchors at a box's corners (among)."""
+LAYOUT_KEYS = (
+    "statics_us",
+    "statics_tick_us",
+    "fpk_us",
+    "fpk_tick_us",
+    "statics_over_paper4",
+    "fpk_over_paper4",
+)
+TARGET_LAYOUT_OVER_PAPER4 = 2.0
+"""Eight cables' statics and FPK per call over the paper robot's four, at random poses."""

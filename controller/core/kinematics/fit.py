@@ -36,6 +36,23 @@ anchors at one height the cost is symmetric about their plane, and a point above
 mirrored back to the lower solution.  With a tilted seed triple the seed's mirror image in the
 triple's plane also meets the three spheres; when it is below every anchor and the other
 cables agree with it better, the fit starts there.
+
+Among the anchors (``Geometry.hanging`` False: a Hangprinter)
+-------------------------------------------------------------
+The effector is inside the anchors' hull, above some of them, so "the lower solution" can be
+the wrong one: three low anchors meet at the effector and at its mirror image below their
+plane (Klipper's ``winch`` trilaterates from three anchors and, above low ones, takes that
+one).  With anchors not in one plane, subtracting the mean of the N spheres from each leaves a
+linear system in P (``fitplan._Linear``): its least-squares point over every cable has no
+mirror image, is exact for consistent lengths and within the noise otherwise, and seeds the
+fit; the last pose, when the caller has it (``fpk(..., seed_m=...)``: the control loop's, a
+tick old) seeds it instead.  Gauss-Newton over every cable then finds the pose, with J^T J
+taken once at the start (``_gauss_newton_among``: the cable directions barely turn over the
+millimetres of such a fit), stopping once the next step would be under 10 nm
+(``GN_AMONG_NEXT_TOL2``).  A fit from the last pose that
+leaves more than ``RETRY_RMS_M`` of residual (a stale or far guess) is done again from the
+linear seed, and the better one is kept.  (The seed triple is also a face of the hull, with
+the effector on the hull's side of its plane, ``Geometry.seed_up``.)
 """
 
 from __future__ import annotations
@@ -85,6 +102,12 @@ GN_COST_REL_TOL = 1e-9
 GN_COST_ROUND_M = 1e-11
 #: J^T J determinant (sum of unit vectors' outer products) below which the fit stops.
 GN_DET_MIN = 1e-12
+#: Among the anchors: a fit from the caller's last pose with a larger RMS residual (m) is done
+#: again from the three-spheres seed on the hull's side.
+RETRY_RMS_M = 0.002
+#: Among the anchors Gauss-Newton stops once the next step, predicted from the convergence rate,
+#: is under sqrt(this) = 1e-8 m (10 nm, far below any encoder): one evaluation fewer per call.
+GN_AMONG_NEXT_TOL2 = 1e-16
 
 # Module-level alias: one global lookup per call.
 _sqrt = math.sqrt
@@ -255,11 +278,13 @@ def _gauss_newton(
     y: float,
     z: float,
     z_mirror: float | None,
+    next_tol2: float = GN_NEXT_TOL2,
 ) -> tuple[float, float, float, float]:
     """Least-squares fit over all cables from (x, y, z); returns x, y, z, RMS residual.
 
     Gauss-Newton in P with step halving (see the module docstring); ``z_mirror``: the height
-    of the anchors when they all share one (points above it are mirrored below).
+    of the anchors when they all share one (points above it are mirrored below);
+    ``next_tol2``: the square of the predicted next step it stops at.
     """
     n = len(anchors)
     cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = _normal_eq(anchors, lengths, x, y, z)
@@ -280,7 +305,7 @@ def _gauss_newton(
         sy = (c12 * g1 + c22 * g2 + c23 * g3) * inv
         sz = (c13 * g1 + c23 * g2 + c33 * g3) * inv
         step2 = sx * sx + sy * sy + sz * sz
-        if step2 < 1e-12 and (step2 <= tol2 or step2 * step2 < GN_NEXT_TOL2 * prev2):
+        if step2 < 1e-12 and (step2 <= tol2 or step2 * step2 < next_tol2 * prev2):
             # Converged: take this last small step without evaluating again. The cost at the
             # new point is the Gauss-Newton model's |r - J s|^2 = cost - g.s (exact to second
             # order in a sub-micrometre step), so the residual belongs to the returned point.
@@ -304,6 +329,75 @@ def _gauss_newton(
         x, y, z = tx, ty, tz
         cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = trial
     return x, y, z, _sqrt(cost / n)
+
+
+def _cost_grad(
+    anchors: tuple[Vec3, ...], lengths: Sequence[float], x: float, y: float, z: float
+) -> tuple[float, float, float, float]:
+    """Sum of squared residuals and J^T r at (x, y, z) (``_normal_eq`` without J^T J)."""
+    g1 = g2 = g3 = cost = 0.0
+    for (ax, ay, az), ln in zip(anchors, lengths, strict=True):
+        dx = x - ax
+        dy = y - ay
+        dz = z - az
+        d = _sqrt(dx * dx + dy * dy + dz * dz)
+        res = d - ln
+        cost += res * res
+        k = res / d if d > 0.0 else 0.0
+        g1 += dx * k
+        g2 += dy * k
+        g3 += dz * k
+    return cost, g1, g2, g3
+
+
+def _gauss_newton_among(
+    anchors: tuple[Vec3, ...], lengths: Sequence[float], x: float, y: float, z: float
+) -> tuple[float, float, float, float]:
+    """``_gauss_newton`` for an effector among its anchors from a start within millimetres (the
+    last pose, the linearised trilateration): J^T J is taken once, at the start (the cable
+    directions turn by about the step over the cable length between iterations), and each
+    trial point costs only the residuals and J^T r; the same stopping rule with
+    ``GN_AMONG_NEXT_TOL2``. Not settled within ``GN_MAX_ITER`` steps (a far start): the full
+    Gauss-Newton from where it got. Returns x, y, z, RMS residual."""
+    n = len(anchors)
+    cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = _normal_eq(anchors, lengths, x, y, z)
+    c11 = a22 * a33 - a23 * a23
+    c12 = a13 * a23 - a12 * a33
+    c13 = a12 * a23 - a13 * a22
+    det = a11 * c11 + a12 * c12 + a13 * c13
+    if not det > GN_DET_MIN:  # cables (nearly) coplanar with P: keep the estimate
+        return x, y, z, _sqrt(cost / n)
+    inv = 1.0 / det
+    c11 *= inv
+    c12 *= inv
+    c13 *= inv
+    c22 = (a11 * a33 - a13 * a13) * inv
+    c23 = (a12 * a13 - a11 * a23) * inv
+    c33 = (a11 * a22 - a12 * a12) * inv
+    prev2 = math.inf
+    tol2 = GN_STEP_TOL_M * GN_STEP_TOL_M
+    for _ in range(GN_MAX_ITER):
+        sx = c11 * g1 + c12 * g2 + c13 * g3
+        sy = c12 * g1 + c22 * g2 + c23 * g3
+        sz = c13 * g1 + c23 * g2 + c33 * g3
+        step2 = sx * sx + sy * sy + sz * sz
+        if step2 < 1e-12 and (step2 <= tol2 or step2 * step2 < GN_AMONG_NEXT_TOL2 * prev2):
+            # converged: the last small step, and the model's cost there (``_gauss_newton``)
+            cost = max(0.0, cost - (g1 * sx + g2 * sy + g3 * sz))
+            return x - sx, y - sy, z - sz, _sqrt(cost / n)
+        prev2 = step2
+        allowed = cost + (GN_COST_REL_TOL * cost + GN_COST_ROUND_M * _sqrt(cost))
+        for _halving in range(GN_MAX_HALVINGS):
+            tx, ty, tz = x - sx, y - sy, z - sz
+            trial = _cost_grad(anchors, lengths, tx, ty, tz)
+            if trial[0] <= allowed:
+                break
+            sx, sy, sz = 0.5 * sx, 0.5 * sy, 0.5 * sz
+        else:
+            return x, y, z, _sqrt(cost / n)  # no decrease along the step: at the minimum
+        x, y, z = tx, ty, tz
+        cost, g1, g2, g3 = trial
+    return _gauss_newton(anchors, lengths, x, y, z, None, GN_AMONG_NEXT_TOL2)
 
 
 def _others_cost(
@@ -349,7 +443,54 @@ def _refine(
     return _gauss_newton(geom._anchors_t, lengths, x, y, z, mirror)
 
 
-def _fpk(geom: Geometry, lengths: list[float]) -> FpkResult:
+def _inner_seed(geom: Geometry, x: float, y: float, z: float) -> Vec3:
+    """The seed triple's three-spheres point on the hull's side of the triple's plane, from
+    its lower one (x, y, z)."""
+    if not geom.seed_up:
+        return x, y, z
+    sd = geom._seed
+    if isinstance(sd, _EqualSeed):
+        return x, y, 2.0 * sd.zn - z
+    tilt = geom._fit.tilt
+    assert tilt is not None  # a general seed's plane is not level
+    return _mirror(tilt, x, y, z)
+
+
+def _fpk_among(geom: Geometry, lengths: list[float], seed_m: Sequence[float] | None) -> FpkResult:
+    """``fpk`` for an effector among its anchors (module docstring)."""
+    anchors = geom._anchors_t
+    tri = geom.seed_triple
+    best: tuple[float, float, float, float] | None = None
+    if seed_m is not None and len(seed_m) == 3:
+        gx, gy, gz = float(seed_m[0]), float(seed_m[1]), float(seed_m[2])
+        if math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz):
+            best = _gauss_newton_among(anchors, lengths, gx, gy, gz)
+            if best[3] <= RETRY_RMS_M:
+                return FpkResult((best[0], best[1], best[2]), best[3], tri)
+    lin = geom._lin
+    if lin is not None:
+        # The linearised trilateration of every cable: no mirror image, within the noise.
+        x, y, z = lin.p0
+        for (wx, wy, wz), ln in zip(lin.w, lengths, strict=True):
+            s = ln * ln
+            x -= wx * s
+            y -= wy * s
+            z -= wz * s
+    else:  # pragma: no cover - among the anchors they never lie in one plane
+        sd = geom._seed
+        r1, r2, r3 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3]
+        if isinstance(sd, _EqualSeed):
+            x, y, z = _seed_equal(sd, r1, r2, r3, True)
+        else:
+            x, y, z = _seed_general(sd, r1, r2, r3, True)
+        x, y, z = _inner_seed(geom, x, y, z)
+    res = _gauss_newton_among(anchors, lengths, x, y, z)
+    if best is not None and best[3] < res[3]:
+        res = best
+    return FpkResult((res[0], res[1], res[2]), res[3], tri)
+
+
+def _fpk(geom: Geometry, lengths: list[float], seed_m: Sequence[float] | None = None) -> FpkResult:
     """``fpk`` on a list of floats."""
     sd = geom._seed
     n = geom.n_cables
@@ -361,6 +502,12 @@ def _fpk(geom: Geometry, lengths: list[float]) -> FpkResult:
         for k, ln in enumerate(lengths):
             if not (0.0 < ln < math.inf):
                 raise KinematicsError(f"cable {k + 1} length must be finite and > 0, got {ln!r}")
+    if not geom.hanging:
+        res = _fpk_among(geom, lengths, seed_m)
+        p = res.position_m
+        if not (math.isfinite(p[0] + p[1] + p[2]) and math.isfinite(res.residual_m)):
+            raise KinematicsError("FPK produced a non-finite result")  # defensive
+        return res
     r1, r2, r3 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3]
     if isinstance(sd, _EqualSeed):
         x, y, z = _seed_equal(sd, r1, r2, r3)
@@ -375,20 +522,26 @@ def _fpk(geom: Geometry, lengths: list[float]) -> FpkResult:
     return FpkResult((x, y, z), rms, tri)
 
 
-def fpk(geom: Geometry, lengths_m: Sequence[float] | FloatArray) -> FpkResult:
+def fpk(
+    geom: Geometry,
+    lengths_m: Sequence[float] | FloatArray,
+    seed_m: Sequence[float] | None = None,
+) -> FpkResult:
     """Forward pose kinematics of one pose: the point P where the N cables meet.
 
     ``lengths_m``: the N cable lengths, a sequence or an array of shape (N,) (many poses at
     once: ``fpk_batch``).  The seed triple's three-spheres point, then for N > 3 the
     least-squares fit over all cables (see the module docstring); ``residual_m`` is the RMS
-    cable-length mismatch.  Raises ``KinematicsError`` for a wrong shape or count or for
-    non-finite / non-positive lengths, and ``UnreachableError`` (naming the 1-based cable and
-    its shortfall) when the seed triple cannot meet.
+    cable-length mismatch.  ``seed_m``: the last pose, when the caller has one; it seeds the
+    fit of an effector among its anchors (``Geometry.hanging`` False) and is not needed for
+    a hanging one (ignored there).  Raises ``KinematicsError`` for a wrong shape or count or
+    for non-finite / non-positive lengths, and ``UnreachableError`` (naming the 1-based cable
+    and its shortfall) when the seed triple cannot meet.
     """
     if isinstance(lengths_m, np.ndarray):
         if lengths_m.ndim != 1:
             raise KinematicsError(
                 f"lengths must have shape (N,), got {lengths_m.shape} (fpk_batch takes (M, N))"
             )
-        return _fpk(geom, lengths_m.tolist())
-    return _fpk(geom, list(map(float, lengths_m)))
+        return _fpk(geom, lengths_m.tolist(), seed_m)
+    return _fpk(geom, list(map(float, lengths_m)), seed_m)

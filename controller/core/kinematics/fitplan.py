@@ -72,3 +72,55 @@ def _make_planar4(pts: Sequence[Vec3], sd: _EqualSeed, others: tuple[int, ...]) 
     m0 = -sum(ck * math.dist(pts[k], b4) ** 2 for ck, k in zip((c1, c2, c3), sd.tri, strict=True))
     cmax = max(1.0, abs(c1), abs(c2), abs(c3))
     return _Planar4(sd, k4, b4, (c1, c2, c3), m0, 3.0 * cmax)
+
+
+@dataclass(frozen=True, slots=True)
+class _Linear:
+    """The linearised trilateration of anchors not in one plane: subtracting the mean of the
+    spheres ``|P - A_i|^2 = L_i^2`` from each leaves ``2 (A_i - A_mean) . P = c_i - L_i^2 +
+    mean(L^2)``, linear in P; its least-squares solution is ``p0 - sum_i w_i L_i^2`` (the
+    mean's term drops out, the ``A_i - A_mean`` summing to zero). Exact for consistent
+    lengths, within the noise otherwise, and with no mirror image."""
+
+    p0: Vec3
+    w: tuple[Vec3, ...]
+
+
+def _make_linear(pts: Sequence[Vec3]) -> _Linear | None:
+    """The linearised trilateration's constants; None when the anchors lie in one plane."""
+    n = len(pts)
+    mx = sum(p[0] for p in pts) / n
+    my = sum(p[1] for p in pts) / n
+    mz = sum(p[2] for p in pts) / n
+    sq = [p[0] * p[0] + p[1] * p[1] + p[2] * p[2] for p in pts]
+    msq = sum(sq) / n
+    d = [(p[0] - mx, p[1] - my, p[2] - mz) for p in pts]
+    a11 = 2.0 * sum(x * x for x, _, _ in d)
+    a12 = 2.0 * sum(x * y for x, y, _ in d)
+    a13 = 2.0 * sum(x * z for x, _, z in d)
+    a22 = 2.0 * sum(y * y for _, y, _ in d)
+    a23 = 2.0 * sum(y * z for _, y, z in d)
+    a33 = 2.0 * sum(z * z for _, _, z in d)
+    c11 = a22 * a33 - a23 * a23
+    c12 = a13 * a23 - a12 * a33
+    c13 = a12 * a23 - a13 * a22
+    det = a11 * c11 + a12 * c12 + a13 * c13
+    scale = (a11 + a22 + a33) ** 3
+    if not abs(det) > 1e-12 * scale:
+        return None
+    c22 = a11 * a33 - a13 * a13
+    c23 = a12 * a13 - a11 * a23
+    c33 = a11 * a22 - a12 * a12
+
+    def k(v: Vec3) -> Vec3:
+        return (
+            (c11 * v[0] + c12 * v[1] + c13 * v[2]) / det,
+            (c12 * v[0] + c22 * v[1] + c23 * v[2]) / det,
+            (c13 * v[0] + c23 * v[1] + c33 * v[2]) / det,
+        )
+
+    w = tuple(k(di) for di in d)
+    cx = sum(di[0] * (sq[i] - msq) for i, di in enumerate(d))
+    cy = sum(di[1] * (sq[i] - msq) for i, di in enumerate(d))
+    cz = sum(di[2] * (sq[i] - msq) for i, di in enumerate(d))
+    return _Linear(k((cx, cy, cz)), w)

@@ -11,13 +11,21 @@ Conventions (the whole package)
 * Nothing returns NaN or inf: inputs are checked, and outputs are finite or an exception is
   raised (single pose) / the row is flagged invalid (batch).
 
+Two kinds of layout (``Geometry.hanging``): the effector *hangs* below every anchor (the
+paper's robot, camera rigs: a suspended robot), or it works *among* the anchors, some of them
+below it (a Hangprinter's three or four low anchors and one on the ceiling), inside their
+convex hull, which then must have a volume.  The two differ in which of the two mirror
+solutions of three cables the FPK starts from (``controller.core.kinematics.fit``).
+
 ``Geometry`` validates the anchors once and precomputes everything the FPK needs that depends
 on them alone.  A triple of anchors is usable by the three-spheres algorithms unless it is
 collinear in plan view: the paper's algorithmic singularity (eqs. 13-14) is twice the signed
 plan-view area of the triangle, here compared with ``SINGULAR_REL_TOL`` times the squared
 plan-view span of all anchors.  The *seed triple* is the usable triple with the largest
 plan-view triangle (the best conditioned), an equal-height one preferred among equals so that
-the paper's simplified algorithm applies.
+the paper's simplified algorithm applies; among the anchors (not hanging) only a face of
+their hull qualifies, so that the effector is always on one known side of its plane
+(``seed_up``: above it).
 
 IPK is the distance from P to each anchor: ``ipk_point`` in pure Python floats for the
 control tick, ``ipk`` vectorised over rows.  ``Geometry.footprint_m`` is the anchors' plan-view
@@ -36,7 +44,14 @@ import numpy as np
 import numpy.typing as npt
 
 from controller.core.kinematics.errors import KinematicsError, SingularGeometryError
-from controller.core.kinematics.fitplan import _Fit, _make_fit, _make_planar4, _Planar4
+from controller.core.kinematics.fitplan import (
+    _Fit,
+    _Linear,
+    _make_fit,
+    _make_linear,
+    _make_planar4,
+    _Planar4,
+)
 from controller.core.kinematics.spheres import (
     Vec3,
     _EqualSeed,
@@ -47,9 +62,11 @@ from controller.core.kinematics.spheres import (
 
 __all__ = [
     "COINCIDENT_TOL_M",
+    "COPLANAR_REL_TOL",
     "HEIGHT_TOL_M",
     "SINGULAR_REL_TOL",
     "Geometry",
+    "HullFace",
     "ipk",
     "ipk_point",
     "paper_anchors",
@@ -64,6 +81,8 @@ HEIGHT_TOL_M = 1e-9
 #: A triple is singular (eq. 14) when its plan-view triangle's doubled area |ae-bd|/4 is below
 #: this fraction of the squared plan-view span of the anchors.
 SINGULAR_REL_TOL = 1e-6
+#: Anchors within this fraction of their span from one plane lie in it (no hull volume).
+COPLANAR_REL_TOL = 1e-6
 
 # Module-level alias: one global lookup per call.
 _sqrt = math.sqrt
@@ -94,6 +113,64 @@ def _convex_hull(points: list[tuple[float, float]]) -> list[tuple[float, float]]
             upper.pop()
         upper.append(p)
     return lower[:-1] + upper[:-1]
+
+
+HullFace = tuple[float, float, float, float, tuple[int, ...]]
+"""A face of the anchors' hull: its outward unit normal (nx, ny, nz), c (inside is
+``nx x + ny y + nz z <= c``) and the anchors (0-based) on it."""
+
+
+def _hull_faces(
+    pts: Sequence[Vec3],
+) -> tuple[dict[tuple[int, int, int], bool], tuple[HullFace, ...]]:
+    """The triples of anchors that are faces of their convex hull (every other anchor on one
+    side of the triple's plane, or in it), each with whether that side is above the plane
+    (its normal turned up); and the hull's faces as planes, one per plane.  Raises
+    ``SingularGeometryError`` when the anchors lie in one plane (a hull without volume)."""
+    span = max(math.dist(a, b) for a, b in itertools.combinations(pts, 2))
+    tol = COPLANAR_REL_TOL * span
+    faces: dict[tuple[int, int, int], bool] = {}
+    planes: list[HullFace] = []
+    flat = True
+    for tri in itertools.combinations(range(len(pts)), 3):
+        a, b, c = (pts[k] for k in tri)
+        ux, uy, uz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+        vx, vy, vz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if not norm > tol * span:
+            continue  # collinear
+        if nz < 0.0 or (nz == 0.0 and (ny < 0.0 or (ny == 0.0 and nx < 0.0))):
+            nx, ny, nz = -nx, -ny, -nz
+        sides = [
+            ((p[0] - a[0]) * nx + (p[1] - a[1]) * ny + (p[2] - a[2]) * nz) / norm
+            for k, p in enumerate(pts)
+            if k not in tri
+        ]
+        if any(abs(d) > tol for d in sides):
+            flat = False
+        if all(d >= -tol for d in sides):
+            faces[tri] = True
+            out = -1.0  # the hull is above: the outward normal points down
+        elif all(d <= tol for d in sides):
+            faces[tri] = False
+            out = 1.0
+        else:
+            continue
+        ox, oy, oz = out * nx / norm, out * ny / norm, out * nz / norm
+        on = tuple(
+            k
+            for k, p in enumerate(pts)
+            if abs((p[0] - a[0]) * ox + (p[1] - a[1]) * oy + (p[2] - a[2]) * oz) <= tol
+        )
+        if not any(f[4] == on for f in planes):
+            planes.append((ox, oy, oz, ox * a[0] + oy * a[1] + oz * a[2], on))
+    if flat:
+        raise SingularGeometryError(
+            "the anchors lie in one plane: an effector among them (some anchors below it) "
+            "cannot be held; only a robot hanging below them can"
+        )
+    return faces, tuple(planes)
 
 
 def _usable_triples(pts: Sequence[Vec3]) -> list[tuple[float, tuple[int, int, int]]]:
@@ -130,11 +207,18 @@ class Geometry:
     which seeds every FPK.
 
     ``height_tol_m``: anchor heights within this count as equal (``equal_heights``).
+    ``hanging``: True (the default) when the effector hangs below every anchor, False when
+    it works among them inside their convex hull (some anchors below it: a Hangprinter);
+    then the seed triple is a face of the hull, ``seed_up`` says whether the hull lies above
+    its plane, ``hull_faces`` are the hull's faces (outward unit normal, offset, the anchors
+    on it; empty for a hanging layout), and ``SingularGeometryError`` is raised for fewer
+    than four anchors or anchors in one plane (no hull to work in).
     """
 
     __slots__ = (
         "_anchors_t",
         "_fit",
+        "_lin",
         "_p4",
         "_seed",
         "anchor_height_max_m",
@@ -142,9 +226,12 @@ class Geometry:
         "anchors_m",
         "equal_heights",
         "footprint_m",
+        "hanging",
         "height_tol_m",
+        "hull_faces",
         "n_cables",
         "seed_triple",
+        "seed_up",
         "seed_uses_simplified",
         "triples",
     )
@@ -158,13 +245,18 @@ class Geometry:
     triples: tuple[tuple[int, int, int], ...]
     seed_triple: tuple[int, int, int]
     seed_uses_simplified: bool
+    hanging: bool
+    seed_up: bool
     footprint_m: tuple[tuple[float, float], ...]
     _anchors_t: tuple[Vec3, ...]
     _seed: _EqualSeed | _GeneralSeed
     _fit: _Fit
+    _lin: _Linear | None
     _p4: _Planar4 | None
 
-    def __init__(self, anchors_m: Any, height_tol_m: float = HEIGHT_TOL_M) -> None:
+    def __init__(
+        self, anchors_m: Any, height_tol_m: float = HEIGHT_TOL_M, *, hanging: bool = True
+    ) -> None:
         try:
             arr = np.array(anchors_m, dtype=np.float64)
         except (TypeError, ValueError) as exc:
@@ -185,6 +277,19 @@ class Geometry:
                 raise SingularGeometryError(f"anchors {i + 1} and {j + 1} coincide")
 
         usable = _usable_triples(pts)
+        self.hanging = bool(hanging)
+        self.seed_up = False
+        self.hull_faces: tuple[HullFace, ...] = ()
+        if not self.hanging:
+            if n < 4:
+                raise SingularGeometryError(
+                    f"{n} anchors cannot surround an effector: working among the anchors "
+                    "(some below it) needs at least 4"
+                )
+            faces, self.hull_faces = _hull_faces(pts)
+            usable = [(a, t) for a, t in usable if t in faces]
+            if not usable:  # pragma: no cover - a hull always has a face seen from above
+                raise SingularGeometryError("no face of the anchors' hull is usable by the FPK")
 
         zs = [p[2] for p in pts]
         self.anchors_m = arr
@@ -205,6 +310,8 @@ class Geometry:
         # Among the best-conditioned triples prefer one the simplified algorithm can use.
         near_best.sort(key=lambda at: (not tri_equal(at[1]), at[1]))
         seed = near_best[0][1]
+        if not self.hanging:
+            self.seed_up = faces[seed]
         self.seed_triple = seed
         self.seed_uses_simplified = tri_equal(seed)
         self._seed = (
@@ -213,9 +320,10 @@ class Geometry:
             else _make_general_seed(pts, seed)
         )
         self._fit = _make_fit(pts, seed)
+        self._lin = None if self.hanging else _make_linear(pts)
         self._p4 = (
             _make_planar4(pts, self._seed, self._fit.others)
-            if isinstance(self._seed, _EqualSeed)
+            if isinstance(self._seed, _EqualSeed) and self.hanging
             else None
         )
 
@@ -223,7 +331,8 @@ class Geometry:
         self.footprint_m = tuple(_convex_hull([(p[0], p[1]) for p in pts]))
 
     def __repr__(self) -> str:
-        return f"Geometry(anchors_m={self.anchors_m.tolist()!r})"
+        extra = "" if self.hanging else ", hanging=False"
+        return f"Geometry(anchors_m={self.anchors_m.tolist()!r}{extra})"
 
 
 def paper_anchors(

@@ -361,10 +361,11 @@ def _equal_xy(sd: _EqualSeed, s1: Any, s2: Any, s3: Any) -> tuple[Any, Any, Any]
     return dx, dy, disc
 
 
-def _seed_equal(sd: _EqualSeed, r1: float, r2: float, r3: float) -> Vec3:
+def _seed_equal(sd: _EqualSeed, r1: float, r2: float, r3: float, clamp: bool = False) -> Vec3:
     """Per-tick simplified algorithm with hoisted constants; 11 add, 9 mul, 1 sqrt.
 
-    Raises ``UnreachableError`` naming the 1-based cable of the geometry.
+    Raises ``UnreachableError`` naming the 1-based cable of the geometry, unless `clamp`:
+    then lengths that cannot meet give the radical line's point in the centres' plane.
     """
     # ``_equal_xy`` written out, not called: this runs every tick, and the call would add about
     # a fifth to its cost.
@@ -376,16 +377,17 @@ def _seed_equal(sd: _EqualSeed, r1: float, r2: float, r3: float) -> Vec3:
     dy = u * sd.f1 + v * sd.f2 + sd.dy0
     disc = s1 - dx * dx - dy * dy
     if disc < 0.0:
-        if not _is_tangent(r1, r2, r3, -disc):
+        if not (clamp or _is_tangent(r1, r2, r3, -disc)):
             _raise_unreachable(sd.tri, sd.centres, (r1, r2, r3), -disc)
         disc = 0.0 * disc
     return (sd.x1 + dx, sd.y1 + dy, sd.zn - _sqrt(disc))
 
 
-def _seed_general(sd: _GeneralSeed, r1: float, r2: float, r3: float) -> Vec3:
+def _seed_general(sd: _GeneralSeed, r1: float, r2: float, r3: float, clamp: bool = False) -> Vec3:
     """Per-tick general algorithm with hoisted constants; 16 add, 18 mul, 1 sqrt.
 
-    Raises ``UnreachableError`` naming the 1-based cable of the geometry.
+    Raises ``UnreachableError`` naming the 1-based cable of the geometry, unless `clamp`:
+    then lengths that cannot meet give the radical line's point nearest the three spheres.
     """
     s1 = r1 * r1
     h2 = 0.5 * (s1 - r2 * r2) + sd.q2
@@ -396,7 +398,7 @@ def _seed_general(sd: _GeneralSeed, r1: float, r2: float, r3: float) -> Vec3:
     qc = x0 * x0 + y0 * y0 - s1
     disc = qb * qb - qc / sd.inv_a
     if disc < 0.0:
-        if not _is_tangent(r1, r2, r3, -disc * sd.inv_a):
+        if not (clamp or _is_tangent(r1, r2, r3, -disc * sd.inv_a)):
             _raise_unreachable(sd.tri, sd.centres, (r1, r2, r3), -disc * sd.inv_a)
         disc = 0.0 * disc
     sq = _sqrt(disc)

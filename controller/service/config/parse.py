@@ -19,7 +19,7 @@ from controller.core.kinematics import Geometry, KinematicsError, SingularGeomet
 from controller.core.reel import ReelModel, spool_buildup, spool_buildup_from_factor
 from controller.core.scale import speed_scale_problem
 from controller.core.statics import G_MPS2, TensionCheck
-from controller.core.workspace import Workspace, WorkspaceError
+from controller.core.workspace import Workspace, WorkspaceError, layout_geometry
 from controller.service.config.interfaces import _parse_bus, _parse_ros2, _parse_zenoh
 from controller.service.config.schema import (
     _NAME_RE,
@@ -49,6 +49,7 @@ from controller.service.config.schema import (
     Vec3,
     defaults,
     key_names,
+    kinematic_sim,
 )
 from controller.service.config.tables import _Errors, _Table, _tname, _unknown
 from controller.service.config.tomltext import to_toml
@@ -301,6 +302,12 @@ def parse_config(data: Mapping[str, Any], source: str, text: str | None = None) 
     drive_ok = errs.clean_since(mark)
     reels = _parse_reels(top, data, errs, family)
     geometry: Geometry | None = None
+    if reels is not None and len(reels) > MAX_CABLES:
+        errs.add(
+            "reels",
+            f"{len(reels)} reels: a point effector takes 3 to {MAX_CABLES} cables",
+        )
+        reels = None
     if reels is not None:
         try:
             geometry = Geometry([r.anchor_m for r in reels])
@@ -323,6 +330,8 @@ def parse_config(data: Mapping[str, Any], source: str, text: str | None = None) 
         limits = LimitsConfig()  # a stand-in: the configuration is refused
     limits_ok = errs.clean_since(mark)
     if limits_ok and geometry is not None and reels is not None:
+        # Among the anchors (some at or below the workspace: a Hangprinter), or hanging.
+        geometry = layout_geometry([r.anchor_m for r in reels], limits)
         g = geometry
         errs.check("limits", lambda: _check_limits(limits, g, source))
         for i, r in enumerate(reels):
@@ -355,7 +364,9 @@ def parse_config(data: Mapping[str, Any], source: str, text: str | None = None) 
             if refusal is not None:
                 errs.add("loop.rate_hz", refusal)
     payload, tension = _parse_statics(top, errs, limits, limits_ok, reels, geometry, pup)
-    _check_telemetry_and_plant(top, lt, ft, st, ht, loop, faults, sim, drive, payload, tension, pup)
+    _check_telemetry_and_plant(
+        top, lt, ft, st, ht, loop, faults, sim, bus.interface, drive, payload, tension, pup
+    )
     _check_stretch(top, lt, errs, loop, reels)
     _check_sag(top, errs, loop, reels, limits if limits_ok else None, tension, geometry)
 
@@ -560,17 +571,19 @@ def _check_telemetry_and_plant(
     loop: LoopConfig,
     faults: FaultConfig,
     sim: SimConfig,
+    bus_interface: str,
     drive: DriveConfig,
     payload: PayloadConfig | None,
     tension: TensionLimits | None,
     pup: Vec3 | None,
 ) -> None:
     """Cross-checks of torque telemetry, the slack fault and the simulated plant with the
-    drives, the payload and the power-up pose (problems recorded in the tables)."""
-    if loop.torque_telemetry != "off" and sim.enabled and sim.plant == "kinematic":
+    drives, the bus, the payload and the power-up pose (problems recorded in the tables)."""
+    if loop.torque_telemetry != "off" and kinematic_sim(sim, bus_interface):
+        where = "sim.enabled" if sim.enabled else f"simulated drives on {bus_interface}"
         lt.fail(
             "torque_telemetry",
-            f'"{loop.torque_telemetry}" with the kinematic simulator (sim.enabled): it carries '
+            f'"{loop.torque_telemetry}" with the kinematic simulator ({where}): it carries '
             'no load and reports no torque; use sim.plant = "physical"',
         )
     if faults.slack_tension_n is not None:
@@ -600,6 +613,9 @@ def _check_telemetry_and_plant(
             )
 
 
+MAX_CABLES = 8
+"""The most cables a robot file may have (RepRapFirmware's Hangprinter takes up to eight)."""
+
 MAX_QUEUED_POINTS = 10_000_000
 """The largest `[limits] max_queued_points` (a queued point costs about 150 bytes of planner
 memory: 1.5 GB); the smallest is one path command's `MAX_PATH_POINTS`, so a full path fits."""
@@ -627,6 +643,8 @@ def _parse_limits(mt: _Table) -> LimitsConfig:
         min_tension_n=mt.number("min_tension_n", ge=0.0) if mt.has("min_tension_n") else None,
         max_tension_n=mt.number("max_tension_n", gt=0.0) if mt.has("max_tension_n") else None,
         tension_margin_n=mt.number("tension_margin_n", d_lim.tension_margin_n, ge=0.0),
+        ceiling_z_m=mt.number("ceiling_z_m") if mt.has("ceiling_z_m") else None,
+        print_radius_m=mt.number("print_radius_m", gt=0.0) if mt.has("print_radius_m") else None,
     )
 
 
@@ -915,13 +933,24 @@ def _point_problem(p: Vec3, workspace: Workspace) -> str | None:
     if v is None:
         return None
     x, y, z = p
-    if v.limit == "xy_margin_m":
+    if v.limit == "xy_margin_m" and workspace.hanging:
         return (
             f"({x:g}, {y:g}) m is outside the anchors' plan-view polygon shrunk by "
             f"limits.xy_margin_m ({v.bound:g} m)"
         )
+    if v.limit == "xy_margin_m":
+        return (
+            f"({x:g}, {y:g}, {z:g}) m is outside the anchors' hull shrunk by "
+            f"limits.xy_margin_m ({v.bound:g} m)"
+        )
+    if v.limit == "print_radius_m":
+        return f"({x:g}, {y:g}) m is beyond limits.print_radius_m ({v.bound:g} m)"
     if v.limit == "floor_z_m":
         return f"z={z:g} m is below limits.floor_z_m ({v.bound:g} m)"
+    if v.limit == "ceiling_z_m":
+        return f"z={z:g} m is above limits.ceiling_z_m ({v.bound:g} m)"
+    if v.limit == "top_margin_m" and not workspace.hanging:
+        return f"z={z:g} m is above the highest anchor minus limits.top_margin_m ({v.bound:g} m)"
     if v.limit == "top_margin_m":
         return (
             f"z={z:g} m is above the anchor plane minus margin ({v.bound:g} m), "

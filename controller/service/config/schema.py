@@ -312,7 +312,8 @@ class LoopConfig:
         "off",
         'measured cable tensions from the motors\' torques: "off", "cyclic" (the ODrives '
         'broadcast Get_Torques: set their `torques_msg_rate_ms`) or "rtr" (asked every '
-        "`torque_rtr_period_s`); not with the kinematic in-process simulator",
+        "`torque_rtr_period_s`); not with the kinematic simulator (in the daemon, or "
+        "`cablebot sim` on a simulated bus)",
     )
     torque_rtr_period_s: float = key(
         0.01,
@@ -339,10 +340,27 @@ class LimitsConfig:
     required (a safe limit depends on the robot); the defaults here are stand-ins."""
 
     xy_margin_m: float = key(
-        2.0, "keep this far inside the anchors' plan-view polygon", shown=_IN_A_FILE
+        2.0,
+        "keep this far inside the anchors' plan-view polygon (among the anchors: inside the "
+        "anchors' hull, measured across the plan view at every height)",
+        shown=_IN_A_FILE,
     )
-    floor_z_m: float = key(0.0, "lowest allowed z", shown=_IN_A_FILE)
-    top_margin_m: float = key(1.0, "highest z = lowest anchor z minus this", shown=_IN_A_FILE)
+    floor_z_m: float = key(
+        0.0,
+        "lowest allowed z; at or above the lowest anchor minus `top_margin_m` the effector "
+        "works among the anchors (a Hangprinter: see [Hangprinters](hangprinter.md))",
+        shown=_IN_A_FILE,
+    )
+    top_margin_m: float = key(
+        1.0,
+        "highest z = lowest anchor z minus this (among the anchors: highest anchor z minus this)",
+        shown=_IN_A_FILE,
+    )
+    ceiling_z_m: float | None = key(None, "highest allowed z, when lower than the anchors allow")
+    print_radius_m: float | None = key(
+        None,
+        "keep within this plan-view radius of the origin (RepRapFirmware's M669 P)",
+    )
     min_cable_m: float = key(
         1.0, "shortest allowed cable (every cable, every tick)", shown=_IN_A_FILE
     )
@@ -550,7 +568,9 @@ class SimConfig:
         '"kinematic": the reels move, nothing hangs on them (exact, no parameters); '
         '"physical": one elastic-cable plant carries the payload and each axis reports its '
         "holding torque by Get_Torques (`controller.core.plant.ReelPlant`; ODrive drives only; "
-        "needs `[payload]` and `homing.power_up_position_m`)",
+        "needs `[payload]` and `homing.power_up_position_m`); `home --pretension` and torque "
+        "telemetry need it, for drives simulated in the daemon or by `cablebot sim` on a "
+        "virtual or udp_multicast bus",
     )
     cable_ea_n: float = key(1.0e6, "axial stiffness EA of every simulated cable (physical plant)")
     cable_mass_kg_per_m: float | None = key(
@@ -564,6 +584,17 @@ class SimConfig:
         0.01,
         "Get_Torques broadcast period of each simulated axis (physical plant); 0 = by RTR only",
     )
+
+
+def kinematic_sim(sim: SimConfig, bus_interface: str) -> bool:
+    """True when the reels are cablebot's simulated drives with the kinematic plant, so nothing
+    hangs on them (no load, no torque): the daemon runs them (`[sim] enabled`), or the bus is
+    one only simulated drives speak (virtual, udp_multicast: `cablebot sim` runs them from the
+    robot file's `[sim]`). The one rule for what needs a load (pre-tension, torque telemetry)."""
+    from drivers.busload import SIMULATED_INTERFACES
+
+    simulated = sim.enabled or bus_interface in SIMULATED_INTERFACES
+    return simulated and sim.plant == "kinematic"
 
 
 @dataclass(frozen=True, slots=True)
@@ -661,6 +692,12 @@ class RobotConfig:
     def anchors_m(self) -> tuple[Vec3, ...]:
         """Anchors in reel (= cable) order."""
         return tuple(r.anchor_m for r in self.reels)
+
+    @property
+    def kinematic_sim(self) -> bool:
+        """True when the reels are the kinematic simulator's: nothing hangs on them
+        (`kinematic_sim`)."""
+        return kinematic_sim(self.sim, self.bus.interface)
 
     def summary(self) -> dict[str, Any]:
         """A JSON-able description of the whole configuration (for the status queryable)."""

@@ -36,6 +36,8 @@ COMMAND_QUEUE_SIZE = 32
 ESTOP_CONFIRM_S = 0.2
 """Every axis must confirm leaving closed loop this soon after an e-stop (see
 `controller.service.loop`)."""
+CONFLICT_HOLDOFF_S = 2.0
+"""An arm is refused this long after another bus master was last heard (`BusStats.conflicts`)."""
 MAX_PLANNER_DT_PERIODS = 4.0
 """The planner advances at most this many loop periods per tick (see `controller.service.loop`)."""
 TENSION_SAMPLE_FRACTION = 0.01
@@ -184,6 +186,8 @@ class ControllerState:
         self.reels: list[ReelModel] = list(self._base_reels)
         self.homed = False
         self.home_source = "none"
+        self._home_epochs: list[int] = []
+        """Each drive's `count_epoch` when the offsets were taken (they hold in it only)."""
         self._state_file: str | None = cfg.homing.state_file
         self._power_up: Vec3 | None = (
             None
@@ -204,11 +208,15 @@ class ControllerState:
         self._estop_flag = False
         self._stream_target: tuple[Vec3, int] | None = None
         """The latest streamed set-point and the armed session (`_arm_epoch`) it arrived in."""
+        self._stop_brake: tuple[Vec3, str] | None = None
+        """Where a `stop` taken while MOVING brakes to and why: the HOLDING there carries the
+        reason (a motion that replaced the braking ends elsewhere and carries none)."""
         self._arm_epoch = 0
         """Counts `arm` commands taken: a set-point from an earlier session is discarded."""
         self.stream_refused = 0
         self.stream_last_refusal: str | None = None
         self.stream_discarded = 0
+        self.stream_last_discard: str | None = None
         """Set-points discarded because the state takes none (written by the submitting thread)."""
         self._velocity_cmd: tuple[Vec3, int] | None = None
         """The latest velocity sample and the armed session it arrived in (like a set-point)."""
@@ -235,6 +243,8 @@ class ControllerState:
         self.pose_stamp_ns = 0
         """Wall-clock arrival time of the newest encoder reading the pose came from."""
         self.setpoint_m: Vec3 | None = None
+        self._setpoint_tick_s: float | None = None
+        """The clock time of the tick that computed `setpoint_m` (written after it)."""
         """Set-point commanded on the last good tick (the hold set-point in FAULT)."""
         self.setpoint_lengths_m: tuple[float, ...] | None = None
         self.commanded_rev: list[float] | None = None
@@ -250,6 +260,9 @@ class ControllerState:
         self._arm_rev: list[float] | None = None
         self._last_tick_s: float | None = None
         self._bus_errors_seen = driver.stats.bus_errors
+        self._conflicts_seen = driver.stats.conflicts
+        self._conflict_s: float | None = None
+        """When another bus master was last heard (None: never)."""
         self.seq = 0
         self.ticks = 0
         self.command_errors = 0
@@ -296,6 +309,20 @@ class ControllerState:
         self.reels = models
         self.homed = True
         self.home_source = source
+        self._home_epochs = [r.count_epoch for r in self.driver.read()]
+
+    def _count_lost(self, readings: Sequence[AxisReading]) -> str | None:
+        """The reason the homing no longer holds: a drive's position count started afresh since
+        the offsets were taken (None while it holds). Raises nothing."""
+        epochs = self._home_epochs
+        for i in range(len(epochs)):
+            r = readings[i]
+            if r.count_epoch != epochs[i]:
+                return (
+                    f"count_lost: node {r.node_id}'s position count started afresh (it restarted"
+                    " and its encoder lost the count): home at a known pose"
+                )
+        return None
 
     def _load_state_file(self) -> None:
         from controller.service import offsets as homing  # lazily: only with a state file
@@ -328,6 +355,7 @@ class ControllerState:
             for base, r, L in zip(self._base_reels, readings, lengths, strict=True)
         ]
         self.homed = True
+        self._home_epochs = [r.count_epoch for r in readings]
         self.lengths_m[:] = [float(v) for v in lengths]
         self._fpk_lengths_m[:] = self.lengths_m
         self.pose_m = (float(position_m[0]), float(position_m[1]), float(position_m[2]))

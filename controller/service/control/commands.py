@@ -32,9 +32,17 @@ from controller.core.commands import (
 from controller.core.motion import QueueError, check_speed, dedupe_path
 from controller.core.states import ARMED_STATES, State, refusal
 from controller.core.workspace import points_array
-from controller.service.control.base import TENSION_MAX_SAMPLES, Reply, _chain, _fmt, _Motion, log
+from controller.service.control.base import (
+    CONFLICT_HOLDOFF_S,
+    TENSION_MAX_SAMPLES,
+    Reply,
+    _chain,
+    _fmt,
+    _Motion,
+    log,
+)
 from controller.service.control.homing import Homing
-from drivers.base import AxisReading
+from drivers.base import ArmRefused, AxisReading
 
 _VERBS: Mapping[type, str] = {
     Move: "move",
@@ -115,8 +123,10 @@ class CommandExecution(Homing):
         state = self.state
         why = refusal(state, "setpoint")
         if why is not None:
-            self.stream_discarded += 1
-            return self._refusal_text(state, why)
+            text = self._refusal_text(state, why)
+            self.stream_last_discard = text
+            self.stream_discarded += 1  # after the reason: a reader of the count finds it
+            return text
         self._stream_target = (p, epoch)  # one reference assignment: atomic
         return None
 
@@ -286,6 +296,9 @@ class CommandExecution(Homing):
             self._stop_pretension()
         elif self.state in ARMED_STATES:
             self.planner.stop()
+            if self.state is State.MOVING:
+                why = "the daemon's shutdown" if self._closing else "a `stop` command"
+                self._stop_brake = (self.planner.rest_point_m, f"stopped by {why}")
         return {"ok": True, "state": self.state.value}
 
     def _cmd_arm(
@@ -295,8 +308,25 @@ class CommandExecution(Homing):
         not homed or when the bus fails."""
         if not self.homed:
             raise CommandRefused("not homed: run `home` at a known pose first")
+        lost = self._count_lost(readings)
+        if lost is not None:
+            raise CommandRefused(f"not homed: {lost}")
+        res = self.residual_m
+        if self.pose_valid and res is not None and res > self._residual_max_m:
+            # Arming would fault on it at once (the residual rule of every armed state).
+            raise CommandRefused(
+                f"residual: {res * 1e3:.1f} mm > {self._residual_max_m * 1e3:.1f} mm: the cables"
+                " disagree (slack or slipped cable): home at a known pose, or pretension, first"
+            )
+        since = self._conflict_s
+        if since is not None and now_s - since < CONFLICT_HOLDOFF_S:
+            raise CommandRefused(
+                f"bus_conflict: {self.driver.stats.last_conflict} (heard {now_s - since:.1f} s ago)"
+            )
         try:
             self.driver.arm()
+        except ArmRefused as exc:  # e.g. a restarted drive being configured beside the loop
+            raise CommandRefused(f"not_ready: arm: {exc}") from None
         except Exception as exc:
             raise CommandRefused(f"bus_error: arm: {exc}") from None
         self._arm_start_s = now_s

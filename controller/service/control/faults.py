@@ -79,6 +79,16 @@ class FaultHandling(ControllerState):
                 f"bus_error: {self.driver.stats.last_error} (failing for {now_s - since:.3f} s)"
             )
 
+    def _check_conflicts(self, now_s: float, state: State) -> None:
+        """Another bus master was heard since the last tick (`BusStats.conflicts`, e.g. a second
+        CiA 402 SYNC producer): _Fault `bus_conflict` naming it when armed, arming or
+        pretensioning; remembered for the arm's refusal (`CONFLICT_HOLDOFF_S`)."""
+        stats = self.driver.stats
+        self._conflicts_seen = stats.conflicts
+        self._conflict_s = now_s
+        if state in ARMED_STATES or state is State.ARMING or state is State.PRETENSIONING:
+            raise _Fault(f"bus_conflict: {stats.last_conflict}")
+
     def _check_axes(
         self, readings: Sequence[AxisReading], now_s: float, *, ready: bool = True
     ) -> bool:

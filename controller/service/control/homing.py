@@ -122,10 +122,13 @@ class Homing(FaultHandling):
                 "pretension: needs [payload] mass_kg (the reels pull with the tensions that hold "
                 "the payload at the home pose)"
             )
-        if self.cfg.sim.enabled and self.cfg.sim.plant == "kinematic":
+        if self.cfg.kinematic_sim:
+            where = "in the daemon" if self.cfg.sim.enabled else "by `cablebot sim`"
             raise CommandRefused(
-                "pretension: the kinematic simulator carries no load, so its reels would spin "
-                'free; use [sim] plant = "physical"'
+                "pretension: the reels are the kinematic simulator's (simulated drives on "
+                f"{self.cfg.bus.interface} {self.cfg.bus.channel}, run {where}, [sim] plant = "
+                '"kinematic"): it carries no load, so they would wind in and never come still; '
+                'give the robot file [sim] plant = "physical" (and run `cablebot sim` with it)'
             )
         self._refuse_stale(readings, now_s)
         p = cmd.position_m

@@ -14,6 +14,20 @@ from controller.service.control.base import ControllerState, _finite_or_none
 class StatusReport(ControllerState):
     """The controller's `status()` snapshot."""
 
+    def _setpoint_and_stamp(self) -> tuple[Any, int | None]:
+        """The set-point and the wall-clock time (ns) of the tick that computed it, read
+        together: the tick writes the set-point, then its time, so a time that changed while
+        the set-point was read is read again with it. A reply that arrives late (a loaded
+        machine, a busy network) still dates its set-point right. (None, None) without one."""
+        t = self._setpoint_tick_s
+        sp = self.setpoint_m
+        if self._setpoint_tick_s != t:
+            t, sp = self._setpoint_tick_s, self.setpoint_m
+        if sp is None or t is None:
+            return sp, None
+        wall_ns = self._wall_ns()
+        return sp, wall_ns - round((self._clock() - t) * 1e9)
+
     def status(self) -> dict[str, Any]:
         """A JSON-ready snapshot of the controller (thread-safe, for `<prefix>/status`)."""
         now = self._clock()
@@ -36,7 +50,7 @@ class StatusReport(ControllerState):
         bs = self.driver.stats.snapshot()
         valid = self.pose_valid
         pose = self.pose_m
-        sp = self.setpoint_m
+        sp, sp_stamp_ns = self._setpoint_and_stamp()
         return {
             "state": self.state.value,
             "reason": self.reason,
@@ -50,6 +64,7 @@ class StatusReport(ControllerState):
                 "cable_lengths_m": [_finite_or_none(v) for v in self.lengths_m],
             },
             "setpoint_m": list(sp) if sp is not None else None,
+            "setpoint_stamp_ns": sp_stamp_ns,
             "tensions": self._tension_status(sp is not None),
             "pretension": self._pretension_status(now),
             "axes": axes,
@@ -63,6 +78,7 @@ class StatusReport(ControllerState):
                 "refused": self.stream_refused,
                 "last_refusal": self.stream_last_refusal,
                 "discarded": self.stream_discarded,
+                "last_discard": self.stream_last_discard,
             },
             "path": {
                 "queued_points": self.planner.queued_points,
@@ -93,6 +109,8 @@ class StatusReport(ControllerState):
                 "decode_errors": bs.decode_errors,
                 "dropped": bs.dropped,
                 "commands_heard": bs.commands_heard,
+                "conflicts": bs.conflicts,
+                "last_conflict": bs.last_conflict,
                 "bus_errors": bs.bus_errors,
                 "ff_clamped": bs.ff_clamped,
                 "last_error": bs.last_error,

@@ -19,6 +19,9 @@ from controller.service.pose import PoseSample
 from controller.service.runner import SPIN_S, Runner
 from drivers.base import AxisReading, BusError
 
+STOP_POINT_TOL_M = 1e-6
+"""A motion held this close to where a `stop` braked it to ended by that stop."""
+
 
 class ControlStep(CommandExecution):
     """The controller's control step and the fixed-rate loop that calls it."""
@@ -56,6 +59,8 @@ class ControlStep(CommandExecution):
                 self._bus_errors_persist(now_s, state)
             else:
                 self._bus_err_since_s = None
+            if drv.stats.conflicts != self._conflicts_seen:
+                self._check_conflicts(now_s, state)
             self._solve_pose(readings, now_s)
             if self._measure:
                 self._measure_tensions(readings, now_s, state)
@@ -102,6 +107,13 @@ class ControlStep(CommandExecution):
             else:
                 self.pose_valid = False
                 return
+        lost = self._count_lost(readings)
+        if lost is not None:
+            # The offsets were taken in another count of a drive's position: no pose from them.
+            self.pose_valid = False
+            if self.state is not State.DISARMED:
+                raise _Fault(lost)
+            return
         newest_ns = 0
         for i, r in enumerate(readings):
             if r.stamp_ns > newest_ns:
@@ -115,6 +127,7 @@ class ControlStep(CommandExecution):
             return
         stale = self._stale_s
         oldest_age_s = 0.0
+        oldest = readings[0]
         for r in readings:
             age_s = now_s - r.stamp_s
             if age_s > stale:
@@ -123,6 +136,7 @@ class ControlStep(CommandExecution):
                 return
             if age_s > oldest_age_s:
                 oldest_age_s = age_s
+                oldest = r
         pose = self.pose_m
         residual = self.residual_m
         if (
@@ -161,9 +175,16 @@ class ControlStep(CommandExecution):
             and self.state is not State.DISARMED
             and self._pretension is None  # slack cables are what a pre-tension takes up
         ):
+            # A drive gone quiet mid-move leaves its last reading while the others move on: the
+            # residual passes its limit before the reading is stale; say which one lags.
+            lag = (
+                f"; node {oldest.node_id}'s reading is {oldest_age_s:.3f} s old"
+                if oldest_age_s > 2.0 * self.period_s
+                else ""
+            )
             raise _Fault(
                 f"residual: {residual * 1e3:.1f} mm > {self._residual_max_m * 1e3:.1f} mm"
-                " (slack or slipped cable)"
+                f" (slack or slipped cable{lag})"
             )
         sp = self.setpoint_m
         if sp is not None and self.state in ARMED_STATES:
@@ -220,6 +241,7 @@ class ControlStep(CommandExecution):
         """Hold at `p`; _Fault if the payload cannot be held there (the tension rule)."""
         self.planner.hold(p)
         self.setpoint_m = p
+        self._setpoint_tick_s = self._last_tick_s
         self.setpoint_lengths_m = None
         if self.tension is not None:
             self._plan_tensions(p)
@@ -241,8 +263,8 @@ class ControlStep(CommandExecution):
                 if self.state is State.HOLDING:
                     self._set_state(State.MOVING, "stream")
             else:
-                self.stream_refused += 1
                 self.stream_last_refusal = reason
+                self.stream_refused += 1  # after the reason: a reader of the count finds it
         vel = None if self._closing else self._velocity_cmd
         if vel is not None:
             self._velocity_cmd = None
@@ -286,9 +308,18 @@ class ControlStep(CommandExecution):
         self.commanded_rev = rev
         self.commanded_ff_rps = ff
         self.setpoint_m = sp
+        self._setpoint_tick_s = self._last_tick_s  # after it: see `status`
         self.setpoint_lengths_m = lengths
         if self.state is State.MOVING and not self.planner.moving:
-            self._set_state(State.HOLDING)
+            self._set_state(State.HOLDING, self._stop_reason(sp))
+
+    def _stop_reason(self, held_m: Vec3) -> str | None:
+        """Why a motion ended at `held_m`: the reason of the `stop` whose braking ended there,
+        else None (it arrived, or ended where a later motion led). Forgets the stop."""
+        brake, self._stop_brake = self._stop_brake, None
+        if brake is not None and math.dist(brake[0], held_m) <= STOP_POINT_TOL_M:
+            return brake[1]
+        return None
 
     def _plan_tensions(self, sp: Vec3) -> None:
         """The tensions that hold the payload at set-point `sp`; _Fault if they break the
