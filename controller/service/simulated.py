@@ -16,6 +16,8 @@ import logging
 from collections.abc import Sequence
 from typing import Any
 
+from controller.service.keys import TRUTH
+
 log = logging.getLogger("cablebot.sim")
 
 
@@ -69,13 +71,11 @@ def sim_plant(cfg: Any, turns: Sequence[float]) -> Any:
     """
     if cfg.sim.plant != "physical":
         return None
-    from controller.core.plant import PlantParams, ReelPlant
+    from controller.core.plant import ReelPlant
     from controller.service.config import tension_check
 
     pose = tuple(float(v) for v in cfg.homing.power_up_position_m)
-    masses = sim_cable_masses(cfg)
-    ea = float(cfg.sim.cable_ea_n)
-    params = PlantParams(cfg.anchors_m, ea, float(cfg.payload.mass_kg), cable_mass_kg_per_m=masses)
+    params = sim_plant_params(cfg)
     reels = [r.reel for r in cfg.reels]
     check = tension_check(cfg.payload, cfg.tension, cfg.geometry)
     if not params.sags:
@@ -83,9 +83,30 @@ def sim_plant(cfg: Any, turns: Sequence[float]) -> Any:
     from controller.core.sag import SagStatics
     from controller.core.sag_plant import SagPlant
 
-    sag = SagStatics(check.statics, check.mass_kg, params.cable_weight_n_per_m, [ea] * len(reels))
+    ea = [float(cfg.sim.cable_ea_n)] * len(reels)
+    sag = SagStatics(check.statics, check.mass_kg, params.cable_weight_n_per_m, ea)
     lengths = sag.solve(pose).paid_out_m  # the catenaries that hold it there, at rest
     return ReelPlant(params, reels, pose, turns, plant=SagPlant(params, pose, lengths))
+
+
+def sim_plant_params(cfg: Any) -> Any:
+    """The `controller.core.plant.PlantParams` of the config's physical plant: the anchors,
+    `[sim] cable_ea_n`, the payload's mass, `[sim] cable_damping_ratio` and
+    `effector_damping_n_s_per_m` (unset: the plant's light drag), the cables' mass per metre
+    (`sim_cable_masses`). Raises PlantError on parameters the plant refuses, AttributeError
+    without a payload."""
+    from controller.core.plant import PlantParams
+
+    s = cfg.sim
+    drag = s.effector_damping_n_s_per_m
+    return PlantParams(
+        cfg.anchors_m,
+        float(s.cable_ea_n),
+        float(cfg.payload.mass_kg),
+        cable_damping_ratio=float(s.cable_damping_ratio),
+        effector_damping_n_s_per_m=None if drag is None else float(drag),
+        cable_mass_kg_per_m=sim_cable_masses(cfg),
+    )
 
 
 def sim_bank(cfg: Any, bus: Any) -> Any:
@@ -133,7 +154,7 @@ def schedule_sim_thread(cfg: Any, thread: Any) -> str:
     return set_realtime(max(1, int(cfg.loop.rt_priority) - 1), thread.native_id)
 
 
-TRUTH_KEY = "sim/truth"
+TRUTH_KEY = TRUTH
 """Key (under the robot's Zenoh prefix) of the simulator's ground truth: the physical plant's
 true effector position and cable tensions, JSON ``{"position_m": [x, y, z], "tensions_n":
 [...]}``.  The simulator's key, never the controller's input."""

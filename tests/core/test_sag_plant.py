@@ -196,7 +196,15 @@ def test_rest_pose_agrees_with_a_lumped_mass_chain_of_the_robot(
 
 @pytest.mark.parametrize(("mass_per_m", "target"), [(STEEL, (35, 20, 3)), (DYNEEMA, (0, 0, 6))])
 def test_stepped_plant_comes_to_the_rest_pose(mass_per_m: float, target: tuple[float, ...]) -> None:
-    params = PlantParams(PAPER, EA_N, 5.0, cable_mass_kg_per_m=mass_per_m)
+    # where it comes to rest: every mode damped critically (a real rope rings for seconds)
+    params = PlantParams(
+        PAPER,
+        EA_N,
+        5.0,
+        cable_mass_kg_per_m=mass_per_m,
+        cable_damping_ratio=1.0,
+        effector_damping_n_s_per_m=5.0,
+    )
     l0 = todays_lengths(target, 5.0)
     rest = sag_equilibrium(params, l0)
     start = (rest.position_m[0] + 0.05, rest.position_m[1] - 0.03, rest.position_m[2] + 0.02)
@@ -284,7 +292,14 @@ def test_a_cable_straight_down_its_vertical_holds_the_effector() -> None:
         (-1.41573, 0.70761, -0.12182),
         (0.0, 0.0, 2.29983),
     ]
-    params = PlantParams(anchors, 2.0e4, 1.0, cable_mass_kg_per_m=0.0005)
+    params = PlantParams(
+        anchors,
+        2.0e4,
+        1.0,
+        cable_mass_kg_per_m=0.0005,
+        cable_damping_ratio=1.0,
+        effector_damping_n_s_per_m=1.0,
+    )
     sag = SagStatics(CableStatics(anchors, 3.0, 70.0), 1.0, [0.0005 * G] * 4, [2.0e4] * 4)
     pose = (0.0, 0.0, 0.3)
     lengths = sag.solve(pose).paid_out_m

@@ -50,7 +50,15 @@ class SimDaemonRig:
         `model_mass_kg_per_m` in the daemon's reels (None: rigid, massless); with
         `sim_in_process` the daemon runs the simulated drives itself (`[sim] enabled`, on the
         same udp_multicast bus) and no `cablebot sim` is started."""
-        sim = {"plant": "physical", "cable_ea_n": plant_ea_n, "watchdog_timeout_s": 4.0}
+        # the figures are where the effector comes to rest: every mode damped critically, the
+        # effector's drag 1 s^-1 times its mass (the paper robot's 5 kg unless told)
+        sim = {
+            "plant": "physical",
+            "cable_ea_n": plant_ea_n,
+            "watchdog_timeout_s": 4.0,
+            "cable_damping_ratio": 1.0,
+            "effector_damping_n_s_per_m": 5.0 if payload_kg is None else payload_kg,
+        }
         if plant_mass_kg_per_m is not None:
             sim["cable_mass_kg_per_m"] = plant_mass_kg_per_m
         path, info = write_config(

@@ -39,7 +39,12 @@ def sag_config(
     return replace(
         cfg,
         reels=tuple(replace(r, cable_mass_kg_per_m=model_mass_kg_per_m) for r in cfg.reels),
-        sim=replace(cfg.sim, cable_mass_kg_per_m=plant_mass_kg_per_m, watchdog_timeout_s=10.0),
+        sim=replace(
+            cfg.sim,
+            cable_mass_kg_per_m=plant_mass_kg_per_m,
+            watchdog_timeout_s=10.0,
+            effector_damping_n_s_per_m=payload_kg,  # 1 s^-1 times the mass, as the stretch rig's
+        ),
         faults=replace(cfg.faults, stale_timeout_s=8.0, heartbeat_timeout_s=8.0),
         payload=replace(cfg.payload, mass_kg=payload_kg),
     )

@@ -138,12 +138,18 @@ BENCH_BUILDUP_FACTOR_M = 1.0e-6
 
 
 def bench_compute(
-    ticks: int, *, stretch: bool = False, buildup: bool = False, sag: bool = False
+    ticks: int,
+    *,
+    stretch: bool = False,
+    buildup: bool = False,
+    sag: bool = False,
+    shaper: str | None = None,
 ) -> dict[str, float]:
     """CPU time of `Controller.tick` per tick at `COMPUTE_RATE_HZ` on the built-in robot
     (rigid cables, or with `stretch` every cable at EA 2e5 N; with `buildup` every reel's spool
     builds up by `BENCH_BUILDUP_FACTOR_M` from the power-up lengths; with `sag` every cable
-    3 mm steel rope: `controller.cli.sag_bench.sag_config`), armed and flying
+    3 mm steel rope: `controller.cli.sag_bench.sag_config`; with `shaper` that input shaper,
+    on the model's modes at the set-point, which needs `stretch`), armed and flying
     `COMPUTE_PATH_M` at 1 m/s on an `EchoDriver`, publishing every tick to a publisher that
     drops the sample; `ticks` measured after a warm-up, GC frozen as the daemon does.
 
@@ -168,6 +174,8 @@ def bench_compute(
         from controller.cli.sag_bench import sag_config
 
         cfg = sag_config(cfg)
+    if shaper is not None:
+        cfg = replace(cfg, shaper=replace(cfg.shaper, type=shaper))
     assert cfg.homing.power_up_position_m is not None
     lengths = kinematics.ipk_point(cfg.geometry, cfg.homing.power_up_position_m)
     if buildup:

@@ -16,10 +16,18 @@ from typing import Any
 
 from controller.core.commands import MAX_PATH_POINTS
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
+from controller.core.motion.shaper import (
+    MAX_DAMPING_RATIO,
+    MAX_FREQUENCY_HZ,
+    MIN_FREQUENCY_HZ,
+    SHAPER_TYPES,
+)
 from controller.core.reel import ReelModel, spool_buildup, spool_buildup_from_factor
 from controller.core.scale import speed_scale_problem
 from controller.core.statics import G_MPS2, TensionCheck
+from controller.core.suggest import closest
 from controller.core.workspace import Workspace, WorkspaceError, layout_geometry
+from controller.service.config.heavy import cable_self_weight_problems
 from controller.service.config.interfaces import _parse_bus, _parse_ros2, _parse_zenoh
 from controller.service.config.schema import (
     _NAME_RE,
@@ -44,6 +52,7 @@ from controller.service.config.schema import (
     PayloadConfig,
     ReelConfig,
     RobotConfig,
+    ShaperConfig,
     SimConfig,
     TensionLimits,
     Vec3,
@@ -221,6 +230,14 @@ def _parse_sim(st: _Table, interface: str, loop: LoopConfig) -> SimConfig:
         cable_mass_kg_per_m=(
             st.number("cable_mass_kg_per_m", ge=0.0) if st.has("cable_mass_kg_per_m") else None
         ),
+        cable_damping_ratio=st.number(
+            "cable_damping_ratio", d_sim.cable_damping_ratio, ge=0.0, le=1.0
+        ),
+        effector_damping_n_s_per_m=(
+            st.number("effector_damping_n_s_per_m", ge=0.0)
+            if st.has("effector_damping_n_s_per_m")
+            else None
+        ),
         torque_period_s=st.number("torque_period_s", d_sim.torque_period_s, ge=0.0, le=10.0),
     )
     if sim.plant not in SIM_PLANTS:
@@ -369,6 +386,7 @@ def parse_config(data: Mapping[str, Any], source: str, text: str | None = None) 
     )
     _check_stretch(top, lt, errs, loop, reels)
     _check_sag(top, errs, loop, reels, limits if limits_ok else None, tension, geometry)
+    shaper = _parse_shaper(top, reels, payload)
 
     errs.raise_if_any()
     assert reels is not None and geometry is not None  # no problems: both were built
@@ -389,6 +407,7 @@ def parse_config(data: Mapping[str, Any], source: str, text: str | None = None) 
         tension=tension,
         ros2=ros2,
         gcode=gcode,
+        shaper=shaper,
         text=_robot_text(data) if text is None else text,
     )
 
@@ -400,6 +419,41 @@ def _robot_text(data: Mapping[str, Any]) -> str:
         return to_toml(data)
     except (TypeError, ValueError):
         return ""
+
+
+def _parse_shaper(
+    top: _Table, reels: Sequence[ReelConfig] | None, payload: PayloadConfig | None
+) -> ShaperConfig:
+    """The `[shaper]` table. Without `type` the default train shapes where the modes are known
+    (`frequency_hz`, or every reel's `cable_ea_n` and a payload), else nothing is shaped; a
+    type other than "off" needs them known. An unknown type gets a did-you-mean."""
+    sh = top.sub("shaper")
+    sh.finish(tuple(ShaperConfig.__dataclass_fields__))
+    d = ShaperConfig()
+    damping = sh.number("damping_ratio", d.damping_ratio, ge=0.0, le=MAX_DAMPING_RATIO)
+    freq: float | None = None
+    if sh.has("frequency_hz"):
+        freq = sh.number("frequency_hz", None, ge=MIN_FREQUENCY_HZ, le=MAX_FREQUENCY_HZ)
+    scale = sh.number("frequency_scale", d.frequency_scale, ge=0.2, le=5.0)
+    model = (
+        reels is not None and payload is not None and all(r.cable_ea_n is not None for r in reels)
+    )
+    known = freq is not None or model
+    kind = sh.string("type", None) if sh.has("type") else None
+    if kind is None:
+        kind = d.type if known else "off"
+    elif kind not in SHAPER_TYPES:
+        near = closest(kind.lower(), SHAPER_TYPES)
+        hint = f" (did you mean {near!r}?)" if near else ""
+        sh.fail("type", f"unknown shaper type {kind!r}{hint}; one of {', '.join(SHAPER_TYPES)}")
+        kind = "off"
+    elif kind != "off" and not known:
+        sh.fail(
+            "type",
+            f"{kind!r} needs the modes: give shaper.frequency_hz, or every reel's cable_ea_n "
+            "and [payload] for the model's",
+        )
+    return ShaperConfig(kind, damping, freq, scale)
 
 
 def _parse_gcode(top: _Table, limits: LimitsConfig | None) -> GcodeConfig:
@@ -512,54 +566,6 @@ def _check_sag(
         return
     for i, key, problem in cable_self_weight_problems(reels, limits, tension, geometry):
         errs.add(f"reels[{i}].{key}", problem)
-
-
-def cable_self_weight_problems(
-    reels: Sequence[ReelConfig],
-    limits: LimitsConfig,
-    tension: TensionLimits,
-    geometry: Geometry,
-) -> list[tuple[int, str, str]]:
-    """(reel index, key, problem) for each heavy cable that cannot hold its own weight within
-    the tension limit minus its margin at a pose of the workspace: the least tension its
-    anchor end can carry over the span to the farthest corner of the workspace box, at the
-    floor and at the top (``catenary.least_anchor_tension``).  Raises nothing."""
-    from controller.core.catenary import least_anchor_tension
-
-    try:
-        box = Workspace.from_limits(limits, geometry).box()
-    except WorkspaceError:
-        return []
-    (x0, x1), (y0, y1), (z0, z1) = box
-    corners = [(x, y, z) for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)]
-    limit = tension.max_n - tension.margin_n
-    out = []
-    for i, r in enumerate(reels):
-        m = r.cable_mass_kg_per_m
-        if not m:
-            continue
-        ax, ay, az = r.anchor_m
-        worst = (0.0, corners[0])
-        for c in corners:
-            try:
-                t = least_anchor_tension(math.hypot(ax - c[0], ay - c[1]), az - c[2], m * G_MPS2)
-            except ValueError:
-                continue
-            if t > worst[0]:
-                worst = (t, c)
-        if worst[0] > limit:
-            at = "(" + ", ".join(f"{v:.3g}" for v in worst[1]) + ")"
-            out.append(
-                (
-                    i,
-                    "cable_mass_kg_per_m",
-                    f"{m:g} kg/m is too heavy: to reach the workspace's corner {at} m the cable "
-                    f"alone needs at least {worst[0]:.4g} N at its anchor, above {limit:.4g} N "
-                    f"({tension.max_source} {tension.max_n:.4g} N - tension_margin_n "
-                    f"{tension.margin_n:g} N)",
-                )
-            )
-    return out
 
 
 def _check_telemetry_and_plant(
