@@ -31,7 +31,11 @@ reach by ``H`` and ``V0``) inverted, and the derivative of its end forces by the
 length.  Within the step's sub-steps the end forces follow that linearisation in the cable's
 span, rise and length, while the direction of the horizontal pull follows the exact geometry:
 the step of ``CablePlant.step`` (velocity Verlet), with a Kelvin-Voigt damping ``beta`` times the
-rate of change of the elastic end forces (``beta = 2 zeta / omega`` as there).  The number of
+rate of change of the elastic end forces, ``beta = 2 zeta / omega`` with ``omega`` the step's
+bound on the stiffest mode: that mode is damped at ``cable_damping_ratio``, softer ones in
+proportion to their frequency (stiffness-proportional damping; the straight plant's ropes damp
+every axial mode at that ratio, so at the default ratio the slow modes ring longer here than
+there; the tests that wait for rest damp both critically).  The number of
 sub-steps follows the stiffness bound ``sum_i trace(K_i) + H_i / span_i`` over the mass, as the
 straight plant's bound does.  A cable whose linearised horizontal force falls to zero within a
 step carries nothing until the next step solves it again (a slack cable; a heavy cable with any
