@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from controller.cli.bench.compute import EchoDriver, _Clock
 from controller.cli.sag_bench import sag_config
 from controller.core import kinematics
@@ -69,3 +71,45 @@ def test_velocity_input_brakes_short_of_the_tension_limit() -> None:
     assert sp is not None and 5.0 < sp[2] < 5.7  # 607 N at (0, 0, 6) m: short of it
     assert ctl.tension is not None and ctl.tension.check(sp) is None
     assert ctl.planned_tensions_n is not None and max(ctl.planned_tensions_n) < 495.0
+
+
+def test_heavy_cables_plan_the_payloads_m_a_share_while_the_set_point_accelerates() -> None:
+    """While the set-point accelerates the planned tensions are the heavy cables' plan at the
+    anchors plus the least-norm share of m a (what the shaping's inertia adds for any cable),
+    the reels still commanded the plan's paid-out lengths; once held, the plan's tensions
+    alone."""
+    from controller.core.inertia import inertial_share, with_inertia
+
+    ctl, clock = armed_controller()
+    planner = ctl.cables.sag
+    assert planner is not None and ctl.tension is not None
+    ctl.submit(Move((3.0, -2.0, 2.5), 1.0))
+    seen = 0
+    for _ in range(400):
+        step(ctl, clock, 1)
+        acc = ctl.shaping.acceleration_mps2
+        sp = ctl.setpoint_m
+        lengths = ctl.setpoint_lengths_m
+        if sp is None or lengths is None or max(map(abs, acc)) < 0.1:
+            continue
+        plan = planner.planned(chords_m=lengths)
+        assert plan is not None
+        share = inertial_share(ctl.geometry.anchors_m, sp, ctl.tension.mass_kg, acc)
+        assert share is not None and max(map(abs, share)) > 0.01
+        want = with_inertia(plan.anchor_tensions_n, share)
+        assert ctl.planned_tensions_n == pytest.approx(want, rel=1e-12, abs=1e-9)
+        rev = [r.position_rev(L) for r, L in zip(ctl.reels, plan.paid_out_m, strict=True)]
+        assert ctl.commanded_rev == pytest.approx(rev, abs=1e-12)
+        seen += 1
+    assert seen > 10  # the move accelerated over many ticks
+    for _ in range(3000):
+        step(ctl, clock, 1)
+        if ctl.state is State.HOLDING:
+            break
+    step(ctl, clock, 5)
+    held = planner.planned(position_m=ctl.setpoint_m)
+    assert held is not None
+    assert max(map(abs, ctl.shaping.acceleration_mps2)) == 0.0
+    # no share left; the tensions are the held set-point's plan as made before it was refined
+    # to exact (micronewtons apart)
+    assert ctl.planned_tensions_n == pytest.approx(held.anchor_tensions_n, abs=1e-3)
