@@ -163,6 +163,7 @@ JSON_KEYS = (
     "estop_latency_flood_ms",
     "planning",
     "stretch_us",
+    "sag_us",
     "ros2_publish_us",
     "compute_per_tick",
     "shaping_per_tick",
@@ -179,6 +180,7 @@ SECTIONS = (
     "estop",
     "planning",
     "stretch",
+    "sag",
     "ros2",
     "compute",
     "shaping",
@@ -258,6 +260,17 @@ STRETCH_KEYS = (
     "fpk_stretch_no_setpoint",
     "fpk_stretch_measured",
     "statics",
+)
+
+
+SAG_KEYS = (
+    "ipk_sag",
+    "ipk_sag_base",
+    "fpk_sag_rest",
+    "fpk_sag_moving",
+    "fpk_sag_fast",
+    "fpk_sag_no_setpoint",
+    "sag_solve",
 )
 
 
