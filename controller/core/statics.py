@@ -88,12 +88,15 @@ from controller.core.tension_many import (
     Pairs,
     PairSolution,
     best_pairs,
+    finite_tensions,
     freest_pair,
     pair_solution,
     pivot_solve,
     project,
     regularised,
     settles,
+    sum_units,
+    units_and_sum,
     vertex_tensions,
 )
 from controller.core.tension_math import RANK_TOL, TRIPLES4, det3, maxmin_lambda
@@ -275,16 +278,6 @@ def _solve3(u: list[Vec3], mag: float, dirn: Vec3) -> list[float]:
     ]
 
 
-def _sum_units(u: Sequence[Vec3]) -> Vec3:
-    """``sum_i u_i``, summed in order (as ``CableStatics._units_sum`` does)."""
-    sx = sy = sz = 0.0
-    for x, y, z in u:
-        sx += x
-        sy += y
-        sz += z
-    return sx, sy, sz
-
-
 class CableStatics:
     """Tension solver for one anchor layout and one pair of tension limits.
 
@@ -379,35 +372,14 @@ class CableStatics:
         return units
 
     def _units_sum(self, point_m: Sequence[float]) -> tuple[list[Vec3], Vec3]:
-        """``_units`` and their sum (``_sum_units``) in one pass: the per-tick path of five or
-        more cables.  Raises what ``_units`` raises (it is asked whenever anything is off, and
+        """``_units`` and their sum (``sum_units``): the per-tick path of five or more
+        cables.  Raises what ``_units`` raises (it is asked whenever anything is off, and
         names the problem)."""
-        if len(point_m) == 3:
-            px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
-            total = px + py + pz
-            if total - total == 0.0:  # finite
-                units: list[Vec3] = []
-                up = -1.0
-                sx = sy = sz = 0.0
-                for ax, ay, az in self._anchors_t:
-                    dx, dy, dz = ax - px, ay - py, az - pz
-                    d = math.sqrt(dx * dx + dy * dy + dz * dz)
-                    if not d > ANCHOR_TOL_M:
-                        break
-                    x = dx / d
-                    y = dy / d
-                    z = dz / d
-                    if z > up:
-                        up = z
-                    units.append((x, y, z))
-                    sx += x
-                    sy += y
-                    sz += z
-                else:
-                    if up > UP_TOL:
-                        return units, (sx, sy, sz)
+        got = units_and_sum(self._anchors_t, point_m)
+        if got is not None:
+            return got
         u = self._units(point_m)
-        return u, _sum_units(u)
+        return u, sum_units(u)
 
     @staticmethod
     def _check_along(u: Sequence[Vec3], mag: float, dirn: Vec3) -> None:
@@ -507,7 +479,7 @@ class CableStatics:
             t, nv = self._solve4_parts(u, mag, dirn)
             method = "closed-form"
         else:
-            t = self._solve_many(u, mag, dirn, _sum_units(u))
+            t = self._solve_many(u, mag, dirn, sum_units(u))
             method = "lp"
             point_m = None  # no closed-form derivative: callers take differences
         if point_m is not None:
@@ -543,25 +515,16 @@ class CableStatics:
             res = regularised(u, g, eps, signs, tol, 1)
             if res is not None and res[1] <= r:
                 self._signs = res[2]
-                return self._finite(project(u, f, c, res[0]))
+                return finite_tensions(project(u, f, c, res[0]))
         vertex = self._vertex(u, g, scale, near)
         if settles(u, vertex, eps):
             self._signs = None
-            return self._finite(vertex_tensions(u, g, c, vertex))
+            return finite_tensions(vertex_tensions(u, g, c, vertex))
         res = regularised(u, g, eps, vertex.signs, tol, 4 * len(u))
         if res is None or (res[1] > r >= vertex.rho):
-            return self._finite(project(u, f, c, vertex.d))
+            return finite_tensions(project(u, f, c, vertex.d))
         self._signs = res[2]
-        return self._finite(project(u, f, c, res[0]))
-
-    @staticmethod
-    def _finite(t: list[float]) -> list[float]:
-        """`t`; ``SingularConfiguration`` when a tension is not finite (the pair arithmetic
-        overflowed on a pathological pose: never a NaN or inf out)."""
-        total = sum(t)
-        if total - total != 0.0:
-            raise SingularConfiguration("tensions overflow: the configuration is singular")
-        return t
+        return finite_tensions(project(u, f, c, res[0]))
 
     def _vertex(self, u: list[Vec3], g: Vec3, scale: float, near: bool) -> PairSolution:
         """The max-min distribution's vertex (``tension_many``): the dual simplex from the
@@ -688,7 +651,7 @@ class CableStatics:
         elif self.n_cables == 4:
             t, nv = self._solve4_parts(u, w, _UP)
         else:
-            t = self._solve_many(u, w, _UP, _sum_units(u))
+            t = self._solve_many(u, w, _UP, sum_units(u))
         total = sum(t)
         if total - total != 0.0:  # overflow on a pathological pose: never return inf
             raise SingularConfiguration("tensions overflow: the configuration is singular")

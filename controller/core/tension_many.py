@@ -52,6 +52,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from controller.core.statics_errors import SingularConfiguration
+from controller.core.tension_batch import ANCHOR_TOL_M, UP_TOL
 from controller.core.tension_math import RANK_TOL
 
 __all__ = [
@@ -60,12 +62,15 @@ __all__ = [
     "PairSolution",
     "Pairs",
     "best_pairs",
+    "finite_tensions",
     "freest_pair",
     "pair_solution",
     "pivot_solve",
     "project",
     "regularised",
     "settles",
+    "sum_units",
+    "units_and_sum",
     "vertex_tensions",
 ]
 
@@ -586,3 +591,54 @@ def project(u: Sequence[Vec3], f: Vec3, c: float, d: Sequence[float]) -> list[fl
     ay = (c12 * rx + c22 * ry + c23 * rz) / det
     az = (c13 * rx + c23 * ry + c33 * rz) / det
     return [ti + x * ax + y * ay + z * az for (x, y, z), ti in zip(u, t, strict=True)]
+
+
+def sum_units(u: Sequence[Vec3]) -> Vec3:
+    """``sum_i u_i``, summed in order (as ``units_and_sum`` sums them)."""
+    sx = sy = sz = 0.0
+    for x, y, z in u:
+        sx += x
+        sy += y
+        sz += z
+    return sx, sy, sz
+
+
+def units_and_sum(
+    anchors: Sequence[Vec3], point_m: Sequence[float]
+) -> tuple[list[Vec3], Vec3] | None:
+    """The unit vectors from `point_m` to `anchors` and their sum in one pass, when the point
+    is three finite numbers, off every anchor, with some cable pulling up (a weight's solve);
+    None otherwise (``CableStatics._units`` then names the problem)."""
+    if len(point_m) != 3:
+        return None
+    px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
+    total = px + py + pz
+    if total - total != 0.0:  # not finite
+        return None
+    units: list[Vec3] = []
+    up = -1.0
+    sx = sy = sz = 0.0
+    for ax, ay, az in anchors:
+        dx, dy, dz = ax - px, ay - py, az - pz
+        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if not d > ANCHOR_TOL_M:
+            return None
+        x = dx / d
+        y = dy / d
+        z = dz / d
+        if z > up:
+            up = z
+        units.append((x, y, z))
+        sx += x
+        sy += y
+        sz += z
+    return (units, (sx, sy, sz)) if up > UP_TOL else None
+
+
+def finite_tensions(t: list[float]) -> list[float]:
+    """`t`; ``SingularConfiguration`` when a tension is not finite (the pair arithmetic
+    overflowed on a pathological pose: never a NaN or inf out)."""
+    total = sum(t)
+    if total - total != 0.0:
+        raise SingularConfiguration("tensions overflow: the configuration is singular")
+    return t

@@ -65,6 +65,7 @@ from controller.core.workspace_shape import (
     face_polygons,
     shrunk_faces,
     solid_vertices,
+    wall_planes,
 )
 
 Vec2 = tuple[float, float]
@@ -445,16 +446,9 @@ class Workspace:
         `top_z_m`; among the anchors, the hull with its faces moved in, cut by the floor, the
         top and the print radius (as `polygon_m`, its inscribed polygon). Raises nothing."""
         poly = self.polygon_m
-        planes: list[Face] = []
-        for k, (ax, ay) in enumerate(poly):
-            bx, by = poly[(k + 1) % len(poly)]
-            length = math.hypot(bx - ax, by - ay)
-            if length > 0.0:  # the outward normal of a counter-clockwise edge
-                nx, ny = (by - ay) / length, (ax - bx) / length
-                planes.append((nx, ny, 0.0, nx * ax + ny * ay))
-        planes += self._faces
+        planes = [*wall_planes(poly), *self._faces]
         planes += [(0.0, 0.0, -1.0, -self.floor_z_m), (0.0, 0.0, 1.0, self.top_z_m)]
-        reach = max(math.hypot(x, y) for x, y in poly) + max(abs(self.floor_z_m), abs(self.top_z_m))
+        reach = max(math.hypot(x, y) for x, y in poly) + abs(self.floor_z_m) + abs(self.top_z_m)
         return face_polygons(planes, reach)
 
     def contains_xy(self, x_m: float, y_m: float) -> bool:

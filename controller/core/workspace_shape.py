@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 from controller.core.kinematics.geometry import HullFace
 
-__all__ = ["Face", "disk_polygon", "face_polygons", "shrunk_faces", "solid_vertices"]
+__all__ = ["Face", "disk_polygon", "face_polygons", "shrunk_faces", "solid_vertices", "wall_planes"]
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -59,6 +59,19 @@ def disk_polygon(radius_m: float, sides: int = 64) -> tuple[Vec2, ...]:
         )
         for k in range(sides)
     )
+
+
+def wall_planes(polygon_m: Sequence[Vec2]) -> list[Face]:
+    """The vertical planes through the edges of the convex counter-clockwise `polygon_m`, their
+    normals outward: the walls of its prism."""
+    out: list[Face] = []
+    for k, (ax, ay) in enumerate(polygon_m):
+        bx, by = polygon_m[(k + 1) % len(polygon_m)]
+        length = math.hypot(bx - ax, by - ay)
+        if length > 0.0:
+            nx, ny = (by - ay) / length, (ax - bx) / length
+            out.append((nx, ny, 0.0, nx * ax + ny * ay))
+    return out
 
 
 def _clip_face(poly: list[Vec3], plane: Face) -> list[Vec3]:
