@@ -129,7 +129,7 @@ Method
   call at random poses of the workspace and along a path in 1 mm steps (the FPK seeded by the
   last pose), all interleaved in one run; ratios to the paper robot's figures of the same
   kind. Target: eight cables at most `TARGET_LAYOUT_OVER_PAPER4` times the paper robot's four
-  at random poses, for the statics and the FPK.
+  at random poses and a tick after the last, for the statics and the FPK.
 
 `--only SECTION ...` runs only those sections (`SECTIONS`: kinematics, statics, sim, decode,
 loops, estop, planning, stretch, ros2, compute, layouts); the JSON then holds their keys
