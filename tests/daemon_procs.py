@@ -18,46 +18,11 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
+from controller.service.config.tomltext import to_toml
 from controller.service.zenoh_io import free_tcp_port
 
 REPO = Path(__file__).resolve().parents[1]
 CABLEBOT = [sys.executable, "-m", "controller.cli"]
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, Mapping):
-        return "{" + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + "}"
-    raise TypeError(f"cannot write {v!r} as TOML")
-
-
-def to_toml(data: Mapping[str, Any]) -> str:
-    """A small TOML writer for config mappings (scalars, tables, arrays of tables)."""
-    lines: list[str] = []
-    tables: list[tuple[str, Mapping[str, Any]]] = []
-    arrays: list[tuple[str, Sequence[Mapping[str, Any]]]] = []
-    for k, v in data.items():
-        if isinstance(v, Mapping):
-            tables.append((k, v))
-        elif isinstance(v, list) and v and all(isinstance(x, Mapping) for x in v):
-            arrays.append((k, v))
-        elif v is not None:
-            lines.append(f"{k} = {_toml_value(v)}")
-    for name, t in tables:
-        lines.append(f"\n[{name}]")
-        lines.extend(f"{k} = {_toml_value(x)}" for k, x in t.items() if x is not None)
-    for name, arr in arrays:
-        for t in arr:
-            lines.append(f"\n[[{name}]]")
-            lines.extend(f"{k} = {_toml_value(x)}" for k, x in t.items() if x is not None)
-    return "\n".join(lines) + "\n"
 
 
 def udp_bus() -> dict[str, Any]:

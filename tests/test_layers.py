@@ -1,4 +1,5 @@
-"""The layers' import rule: core is pure, the service does not use the tools, drivers stand alone.
+"""The layers' import rule: core is pure, the service does not use the client library or the
+tools, the client library does not use the tools (nor argparse), drivers stand alone.
 
 Read from the source with `ast` (every import, including those inside functions), so a lazy
 import cannot slip past.
@@ -16,6 +17,7 @@ ROOT = Path(__file__).resolve().parent.parent
 FORBIDDEN = {
     "controller/core": (
         "controller.service",
+        "controller.client",
         "controller.cli",
         "drivers",
         "can",
@@ -24,7 +26,8 @@ FORBIDDEN = {
         "socket",
         "subprocess",
     ),
-    "controller/service": ("controller.cli",),
+    "controller/service": ("controller.client", "controller.cli"),
+    "controller/client": ("controller.cli", "argparse"),
     "drivers": ("controller",),
 }
 

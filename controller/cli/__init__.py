@@ -19,6 +19,9 @@ _MODULES: tuple[str, ...] = (
     "controller.cli.client",  # list, pose, status, move, path, stop, estop, arm, disarm, ...
     "controller.cli.offline",  # ipk, fpk
     "controller.cli.statics_cmd",  # statics, workspace
+    "controller.cli.modes_cmd",  # modes
+    "controller.cli.resonance",  # resonance
+    "controller.cli.shaper_cmd",  # shaper
     "controller.cli.configs",  # check-config, init-config
     "controller.cli.import_rrf",  # import-rrf
     "controller.cli.monitor",  # monitor

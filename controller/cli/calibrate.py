@@ -26,24 +26,22 @@ import csv
 import json
 import math
 import os
-import queue
 import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Final
 
 from controller.cli.client import (
     ARRIVED_TOL_M,
     EXIT_OK,
     EXIT_REFUSED,
     _interrupted,
-    _key,
     _run,
+    robot_of,
     signals_interrupt,
 )
-from controller.cli.formats import format_pose
 from controller.cli.session import (
     DaemonAbsent,
     InputError,
@@ -51,14 +49,18 @@ from controller.cli.session import (
     add_connection_arguments,
     query,
 )
+from controller.client.link import PoseStream
+from controller.client.model import Pose
+from controller.client.robot import Robot
 
 Vec3 = tuple[float, float, float]
 
 DEFAULT_MARGIN_RATIO = 0.05
 """`--auto` keeps this fraction of the workspace's smallest extent inside its limits."""
 
-AUTO_RECOMMENDED = 0
-"""`--auto` without N: visit `calibration.recommended_poses` poses."""
+AUTO_RECOMMENDED: Final = object()
+"""`--auto` without N: visit `calibration.recommended_poses` poses (a value no N can take,
+and not a string, which argparse would convert as if typed)."""
 
 SAMPLE_OVERHEAD_S = 0.5
 """Besides the settle time, what one `--auto` sample costs (command, status queries, the
@@ -186,36 +188,29 @@ def _duration(s: float) -> str:
 
 
 class _Poses:
-    """The pose samples a subscriber queued, read with deadlines."""
+    """The pose samples of a Robot's pose stream, read with deadlines."""
 
-    def __init__(self, q: queue.Queue[bytes], timeout_s: float) -> None:
-        self.q = q
+    def __init__(self, stream: PoseStream, timeout_s: float) -> None:
+        self.stream = stream
         self.timeout_s = timeout_s
 
-    def next(self, deadline: float) -> dict[str, Any] | None:
+    def next(self, deadline: float) -> Pose | None:
         """The next sample, or None at the deadline. Raises DaemonAbsent when none arrives
         for the reply timeout, Refused when the robot is in FAULT or ESTOPPED."""
         now = time.monotonic()
         if now >= deadline:
             return None
-        try:
-            data = self.q.get(timeout=min(self.timeout_s, deadline - now))
-        except queue.Empty:
+        sample = self.stream.get(min(self.timeout_s, deadline - now))
+        if sample is None:
             if time.monotonic() >= deadline:
                 return None
-            raise DaemonAbsent(f"no pose sample for {self.timeout_s:g} s") from None
-        sample: dict[str, Any] = json.loads(data)
-        state = str(sample.get("state"))
-        if state in ("FAULT", "ESTOPPED"):
-            raise Refused(f"the robot went {state}: {format_pose(sample)}")
+            raise DaemonAbsent(f"no pose sample for {self.timeout_s:g} s")
+        if sample.state in ("FAULT", "ESTOPPED"):
+            raise Refused(f"the robot went {sample.state}: {sample.text()}")
         return sample
 
     def drain(self) -> None:
-        while True:
-            try:
-                self.q.get_nowait()
-            except queue.Empty:
-                return
+        self.stream.drain()
 
 
 def wait_still(
@@ -232,21 +227,20 @@ def wait_still(
     """
     deadline = time.monotonic() + timeout_s
     window: list[tuple[float, list[float]]] = []
-    last: dict[str, Any] | None = None
+    last: Pose | None = None
     while True:
         sample = poses.next(deadline)
         if sample is None:
-            where = "no pose" if last is None else format_pose(last)
+            where = "no pose" if last is None else last.text()
             raise Refused(f"the pose did not come to rest within {timeout_s:g} s ({where})")
         last = sample
         now = time.monotonic()
-        raw = sample.get("position_m")
-        if raw is None or sample.get("state") in ("MOVING", "ARMING"):
+        if sample.position_m is None or sample.state in ("MOVING", "ARMING"):
             window.clear()
             continue
-        pos = [float(v) for v in raw]
+        pos = list(sample.position_m)
         if target is not None and (
-            sample.get("state") != "HOLDING" or math.dist(pos, target) > ARRIVED_TOL_M
+            sample.state != "HOLDING" or math.dist(pos, target) > ARRIVED_TOL_M
         ):
             window.clear()
             continue
@@ -260,31 +254,37 @@ def wait_still(
 
 
 def read_sample(
-    session: Any, args: argparse.Namespace, node_ids: Sequence[int], near: Sequence[float]
+    robot: Robot, node_ids: Sequence[int], near: Sequence[float]
 ) -> tuple[list[float], list[float]]:
     """Motor turns (in `node_ids` order) and the believed pose, from one status query.
 
     Raises Refused when the pose is not valid, a reel is missing or its reading is stale, or
     the status pose is more than 1 mm from `near` (the robot moved meanwhile).
     """
-    st = query(session, _key(args, "status"), None, args.timeout)
-    pose = (st.get("pose") or {}).get("position_m")
+    st = robot.status()
+    pose = st.position_m
     if pose is None:
         raise Refused("the daemon's pose is not valid (home the robot first)")
     if math.dist(pose, near) > ARRIVED_TOL_M:
-        raise Refused(f"the robot moved while the sample was taken ({pose} vs {list(near)})")
-    by_node: dict[int, dict[str, Any]] = {int(ax["node_id"]): ax for ax in st.get("axes", [])}
+        raise Refused(f"the robot moved while the sample was taken ({list(pose)} vs {list(near)})")
+    by_node = {ax.node_id: ax for ax in st.axes}
     revs: list[float] = []
     for nid in node_ids:
         ax = by_node.get(int(nid))
         if ax is None:
             raise Refused(f"the daemon's status has no axis for node {nid}")
-        age = ax.get("age_s")
-        rev = ax.get("position_rev")
-        if age is None or rev is None or not math.isfinite(float(rev)) or age > MAX_READING_AGE_S:
+        age = ax.age_s
+        rev = ax.position_rev
+        if age is None or rev is None or age > MAX_READING_AGE_S:
             raise Refused(f"node {nid}: no fresh encoder reading (age {age} s)")
-        revs.append(float(rev))
+        revs.append(rev)
     return revs, [float(v) for v in pose]
+
+
+def _query(session: Any, key: str, payload: Any, timeout_s: float) -> Any:
+    # Through this module's `query`, looked up at each call: a test stands in for the daemon
+    # by replacing it.
+    return query(session, key, payload, timeout_s)
 
 
 def same_pose_as(
@@ -325,7 +325,7 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
         _positive("--speed", args.speed)
         _positive("--settle-s", args.settle_s, allow_none=False)
         _positive("--still-m", args.still_m, allow_none=False)
-        if args.auto is not None and args.auto < 1:
+        if isinstance(args.auto, int) and args.auto < 1:
             raise InputError(f"--auto needs a number of poses >= 1, got {args.auto}")
         if args.count is not None and args.count < 1:
             raise InputError(f"--count must be >= 1, got {args.count}")
@@ -336,34 +336,31 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
     reader = read_line if read_line is not None else sys.stdin.readline
 
     def body(session: Any) -> int:
-        st = query(session, _key(args, "status"), None, args.timeout)
-        summary = st.get("config") or {}
-        try:
-            node_ids = [int(r["node_id"]) for r in summary["reels"]]
-        except (KeyError, TypeError, ValueError):
-            raise Refused("the daemon's status does not list its reels") from None
-        pose_now = (st.get("pose") or {}).get("position_m")
+        robot = robot_of(args, session, _query)
+        st = robot.status()
+        summary = st.raw.get("config") or {}
+        node_ids = list(st.node_ids)
+        if not node_ids or min(node_ids) < 0:
+            raise Refused("the daemon's status does not list its reels")
+        pose_now = st.position_m
         targets: list[Vec3] | None = None
         start_m: list[float] = []
         if args.auto is not None:
-            if st.get("state") != "HOLDING" or pose_now is None:
+            if st.state != "HOLDING" or pose_now is None:
                 raise Refused(
                     f"--auto moves the robot: it must be armed and holding a valid pose "
-                    f"(state {st.get('state')}; run `cablebot arm` first)"
+                    f"(state {st.state}; run `cablebot arm` first)"
                 )
             n_auto = args.auto
-            if n_auto == AUTO_RECOMMENDED:
+            if n_auto is AUTO_RECOMMENDED:
                 from controller.core.calibration import recommended_poses
 
                 n_auto = recommended_poses(len(node_ids))
             start_m = [float(v) for v in pose_now]
             targets = auto_poses(summary, n_auto, args.margin_m, start_m)
             speed_mps, accel_mps2 = auto_speed_mps(summary, args.speed)
-        raw: queue.Queue[bytes] = queue.Queue()
-        sub = session.declare_subscriber(
-            _key(args, "pose"), lambda s: raw.put(s.payload.to_bytes())
-        )
-        poses = _Poses(raw, args.timeout)
+        stream = robot.poses(timeout_s=args.timeout)
+        poses = _Poses(stream, args.timeout)
         from controller.core.calibration import (
             format_sample_row,
             samples_header,
@@ -387,7 +384,7 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
                 nonlocal n_rows
                 poses.drain()
                 mean = wait_still(poses, args.settle_s, args.still_m, args.still_timeout_s, target)
-                revs, pose = read_sample(session, args, node_ids, mean)
+                revs, pose = read_sample(robot, node_ids, mean)
                 writer.writerow(format_sample_row(revs, pose))
                 fh.flush()
                 n_rows += 1
@@ -434,10 +431,10 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
                                 f"x={target[0]:+.4f} y={target[1]:+.4f} z={target[2]:+.4f} m",
                                 flush=True,
                             )
-                            query(session, _key(args, "cmd/move"), payload, args.timeout)
+                            robot.send_motion("move", payload, [target], follow=False)
                             record(target)
                 except KeyboardInterrupt:  # the robot moves: brake to a hold, as `move --wait`
-                    return _interrupted(session, args)
+                    return _interrupted(robot, args)
             else:
                 print(
                     "drive the robot to a pose (move, jog, or by hand while disarmed), wait, "
@@ -453,7 +450,7 @@ def cmd_collect(args: argparse.Namespace, read_line: Callable[[], str] | None = 
                     record(None)
         finally:
             fh.close()
-            sub.undeclare()
+            stream.close()
         print(f"{n_rows} sample(s) in {args.out}")
         return EXIT_OK
 
@@ -468,13 +465,67 @@ def _mm(v: float | None) -> str:
     return "unbounded" if v is None else f"{v * 1e3:.2f} mm"
 
 
-def format_report(result: Any, config_path: str, samples_path: str) -> str:
-    """The human-readable report of a `Calibration`."""
+def stretch_model(cfg: Any) -> Any:
+    """The stretch factors of `cfg`'s elastic cables for `calibrate` (a function of anchors
+    and poses: ``(EA + t) / EA`` under the tensions the controller plans there, its tension
+    rule with those anchors), or None for rigid cables (no `cable_ea_n`). The function raises
+    CalibrationError naming the pose where the statics have no tensions. Raises nothing."""
+    if all(r.cable_ea_n is None for r in cfg.reels) or cfg.payload is None or cfg.tension is None:
+        return None
+    import numpy as np
+
+    from controller.core.calibration import CalibrationError
+    from controller.core.kinematics import Geometry, KinematicsError
+    from controller.core.stretch import CableStretch
+    from controller.service.config import tension_check
+
+    eas = [r.cable_ea_n for r in cfg.reels]
+    ones = [1.0] * len(eas)
+    hanging = bool(cfg.geometry.hanging)
+
+    def factors(anchors_m: Any, poses_m: Any) -> Any:
+        try:
+            geom = Geometry(anchors_m, hanging=hanging)
+            model = CableStretch(geom, eas, tension_check(cfg.payload, cfg.tension, geom))
+        except (KinematicsError, ValueError) as exc:
+            raise CalibrationError(f"the cables' stretch at the fitted anchors: {exc}") from None
+        out = np.empty((len(poses_m), len(eas)))
+        for k, p in enumerate(np.asarray(poses_m, dtype=np.float64).tolist()):
+            try:
+                out[k] = model.stretched_m(ones, model.tensions_n(p))
+            except (KinematicsError, ValueError) as exc:
+                raise CalibrationError(f"sample {k + 1}: the cables' stretch: {exc}") from None
+        return out
+
+    return factors
+
+
+def most_stretch_m(stretch: Any, anchors_m: Any, poses_m: Any) -> float:
+    """The most any cable stretched at `poses_m` (K, 3) by the factors of `stretch`. Raises
+    what `stretch` raises."""
+    import numpy as np
+
+    lengths = np.linalg.norm(np.asarray(poses_m)[:, None, :] - np.asarray(anchors_m)[None], axis=2)
+    return float(np.max(lengths - lengths / stretch(anchors_m, poses_m)))
+
+
+def format_report(
+    result: Any, config_path: str, samples_path: str, stretch_m: float | None = None
+) -> str:
+    """The human-readable report of a `Calibration` (`stretch_m`: the most any cable stretched
+    at a sample, when the cables' stretch was taken out)."""
     n = len(result.node_ids)
     lines = [
         f"calibration of {config_path} from {samples_path}: {result.poses_m.shape[0]} poses x "
         f"{n} cables ({result.redundancy} redundant equations)",
         "frame: the new anchors are the best-fit rigid (Kabsch) alignment to the configured ones",
+    ]
+    if stretch_m is not None:
+        lines.append(
+            "stretch: each cable's length is what its reel paid out, stretched by the tension "
+            f"planned at the sample (cable_ea_n; up to {stretch_m * 1e3:.2f} mm)"
+        )
+    lines += [
         "",
         f"{'anchor':>6} {'node':>4}  {'configured x y z (m)':^29}  {'calibrated x y z (m)':^29}"
         f"  {'|d| mm':>7}{'dx':>7}{'dy':>7}{'dz':>7}{'±1σ mm':>9}",
@@ -580,6 +631,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
         )
         samples = parse_samples(samples_text, args.samples, cfg.node_ids)
         _, _, (z_lo, z_hi) = Workspace.from_limits(cfg.limits, cfg.geometry).box()
+        stretch = stretch_model(cfg)
         result = calibrate(
             cfg.anchors_m,
             [r.reel for r in cfg.reels],
@@ -587,11 +639,16 @@ def cmd_solve(args: argparse.Namespace) -> int:
             settings,
             pose_height_m=z_hi - z_lo,
             hanging=cfg.geometry.hanging,
+            stretch=stretch,
+        )
+        stretch_m = (
+            None if stretch is None else most_stretch_m(stretch, result.anchors_m, result.poses_m)
         )
     except (CalibrationError, CalibrationUnavailable) as exc:
         return refuse(str(exc))
 
     out = result.as_dict()
+    out["stretch_m"] = stretch_m
     written: dict[str, str] = {}
     problem: str | None = None
     if (args.write or args.write_offsets) and not result.ok:
@@ -624,7 +681,14 @@ def cmd_solve(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(out, allow_nan=False))
     else:
-        print(format_report(result, args.config or "the built-in robot", args.samples))
+        print(
+            format_report(
+                result,
+                args.config or "the built-in robot",
+                args.samples,
+                stretch_m,
+            )
+        )
         for what, path in written.items():
             print(f"wrote {what}: {path}")
         if "offsets" in written:

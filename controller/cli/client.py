@@ -2,8 +2,9 @@
 
 `cablebot list|pose|status|move|path|stop|estop|arm|disarm|reset|home`, connecting to
 `tcp/127.0.0.1:7447` by default (`--connect ENDPOINT` or `HOST:PORT`, `--prefix PREFIX`).
-The connection (session, queries, errors, options) is `controller.cli.session`; what the verbs
-print is `controller.cli.formats`.
+Each verb is the client library (`controller.client.Robot`) and what it prints: the options,
+the session and the error handling are `controller.cli.session`; what the verbs print is
+`controller.cli.formats`.
 
 Exit codes: `controller.cli.exitcodes` (0 done; 1 refused or invalid input, the reason printed;
 2 usage; 3 no daemon answered; 4 `--wait` timed out; 130 Ctrl-C).
@@ -12,20 +13,15 @@ Exit codes: `controller.cli.exitcodes` (0 done; 1 refused or invalid input, the 
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 import json
 import math
 import queue
-import signal
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager, suppress
+from collections.abc import Callable, Sequence
 from typing import Any
 
-from controller.cli import add_xyz_arguments, exitcodes, xyz_from_args
+from controller.cli import add_xyz_arguments, exitcodes, pathstream, xyz_from_args
 from controller.cli.formats import (
     PROGRESS_PERIOD_S,
     SeqGaps,
@@ -43,7 +39,6 @@ from controller.cli.formats import (
     path_remaining_m,
     status_tensions_n,
 )
-from controller.cli.pathcheck import PathFile, check_with_robot
 from controller.cli.session import (
     DEFAULT_ENDPOINT,
     DEFAULT_PREFIX,
@@ -63,13 +58,22 @@ from controller.cli.session import (
     query,
     run_with_session,
 )
+from controller.client import inputs
+from controller.client.arrival import ARRIVED_TOL_M, Arrival, ArrivalProgress, follow_arrival
+from controller.client.inputs import load_path_file, read_path_file
+from controller.client.link import list_daemons
+from controller.client.model import Pose, Reply, Status
+from controller.client.pathcheck import PathFile, check_with_robot
+from controller.client.robot import ARM_FOLLOW_S, ARMED_STATES, PRETENSION_POLL_S, Robot
+from controller.client.signals import WAIT_SIGNALS, signals_interrupt
 from controller.core.commands import MAX_PATH_POINTS_SENT
 from controller.core.motion import MIN_SPEED_MPS, check_speed
 
-# What moved to `session` (the connection) and `formats` (what is printed) is still importable
-# from here.
+# What moved to `session` (the connection), `formats` (what is printed) and the client
+# library is still importable from here.
 __all__ = [
     "ARMED_STATES",
+    "ARM_FOLLOW_S",
     "ARRIVED_TOL_M",
     "DEFAULT_ENDPOINT",
     "DEFAULT_POSE_RATE_HZ",
@@ -84,6 +88,7 @@ __all__ = [
     "LIVELINESS_TIMEOUT_S",
     "PRETENSION_POLL_S",
     "PROGRESS_PERIOD_S",
+    "WAIT_SIGNALS",
     "DaemonAbsent",
     "Failed",
     "InputError",
@@ -116,8 +121,11 @@ __all__ = [
     "open_session",
     "path_remaining_m",
     "query",
+    "read_path_file",
     "register",
+    "robot_of",
     "run_with_session",
+    "signals_interrupt",
     "status_tensions_n",
 ]
 
@@ -127,10 +135,22 @@ EXIT_USAGE = exitcodes.USAGE
 EXIT_ABSENT = exitcodes.NO_DAEMON
 EXIT_WAIT_TIMEOUT = exitcodes.WAIT_TIMEOUT
 
-ARRIVED_TOL_M = 1e-3
 DEFAULT_POSE_RATE_HZ = 5.0
 
 _run = run_with_session
+
+
+def _query(session: Any, key: str, payload: Any, timeout_s: float) -> Any:
+    # Through this module's `query`, looked up at each call: a test stands in for the daemon
+    # by replacing it.
+    return query(session, key, payload, timeout_s)
+
+
+def robot_of(
+    args: argparse.Namespace, session: Any, query_fn: Callable[..., Any] = _query
+) -> Robot:
+    """The client library's Robot for a verb's `--prefix` and `--timeout`, on its session."""
+    return Robot(session=session, prefix=args.prefix, timeout_s=args.timeout, query=query_fn)
 
 
 # --------------------------------------------------------------------------------------------
@@ -139,19 +159,10 @@ _run = run_with_session
 
 def _robot_precheck(
     args: argparse.Namespace, speed: float | None, path: PathFile | None
-) -> Callable[[Any], None]:
+) -> Callable[[Robot], None]:
     """`pathcheck.check_with_robot` for this verb's arguments."""
     what = "--speed" if args.speed is not None else f"{getattr(args, 'file', '')}: speed_mps"
-    return lambda session: check_with_robot(
-        session, args.prefix, args.timeout, speed, path, speed_option=what
-    )
-
-
-def _vec3(values: Sequence[float], what: str) -> list[float]:
-    out = [float(v) for v in values]
-    if len(out) != 3 or not all(math.isfinite(v) for v in out):
-        raise InputError(f"{what}: expected three finite numbers, got {values}")
-    return out
+    return lambda robot: check_with_robot(robot, speed, path, speed_option=what)
 
 
 def _speed(v: float | None) -> float | None:
@@ -161,169 +172,50 @@ def _speed(v: float | None) -> float | None:
     return v
 
 
-def load_path_file(path: str, *, stream: bool = False) -> dict[str, Any]:
-    """Read a path file: JSON (a list of [x, y, z] or {"points_m": ..., "speed_mps": ...}) or
-    CSV/whitespace lines `x,y,z` (`#` comments and a header line are skipped).
-
-    Returns the `path` command payload. With `stream`, a file of any length (sent as a path
-    and appended chunks: every chunk is checked as the command it becomes); without, at most
-    the points one command carries. Raises InputError for an unreadable, not UTF-8 or invalid
-    file.
-    """
-    return read_path_file(path, stream=stream)[0]
-
-
-def read_path_file(path: str, *, stream: bool = False) -> tuple[dict[str, Any], list[int] | None]:
-    """`load_path_file`, and the file's line number of every point (None for JSON, whose
-    points are named by their position). Raises as `load_path_file` does."""
-    from controller.service.textfile import NotUtf8Error, read_text
-
-    try:
-        text = read_text(path)
-    except OSError as exc:
-        raise InputError(f"cannot read {path}: {exc.strerror}") from None
-    except NotUtf8Error as exc:
-        raise InputError(f"{path}: {exc}") from None
-    stripped = text.lstrip()
-    payload: dict[str, Any]
-    line_of: list[int] | None = None
-    if stripped.startswith(("[", "{")):
-        try:
-            data = json.loads(text, parse_constant=_no_constant)
-        except ValueError as exc:
-            raise InputError(f"{path}: invalid JSON: {exc}") from None
-        if isinstance(data, list):
-            payload = {"points_m": data}
-        elif isinstance(data, dict):
-            payload = dict(data)
-        else:
-            raise InputError(f"{path}: expected a list of points or an object")
+def _print_reply(verb: str, reply: Reply, args: argparse.Namespace) -> None:
+    if getattr(args, "json", False):
+        print(json.dumps(dict(reply.raw)), flush=True)
     else:
-        points: list[list[float]] = []
-        line_of = []
-        header_seen = False
-        rows = csv.reader(io.StringIO(text.replace("\t", ",")))
-        for n, row in enumerate(rows, start=1):
-            cells = [c for part in row for c in part.split()]
-            if not cells or cells[0].startswith("#"):
-                continue
-            try:
-                values = [float(c) for c in cells]
-            except ValueError:
-                if not points and not header_seen:
-                    header_seen = True  # a header line such as "x,y,z"
-                    continue
-                raise InputError(f"{path} line {n}: expected x,y,z, got {row}") from None
-            points.append(_vec3(values, f"{path} line {n}"))
-            line_of.append(n)
-        payload = {"points_m": points}
-    from controller.core.commands import CommandError, parse_command
-
-    pts = payload.get("points_m")
-    if isinstance(pts, list) and len(pts) > MAX_PATH_POINTS_SENT and not stream:
-        raise InputError(
-            f"{path}: {len(pts)} points; one path command takes at most {MAX_PATH_POINTS_SENT}"
-            f" points: split it into parts of at most {MAX_PATH_POINTS_SENT} points and send"
-            " each with its own path command"
-        )
-    parts = [payload]
-    if isinstance(pts, list) and len(pts) > MAX_PATH_POINTS_SENT:
-        rest = {k: v for k, v in payload.items() if k != "points_m"}
-        parts = [
-            {**rest, "points_m": pts[i : i + MAX_PATH_POINTS_SENT]}
-            for i in range(0, len(pts), MAX_PATH_POINTS_SENT)
-        ]
-    for i, part in enumerate(parts):
-        try:
-            parse_command("path", json.dumps(part))
-        except (CommandError, ValueError) as exc:
-            where = f" (points {i * MAX_PATH_POINTS_SENT} on)" if i else ""
-            raise InputError(f"{path}{where}: {exc}") from None
-    return payload, line_of
-
-
-def _no_constant(name: str) -> Any:
-    raise ValueError(f"non-finite number {name}")
-
-
-def _key(args: argparse.Namespace, suffix: str) -> str:
-    return f"{args.prefix.rstrip('/')}/{suffix}"
+        print(format_reply(verb, dict(reply.raw)), flush=True)
 
 
 def _command(args: argparse.Namespace, verb: str, payload: dict[str, Any] | None) -> int:
     def body(session: Any) -> int:
-        reply = query(session, _key(args, f"cmd/{verb}"), payload, args.timeout)
-        _print_reply(verb, reply, args)
+        _print_reply(verb, robot_of(args, session).command(verb, payload), args)
         return EXIT_OK
 
     return _run(args, body)
 
 
-def _print_reply(verb: str, reply: Any, args: argparse.Namespace) -> None:
-    if getattr(args, "json", False):
-        print(json.dumps(reply), flush=True)
-    else:
-        print(format_reply(verb, reply), flush=True)
-
-
-ARMED_STATES = frozenset({"ARMING", "HOLDING", "MOVING", "PRETENSIONING"})
-"""States in which the motors are armed (or arming): `arm` there is already done."""
-
-
 def cmd_simple(args: argparse.Namespace) -> int:
     """stop, estop, arm, disarm, reset: send the verb, print the reply. `arm` on a robot that
-    is already armed succeeds, saying so."""
+    is already armed succeeds, saying so; an arming is followed until it ends."""
     verb: str = args.command
     if verb != "arm":
         return _command(args, verb, None)
 
     def body(session: Any) -> int:
-        try:
-            reply = query(session, _key(args, "cmd/arm"), None, args.timeout)
-        except Refused:
-            st = query(session, _key(args, "status"), None, args.timeout)
-            state = st.get("state") if isinstance(st, dict) else None
-            if state not in ARMED_STATES:
-                raise
+        robot = robot_of(args, session)
+        reply = robot.arm()
+        if reply.already_armed:
             if getattr(args, "json", False):
-                print(json.dumps({"ok": True, "state": state, "already_armed": True}), flush=True)
+                print(json.dumps(dict(reply.raw)), flush=True)
             else:
-                print(f"arm: already armed, state {state}", flush=True)
+                print(f"arm: already armed, state {reply.state}", flush=True)
             return EXIT_OK
         _print_reply(verb, reply, args)
-        if isinstance(reply, dict) and reply.get("state") == "ARMING":
-            _follow_arming(session, args)
+        if reply.state == "ARMING":
+            robot.wait_armed(max(ARM_FOLLOW_S, args.timeout))
         return EXIT_OK
 
     return _run(args, body)
-
-
-ARM_FOLLOW_S = 10.0
-"""How long `arm` follows the arming (the daemon's own arming limit ends it sooner)."""
-ARM_POLL_S = 0.1
-"""How often `arm` asks the daemon how the arming goes."""
-
-
-def _follow_arming(session: Any, args: argparse.Namespace) -> None:
-    """After an accepted arm, follow the status until the arming ends. Returns when the robot
-    is armed (or still arming after `ARM_FOLLOW_S`: the daemon goes on); raises Failed when
-    the arming ended in FAULT, ESTOPPED or DISARMED, DaemonAbsent when the daemon is gone."""
-    deadline = time.monotonic() + max(ARM_FOLLOW_S, args.timeout)
-    while time.monotonic() < deadline:
-        st = query(session, _key(args, "status"), None, args.timeout)
-        state = st.get("state") if isinstance(st, dict) else None
-        if state in ("FAULT", "ESTOPPED", "DISARMED"):
-            raise Failed(f"the arming ended in {state}: {st.get('reason')}")
-        if state != "ARMING":
-            return
-        time.sleep(ARM_POLL_S)
 
 
 def cmd_home(args: argparse.Namespace) -> int:
     """home X Y Z [--pretension]: declare the effector's current position (after pulling every
     cable taut in torque control, with --pretension)."""
     try:
-        payload = {"position_m": _vec3(xyz_from_args(args), "home")}
+        payload = {"position_m": inputs.point(xyz_from_args(args), "home")}
     except InputError as exc:
         print(f"cablebot: {exc}", file=sys.stderr)
         return EXIT_REFUSED
@@ -332,48 +224,30 @@ def cmd_home(args: argparse.Namespace) -> int:
     return _command(args, "home", payload)
 
 
-PRETENSION_POLL_S = 0.2
-"""How often `home --pretension` asks the daemon how the pre-tension goes."""
-
-
 def _pretension(args: argparse.Namespace, payload: dict[str, Any]) -> int:
     """Start the pre-tension, then follow the daemon's status until it ends: the home pose
     declared (HOLDING), or the reason it did not. Raises Refused (Failed when the pre-tension
     ended in FAULT or another state without homing), WaitTimeout, DaemonAbsent."""
 
     def body(session: Any) -> int:
-        reply = query(session, _key(args, "cmd/pretension"), payload, args.timeout)
-        _print_reply("pretension", reply, args)
+        robot = robot_of(args, session)
+        _print_reply("pretension", robot.pretension(payload["position_m"]), args)
         line = StatusLine(sys.stdout, enabled=is_tty(sys.stdout) and not args.json)
-        t0 = time.monotonic()
+
+        def show(st: Status, elapsed_s: float) -> None:
+            fastest = st.pretension.fastest_cable_mps
+            speed = "" if fastest is None else f", fastest cable {fastest * 1e3:.1f} mm/s"
+            line.show(f"pretension: {elapsed_s:.1f} s{speed}", time.monotonic())
+
         try:
-            while True:
-                st = query(session, _key(args, "status"), None, args.timeout)
-                if not isinstance(st, dict):
-                    raise Refused(f"unexpected status reply {st!r}")
-                state = st.get("state")
-                pt = st.get("pretension") or {}
-                result = pt.get("result")
-                if state != "PRETENSIONING":
-                    line.clear()
-                    if state == "HOLDING" and isinstance(result, dict) and result.get("ok"):
-                        if args.json:
-                            print(json.dumps(result), flush=True)
-                        else:
-                            print(format_pretension_result(result), flush=True)
-                        return EXIT_OK
-                    raise Failed(f"the pre-tension ended in {state}: {st.get('reason')}")
-                now = time.monotonic()
-                if now - t0 > args.wait_timeout:
-                    raise WaitTimeout(
-                        f"still pretensioning after {args.wait_timeout:g} s (the daemon goes on)"
-                    )
-                fastest = pt.get("fastest_cable_mps")
-                speed = "" if fastest is None else f", fastest cable {fastest * 1e3:.1f} mm/s"
-                line.show(f"pretension: {now - t0:.1f} s{speed}", now)
-                time.sleep(PRETENSION_POLL_S)
+            result = robot.wait_pretension(args.wait_timeout, on_progress=show)
         finally:
             line.clear()
+        if args.json:
+            print(json.dumps(dict(result.raw)), flush=True)
+        else:
+            print(format_pretension_result(dict(result.raw)), flush=True)
+        return EXIT_OK
 
     return _run(args, body)
 
@@ -395,7 +269,7 @@ def cmd_move(args: argparse.Namespace) -> int:
     if _bad_wait_timeout(args):
         return EXIT_USAGE
     try:
-        target = _vec3(xyz_from_args(args), "move")
+        target = inputs.point(xyz_from_args(args), "move")
         payload: dict[str, Any] = {"position_m": target}
         speed = _speed(args.speed)
         if speed is not None:
@@ -409,7 +283,7 @@ def cmd_move(args: argparse.Namespace) -> int:
 
 def cmd_path(args: argparse.Namespace) -> int:
     """path FILE [--speed V] [--wait]: command a multi-point path; a file longer than one
-    command carries is streamed (`controller.cli.pathstream`)."""
+    command carries is streamed (`_stream_path`)."""
     if _bad_wait_timeout(args):
         return EXIT_USAGE
     try:
@@ -439,94 +313,60 @@ def _stream_path(
     points: list[list[float]],
     *,
     append: bool = False,
-    precheck: Callable[[Any], None] | None = None,
+    precheck: Callable[[Robot], None] | None = None,
 ) -> int:
-    """Stream a long path (`pathstream.stream_points`), then with --wait follow it to its end
-    as `_motion` does; Ctrl-C brakes to a hold (`_interrupted`). With `append` (the file's
-    `"append": true`) the first chunk too is appended to the path in progress."""
-    from controller.cli.pathstream import StreamRefused, stream_points
+    """Stream a long path (the library's `stream_points`, as `Robot.iter_path` does), then
+    with --wait follow it to its end as `_motion` does; Ctrl-C, SIGTERM and SIGHUP brake to a
+    hold (`_interrupted`) while it streams or is waited on, as for `gcode` (a path cut off
+    where its sender died is not the path asked for), unless `--detach`. With `append` (the
+    file's `"append": true`) the first chunk too is appended to the path in progress."""
 
     def body(session: Any) -> int:
+        robot = robot_of(args, session)
         if precheck is not None:
-            precheck(session)
-        poses: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # see `_wait_arrival`
-        sub = None
-        if args.wait:
-            sub = session.declare_subscriber(
-                _key(args, "pose"), lambda s: poses.put(s.payload.to_bytes())
-            )
+            precheck(robot)
         line = StatusLine(sys.stdout, enabled=is_tty(sys.stdout) and not args.json)
-
-        def send(pts: list[list[float]], more: bool) -> dict[str, Any]:
-            payload: dict[str, Any] = {"points_m": pts, "append": more or append}
-            if speed is not None:
-                payload["speed_mps"] = speed
-            reply: dict[str, Any] = query(session, _key(args, "cmd/path"), payload, args.timeout)
-            return reply
-
-        def status() -> dict[str, Any]:
-            st = query(session, _key(args, "status"), None, args.timeout)
-            return st if isinstance(st, dict) else {}
-
-        def drain() -> None:  # poses from before the last chunk never count as arrival
-            with suppress(queue.Empty):
-                while True:
-                    poses.get_nowait()
-
         t0 = time.monotonic()
         try:
-            with signals_interrupt(_waits_for_motion(args)):
-                return _stream(send, status, drain, line, poses, t0)
+            with signals_interrupt(not getattr(args, "detach", False)):
+                robot.expect_motion(points[-MAX_PATH_POINTS_SENT:])  # what --wait follows
+                try:
+                    prog = pathstream.stream_points(
+                        points,
+                        lambda pts, more: robot.path_chunk(
+                            pts, speed_mps=speed, append=more or append
+                        ),
+                        robot.status_map,
+                        line.show,
+                        refused=Refused,
+                        append_first=append,
+                    )
+                except pathstream.StreamRefused as exc:
+                    raise Refused(str(exc)) from None
+                finally:
+                    line.clear()
+                summary = {
+                    "points": prog.sent,
+                    "commands": prog.commands,
+                    "retries": prog.retries,
+                    "queued_points": prog.queued_points,
+                    "queued_s": prog.queued_s,
+                    "elapsed_s": time.monotonic() - t0,
+                }
+                if args.json:
+                    print(json.dumps({"ok": True, "streamed": summary}), flush=True)
+                else:
+                    print(
+                        f"path: {prog.sent} points sent in {prog.commands} commands "
+                        f"({summary['elapsed_s']:.1f} s); {prog.queued_points} queued",
+                        flush=True,
+                    )
+                if not args.wait:
+                    return EXIT_OK
+                return _follow(args, "path", robot)
         except KeyboardInterrupt:
             line.clear()
-            return _interrupted(session, args)
-        finally:
-            if sub is not None:
-                sub.undeclare()
-
-    def _stream(
-        send: Any,
-        status: Any,
-        drain: Any,
-        line: StatusLine,
-        poses: queue.SimpleQueue[bytes],
-        t0: float,
-    ) -> int:
-        try:
-            prog = stream_points(
-                points,
-                send,
-                status,
-                line.show,
-                refused=Refused,
-                before_last=drain,
-                append_first=append,
-            )
-        except StreamRefused as exc:
-            line.clear()
-            raise Refused(str(exc)) from None
-        line.clear()
-        summary = {
-            "points": prog.sent,
-            "commands": prog.commands,
-            "retries": prog.retries,
-            "queued_points": prog.queued_points,
-            "queued_s": prog.queued_s,
-            "elapsed_s": time.monotonic() - t0,
-        }
-        if args.json:
-            print(json.dumps({"ok": True, "streamed": summary}), flush=True)
-        else:
-            print(
-                f"path: {prog.sent} points sent in {prog.commands} commands "
-                f"({summary['elapsed_s']:.1f} s); {prog.queued_points} queued",
-                flush=True,
-            )
-        if not args.wait:
-            return EXIT_OK
-        moving = status().get("state") == "MOVING"
-        tail = points[-MAX_PATH_POINTS_SENT:]
-        return _wait_arrival(args, "path", poses, tail, seen_moving=not moving, status=status)
+            return _interrupted(robot, args)
 
     return _run(args, body)
 
@@ -536,72 +376,38 @@ def _motion(
     verb: str,
     payload: dict[str, Any],
     points: list[list[float]],
-    precheck: Callable[[Any], None] | None = None,
+    precheck: Callable[[Robot], None] | None = None,
 ) -> int:
     def body(session: Any) -> int:
+        robot = robot_of(args, session)
         if precheck is not None:
-            precheck(session)
-        poses: queue.SimpleQueue[bytes] = queue.SimpleQueue()  # see `_wait_arrival`
-        sub = None
-        if args.wait:  # subscribe first so no sample after the reply is missed
-            sub = session.declare_subscriber(
-                _key(args, "pose"), lambda s: poses.put(s.payload.to_bytes())
-            )
+            precheck(robot)
         try:
             with signals_interrupt(_waits_for_motion(args)):
-                return _send_and_wait(session, poses)
+                # With --wait the pose is followed from before the command goes: no sample
+                # after the reply is missed.
+                reply = robot.send_motion(verb, payload, points, follow=args.wait)
+                _print_reply(verb, reply, args)
+                if not args.wait:
+                    return EXIT_OK
+                return _follow(args, verb, robot)
         except KeyboardInterrupt:
-            return _interrupted(session, args)
-        finally:
-            if sub is not None:
-                sub.undeclare()
-
-    def _send_and_wait(session: Any, poses: queue.SimpleQueue[bytes]) -> int:
-        reply = query(session, _key(args, f"cmd/{verb}"), payload, args.timeout)
-        _print_reply(verb, reply, args)
-        if not args.wait:
-            return EXIT_OK
-        # The daemon replies once the motion has started (MOVING). Poses published before it
-        # took the command may already be in the queue, HOLDING where a path also ends: they
-        # must not count as arrival. Unless the motion is already over, wait to see it move.
-        status = query(session, _key(args, "status"), None, args.timeout)
-        moving = isinstance(status, dict) and status.get("state") == "MOVING"
-        return _wait_arrival(
-            args,
-            verb,
-            poses,
-            points,
-            seen_moving=not moving,
-            status=lambda: query(session, _key(args, "status"), None, args.timeout),
-        )
+            return _interrupted(robot, args)
 
     return _run(args, body)
 
 
-WAIT_SIGNALS: tuple[signal.Signals, ...] = tuple(
-    getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)
-)
-"""Signals that, while a motion is waited on, count as Ctrl-C (the terminal closed, `kill`)."""
-
-
-def _raise_interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt
-
-
-@contextmanager
-def signals_interrupt(enabled: bool = True) -> Iterator[None]:
-    """Within the block SIGTERM and SIGHUP raise KeyboardInterrupt (as Ctrl-C does), so a
-    waited-on motion is stopped however the CLI is ended; the previous handlers come back
-    after. A no-op when not `enabled` or off the main thread. Raises nothing itself."""
-    if not enabled or threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = {sig: signal.signal(sig, _raise_interrupt) for sig in WAIT_SIGNALS}
-    try:
-        yield
-    finally:
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
+def _follow(args: argparse.Namespace, verb: str, robot: Robot) -> int:
+    """`--wait`: follow the motion the robot sent last to its end (`_wait_arrival`)."""
+    samples, arrival = robot.arrival()
+    return _wait_arrival(
+        args,
+        verb,
+        samples,
+        arrival.points,
+        seen_moving=arrival.seen_moving,
+        status=robot.status,
+    )
 
 
 def _waits_for_motion(args: argparse.Namespace) -> bool:
@@ -612,7 +418,7 @@ INTERRUPT_STOP_TEXT = "interrupted: braking to a hold"
 DETACH_TEXT = "interrupted: detached; the robot goes on with the motion"
 
 
-def _interrupted(session: Any, args: argparse.Namespace) -> int:
+def _interrupted(robot: Robot, args: argparse.Namespace) -> int:
     """Ctrl-C while a motion command runs: send `stop` (brake to a hold) and say so, unless
     `--detach` was given (then only say that the motion goes on). Returns the exit code 130;
     a stop the daemon does not take is printed as such (exit 1 or 3)."""
@@ -621,30 +427,33 @@ def _interrupted(session: Any, args: argparse.Namespace) -> int:
         return exitcodes.INTERRUPTED
     print(INTERRUPT_STOP_TEXT, file=sys.stderr, flush=True)
     try:
-        reply = query(session, _key(args, "cmd/stop"), None, args.timeout)
+        reply = robot.stop()
     except Refused as exc:
         print(f"cablebot: stop refused: {exc}", file=sys.stderr, flush=True)
         return EXIT_REFUSED
     except DaemonAbsent as exc:
         print(f"cablebot: stop not confirmed: {exc}", file=sys.stderr, flush=True)
         return EXIT_ABSENT
-    if getattr(args, "json", False):
-        print(json.dumps(reply), flush=True)
-    else:
-        print(format_reply("stop", reply), flush=True)
+    _print_reply("stop", reply, args)
     return exitcodes.INTERRUPTED
+
+
+def _as_status(st: Any) -> Status:
+    return st if isinstance(st, Status) else Status.from_mapping(st if isinstance(st, dict) else {})
 
 
 def _wait_arrival(
     args: argparse.Namespace,
     verb: str,
-    poses: queue.SimpleQueue[bytes],
-    points: list[list[float]],
+    poses: Any,
+    points: Sequence[Sequence[float]],
     *,
     seen_moving: bool = True,
     status: Callable[[], Any] | None = None,
 ) -> int:
-    """Follow the pose until it is within 1 mm of the last point in a still state (HOLDING).
+    """Follow the pose until it is within 1 mm of the last point in a still state (HOLDING):
+    the library's rule (`controller.client.arrival`), fed from `poses` (anything with
+    `get(timeout=...)`: a Robot's samples, or a queue of the daemon's JSON samples).
 
     With `seen_moving` False, HOLDING samples count only after a MOVING one (the motion was
     still running when the wait began, and older samples may stand where the path ends).
@@ -657,101 +466,44 @@ def _wait_arrival(
     `{"arrived": true, "pose": <the pose sample>}`). Raises WaitTimeout, Failed (the robot
     left the motion states, or the motion ended short of its end) or DaemonAbsent.
     """
-    end = points[-1]
     line = StatusLine(sys.stdout, enabled=is_tty(sys.stdout) and not args.json)
-    t0 = time.monotonic()
-    deadline = t0 + args.wait_timeout
-    last_rx = t0
-    last: dict[str, Any] | None = None
-    legs: list[tuple[list[float], list[float]]] | None = None
-    leg = 0
-    asked = False  # the status was asked during this hold (settling, or ended elsewhere)
+
+    def next_pose(timeout_s: float) -> Pose | None:
+        try:
+            item = poses.get(timeout=timeout_s)
+        except queue.Empty:
+            return None
+        if item is None or isinstance(item, Pose):
+            return item
+        try:
+            return Pose.from_json(item)
+        except ValueError:  # no daemon sends one; skipped as if it had not come
+            return None
+
+    def show(p: ArrivalProgress) -> None:
+        line.show(
+            f"{verb}: {p.remaining_m:.3f} m to go  {p.state}  {format_xyz(p.position_m)}"
+            f"  {p.elapsed_s:.1f} s",
+            p.pose.received_s,
+        )
+
     try:
-        while True:
-            now = time.monotonic()
-            if now >= deadline:
-                where = "" if last is None else f"; last {format_pose(last)}"
-                raise WaitTimeout(
-                    f"not at the target after {args.wait_timeout:g} s{where}; the robot goes on"
-                    " with the motion (`cablebot stop` stops it)"
-                )
-            try:
-                # A SimpleQueue: Ctrl-C landing while `queue.Queue`'s condition re-takes its
-                # lock turned KeyboardInterrupt into "RuntimeError: release unlocked lock" (a
-                # traceback instead of braking); SimpleQueue's wait is interrupted cleanly.
-                data = poses.get(timeout=min(0.5, deadline - now))
-            except queue.Empty:
-                if time.monotonic() - last_rx > args.timeout:
-                    raise DaemonAbsent(f"no pose sample for {args.timeout:g} s") from None
-                continue
-            last_rx = time.monotonic()
-            last = json.loads(data)
-            state = str(last.get("state"))
-            if state in ("FAULT", "ESTOPPED", "DISARMED"):
-                raise Failed(f"the robot went {state} during the motion: {format_pose(last)}")
-            pos = last.get("position_m")
-            if pos is None:
-                continue
-            if state == "MOVING":
-                seen_moving = True
-                asked = False
-            if state == "HOLDING" and seen_moving and math.dist(pos, end) <= ARRIVED_TOL_M:
-                line.clear()
-                if args.json:
-                    print(json.dumps({"arrived": True, "pose": last}), flush=True)
-                else:
-                    print(f"arrived: {format_pose(last)}", flush=True)
-                return EXIT_OK
-            if state == "HOLDING" and seen_moving and status is not None and not asked:
-                asked = True
-                _check_held_for(status(), end, last)
-            if legs is None:
-                starts = [list(pos), *points[:-1]]
-                legs = list(zip(starts, points, strict=True))
-            leg, remaining = path_remaining_m(legs, pos, leg)
-            line.show(
-                f"{verb}: {remaining:.3f} m to go  {state}  {format_xyz(pos)}"
-                f"  {last_rx - t0:.1f} s",
-                last_rx,
-            )
+        pose = follow_arrival(
+            next_pose,
+            Arrival(points, seen_moving=seen_moving),
+            wait_timeout_s=args.wait_timeout,
+            sample_timeout_s=args.timeout,
+            status=None if status is None else (lambda: _as_status(status())),
+            on_progress=show,
+        )
     finally:
         line.clear()
-
-
-def _check_held_for(st: Any, end: Sequence[float], last: dict[str, Any]) -> None:
-    """Raise Failed when the status `st` holds a set-point away from `end`: the motion waited
-    on ended there (stopped, or replaced by another command), not at its end."""
-    if not isinstance(st, dict) or st.get("state") != "HOLDING":
-        return
-    sp = st.get("setpoint_m")
-    if not isinstance(sp, list) or len(sp) != 3 or math.dist(sp, end) <= ARRIVED_TOL_M:
-        return  # settling on the end point
-    why = st.get("reason") or "another command took over"
-    pos = last.get("position_m") or sp
-    raise Failed(
-        f"the motion ended {math.dist(pos, end):.3f} m short of {format_xyz(end)}: {why}; "
-        f"{format_pose(last)}"
-    )
-
-
-def list_daemons(session: Any, timeout_s: float) -> list[dict[str, Any]]:
-    """Every live daemon on the session's network: prefix, robot name, state and the endpoints
-    it listens on (from its status; None where it did not answer within `timeout_s`)."""
-    out: list[dict[str, Any]] = []
-    for prefix in live_prefixes(session):
-        row: dict[str, Any] = {"prefix": prefix, "name": None, "state": None, "listen": None}
-        try:
-            st = query(session, f"{prefix}/status", None, timeout_s)
-        except (DaemonAbsent, Refused, ValueError):
-            st = None
-        if isinstance(st, dict):
-            cfg = st.get("config")
-            z = st.get("zenoh")
-            row["name"] = cfg.get("name") if isinstance(cfg, dict) else None
-            row["state"] = st.get("state")
-            row["listen"] = z.get("listen") if isinstance(z, dict) else None
-        out.append(row)
-    return out
+    sample = pose.as_dict()
+    if args.json:
+        print(json.dumps({"arrived": True, "pose": sample}), flush=True)
+    else:
+        print(f"arrived: {format_pose(sample)}", flush=True)
+    return EXIT_OK
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -759,7 +511,7 @@ def cmd_list(args: argparse.Namespace) -> int:
     endpoint); exit 3 when there is none."""
 
     def body(session: Any) -> int:
-        rows = list_daemons(session, args.timeout)
+        rows = [d.as_dict() for d in list_daemons(session, args.timeout, query=_query)]
         if not rows:
             print(f"cablebot: no live cablebot daemon via {args.connect}", file=sys.stderr)
             return EXIT_ABSENT
@@ -773,7 +525,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     """status [--json]: print the daemon's status."""
 
     def body(session: Any) -> int:
-        st = query(session, _key(args, "status"), None, args.timeout)
+        st = dict(robot_of(args, session).status().raw)
         print(json.dumps(st, indent=2) if args.json else format_status(st), flush=True)
         return EXIT_OK
 
@@ -799,33 +551,21 @@ def cmd_pose(args: argparse.Namespace) -> int:
     min_interval_s = 0.0 if rate_hz == 0.0 else 1.0 / rate_hz
 
     def body(session: Any) -> int:
-        poses: queue.Queue[bytes] = queue.Queue(maxsize=10_000)
-
-        def on_sample(s: Any) -> None:
-            with suppress(queue.Full):
-                poses.put_nowait(s.payload.to_bytes())
-
         gaps = SeqGaps()
-        sub = session.declare_subscriber(_key(args, "pose"), on_sample)
         ended = False
+        stream = robot_of(args, session).poses(timeout_s=args.timeout)
         try:
             printed = 0
             unreported = 0
             next_s = 0.0
             last_state: Any = None
-            while args.count is None or printed < args.count:
-                try:
-                    data = poses.get(timeout=args.timeout)
-                except queue.Empty:
-                    raise DaemonAbsent(f"no pose sample within {args.timeout:g} s") from None
-                sample = json.loads(data)
-                unreported += gaps.update(sample.get("seq"))
+            for pose in stream:
+                unreported += gaps.update(pose.seq)
                 now = time.monotonic()
-                state = sample.get("state")
-                if now < next_s and state == last_state:
+                if now < next_s and pose.state == last_state:
                     continue
                 next_s = now + min_interval_s
-                last_state = state
+                last_state = pose.state
                 if unreported:
                     print(
                         f"gap: {unreported} samples missed",
@@ -833,14 +573,16 @@ def cmd_pose(args: argparse.Namespace) -> int:
                         flush=True,
                     )
                     unreported = 0
-                print(data.decode() if args.json else format_pose(sample), flush=True)
+                print(pose.raw.decode() if args.json else format_pose(pose.as_dict()), flush=True)
                 printed += 1
+                if args.count is not None and printed >= args.count:
+                    break
             ended = True
         except KeyboardInterrupt:
             ended = True
             raise
         finally:
-            sub.undeclare()
+            stream.close()
             # Not after a failure (a closed pipe, no daemon): that has its own message.
             if ended and gaps.missed:
                 print(

@@ -121,8 +121,10 @@ def sample_workspace(cfg: Any, ws: Any, points: int = 30_000) -> dict[str, Any]:
     """The workspace's shape (`Workspace.inside_points` without the cable lengths) sampled at
     the centres of a regular grid of about `points` cells over its box: its volume, the
     shortest and longest cable it needs, and (with a payload) the fraction of it where the
-    cables hold the payload by the tension rule (limits and margin). Raises nothing for a
-    valid configuration."""
+    cables hold the payload by the tension rule (limits and margin); `points_m` is the (M, 3)
+    array of the sampled points inside; where the payload is held nowhere, `closest` is the
+    point where the tensions come closest to the rule, and the rule's reason there. Raises
+    nothing for a valid configuration."""
     import numpy as np
 
     ranges = ws.box()
@@ -141,6 +143,7 @@ def sample_workspace(cfg: Any, ws: Any, points: int = 30_000) -> dict[str, Any]:
     out: dict[str, Any] = {
         "step_m": step,
         "points": int(kept.shape[0]),
+        "points_m": kept,
         "volume_m3": kept.shape[0] * cell,
         "cable_range_m": [float(lengths.min()), float(lengths.max())] if kept.size else None,
     }
@@ -151,6 +154,9 @@ def sample_workspace(cfg: Any, ws: Any, points: int = 30_000) -> dict[str, Any]:
         _, margin, _, limiting = chk.statics.solve_batch(kept, chk.mass_kg)
         held = (limiting >= 0) & (margin >= chk.margin_n)
         out["held_fraction"] = float(held.mean())
+        if not held.any():  # why: the rule's reason where the tensions come closest
+            best = kept[int(np.where(limiting >= 0, margin, -np.inf).argmax())]
+            out["closest"] = (tuple(float(v) for v in best), chk.check(best))
     return out
 
 
@@ -168,9 +174,10 @@ def _range(lo: float, hi: float) -> str:
 
 def _workspace_lines(
     cfg: Any, ws: Any, anchors: Sequence[Sequence[float]], work: Sequence[Point2]
-) -> tuple[list[str], tuple[float, float], dict[str, Any]]:
-    """check-config's `workspace` and `volume` lines, the cable range the workspace needs and
-    the JSON of the workspace. Raises ValueError when the cables hold the payload nowhere."""
+) -> tuple[list[str], tuple[float, float], dict[str, Any], Any]:
+    """check-config's `workspace` and `volume` lines, the cable range the workspace needs, the
+    JSON of the workspace and the sampled points inside it. Raises ValueError when the cables
+    hold the payload nowhere."""
     lim = cfg.limits
     top_z = ws.top_z_m
     lines: list[str] = []
@@ -203,10 +210,12 @@ def _workspace_lines(
             f" {held * 100.0:.1f} % of it"
         )
         if held == 0.0:
+            at, why = sampled["closest"]
             raise ValueError(
                 f"{cfg.source}: the cables cannot hold the {cfg.payload.mass_kg:g} kg payload "
                 "anywhere in the workspace within the tension limits (limits.min_tension_n.."
-                "max_tension_n, tension_margin_n): the anchors do not surround it from above"
+                f"max_tension_n, tension_margin_n): where they come closest, at ({_xyz(at)}) m, "
+                f"{why}"
             )
     lines.append(volume)
     data = {
@@ -218,7 +227,7 @@ def _workspace_lines(
         "volume_m3": sampled["volume_m3"],
         "held_fraction": held,
     }
-    return lines, (lo, hi), data
+    return lines, (lo, hi), data, sampled["points_m"]
 
 
 def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
@@ -259,7 +268,7 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
         "node_ids": list(cfg.node_ids),
         "footprint_m": [list(p) for p in footprint],
     }
-    ws_lines, (lo, hi), ws_data = _workspace_lines(cfg, ws, anchors, work)
+    ws_lines, (lo, hi), ws_data, inside_m = _workspace_lines(cfg, ws, anchors, work)
     lines.append(ws_lines[0])
     lines.append(
         f"cables     allowed {lim.min_cable_m:.3f}..{lim.max_cable_m:.3f} m;"
@@ -293,10 +302,17 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
     else:
         lines.append("statics    no [payload]: cable tensions are not checked")
     (x_lo, x_hi), (y_lo, y_hi), _ = ws.box()
-    stretch = _stretch_lines(cfg, ((x_lo + x_hi) / 2.0, (y_lo + y_hi) / 2.0), lim.floor_z_m, top_z)
+    stretch = _stretch_lines(
+        cfg, ws, ((x_lo + x_hi) / 2.0, (y_lo + y_hi) / 2.0), lim.floor_z_m, top_z, inside_m
+    )
     if stretch is not None:
         lines.append(stretch[0])
         data["stretch"] = stretch[1]
+    from controller.cli.modes_cmd import modes_lines
+
+    mode_text, mode_data = modes_lines(cfg)
+    lines.extend(mode_text)
+    data.update(mode_data)
     lp = cfg.loop
     pub_hz = lp.rate_hz / max(1, lp.publish_every)
     lines.append(
@@ -358,11 +374,13 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
 
 
 def _stretch_lines(
-    cfg: Any, centre_xy: Point2, floor_z: float, top_z: float
+    cfg: Any, ws: Any, centre_xy: Point2, floor_z: float, top_z: float, inside_m: Any
 ) -> tuple[str, list[dict[str, Any]]] | None:
     """The check-config line on cable stretch (None: rigid cables) and its JSON: the most any
     cable stretches under the planned tensions at the power-up pose and at the workspace's
-    centre line, at the floor, half-way and the top (``docs/cable-stretch.md``)."""
+    centre line, at the floor, half-way and the top (``docs/cable-stretch.md``). Where the
+    centre line leaves the workspace (the narrow top of the anchors' pyramid) the nearest of
+    the sampled points inside it (`inside_m`, (M, 3)) stands in. Raises nothing."""
     eas = [r.cable_ea_n for r in cfg.reels]
     if all(e is None for e in eas) or cfg.payload is None or cfg.tension is None:
         return None
@@ -380,7 +398,11 @@ def _stretch_lines(
     if pu is not None:
         poses.append(("power-up", (float(pu[0]), float(pu[1]), float(pu[2]))))
     for name, z in (("floor", floor_z), ("middle", (floor_z + top_z) / 2.0), ("top", top_z)):
-        poses.append((name, (cx, cy, z)))
+        p = (cx, cy, z)
+        if ws.check_point(p) is not None and len(inside_m):
+            q = inside_m[int(((inside_m - p) ** 2).sum(axis=1).argmin())]
+            p = (float(q[0]), float(q[1]), float(q[2]))
+        poses.append((name, p))
     parts = []
     out: list[dict[str, Any]] = []
     for name, p in poses:
@@ -401,7 +423,8 @@ def _stretch_lines(
 
 
 def _xyz(p: Sequence[float]) -> str:
-    return ", ".join(f"{v:g}" for v in p)
+    """A pose to a tenth of a millimetre (no -0, no 1e-16)."""
+    return ", ".join(f"{round(v, 4) + 0.0:g}" for v in p)
 
 
 def _toml_text(v: Any) -> str:

@@ -7,35 +7,52 @@ robot's G-code origin lands somewhere else. A robot file the user names as well 
 must describe the same robot; one that differs is refused, naming both robots and what
 differs.
 
-No argparse here: `fetch_robot`, `check_agrees` and `daemon_robot` take a Zenoh session, a
-prefix and a timeout, so any client (the CLI verbs, a client library) uses them alike.
-
-Keys that name files on the daemon's machine (`[zenoh] config_file`, a drive family's file
-options such as the CiA 402 `eds`) are the daemon's own: a client neither reads those files
-nor compares them (it may run on another machine).
+Fetching the description is the client library's (`controller.client.description`,
+`RobotLink.description`); comparing it with a robot file the user gives is the command line's
+(a program that uses the library takes the daemon's robot and names no file). Keys that name
+files on the daemon's machine are left out of both (a client may run on another machine).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
-from controller.cli.session import DaemonAbsent, InputError, Refused, query
-from controller.service.config import ConfigError, RobotConfig, parse_config, robot_digest
+from controller.cli.session import DaemonAbsent, InputError
+from controller.client.description import (
+    ROBOT_KEY,
+    NoDescription,
+    RobotDescription,
+    fetch_description,
+    robot_from_text,
+)
+from controller.client.link import QueryFn, RobotLink
+from controller.client.transport import query
+from controller.service.config import ConfigError, RobotConfig
 from controller.service.textfile import NotUtf8Error, read_text
 
-ROBOT_KEY = "robot"
-"""The daemon's robot description: `<prefix>/robot`."""
+__all__ = [
+    "MAX_DIFFERENCES",
+    "ROBOT_KEY",
+    "DaemonRobot",
+    "NoDescription",
+    "RobotMismatch",
+    "check_agrees",
+    "check_config_with_daemon",
+    "daemon_robot",
+    "fetch_robot",
+    "load_robot_file",
+    "robot_differences",
+    "robot_from_text",
+]
+
 MAX_DIFFERENCES = 6
 """The most differences a refusal lists (then "and N more")."""
 
-
-class NoDescription(Refused):
-    """The daemon answers but serves no robot description (a daemon older than the client)."""
+DaemonRobot = RobotDescription
+"""The robot a daemon runs (`controller.client.description.RobotDescription`)."""
 
 
 class RobotMismatch(InputError):
@@ -43,47 +60,12 @@ class RobotMismatch(InputError):
     message names both robots and what differs. Nothing was sent."""
 
 
-@dataclass(frozen=True)
-class DaemonRobot:
-    """The robot a daemon runs: its name, where the daemon loaded it from, the TOML text as
-    loaded, the digest of that text, and the validated configuration a client uses."""
-
-    prefix: str
-    name: str
-    source: str
-    digest: str
-    text: str
-    config: RobotConfig
-
-
-def _drop_host_files(data: dict[str, Any]) -> dict[str, Any]:
-    """`data` without the keys that name files on the daemon's machine."""
-    from drivers import registry
-
-    out = dict(data)
-    zen = out.get("zenoh")
-    if isinstance(zen, Mapping) and "config_file" in zen:
-        out["zenoh"] = {k: v for k, v in zen.items() if k != "config_file"}
-    drive = out.get("drive")
-    if isinstance(drive, Mapping):
-        try:
-            fam = registry.family(str(drive.get("kind", "odrive")))
-        except registry.UnknownFamilyError:
-            return out
-        paths = {o.name for o in fam.options if o.kind == "path"}
-        out["drive"] = {k: v for k, v in drive.items() if k not in paths}
-    return out
-
-
-def robot_from_text(text: str, source: str) -> RobotConfig:
-    """The configuration a client uses of a robot's TOML text: validated as the daemon does,
-    the keys that name files on the daemon's machine left out. Raises ConfigError (naming
-    `source`) when the text is not a valid robot."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(source, "", f"not valid TOML: {exc}") from None
-    return parse_config(_drop_host_files(data), source, text)
+def fetch_robot(
+    session: Any, prefix: str, timeout_s: float, query_fn: QueryFn = query
+) -> RobotDescription:
+    """The robot the daemon on `prefix` runs (`controller.client.description`). Raises
+    DaemonAbsent, NoDescription (a Refused; an older daemon), Refused."""
+    return fetch_description(session, prefix, timeout_s, query_fn)
 
 
 def load_robot_file(path: str) -> RobotConfig:
@@ -99,38 +81,6 @@ def load_robot_file(path: str) -> RobotConfig:
         return robot_from_text(text, path)
     except ConfigError as exc:
         raise InputError(str(exc)) from None
-
-
-def fetch_robot(session: Any, prefix: str, timeout_s: float) -> DaemonRobot:
-    """The robot the daemon on `prefix` runs, from its `<prefix>/robot` description.
-
-    Raises DaemonAbsent when no daemon answers, NoDescription (a Refused) when it serves no
-    description (an older daemon), Refused when its description cannot be used.
-    """
-    prefix = prefix.rstrip("/")
-    try:
-        reply = query(session, f"{prefix}/{ROBOT_KEY}", None, timeout_s)
-    except DaemonAbsent:
-        query(session, f"{prefix}/status", None, timeout_s)  # no daemon: DaemonAbsent
-        raise NoDescription(
-            f"the daemon on {prefix} serves no robot description ({prefix}/{ROBOT_KEY}): it is"
-            " older than this client; update it"
-        ) from None
-    if not isinstance(reply, dict) or not isinstance(reply.get("toml"), str):
-        raise Refused(f"the daemon on {prefix} sent no robot description: {str(reply)[:120]}")
-    text: str = reply["toml"]
-    digest = robot_digest(text)
-    if reply.get("digest") != digest:
-        raise Refused(
-            f"the robot description of the daemon on {prefix} does not match its digest"
-            f" ({reply.get('digest')} sent, {digest} received)"
-        )
-    source = str(reply.get("source", "?"))
-    try:
-        cfg = robot_from_text(text, f"the robot of the daemon on {prefix} ({source})")
-    except ConfigError as exc:
-        raise Refused(f"cannot use the daemon's robot description: {exc}") from None
-    return DaemonRobot(prefix, str(reply.get("name", cfg.name)), source, digest, text, cfg)
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -166,11 +116,12 @@ def _diff(a: Any, b: Any, path: str, out: list[tuple[str, Any, Any]]) -> None:
 
 def robot_differences(a: RobotConfig, b: RobotConfig) -> list[tuple[str, Any, Any]]:
     """Every setting in which two robots differ, as (key path, value in `a`, value in `b`):
-    e.g. ("gcode.origin_m", (0.0, 0.0, 0.0), (-0.1075, -0.1075, 0.1)). Where each was loaded
+    e.g. ("gcode.origin_m", (0.0, 0.0, 0.0), (-0.1075, -0.1075, 0.1)), named by the robot
+    file's keys ("reels[1].gear_ratio": a reel's model holds its keys). Where each was loaded
     from is not a difference. Raises nothing."""
     out: list[tuple[str, Any, Any]] = []
     _diff(dataclasses.replace(a, source=""), dataclasses.replace(b, source=""), "", out)
-    return out
+    return [(key.replace(".reel.", "."), x, y) for key, x, y in out]
 
 
 def _value_text(v: Any) -> str:
@@ -197,7 +148,7 @@ def check_agrees(robot: DaemonRobot, config: RobotConfig, path: str) -> None:
     raise RobotMismatch(
         f"--config {path} (robot {config.name!r}) is not the robot the daemon on"
         f" {robot.prefix} runs ({robot.name!r}, from {robot.source}): they differ in {shown}"
-        + (f" and {more} more settings" if more > 0 else "")
+        + (f" and {more} more setting{'s' if more > 1 else ''}" if more > 0 else "")
         + ". The daemon's robot is the one that moves: leave out --config, or give its file"
     )
 
@@ -211,19 +162,17 @@ def _importance(diff: tuple[str, Any, Any]) -> int:
     return _FIRST.index(top) if top in _FIRST else len(_FIRST)
 
 
-def daemon_robot(
-    session: Any, prefix: str, timeout_s: float, config_path: str | None = None
-) -> DaemonRobot:
-    """The robot the daemon on `prefix` runs (`fetch_robot`), checked against the robot file
-    at `config_path` when one is given (`check_agrees`).
+def daemon_robot(robot: RobotLink, config_path: str | None = None) -> RobotDescription:
+    """The robot the daemon runs (`robot.description()`), checked against the robot file at
+    `config_path` when one is given (`check_agrees`).
 
-    Raises DaemonAbsent, Refused (`fetch_robot`), InputError (the file cannot be read or is
-    not valid) and RobotMismatch (it describes another robot).
+    Raises DaemonAbsent, Refused (NoDescription: an older daemon), InputError (the file cannot
+    be read or is not valid) and RobotMismatch (it describes another robot).
     """
-    robot = fetch_robot(session, prefix, timeout_s)
+    desc = robot.description()
     if config_path is not None:
-        check_agrees(robot, load_robot_file(config_path), config_path)
-    return robot
+        check_agrees(desc, load_robot_file(config_path), config_path)
+    return desc
 
 
 def check_config_with_daemon(
@@ -239,6 +188,6 @@ def check_config_with_daemon(
     if config_path is None:
         return
     try:
-        daemon_robot(session, prefix, timeout_s, config_path)
+        daemon_robot(RobotLink(session=session, prefix=prefix, timeout_s=timeout_s), config_path)
     except DaemonAbsent:
         return

@@ -24,8 +24,8 @@ time."""
 WAIT_TIMEOUT: Final = 4
 """`--wait`: the robot did not reach the end point within `--wait-timeout`."""
 INTERRUPTED: Final = 130
-"""Ctrl-C (SIGINT); while a motion is waited on (`--wait`, `calibrate collect --auto`) also
-SIGTERM or SIGHUP, after sending `stop`."""
+"""Ctrl-C (SIGINT); while a motion is waited on (`--wait`, `calibrate collect --auto`) or a
+job or long path streams (`gcode`, `path FILE`) also SIGTERM or SIGHUP, after sending `stop`."""
 BROKEN_PIPE: Final = 141
 """The reader of the output went away (`cablebot pose | head`): stopped quietly, as a process
 killed by SIGPIPE would be."""
@@ -51,8 +51,8 @@ TABLE: Final[tuple[tuple[int, str], ...]] = (
     (WAIT_TIMEOUT, "`--wait`: not at the end point within `--wait-timeout`"),
     (
         INTERRUPTED,
-        "interrupted (Ctrl-C; while a motion is waited on, also SIGTERM or SIGHUP): the robot"
-        " brakes to a hold unless `--detach`",
+        "interrupted (Ctrl-C; while a motion is waited on or a job or long path streams, also"
+        " SIGTERM or SIGHUP): the robot brakes to a hold unless `--detach`",
     ),
     (BROKEN_PIPE, "the output's reader went away (e.g. `head` closed the pipe); nothing printed"),
 )

@@ -1,13 +1,36 @@
 """What the client verbs print: poses, status, command replies, the home and pre-tension
-results, the `list` table; following a stream (sequence gaps, the distance left along a path,
-a progress line rewritten in place on a terminal).
+results, the `list` table; following a stream (sequence gaps, a progress line rewritten in
+place on a terminal). The pose line, a point and the distance left along a path are the client
+library's (`controller.client.model`, `controller.client.arrival`), importable from here.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any, TextIO
+
+from controller.client.arrival import path_remaining_m
+from controller.client.model import pose_text
+from controller.client.model import xyz_text as format_xyz
+
+__all__ = [
+    "PROGRESS_PERIOD_S",
+    "SeqGaps",
+    "StatusLine",
+    "axis_fault_text",
+    "axis_state_text",
+    "format_daemons",
+    "format_home",
+    "format_pose",
+    "format_pretension_result",
+    "format_reply",
+    "format_status",
+    "format_xyz",
+    "is_tty",
+    "path_remaining_m",
+    "setpoints_line",
+    "status_tensions_n",
+]
 
 PROGRESS_PERIOD_S = 0.1
 """How often the progress line is rewritten, at most."""
@@ -18,15 +41,10 @@ PROGRESS_PERIOD_S = 0.1
 
 
 def format_pose(sample: dict[str, Any]) -> str:
-    """One human-readable line for a pose sample."""
-    pos = sample.get("position_m")
-    if pos is None:
-        where = "x=   ---  y=   ---  z=   ---  m (pose not valid)"
-    else:
-        where = f"x={pos[0]:+.3f} y={pos[1]:+.3f} z={pos[2]:+.3f} m"
-    res = sample.get("residual_m")
-    resid = "" if res is None else f"  resid {res * 1e3:.1f} mm"
-    return f"seq {sample.get('seq')}  state {sample.get('state')}  {where}{resid}"
+    """One human-readable line for a pose sample (`controller.client.model.pose_text`)."""
+    return pose_text(
+        sample.get("seq"), sample.get("state"), sample.get("position_m"), sample.get("residual_m")
+    )
 
 
 def axis_state_text(ax: dict[str, Any]) -> str:
@@ -91,6 +109,11 @@ def format_status(st: dict[str, Any]) -> str:
                 if res.get("ok")
                 else f"pretension ended without homing: {res.get('reason')}"
             )
+    shaper = st.get("shaper")
+    if isinstance(shaper, dict):
+        from controller.cli.shaper_cmd import describe
+
+        lines.append(f"shaper     {describe(shaper)}")
     tensions = status_tensions_n(st)
     for i, ax in enumerate(st.get("axes", [])):
         age = ax.get("age_s")
@@ -159,10 +182,6 @@ def setpoints_line(received: Any, stream: Any) -> str:
             why = stream.get(last)
             parts.append(f"{kind} {n}" + (f" (last: {why})" if n and why else ""))
     return "set-points " + ", ".join(parts)
-
-
-def format_xyz(p: Sequence[Any], digits: int = 3) -> str:
-    return " ".join(f"{a}={float(v):+.{digits}f}" for a, v in zip("xyz", p, strict=False)) + " m"
 
 
 def format_reply(verb: str, reply: Any) -> str:
@@ -274,32 +293,6 @@ class SeqGaps:
         self.last = seq
         self.missed += gap
         return gap
-
-
-def path_remaining_m(
-    legs: Sequence[tuple[Sequence[float], Sequence[float]]], pos: Sequence[float], leg: int
-) -> tuple[int, float]:
-    """Distance (m) still to travel along `legs` from `pos`, and the leg it is on now.
-
-    `leg` is the leg the effector was on before; it only moves forward (to the nearest of this
-    leg and the next two), so a path that crosses itself is followed in order. The distance is
-    from `pos` to the end of its leg plus the lengths of the legs after it.
-    """
-    best, best_d = leg, math.inf
-    for k in range(leg, min(leg + 3, len(legs))):
-        d = _point_segment_m(pos, legs[k][0], legs[k][1])
-        if d < best_d - 1e-9:
-            best, best_d = k, d
-    rest = sum(math.dist(a, b) for a, b in legs[best + 1 :])
-    return best, math.dist(pos, legs[best][1]) + rest
-
-
-def _point_segment_m(p: Sequence[float], a: Sequence[float], b: Sequence[float]) -> float:
-    ab = [b[i] - a[i] for i in range(3)]
-    ap = [p[i] - a[i] for i in range(3)]
-    den = sum(v * v for v in ab)
-    t = 0.0 if den <= 0.0 else max(0.0, min(1.0, sum(ab[i] * ap[i] for i in range(3)) / den))
-    return math.dist(p, [a[i] + t * ab[i] for i in range(3)])
 
 
 class StatusLine:

@@ -9,13 +9,15 @@ sends goes through `controller.core.gcode_protocol.LineProtocol` (line numbers, 
 into chunks sent to the daemon by the same `Streamer` as `cablebot gcode FILE`, a chunk going
 out when it holds `CHUNK_POINTS` points, at a wait, or when the host pauses for `IDLE_S`.
 `ok` goes back once a line is queued (a chunk waits while the daemon has `LOW_WATER_S` of motion
-queued or its queue is full, `pathstream.Pacer`: that delay is the host's flow control).
+queued or its queue is full, `controller.client.stream.Pacer`: that delay is the host's flow
+control).
 During a wait (`G4`, `M400`, `M114`) the host hears `echo:busy: processing` every 2 s.
 
 Unlike a file, a stream cannot be checked whole before its first move: the daemon checks every
 chunk against the workspace and the tension rule. A refused chunk stops the job (the robot
 brakes to a hold) and every motion line after it is answered `Error:` until the host sends
-`M999`, which starts again from where the robot rests.
+`M999`, which starts again from where the robot rests, the job's modal state (units, absolute
+or relative, feed) kept.
 """
 
 from __future__ import annotations
@@ -30,16 +32,13 @@ from contextlib import suppress
 from typing import Any
 
 from controller.cli import exitcodes
-from controller.cli.gcode import (
-    Streamer,
-    ZenohRobot,
-    _fail,
-    chunk_points,
-    frame_of,
-)
+from controller.cli.gcode import _fail
+from controller.client.errors import DaemonAbsent, Refused
+from controller.client.gcode import frame_of
+from controller.client.job import JobLink, RobotJobLink, Streamer, chunk_points
 from controller.core.commands import C_DECODE_MAX_BYTES, MAX_PATH_POINTS_SENT
 from controller.core.gcode import GcodeError
-from controller.core.gcode_job import Chunk, Interpreter, Motion, Step, chunks
+from controller.core.gcode_job import Chunk, Interpreter, Motion, Step, Vec3, chunks
 from controller.core.gcode_protocol import BUSY, BUSY_INTERVAL_S, LineProtocol
 
 CHUNK_POINTS = chunk_points(MAX_PATH_POINTS_SENT, C_DECODE_MAX_BYTES)
@@ -54,7 +53,7 @@ class SerialJob:
     """The state of one serial session: protocol, interpreter, the motions not yet sent, and
     whether a refusal halted the job."""
 
-    def __init__(self, robot: ZenohRobot, cfg: Any, write: Any) -> None:
+    def __init__(self, robot: JobLink, cfg: Any, write: Any) -> None:
         self.robot = robot
         self.cfg = cfg
         self.write = write
@@ -68,10 +67,23 @@ class SerialJob:
         self.halted: str | None = None
         self.interp = self._new_interpreter()
 
-    def _new_interpreter(self) -> Interpreter:
+    def _rest_point(self) -> Vec3:
+        """Where the robot rests (its set-point, else its pose): where motion lines start."""
         st = self.robot.status()
-        start = st.get("setpoint_m") or st.get("pose", {}).get("position_m") or [0.0, 0.0, 0.0]
-        return Interpreter(frame_of(self.cfg), start)
+        p = st.get("setpoint_m") or st.get("pose", {}).get("position_m") or [0.0, 0.0, 0.0]
+        return (float(p[0]), float(p[1]), float(p[2]))
+
+    def _new_interpreter(self) -> Interpreter:
+        return Interpreter(frame_of(self.cfg), self._rest_point())
+
+    def _restart(self) -> None:
+        """`M999`: take motion lines again, from where the robot rests. The job's modal state
+        (units, absolute or relative, feed rate and `M220`, `G92`, lowered limits) is kept, as
+        a firmware keeps it: a host resumes with the lines after the refused one, whose moves
+        carry no new `F`."""
+        self.halted = None
+        self.streamer.fresh = True
+        self.interp.pos_m = self._rest_point()
 
     def _busy(self) -> None:
         now = time.monotonic()
@@ -83,8 +95,6 @@ class SerialJob:
             self.write(BUSY)
 
     def _halt(self, why: str) -> None:
-        from controller.cli.client import DaemonAbsent, Refused
-
         self.halted = why
         self.pending = []
         self.pending_points = 0
@@ -101,8 +111,6 @@ class SerialJob:
             self._send(step)
 
     def _send(self, step: Step) -> str | None:
-        from controller.cli.client import Refused
-
         try:
             return self.streamer.send(step)
         except Refused as exc:
@@ -116,9 +124,7 @@ class SerialJob:
             self.write(reply)
         if r.line is not None:
             if any(c.code == "M999" for c in r.line.commands):
-                self.halted = None
-                self.streamer.fresh = True
-                self.interp = self._new_interpreter()
+                self._restart()
             elif self.halted is not None:
                 self.write(f"Error:job halted ({self.halted}); send M999 to start again")
             else:
@@ -201,15 +207,16 @@ def cmd_serial(args: argparse.Namespace) -> int:
         os.write(master, (text + "\n").encode("ascii", errors="replace"))
 
     def body(session: Any) -> int:
+        robot = client.robot_of(args, session)
         # The daemon's robot interprets the host's G-code (a --config must agree with it).
-        cfg = daemon_robot(session, args.prefix, args.timeout, args.config).config
-        job = SerialJob(ZenohRobot(session, args), cfg, write)
+        cfg = daemon_robot(robot, args.config).config
+        job = SerialJob(RobotJobLink(robot), cfg, write)
         print(f"gcode: serial port {link or name}" + (f" -> {name}" if link else ""), flush=True)
         try:
             with client.signals_interrupt():  # SIGTERM, SIGHUP: stop the job as Ctrl-C does
                 serve(master, job, write)
         except KeyboardInterrupt:
-            return client._interrupted(session, args)
+            return client._interrupted(robot, args)
         return exitcodes.OK
 
     try:

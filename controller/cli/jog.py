@@ -20,12 +20,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import math
 import os
 import select
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -228,29 +226,6 @@ def _raw(fd: int) -> Iterator[None]:
         termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
 
-class _Pose:
-    """The latest pose sample (written by Zenoh's thread)."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self.sample: dict[str, Any] | None = None
-        self.rx_s: float | None = None
-
-    def on_pose(self, data: bytes) -> None:
-        try:
-            pose = json.loads(data)
-        except ValueError:
-            return
-        if isinstance(pose, dict):
-            with self._lock:
-                self.sample = pose
-                self.rx_s = time.monotonic()
-
-    def get(self) -> tuple[dict[str, Any] | None, float | None]:
-        with self._lock:
-            return self.sample, self.rx_s
-
-
 def cmd_jog(args: argparse.Namespace) -> int:
     """`cablebot jog`: fly the robot from the keyboard until `q`."""
     from controller.cli.session import run_with_session
@@ -272,39 +247,25 @@ def cmd_jog(args: argparse.Namespace) -> int:
     if fd is None:
         print("cablebot: jog reads keys from a terminal: run it in one", file=sys.stderr)
         return exitcodes.USAGE
-    prefix = args.prefix.rstrip("/")
 
     def body(session: Any) -> int:
-        import zenoh
+        from controller.cli.client import robot_of
 
-        from controller.cli.session import query
-
-        status = query(session, f"{prefix}/status", None, args.timeout)  # the daemon is there
-        limits = ((status or {}).get("config") or {}).get("limits") or {}
-        vmax = limits.get("max_speed_mps")
+        robot = robot_of(args, session)
+        status = robot.status()  # the daemon is there
         jog = Jog(
             speed_mps=float(args.speed),
-            max_speed_mps=float(vmax) if isinstance(vmax, int | float) else None,
+            max_speed_mps=status.max_speed_mps,
             release_s=float(args.release),
             first_hold_s=float(args.first_hold),
         )
         if jog.max_speed_mps is not None:
             jog.speed_mps = min(jog.speed_mps, jog.max_speed_mps)
-        pose = _Pose()
-        sub = session.declare_subscriber(
-            f"{prefix}/pose", lambda s: pose.on_pose(s.payload.to_bytes())
-        )
-        pub = session.declare_publisher(
-            f"{prefix}/velocity",
-            encoding=zenoh.Encoding.APPLICATION_JSON,
-            congestion_control=zenoh.CongestionControl.DROP,
-            priority=zenoh.Priority.INTERACTIVE_HIGH,
-            express=True,
-        )
+        robot.latest_pose()  # subscribe now: the line shows the pose from the first draw
         zero: Vec3 = (0.0, 0.0, 0.0)
 
         def send(v: Vec3) -> None:
-            pub.put(json.dumps({"velocity_mps": list(v)}).encode())
+            robot.velocity(v)
 
         out = sys.stdout
         out.write(KEYS_HELP + "\r\n")
@@ -347,8 +308,9 @@ def cmd_jog(args: argparse.Namespace) -> int:
                         send(zero)  # released: brake to a hold
                         sent = zero
                     if now >= next_draw_s:
-                        sample, rx = pose.get()
-                        age = None if rx is None else now - rx
+                        pose = robot.latest_pose()
+                        sample = None if pose is None else pose.as_dict()
+                        age = None if pose is None else now - pose.received_s
                         width = _width()
                         out.write("\r" + status_line(sample, age, jog, sent, width) + "\x1b[K")
                         out.flush()
@@ -358,8 +320,7 @@ def cmd_jog(args: argparse.Namespace) -> int:
                 send(zero)
             out.write("\r\n")
             out.flush()
-            sub.undeclare()
-            pub.undeclare()
+            robot.close()
 
     return run_with_session(args, body)
 

@@ -7,17 +7,16 @@ carries `tensions_n`), loop and bus figures, samples missed from the pose stream
 recent state changes (`<prefix>/state`). Keys: `s` stop (brake to a hold), `e` or space
 e-stop, `q` quit. Needs the `rich` library (`pip install 'cablebot[monitor]'`).
 
-Threads: Zenoh's callbacks store the latest pose and state changes; a poller queries
-`<prefix>/status` four times a second (the pose and the set-point shown come from it, one
-instant); keys send commands from short-lived threads so the screen
-never waits on a reply. The main thread reads keys and redraws.
+Built on the client library (`controller.client.Robot`). Threads: Zenoh's callbacks store the
+latest pose and state changes; a poller queries `<prefix>/status` four times a second (the
+pose and the set-point shown come from it, one instant); keys send commands from short-lived
+threads so the screen never waits on a reply. The main thread reads keys and redraws.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 import select
 import sys
@@ -26,9 +25,14 @@ import time
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from controller.cli import exitcodes
+from controller.cli.zenoh_threads import start_zenoh_thread
+from controller.client.model import Pose, StateChange
+
+if TYPE_CHECKING:
+    from controller.client.robot import Robot
 
 STATUS_PERIOD_S = 0.25
 POSE_STALE_S = 1.0
@@ -66,7 +70,7 @@ class MonitorData:
         from controller.cli.formats import SeqGaps
 
         self._lock = threading.Lock()
-        self._pose: dict[str, Any] | None = None
+        self._pose: Pose | None = None
         self._pose_rx_s: float | None = None
         self._gaps = SeqGaps()
         self._status: dict[str, Any] | None = None
@@ -75,28 +79,16 @@ class MonitorData:
         self._states: deque[tuple[int, str, str | None]] = deque(maxlen=RECENT_STATES)
         self._message: tuple[str, str] | None = None
 
-    def on_pose(self, data: bytes) -> None:
-        """A pose sample arrived."""
-        try:
-            pose = json.loads(data)
-        except ValueError:
-            return
-        if not isinstance(pose, dict):
-            return
+    def on_pose(self, pose: Pose) -> None:
+        """A pose sample arrived (Zenoh's thread: kept as it is, decoded for a redraw)."""
         with self._lock:
-            self._gaps.update(pose.get("seq"))
+            self._gaps.update(pose.seq)
             self._pose = pose
-            self._pose_rx_s = time.monotonic()
+            self._pose_rx_s = pose.received_s
 
-    def on_state(self, data: bytes) -> None:
+    def on_state(self, change: StateChange) -> None:
         """A state change arrived."""
-        try:
-            st = json.loads(data)
-        except ValueError:
-            return
-        if not isinstance(st, dict):
-            return
-        entry = (int(st.get("stamp_ns") or time.time_ns()), str(st.get("state")), st.get("reason"))
+        entry = (change.stamp_ns or time.time_ns(), change.state, change.reason)
         with self._lock:
             self._states.append(entry)
 
@@ -120,7 +112,7 @@ class MonitorData:
         """A consistent copy for one redraw."""
         with self._lock:
             return Snapshot(
-                pose=self._pose,
+                pose=None if self._pose is None else self._pose.as_dict(),
                 pose_rx_s=self._pose_rx_s,
                 received=self._gaps.received,
                 missed=self._gaps.missed,
@@ -319,13 +311,13 @@ def _keys(fd: int | None) -> Iterator[None]:
         termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
 
-def _send(session: Any, prefix: str, verb: str, data: MonitorData, timeout_s: float) -> None:
+def _send(robot: Robot, verb: str, data: MonitorData) -> None:
     """Send `verb` and show the outcome (runs in its own thread)."""
     from controller.cli.formats import format_reply
-    from controller.cli.session import DaemonAbsent, Refused, query
+    from controller.cli.session import DaemonAbsent, Refused
 
     try:
-        reply = query(session, f"{prefix}/cmd/{verb}", None, timeout_s)
+        reply = robot.command(verb)
     except Refused as exc:
         data.set_message(f"{verb}: refused: {exc}", "bold red")
     except DaemonAbsent as exc:
@@ -334,17 +326,15 @@ def _send(session: Any, prefix: str, verb: str, data: MonitorData, timeout_s: fl
         data.set_message(f"{verb}: failed: {exc}", "bold red")
     else:
         style = "bold red" if verb == "estop" else "bold yellow"
-        data.set_message(format_reply(verb, reply), style)
+        data.set_message(format_reply(verb, dict(reply.raw)), style)
 
 
-def _poll_status(
-    session: Any, prefix: str, data: MonitorData, stop: threading.Event, timeout_s: float
-) -> None:
-    from controller.cli.session import DaemonAbsent, Refused, query
+def _poll_status(robot: Robot, data: MonitorData, stop: threading.Event) -> None:
+    from controller.cli.session import DaemonAbsent, Refused
 
     while not stop.is_set():
         try:
-            data.on_status(query(session, f"{prefix}/status", None, timeout_s), None)
+            data.on_status(dict(robot.status().raw), None)
         except (DaemonAbsent, Refused) as exc:
             data.on_status(None, f"no status: {exc}")
         except Exception as exc:  # the session closing at exit
@@ -373,23 +363,13 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     prefix = args.prefix.rstrip("/")
 
     def body(session: Any) -> int:
+        from controller.cli.client import robot_of
+
         data = MonitorData()
-        subs = [
-            session.declare_subscriber(
-                f"{prefix}/pose", lambda s: data.on_pose(s.payload.to_bytes())
-            ),
-            session.declare_subscriber(
-                f"{prefix}/state", lambda s: data.on_state(s.payload.to_bytes())
-            ),
-        ]
+        robot = robot_of(args, session)
+        subs: list[Any] = [robot.on_pose(data.on_pose), robot.on_state(data.on_state)]
         stop = threading.Event()
-        poller = threading.Thread(
-            target=_poll_status,
-            args=(session, prefix, data, stop, args.timeout),
-            name="cablebot-monitor-status",
-            daemon=True,
-        )
-        poller.start()
+        poller = start_zenoh_thread(_poll_status, robot, data, stop, name="cablebot-monitor-status")
         fd: int | None = None
         with contextlib.suppress(AttributeError, ValueError, OSError):
             if sys.stdin.isatty():
@@ -415,16 +395,13 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                     )
                     if verb is not None:
                         data.set_message(f"{verb}: sent …", "bold yellow")
-                        threading.Thread(
-                            target=_send,
-                            args=(session, prefix, verb, data, args.timeout),
-                            name=f"cablebot-monitor-{verb}",
-                            daemon=True,
-                        ).start()
+                        start_zenoh_thread(
+                            _send, robot, verb, data, name=f"cablebot-monitor-{verb}"
+                        )
         finally:
             stop.set()
             for sub in subs:
-                sub.undeclare()
+                sub.close()
             poller.join(args.timeout + 1.0)
 
     return run_with_session(args, body)

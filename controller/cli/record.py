@@ -45,6 +45,8 @@ from pathlib import Path
 from types import FrameType
 from typing import IO, Any
 
+from controller.cli.zenoh_threads import start_zenoh_thread
+
 CHUNK_SIZE = 256 * 1024
 """Close an MCAP chunk when it holds this many (uncompressed) bytes."""
 DEFAULT_FLUSH_S = 1.0
@@ -546,8 +548,7 @@ def _record(
         session.declare_subscriber(f"{prefix}/**", on_sample),
         session.liveliness().declare_subscriber(f"{prefix}/alive", on_alive, history=True),
     ]
-    poller = threading.Thread(target=poll_status, name="cablebot-record-status", daemon=True)
-    poller.start()
+    poller = start_zenoh_thread(poll_status, name="cablebot-record-status")
     print(f"recording {prefix}/** via {args.connect} into {args.file}", flush=True)
     deadline = math.inf if args.duration is None else time.monotonic() + args.duration
     try:

@@ -22,6 +22,13 @@ from the anchor::
 
     r_ik = reel_i.length_m(rev_ik - offset_i) - |P_k - A_i|
 
+Elastic cables (`[[reels]] cable_ea_n`) are longer than their reels paid out: by the factor
+``s_ik = (EA_i + t_ik) / EA_i`` under the tension ``t_ik`` the controller planned at the pose
+(`controller.core.stretch`); with `stretch` given the reel length is multiplied by it,
+``r_ik = s_ik * reel_i.length_m(rev_ik - offset_i) - |P_k - A_i|``, so the stretch is not
+mistaken for anchors moved (millimetres of it on a Hangprinter's lines would move the anchors
+by a centimetre).
+
 Unknowns: the anchors A (3N), the offsets (N) and the poses P (3K). `calibrate` minimises
 sum r_ik^2 with `scipy.optimize.least_squares` (Levenberg-Marquardt, analytic Jacobian).
 Metres per turn, gear ratio, direction and build-up come from the configuration: scaling the
@@ -76,7 +83,7 @@ redundancy), poses within a few per cent of one plane, or the same pose repeated
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -392,13 +399,17 @@ def _check_samples(samples: Samples, n: int, pose_height_m: float | None = None)
 class _Problem:
     """Residuals, Jacobian and information matrix for fixed samples and reel models."""
 
-    def __init__(self, reels0: Sequence[ReelModel], rev: FloatArray) -> None:
+    def __init__(
+        self, reels0: Sequence[ReelModel], rev: FloatArray, stretch: FloatArray | None = None
+    ) -> None:
         self.reels0 = list(reels0)
         self.rev = rev
         self.k, self.n = rev.shape
+        self.stretch = np.ones((self.k, self.n)) if stretch is None else stretch
 
     def lengths(self, offsets: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Cable lengths (K, N) and their slopes d length / d motor turn."""
+        """Cable lengths (K, N), stretched by the planned tensions, and their slopes
+        d length / d motor turn."""
         length = np.empty((self.k, self.n))
         slope = np.empty((self.k, self.n))
         for i, reel in enumerate(self.reels0):
@@ -407,7 +418,7 @@ class _Problem:
                 x = float(self.rev[kk, i]) - o
                 length[kk, i] = reel.length_m(x)
                 slope[kk, i] = reel.length_rate_mps(x, 1.0)
-        return length, slope
+        return length * self.stretch, slope * self.stretch
 
     @staticmethod
     def units(anchors: FloatArray, poses: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -659,6 +670,7 @@ def _offsets(
     n = a_cfg.shape[0]
     k = samples.n_poses
     dist0, _ = problem.units(a_cfg, p0)
+    dist0 = dist0 / problem.stretch  # what the reels paid out for those lengths
     o0 = np.empty(n)
     for i, reel in enumerate(reels0):
         try:
@@ -773,6 +785,12 @@ def _gates(
     )
 
 
+StretchFactors = Callable[[FloatArray, FloatArray], FloatArray]
+"""(anchors (N, 3), poses (K, 3)) -> (K, N): how much longer than paid out each elastic cable
+is at each pose, ``(EA + t) / EA`` under the tension planned there with those anchors (1 for a
+rigid cable); raises CalibrationError where there are no tensions."""
+
+
 def calibrate(
     anchors_m: Any,
     reels: Sequence[ReelModel],
@@ -781,6 +799,7 @@ def calibrate(
     *,
     pose_height_m: float | None = None,
     hanging: bool = True,
+    stretch: StretchFactors | None = None,
 ) -> Calibration:
     """Estimate the anchors and reel offsets that best explain `samples`.
 
@@ -790,14 +809,53 @@ def calibrate(
     the solve keeps every pose below them (a pose in the anchors' plane is a second solution
     no hanging robot can be in); False: the effector works among its anchors (a Hangprinter),
     the poses are free and the last gate asks that they stay inside the anchors' hull.
+    `stretch` (elastic cables; None: rigid): the stretch factors at given anchors and poses.
+    The tensions depend on the anchors, which the configuration has centimetres off: the fit
+    is made with the factors at the configured anchors and the believed poses, then again
+    with those at the anchors and poses it found (a third fit changes the anchors by
+    hundredths of a millimetre on a Hangprinter with 3-10 cm anchor errors).
 
     `anchors_m` (N, 3) and `reels` are the configuration's, in cable order (the reels' own
     offsets are ignored). See the module docstring for the model, the frame convention, the
     held directions and the gates; the result carries the gates, it does not raise on them.
     Raises CalibrationError for degenerate samples (fewer than four cables, too few or
-    repeated poses, coplanar poses) or a reel that cannot reach the believed lengths, and
+    repeated poses, coplanar poses), stretch factors that are not (K, N) finite numbers
+    >= 1 (and what `stretch` raises), or a reel that cannot reach the believed lengths, and
     CalibrationUnavailable when scipy is missing.
     """
+    a_cfg = np.asarray(anchors_m, dtype=np.float64)
+    if stretch is None:
+        return _calibrate(a_cfg, reels, samples, settings, pose_height_m, hanging, None)
+    first = _calibrate(
+        a_cfg,
+        reels,
+        samples,
+        settings,
+        pose_height_m,
+        hanging,
+        stretch(a_cfg, samples.believed_m),
+    )
+    return _calibrate(
+        a_cfg,
+        reels,
+        samples,
+        settings,
+        pose_height_m,
+        hanging,
+        stretch(first.anchors_m, first.poses_m),
+    )
+
+
+def _calibrate(
+    anchors_m: Any,
+    reels: Sequence[ReelModel],
+    samples: Samples,
+    settings: Settings | None,
+    pose_height_m: float | None,
+    hanging: bool,
+    stretch_factors: Any,
+) -> Calibration:
+    """`calibrate` with fixed stretch factors (K, N) (None: rigid cables)."""
     st = settings if settings is not None else Settings()
     a_cfg = np.asarray(anchors_m, dtype=np.float64)
     n = a_cfg.shape[0]
@@ -806,7 +864,14 @@ def calibrate(
     warnings = _check_samples(samples, n, pose_height_m)
     k = samples.n_poses
     reels0 = [replace(r, offset_rev=0.0) for r in reels]
-    problem = _Problem(reels0, samples.motor_rev)
+    stretch = None
+    if stretch_factors is not None:
+        stretch = np.asarray(stretch_factors, dtype=np.float64)
+        if stretch.shape != (k, n) or not bool(np.all(np.isfinite(stretch) & (stretch >= 1.0))):
+            raise CalibrationError(
+                f"stretch factors must be ({k}, {n}) finite numbers >= 1, got shape {stretch.shape}"
+            )
+    problem = _Problem(reels0, samples.motor_rev, stretch)
 
     p0, z_max, o0 = _starting_point(a_cfg, reels0, samples, problem, hanging)
 

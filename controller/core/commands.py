@@ -35,6 +35,8 @@ from types import MappingProxyType
 from typing import Any, Final
 
 from controller.core.motion import check_speed
+from controller.core.motion.shaper import SHAPER_TYPES, check_shaper
+from controller.core.suggest import closest
 
 Vec3 = tuple[float, float, float]
 
@@ -122,8 +124,30 @@ class Velocity:
     velocity_mps: Vec3
 
 
+@dataclass(frozen=True, slots=True)
+class Shaper:
+    """Input shaping from now on (at the next rest when moving): the train `type` ("off" for
+    none; `controller.core.motion.shaper.SHAPER_TYPES`), the mode's `frequency_hz` (None: the
+    model's modes at the set-point) and the modes' `damping_ratio` (None: keep the current)."""
+
+    type: str
+    frequency_hz: float | None = None
+    damping_ratio: float | None = None
+
+
 Command = (
-    Move | Path | Stop | Estop | Arm | Disarm | Reset | Home | Pretension | Setpoint | Velocity
+    Move
+    | Path
+    | Stop
+    | Estop
+    | Arm
+    | Disarm
+    | Reset
+    | Home
+    | Pretension
+    | Setpoint
+    | Velocity
+    | Shaper
 )
 
 VERBS: tuple[str, ...] = (
@@ -136,6 +160,7 @@ VERBS: tuple[str, ...] = (
     "reset",
     "home",
     "pretension",
+    "shaper",
 )
 
 MAX_PATH_POINTS: Final = 1_000
@@ -155,6 +180,7 @@ MAX_PAYLOAD_BYTES: Final[Mapping[str, int]] = MappingProxyType(
         "arm": 1024,
         "disarm": 1024,
         "reset": 1024,
+        "shaper": 1024,
     }
 )
 """The largest payload, in bytes, of each verb (and of a `setpoint` or `velocity` sample)."""
@@ -283,8 +309,9 @@ def _finite(value: Any, field: str) -> float:
     return out
 
 
-def _vec3(value: Any, field: str) -> Vec3:
-    """Return `value` as a 3-tuple of finite floats or raise CommandError naming `field`."""
+def parse_point(value: Any, field: str) -> Vec3:
+    """Return `value` (a JSON [x, y, z]) as a 3-tuple of finite floats, as every command reads
+    a point; raise CommandError naming `field` (e.g. "points_m[3]")."""
     if not isinstance(value, list | tuple) or len(value) != 3:
         raise CommandError(f"{field}: expected [x, y, z], got {quote(value)}")
     return (
@@ -351,6 +378,29 @@ def _reject_constant(name: str) -> Any:
     raise CommandError(f"non-finite number {name} is not allowed")
 
 
+def _shaper(obj: dict[str, Any]) -> Shaper:
+    """A `shaper` command from its decoded object, checked by the shaper's own rule (a type of
+    `SHAPER_TYPES`, with a did-you-mean; the frequency and damping ratio in range). Raises
+    CommandError."""
+    kind = obj["type"]
+    if not isinstance(kind, str):
+        raise CommandError(f"type: expected a string, got {quote(kind)}")
+    freq = None if obj.get("frequency_hz") is None else _finite(obj["frequency_hz"], "frequency_hz")
+    damping = (
+        None if obj.get("damping_ratio") is None else _finite(obj["damping_ratio"], "damping_ratio")
+    )
+    if kind not in SHAPER_TYPES:
+        near = closest(kind.lower(), SHAPER_TYPES)
+        hint = f" (did you mean {near!r}?)" if near else ""
+        raise CommandError(
+            f"type: unknown shaper type {quote(kind, 40)}{hint}; one of {', '.join(SHAPER_TYPES)}"
+        )
+    reason = check_shaper(kind, freq, 0.0 if damping is None else damping)
+    if reason is not None:
+        raise CommandError(reason)
+    return Shaper(kind, freq, damping)
+
+
 def parse_command(verb: str, payload: bytes | str | None) -> Command:
     """Parse the JSON `payload` of command `verb` into a Command.
 
@@ -370,7 +420,7 @@ def parse_command(verb: str, payload: bytes | str | None) -> Command:
     check_payload_size(verb, len(data))
     if verb == "move":
         obj = _object(data, {"position_m", "speed_mps"}, {"position_m"})
-        return Move(_vec3(obj["position_m"], "position_m"), _speed(obj))
+        return Move(parse_point(obj["position_m"], "position_m"), _speed(obj))
     if verb == "path":
         obj = _object(data, {"points_m", "speed_mps", "append"}, {"points_m"})
         pts = obj["points_m"]
@@ -380,20 +430,22 @@ def parse_command(verb: str, payload: bytes | str | None) -> Command:
             raise CommandError(
                 f"points_m: at most {MAX_PATH_POINTS} points, got {len(pts)}; {PATH_STREAM_HINT}"
             )
-        points = tuple(_vec3(p, f"points_m[{i}]") for i, p in enumerate(pts))
+        points = tuple(parse_point(p, f"points_m[{i}]") for i, p in enumerate(pts))
         return Path(points, _speed(obj), _flag(obj, "append"))
     if verb == "home":
         obj = _object(data, {"position_m"}, {"position_m"})
-        return Home(_vec3(obj["position_m"], "position_m"))
+        return Home(parse_point(obj["position_m"], "position_m"))
     if verb == "pretension":
         obj = _object(data, {"position_m"}, {"position_m"})
-        return Pretension(_vec3(obj["position_m"], "position_m"))
+        return Pretension(parse_point(obj["position_m"], "position_m"))
     if verb == "setpoint":
         obj = _object(data, {"position_m"}, {"position_m"})
-        return Setpoint(_vec3(obj["position_m"], "position_m"))
+        return Setpoint(parse_point(obj["position_m"], "position_m"))
     if verb == "velocity":
         obj = _object(data, {"velocity_mps"}, {"velocity_mps"})
-        return Velocity(_vec3(obj["velocity_mps"], "velocity_mps"))
+        return Velocity(parse_point(obj["velocity_mps"], "velocity_mps"))
+    if verb == "shaper":
+        return _shaper(_object(data, {"type", "frequency_hz", "damping_ratio"}, {"type"}))
     simple: dict[str, Command] = {
         "stop": Stop(),
         "estop": Estop(),

@@ -31,6 +31,12 @@ Supported, each as RepRapFirmware and Marlin document it (Klipper's where they d
   robot's: a printer's slow Z screw says nothing of its cables). They can lower the limits,
   never raise them past the configuration. `M205` (jerk) is accepted: the planner's corner
   rule is junction deviation, not jerk.
+* `M593` (input shaping, RepRapFirmware's syntax): come to rest, then shape every move after it
+  with P"type" (RepRapFirmware's `none`, `zvd`, `mzv`, `ei2`, `ei3`, or cablebot's `off`, `zv`,
+  `ei`, `2hump_ei`, `3hump_ei`; not case sensitive; `zvdd`, `zvddd` and `custom` are refused),
+  at F Hz (absent: the model's modes at the set-point, as `[shaper]` without `frequency_hz`)
+  for modes of damping ratio S (absent: the robot's). Without P the default type. A type, a
+  frequency or a damping ratio the shaper refuses stops the job at its line before any move.
 * Extrusion (E words), tools (T), temperatures, fans, flow, firmware retraction and
   linear advance are accepted and counted as not driven by cablebot (`Job.not_driven`);
   host messages and reports (`M73`, `M105`, `M110`, `M115`, `M117`, `M118`, ...) are accepted
@@ -46,10 +52,14 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Final
 
 from controller.core.gcode import Command, GcodeError, Line
 from controller.core.motion import MotionPlanner, QueueError, check_speed, dedupe_path
+from controller.core.motion.shaper import DEFAULT_SHAPER_TYPE, SHAPER_TYPES, check_shaper
 from controller.core.statics import TensionCheck
+from controller.core.suggest import closest
 from controller.core.workspace import Workspace, points_array
 
 Vec3 = tuple[float, float, float]
@@ -173,7 +183,19 @@ class Limits:
     max_accel_mps2: float
 
 
-Action = Motion | Dwell | Sync | Disarm | Estop | Limits
+@dataclass(frozen=True, slots=True)
+class Shaping:
+    """Come to rest, then shape every move after this one with the train `type` ("off" for
+    none), at `frequency_hz` (None: the model's modes at the set-point) for modes of
+    `damping_ratio` (None: keep the robot's) (M593)."""
+
+    line_no: int
+    type: str
+    frequency_hz: float | None
+    damping_ratio: float | None
+
+
+Action = Motion | Dwell | Sync | Disarm | Estop | Limits | Shaping
 
 
 @dataclass(slots=True)
@@ -182,8 +204,9 @@ class Job:
 
     `lines`: lines read; `moves`: G0 to G3 lines with an X, Y or Z word; `start_m`: the
     robot-frame start point; `path_m`: the length of every motion; `bbox_m`: ((min x, y, z),
-    (max x, y, z)) of the start and every motion's points; `not_driven` and `unsupported`:
-    code -> number of lines (extrusion words count under "E")."""
+    (max x, y, z)) of every motion's points, where the job goes (the start, where the robot
+    happens to be, only for a job without motion); `not_driven` and `unsupported`: code ->
+    number of lines (extrusion words count under "E")."""
 
     start_m: Vec3
     actions: list[Action] = field(default_factory=list)
@@ -196,6 +219,10 @@ class Job:
     accel_mps2: float = math.inf
     """The lowest acceleration limit in effect at any point of the job (the frame's, or lower
     by `M201`/`M204`)."""
+    speed_limit: tuple[int, float] | None = None
+    """(line, m/s) of the `M203` that lowered the speed limit the most, if one did."""
+    fastest_feed_mps: float = 0.0
+    """The fastest feed the job's F words ask for (with `M220`), before any limit."""
 
 
 # -------------------------------------------------------------------------- the interpreter
@@ -224,8 +251,9 @@ class Interpreter:
         self.motion_code = ""
         self.max_speed_mps = frame.max_speed_mps
         self.max_accel_mps2 = frame.max_accel_mps2
-        self._lo = list(start)
-        self._hi = list(start)
+        self._lo: list[float] = []
+        self._hi: list[float] = []
+        """The box of the motions so far (empty before the first)."""
 
     # ---------------------------------------------------------------- coordinates
     def gcode_position(self) -> Vec3:
@@ -265,6 +293,8 @@ class Interpreter:
         why = check_speed(v)
         if why is not None:
             raise JobError(line_no, f"feed F{self.feed_per_min:g} ({v:.4g} m/s): {why}")
+        if v > self.job.fastest_feed_mps:
+            self.job.fastest_feed_mps = v
         return min(v, self.max_speed_mps)
 
     def _note(self, table: dict[str, int], code: str) -> None:
@@ -282,6 +312,9 @@ class Interpreter:
         job = self.job
         prev = self.pos_m
         lo, hi = self._lo, self._hi
+        if not lo:
+            lo.extend(points[0])
+            hi.extend(points[0])
         total = 0.0
         for q in points:
             total += math.dist(prev, q)
@@ -367,6 +400,8 @@ class Interpreter:
             return Estop(n)
         elif code in ("M201", "M203", "M204", "M220"):
             return self._limits(cmd, n)
+        elif code == "M593":
+            return _shaping(cmd, n)
         elif code in NOT_DRIVEN:
             self._note(self.job.not_driven, code)
         elif code in NOTHING_TO_DO:
@@ -502,10 +537,65 @@ class Interpreter:
             return None
         if code == "M203":
             self.max_speed_mps = min(self.frame.max_speed_mps, min(vals))
+            low = self.job.speed_limit
+            if min(vals) < self.frame.max_speed_mps and (low is None or min(vals) < low[1]):
+                self.job.speed_limit = (n, min(vals))
         else:
             self.max_accel_mps2 = min(self.frame.max_accel_mps2, min(vals))
             self.job.accel_mps2 = min(self.job.accel_mps2, self.max_accel_mps2)
         return Limits(n, self.max_speed_mps, self.max_accel_mps2)
+
+
+M593_TYPES: Final = MappingProxyType(
+    {
+        "none": "off",
+        "zvd": "zvd",
+        "mzv": "mzv",
+        "ei2": "2hump_ei",
+        "ei3": "3hump_ei",
+        **{kind: kind for kind in SHAPER_TYPES},
+    }
+)
+"""M593's P types (RepRapFirmware's names, not case sensitive, and cablebot's own) and the
+shaper each means."""
+
+
+def _shaping(cmd: Command, n: int) -> Shaping | None:
+    """M593 (RepRapFirmware's syntax): P"type", F (Hz; absent: the model's modes), S (damping
+    ratio; absent: keep). No word at all reports in RepRapFirmware: nothing to do here. Raises
+    JobError for an unknown or unsupported type and a frequency or damping ratio out of
+    range, naming the line."""
+    if not cmd.params:
+        return None
+    if "H" in cmd.params or "T" in cmd.params:
+        raise JobError(n, 'M593 H/T (P"custom" impulses): not supported; name a type')
+    raw = cmd.params.get("P")
+    if raw is None and cmd.has("P"):
+        raise JobError(n, 'M593 P: give a type, e.g. P"ei2"')
+    if raw is not None and not isinstance(raw, str):
+        raise JobError(n, f'M593 P: a quoted type, e.g. P"ei2", got {raw!r}')
+    freq = cmd.number_param("F", n)
+    damping = cmd.number_param("S", n)
+    if raw is None:
+        if freq is None and damping is None:
+            return None
+        kind = DEFAULT_SHAPER_TYPE
+    else:
+        kind_name = raw.strip().lower()
+        found = M593_TYPES.get(kind_name)
+        if found is None:
+            near = closest(kind_name, M593_TYPES)
+            hint = f" (did you mean {near!r}?)" if near else ""
+            raise JobError(
+                n,
+                f'M593 P"{raw}": unknown or unsupported shaper type{hint}; one of '
+                + ", ".join(sorted(M593_TYPES)),
+            )
+        kind = found
+    reason = check_shaper(kind, freq, 0.0 if damping is None else damping)
+    if reason is not None:
+        raise JobError(n, f"M593: {reason}")
+    return Shaping(n, kind, freq, damping)
 
 
 def interpret(lines: Iterable[Line], frame: GcodeFrame, start_m: Sequence[float]) -> Job:
@@ -606,7 +696,7 @@ class Chunk:
     moves: int
 
 
-Step = Chunk | Dwell | Sync | Disarm | Estop
+Step = Chunk | Dwell | Sync | Disarm | Estop | Shaping
 
 
 def chunks(actions: Iterable[Action], max_points: int) -> Iterator[Step]:

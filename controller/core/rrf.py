@@ -15,6 +15,9 @@ parser (`controller.core.gcode`) and applied in order, as RepRapFirmware runs th
   anchor order); `M569` their directions; `M201`/`M203` the X, Y, Z accelerations and speeds;
   `M550` the machine's name.
 
+Numbers are read as RepRapFirmware reads them: the float parameters of these commands may
+carry an exponent (`M666 S2e4` is 20000, `written_out`), which G-code jobs never do.
+
 Everything else is kept as `Unmapped` with the reason. A value the configuration does not set
 is RepRapFirmware's default (`RRF_DEFAULTS`) and says so (`Where.default`).
 
@@ -29,9 +32,10 @@ import math
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from decimal import Decimal
 from typing import Final, Generic, TypeVar
 
-from controller.core.gcode import Command, GcodeError, ParamValue, parse_line
+from controller.core.gcode import ChecksumError, Command, GcodeError, ParamValue, parse_line
 
 T = TypeVar("T")
 Vec3 = tuple[float, float, float]
@@ -317,6 +321,50 @@ def _reason(cmd: Command) -> str:
     return _REASONS.get(cmd.code, _OTHER_REASON)
 
 
+_FLOAT_LINE_RE: Final = re.compile(r"\s*(?:[Nn]-?\d+\s*)?[Mm]0*(?:666|669|208|201|203)(?![\d.])")
+"""A line of a command whose numbers RepRapFirmware reads as floats, exponents included."""
+_EXPONENT_RE: Final = re.compile(r"(?<=[A-Za-z:])([+-]?(?:\d+\.?\d*|\.\d+))[eE]([+-]?\d+)")
+_MAX_EXPONENT: Final = 30
+_CHECKSUM_RE: Final = re.compile(r"\*\s*\d+\s*$")
+
+
+def written_out(text: str) -> str:
+    """`text` with every number that has an exponent (``S2e4``) written out in full
+    (``S20000``), as RepRapFirmware reads the float parameters of M666, M669, M208, M201 and
+    M203 (`_FLOAT_LINE_RE`); the G-code
+    line parser reads no exponents and would take ``S2e4`` for ``S2`` and ``E4``. Quoted
+    strings and comments are left alone, and so is an exponent beyond ±30 (no length or
+    force of a robot: the parser's own reading of it is then refused by range). A line's
+    checksum, checked on the line as written, is dropped from a line written out. Raises
+    nothing."""
+    code, sep, comment = text.partition(";")
+    parts = code.split('"')
+
+    def full(m: re.Match[str]) -> str:
+        exponent = int(m.group(2))
+        if abs(exponent) > _MAX_EXPONENT:
+            return m.group(0)
+        return format(Decimal(m.group(1)) * Decimal(10) ** exponent, "f")
+
+    parts[::2] = [_EXPONENT_RE.sub(full, p) for p in parts[::2]]  # outside quotes
+    new = '"'.join(parts)
+    if new == code:
+        return text
+    # A checksum was checked on the line as written; the written-out line has none.
+    return _CHECKSUM_RE.sub("", new) + sep + comment
+
+
+def _check_checksum(text: str, line_no: int) -> None:
+    """Raise ChecksumError when the line as written has a checksum that does not match it
+    (whatever else it holds that the G-code parser cannot read)."""
+    try:
+        parse_line(text, line_no)
+    except ChecksumError:
+        raise
+    except GcodeError:
+        pass
+
+
 # ------------------------------------------------------------------------------ the reader
 class _Reader:
     """Applies lines in order; collects problems and unmapped items."""
@@ -425,7 +473,10 @@ class _Reader:
         self._where = Where(source, line_no)
         self._text = text
         try:
-            parsed = parse_line(text, line_no)
+            read = written_out(text) if _FLOAT_LINE_RE.match(text) else text
+            if read != text:
+                _check_checksum(text, line_no)  # of the line as written
+            parsed = parse_line(read, line_no)
         except GcodeError as exc:
             self.problem(f"cannot read the line: {exc.reason}")
             return

@@ -80,6 +80,7 @@ COMMAND_VERBS: tuple[str, ...] = (
     "setpoint",
     "velocity",
     "stop",
+    "shaper",
 )
 """Every verb the controller takes: the `cmd/<verb>` commands plus streamed `setpoint`s and
 `velocity` samples (velocity input is allowed exactly where streamed set-points are)."""
@@ -107,6 +108,7 @@ COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
                 "setpoint": _NOT_ARMED,
                 "velocity": _NOT_ARMED,
                 "stop": "nothing to stop: the motors are disarmed",
+                "shaper": None,
             }
         ),
         _S.ARMING: MappingProxyType(
@@ -122,6 +124,7 @@ COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
                 "setpoint": _ARMING,
                 "velocity": _ARMING,
                 "stop": None,
+                "shaper": None,
             }
         ),
         _S.HOLDING: MappingProxyType(
@@ -137,6 +140,7 @@ COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
                 "setpoint": None,
                 "velocity": None,
                 "stop": None,
+                "shaper": None,
             }
         ),
         _S.MOVING: MappingProxyType(
@@ -152,6 +156,7 @@ COMMAND_RULES: Mapping[State, Mapping[str, str | None]] = MappingProxyType(
                 "setpoint": None,
                 "velocity": None,
                 "stop": None,
+                "shaper": None,
             }
         ),
         _S.PRETENSIONING: MappingProxyType(

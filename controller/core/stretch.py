@@ -11,10 +11,11 @@ L0`` gives
 
     L0_i = L_i * EA_i / (EA_i + t_i)        L_i = L0_i * (EA_i + t_i) / EA_i
 
-A cable without an EA is rigid (``L0 = L``).  Static stretch only: the tensions are those that
-hold the payload at rest (``controller.core.statics``, the distribution the controller plans,
-farthest from the tension limits) or, where the caller has them, measured ones; cable mass, sag
-and the dynamic loads of a move are not modelled (``docs/cable-stretch.md``).
+A cable without an EA is rigid (``L0 = L``).  Quasi-static stretch: the tensions are those the
+controller plans (``controller.core.statics``, the distribution farthest from the tension
+limits, plus the payload's m a while it accelerates: ``controller.core.inertia``) or, where the
+caller has them, measured ones; cable mass, sag and the effector's vibration are not modelled
+(``docs/cable-stretch.md``).
 
 * IPK (``CableStretch.ipk`` / ``paid_out_m``): the geometric lengths at the set-point, then the
   paid-out lengths under the planned tensions there.  With these commanded, the cables at rest

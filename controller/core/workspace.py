@@ -151,6 +151,19 @@ def layout_geometry(anchors_m: Sequence[Sequence[float]], limits: LimitsLike) ->
     return Geometry(anchors_m, hanging=hangs)
 
 
+def _why_hanging(geometry: Geometry) -> str:
+    """Why a robot whose floor is not below its lowest anchor hangs all the same (its anchors
+    cannot surround an effector: `effector_hangs`), as a parenthesis for the floor's message;
+    empty when that is not why."""
+    if not geometry.hanging:
+        return ""
+    try:
+        Geometry(geometry.anchors_m, hanging=False)
+    except KinematicsError as exc:
+        return f" (the effector cannot work among these anchors: {exc})"
+    return ""
+
+
 @dataclass(frozen=True, slots=True)
 class Violation:
     """One broken limit of a point or of its cable lengths.
@@ -353,7 +366,7 @@ class Workspace:
             raise WorkspaceError(
                 "floor_z_m",
                 f"{self.floor_z_m:g} m must be below the {which} anchor minus top_margin_m "
-                f"({self._anchor_top_z_m:g} m)",
+                f"({self._anchor_top_z_m:g} m){_why_hanging(geometry)}",
             )
         if self.ceiling_z_m is not None and not self.floor_z_m < self.ceiling_z_m:
             raise WorkspaceError(

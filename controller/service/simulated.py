@@ -15,6 +15,8 @@ import logging
 from collections.abc import Sequence
 from typing import Any
 
+from controller.service.keys import TRUTH
+
 log = logging.getLogger("cablebot.sim")
 
 
@@ -57,13 +59,31 @@ def sim_plant(cfg: Any, turns: Sequence[float]) -> Any:
     """
     if cfg.sim.plant != "physical":
         return None
-    from controller.core.plant import PlantParams, ReelPlant
+    from controller.core.plant import ReelPlant
     from controller.service.config import tension_check
 
     pose = tuple(float(v) for v in cfg.homing.power_up_position_m)
     tensions = tension_check(cfg.payload, cfg.tension, cfg.geometry).solve(pose).tensions_n
-    params = PlantParams(cfg.anchors_m, float(cfg.sim.cable_ea_n), float(cfg.payload.mass_kg))
+    params = sim_plant_params(cfg)
     return ReelPlant(params, [r.reel for r in cfg.reels], pose, turns, tensions)
+
+
+def sim_plant_params(cfg: Any) -> Any:
+    """The `controller.core.plant.PlantParams` of the config's physical plant: the anchors,
+    `[sim] cable_ea_n`, the payload's mass, `[sim] cable_damping_ratio` and
+    `effector_damping_n_s_per_m` (unset: the plant's light drag). Raises PlantError on
+    parameters the plant refuses, AttributeError without a payload."""
+    from controller.core.plant import PlantParams
+
+    s = cfg.sim
+    drag = s.effector_damping_n_s_per_m
+    return PlantParams(
+        cfg.anchors_m,
+        float(s.cable_ea_n),
+        float(cfg.payload.mass_kg),
+        cable_damping_ratio=float(s.cable_damping_ratio),
+        effector_damping_n_s_per_m=None if drag is None else float(drag),
+    )
 
 
 def sim_bank(cfg: Any, bus: Any) -> Any:
@@ -111,7 +131,7 @@ def schedule_sim_thread(cfg: Any, thread: Any) -> str:
     return set_realtime(max(1, int(cfg.loop.rt_priority) - 1), thread.native_id)
 
 
-TRUTH_KEY = "sim/truth"
+TRUTH_KEY = TRUTH
 """Key (under the robot's Zenoh prefix) of the simulator's ground truth: the physical plant's
 true effector position and cable tensions, JSON ``{"position_m": [x, y, z], "tensions_n":
 [...]}``.  The simulator's key, never the controller's input."""

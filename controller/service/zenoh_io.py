@@ -1,6 +1,7 @@
 """The Zenoh interface of the controller daemon.
 
-Key space, under a configurable prefix (default `cablebot/default`):
+Key space, under a configurable prefix (default `cablebot/default`; the names are
+`controller.service.keys`):
 
 - `<prefix>/pose`      publisher, one JSON sample per published tick (`PoseSample.to_json_bytes`)
 - `<prefix>/state`     publisher, `{"state", "reason", "stamp_ns"}` on every state change
@@ -75,6 +76,7 @@ from controller.core.commands import (
     clip,
     parse_command,
 )
+from controller.service import keys
 
 log = logging.getLogger(__name__)
 
@@ -421,33 +423,37 @@ class ZenohInterface:
         try:
             p = self.prefix
             self._pose_pub = session.declare_publisher(
-                f"{p}/pose",
+                f"{p}/{keys.POSE}",
                 encoding=JSON,
                 congestion_control=zenoh.CongestionControl.DROP,
                 priority=zenoh.Priority.DATA_HIGH,
             )
             self._state_pub = session.declare_publisher(
-                f"{p}/state",
+                f"{p}/{keys.STATE}",
                 encoding=JSON,
                 congestion_control=zenoh.CongestionControl.DROP,
                 priority=zenoh.Priority.INTERACTIVE_HIGH,
             )
             self._declared.append(
-                session.declare_queryable(f"{p}/status", self._on_status, complete=True)
+                session.declare_queryable(f"{p}/{keys.STATUS}", self._on_status, complete=True)
             )
             if self._robot_reply is not None:
                 self._declared.append(
-                    session.declare_queryable(f"{p}/robot", self._on_robot, complete=True)
+                    session.declare_queryable(f"{p}/{keys.ROBOT}", self._on_robot, complete=True)
                 )
             for verb in VERBS:
                 self._declared.append(
                     session.declare_queryable(
-                        f"{p}/cmd/{verb}", self._command_handler(verb), complete=True
+                        f"{p}/{keys.command(verb)}", self._command_handler(verb), complete=True
                     )
                 )
-            self._declared.append(session.declare_subscriber(f"{p}/setpoint", self._on_setpoint))
-            self._declared.append(session.declare_subscriber(f"{p}/velocity", self._on_velocity))
-            self._declared.append(session.liveliness().declare_token(f"{p}/alive"))
+            self._declared.append(
+                session.declare_subscriber(f"{p}/{keys.SETPOINT}", self._on_setpoint)
+            )
+            self._declared.append(
+                session.declare_subscriber(f"{p}/{keys.VELOCITY}", self._on_velocity)
+            )
+            self._declared.append(session.liveliness().declare_token(f"{p}/{keys.ALIVE}"))
             if self.publish_thread:
                 self._slot = _LatestSlot(self._put_pose_bytes, self._put_state_bytes)
         except Exception:
@@ -570,7 +576,7 @@ class ZenohInterface:
     # ---------------------------------------------------------------- queryables (Zenoh threads)
 
     def _on_status(self, query: zenoh.Query) -> None:
-        key = f"{self.prefix}/status"
+        key = f"{self.prefix}/{keys.STATUS}"
         try:
             status = dict(self.controller.status())
             status["zenoh"] = self.stats()
@@ -586,14 +592,14 @@ class ZenohInterface:
     def _on_robot(self, query: zenoh.Query) -> None:
         try:
             if self._robot_reply is not None:
-                query.reply(f"{self.prefix}/robot", self._robot_reply, encoding=JSON)
+                query.reply(f"{self.prefix}/{keys.ROBOT}", self._robot_reply, encoding=JSON)
         except Exception as exc:
             log.warning("robot query failed: %s", exc)
         finally:
             _finish(query)
 
     def _command_handler(self, verb: str) -> Callable[[zenoh.Query], None]:
-        key = f"{self.prefix}/cmd/{verb}"
+        key = f"{self.prefix}/{keys.command(verb)}"
 
         def handler(query: zenoh.Query) -> None:
             try:
@@ -677,7 +683,7 @@ class ZenohInterface:
 
     def _on_setpoint(self, sample: zenoh.Sample) -> None:
         try:
-            key = f"{self.prefix}/setpoint"
+            key = f"{self.prefix}/{keys.SETPOINT}"
             if str(sample.key_expr) != key:
                 # A put on `cablebot/**` must not drive every robot that hears it.
                 raise CommandError(f"set-points need the exact key {key}, not a wildcard")
@@ -695,7 +701,7 @@ class ZenohInterface:
 
     def _on_velocity(self, sample: zenoh.Sample) -> None:
         try:
-            key = f"{self.prefix}/velocity"
+            key = f"{self.prefix}/{keys.VELOCITY}"
             if str(sample.key_expr) != key:
                 # A put on `cablebot/**` must not fly every robot that hears it.
                 raise CommandError(f"velocity samples need the exact key {key}, not a wildcard")

@@ -39,8 +39,10 @@ TOP_KEYS = {
     "stretch_us",
     "ros2_publish_us",
     "compute_per_tick",
+    "shaping_per_tick",
     "layouts",
 }
+SHAPING_KEYS = {"p50_us_off", "p99_us_off", "p50_us_on", "p99_us_on", "added_p99_us", "on_over_off"}
 NEW_SECTION_KEYS = {
     "planning": {
         "plan_us_per_point",
@@ -124,12 +126,13 @@ def test_bench_quick_json(tmp_path: Path) -> None:
     rtf = data["sim_plant_rtf"]
     assert set(rtf) == {"position", "torque"} and all(_number(v) and v > 0.0 for v in rtf.values())
     _check_new_sections(data)
+    _check_shaping(data["shaping_per_tick"])
     assert list(data["layouts"]) == list(bench.LAYOUTS)
     for fig in data["layouts"].values():
         assert set(fig) == set(bench.LAYOUT_KEYS)
         assert all(_number(v) and v > 0.0 for v in fig.values()), fig
-    skip = {"loop", "estop_latency_flood_ms", "sim_plant_rtf", "layouts", *NEW_SECTION_KEYS}
-    for key in TOP_KEYS - skip:
+    skip = {"loop", "estop_latency_flood_ms", "sim_plant_rtf", "shaping_per_tick", "layouts"}
+    for key in TOP_KEYS - skip - set(NEW_SECTION_KEYS):
         assert _number(data[key]), (key, data[key])
         assert data[key] > 0.0, (key, data[key])
     assert data["fpk_simplified_us"] < 1e3 and data["fpk_general_us"] < 1e3
@@ -172,6 +175,23 @@ def _check_new_sections(data: dict[str, Any]) -> None:
     assert isinstance(ct["ticks"], int) and ct["ticks"] > 0
     assert ct["p50_us"] <= ct["p99_us"]
     assert ct["p99_frac"] == pytest.approx(ct["p99_us"] / 1e3)  # of the 1 ms period
+
+
+def _check_shaping(sh: dict[str, Any]) -> None:
+    """The shaping section: exactly its keys, finite, consistent (the added p99 is a
+    difference of two noisy figures: any sign)."""
+    assert set(sh) == SHAPING_KEYS
+    assert all(_number(v) for v in sh.values()), sh
+    assert 0.0 < sh["p50_us_off"] <= sh["p99_us_off"] and 0.0 < sh["p50_us_on"] <= sh["p99_us_on"]
+    assert sh["on_over_off"] > 0.0
+
+
+def test_bench_shaping_piece() -> None:
+    from controller.cli.bench.shaping import bench_shaping
+
+    figures = bench_shaping(200, pairs=1)
+    _check_shaping(figures)
+    assert figures["added_p99_us"] == pytest.approx(figures["p99_us_on"] - figures["p99_us_off"])
 
 
 @pytest.mark.timeout(120)

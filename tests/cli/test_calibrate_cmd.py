@@ -493,3 +493,96 @@ def test_ctrl_c_during_collect_auto_brakes_to_a_hold(
     assert "interrupted: braking to a hold" in err
     assert sent[-1] == "stop", sent
     assert "move" in sent
+
+
+def test_collect_auto_without_a_count_visits_the_recommended_poses(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A bare `collect --auto` (as the docs show it) visits as many poses as `calibrate solve`
+    recommends for the daemon's cables (28 for four), not none (a fake session: the first
+    wait for a still pose ends the run)."""
+    from controller.cli import calibrate, client
+    from controller.core.calibration import recommended_poses
+
+    asked: list[int] = []
+    status = {
+        "state": "HOLDING",
+        "pose": {"position_m": [0.0, 0.0, 0.4]},
+        "config": {"name": "desk", "reels": [{"node_id": n} for n in range(4)]},
+    }
+
+    def fake_query(session: Any, key: str, payload: Any, timeout_s: float) -> Any:
+        return status if key.endswith("/status") else {"ok": True, "state": "HOLDING"}
+
+    def poses(summary: Any, n: int, *_a: Any) -> list[tuple[float, float, float]]:
+        asked.append(n)
+        return [(0.1, 0.0, 0.4)] * n
+
+    def ctrl_c(*_a: Any, **_k: Any) -> Any:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(calibrate, "query", fake_query)
+    monkeypatch.setattr(client, "query", fake_query)
+    monkeypatch.setattr(calibrate, "auto_poses", poses)
+    monkeypatch.setattr(calibrate, "auto_speed_mps", lambda *a: (0.2, 0.5))
+    monkeypatch.setattr(calibrate, "wait_still", ctrl_c)
+    monkeypatch.setattr(calibrate, "_run", lambda args, body: body(_FakeSession()))
+    code, out, err = run_cli(["calibrate", "collect", str(tmp_path / "s.csv"), "--auto"], capsys)
+    assert code == exitcodes.INTERRUPTED, (out, err)
+    assert "needs a number of poses" not in err, err
+    assert asked == [recommended_poses(4)] == [28], (asked, out, err)
+    assert f"visiting {recommended_poses(4)} poses" in out
+
+
+def test_solve_takes_the_stretch_of_elastic_lines_out(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Samples of config/hangprinter-v4.toml's elastic lines (EA 20 kN) at its own anchors, as
+    its simulator records them (each reel paid out the length shortened by the stretch under
+    the planned tensions): `calibrate solve` says it takes the stretch out and leaves every
+    anchor where it is; fitted as rigid lines the anchors would move by centimetres."""
+    from controller.core.stretch import CableStretch
+    from controller.service.config import tension_check
+
+    path = REPO / "config" / "hangprinter-v4.toml"
+    cfg = load_config(path)
+    assert cfg.payload is not None and cfg.tension is not None
+    model = CableStretch(
+        cfg.geometry,
+        [r.cable_ea_n for r in cfg.reels],
+        tension_check(cfg.payload, cfg.tension, cfg.geometry),
+    )
+    from controller.core.workspace import Workspace
+
+    ws = Workspace.from_limits(cfg.limits, cfg.geometry)
+    poses = cal.spread_poses(
+        28,
+        (-0.6, -0.6, 0.05),
+        (0.6, 0.6, 1.2),
+        lambda p: ws.check_target(p) is None and model.check.solve(p).margin_n > 3,
+    )
+    rows = [cal.samples_header(cfg.node_ids)]
+    for p in poses:
+        paid, _ = model.ipk(p)
+        turns = [r.reel.position_rev(x) + 3.0 for r, x in zip(cfg.reels, paid, strict=True)]
+        rows.append(cal.format_sample_row(turns, list(p)))
+    csv_path = tmp_path / "hp4.csv"
+    csv_path.write_text("\n".join(",".join(map(str, r)) for r in rows) + "\n")
+    code, out, err = run_cli(["calibrate", "solve", str(csv_path), "--config", str(path)], capsys)
+    assert code == 0, (out, err)
+    assert "stretch: each cable's length is what its reel paid out, stretched by" in out
+    code, out, _ = run_cli(
+        ["calibrate", "solve", str(csv_path), "--config", str(path), "--json"], capsys
+    )
+    res = json.loads(out)
+    assert 2e-3 < res["stretch_m"] < 10e-3
+    change = np.linalg.norm(np.array(res["anchor_change_m"]), axis=1)
+    assert change.max() < 1e-5, change
+    assert res["ok"] and res["rms_residual_m"] < 1e-6
+    rigid = cal.calibrate(
+        cfg.anchors_m,
+        [r.reel for r in cfg.reels],
+        cal.parse_samples(csv_path.read_text(), "hp4.csv", cfg.node_ids),
+        hanging=False,
+    )
+    assert np.linalg.norm(rigid.anchors_m - np.asarray(cfg.anchors_m), axis=1).max() > 5e-3

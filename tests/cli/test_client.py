@@ -225,7 +225,7 @@ def test_path_file_formats(tmp_path: Path) -> None:
     [
         ("[[0, 0, NaN]]", "invalid JSON"),
         ("[[0, 0]]", "expected [x, y, z]"),
-        ("[]", "non-empty list"),
+        ("[]", "no points in it (an empty list): nothing to fly"),
         ('{"points": [[0, 0, 1]]}', "unknown field(s): points"),
         ("0,0,1\n0,zero,1\n", "line 2"),
         ("0,0,1,4\n", "expected three finite numbers"),
@@ -237,6 +237,39 @@ def test_bad_path_files(tmp_path: Path, text: str, reason: str) -> None:
     with pytest.raises(client.InputError, match=None) as info:
         client.load_path_file(str(f))
     assert reason in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("text", "what"),
+    [
+        ("", "empty"),
+        ("x,y,z\n# no points yet\n\n", "only a header, comments or blank lines"),
+        ("[]", "an empty list"),
+        ('{"points_m": [], "speed_mps": 0.5}', "an empty list"),
+    ],
+)
+def test_a_path_file_without_points_says_so(tmp_path: Path, text: str, what: str) -> None:
+    # as an empty G-code file does ("no G-code in it (empty): nothing to run"), in the file's
+    # terms rather than the command's field ("points_m: expected a non-empty list")
+    f = tmp_path / "none.csv"
+    f.write_text(text)
+    with pytest.raises(client.InputError) as info:
+        client.load_path_file(str(f), stream=True)
+    assert str(info.value) == f"{f}: no points in it ({what}): nothing to fly"
+
+
+def test_a_bad_point_deep_in_a_long_json_file_is_named_by_its_place_in_the_file(
+    tmp_path: Path,
+) -> None:
+    # streamed in chunks of MAX_PATH_POINTS_SENT: the point's index within its chunk
+    # ("(points 3000 on): points_m[998]") is no place in the file
+    points: list[list[float]] = [[0.0, 0.0, 2.0 + i * 1e-4] for i in range(5000)]
+    points[3998] = [1.0, 2.0]
+    f = tmp_path / "long.json"
+    f.write_text(json.dumps({"points_m": points}))
+    with pytest.raises(client.InputError) as info:
+        client.load_path_file(str(f), stream=True)
+    assert str(info.value) == f"{f}: point 3999: expected [x, y, z], got [1.0, 2.0]"
 
 
 def test_path_command_and_wait(

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from controller.cli.daemon_robot import (
+    MAX_DIFFERENCES,
     DaemonRobot,
     RobotMismatch,
     check_agrees,
@@ -106,6 +107,28 @@ def test_a_refusal_lists_the_settings_of_motion_first_and_counts_the_rest(
     text = str(info.value)
     assert text.index("they differ in name ('default' in --config, 'desk' at the daemon)") > 0
     assert text.index("reels[0].") < text.index(" more settings") and "bus." not in text
+    # named by the file's keys: a reel's model is not a table of the file
+    assert "reels[0].metres_per_rev (0.5 in --config, 0.0942478 at the daemon)" in text, text
+    assert ".reel." not in text
+
+
+def test_one_setting_beyond_the_list_is_one_more_setting(tmp_path: Path) -> None:
+    mine = _desk(tmp_path)
+    data = tomllib.loads(mine.read_text())
+    for i, reel in enumerate(data["reels"]):  # 4 anchors and 3 more: one beyond the list
+        reel["anchor_m"] = [reel["anchor_m"][0], reel["anchor_m"][1], 0.81]
+        if i < 3:
+            reel["gear_ratio"] = 2.0
+    assert len(data["reels"]) + 3 == MAX_DIFFERENCES + 1
+    other = tmp_path / "other.toml"
+    other.write_text(to_toml(data))
+    with pytest.raises(RobotMismatch) as info:
+        check_agrees(_served(mine), robot_from_text(other.read_text(), str(other)), str(other))
+    assert str(info.value).endswith(
+        " and 1 more setting. The daemon's robot is the one that moves: leave out --config, or"
+        " give its file"
+    )
+    assert "reels[0].gear_ratio (2 in --config, 1 at the daemon)" in str(info.value)
 
 
 def test_files_of_the_daemons_machine_are_neither_read_nor_compared(tmp_path: Path) -> None:

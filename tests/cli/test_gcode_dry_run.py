@@ -111,3 +111,29 @@ def test_stdin_from_and_the_summary(
     monkeypatch.setattr("sys.stdin", io.TextIOWrapper(io.BytesIO(job.encode())))
     code, out, _ = run(["gcode", "-", "--dry-run", "--from", "1", "2", "3"], capsys)
     assert "unsupported G29 (1), M999 (2)" in out
+
+
+def test_a_marlin_job_on_a_reprapfirmware_robot_is_told_its_m203(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The sliced vase is Marlin's (`M203 X200 Y200` in mm/s); a robot file from
+    `cablebot import-rrf` reads M203 as RepRapFirmware does, in mm/min: 3.3 mm/s, 36 times
+    below the job's own feeds. The dry run says so, naming the line and the dialect; the
+    same job on the Marlin dialect is not warned about."""
+    from tests.service.test_config_layouts import HP4
+
+    with gzip.open(VASE, "rt") as fh:
+        lines = fh.read().splitlines()[:400]
+    job = tmp_path / "vase.gcode"
+    job.write_text("\n".join(lines) + "\n")
+    rrf = tmp_path / "hp4-rrf.toml"
+    rrf.write_text(HP4.read_text().replace("[gcode]\n", '[gcode]\ndialect = "reprapfirmware"\n'))
+    code, out, err = run(["gcode", str(job), "--dry-run", "--config", str(rrf), "--json"], capsys)
+    assert code == exitcodes.OK, err
+    (warning,) = json.loads(out)["warnings"]
+    assert warning.startswith("line 13: M203 limits the job to 3.333 mm/s (read in mm/min), 36")
+    assert 'was it written in mm/s? ([gcode] dialect = "marlin" reads it so)' in warning
+    assert "cablebot: warning: line 13: M203" in err
+    code, out, err = run(["gcode", str(job), "--dry-run", "--config", str(HP4), "--json"], capsys)
+    assert code == exitcodes.OK, err
+    assert json.loads(out)["warnings"] == [] and "warning" not in err

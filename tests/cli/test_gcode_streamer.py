@@ -310,3 +310,22 @@ def test_a_deep_queue_is_polled_until_it_drains_to_the_mark_not_ten_times_a_seco
         assert LOW_WATER_S - POLL_S <= d.at_send[0] < LOW_WATER_S
         assert max(naps) <= MAX_POLL_S and d.polls == len(naps)
         assert (40.0 - LOW_WATER_S) / MAX_POLL_S <= d.polls < (40.0 - LOW_WATER_S) / MAX_POLL_S + 5
+
+
+def test_m593_rests_then_sends_the_shaper_command() -> None:
+    class Shaped(FakeRobot):
+        def __init__(self) -> None:
+            super().__init__()
+            self.payloads: list[Any] = []
+
+        def command(self, verb: str, payload: Any = None) -> Any:
+            self.payloads.append(payload)
+            return super().command(verb)
+
+    robot = Shaped()
+    st = _run(robot, 'G1 X1 F600\nM593 P"zvd" F40 S0.1\nG1 X2\n')
+    assert robot.verbs == ["shaper"]
+    assert robot.payloads == [{"type": "zvd", "frequency_hz": 40.0, "damping_ratio": 0.1}]
+    # the move before it was flown to rest: the move after is a new path
+    assert [s[2] for s in robot.sent] == [False, False]
+    assert st.chunks == 2

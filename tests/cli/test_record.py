@@ -18,6 +18,7 @@ import os
 import queue
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -325,6 +326,74 @@ def test_record_refuses_to_overwrite_without_force(tmp_path: Path) -> None:
     assert cp.returncode == exitcodes.REFUSED, cp.stdout + cp.stderr
     assert "--force" in cp.stderr
     assert out.read_bytes() == b"keep me"
+
+
+SLOW_ROBOT = r"""
+import sys, threading, time, types, zenoh
+from controller.service.zenoh_io import session_config
+
+endpoint, prefix, delay_s = sys.argv[1], sys.argv[2], float(sys.argv[3])
+session = zenoh.open(session_config(types.SimpleNamespace(listen=[endpoint])))
+held = []
+lock = threading.Lock()
+
+def on_query(query):
+    with lock:
+        held.append((time.monotonic() + delay_s, query))
+
+def answer():
+    while True:
+        now = time.monotonic()
+        with lock:
+            due = [q for t, q in held if t <= now]
+            held[:] = [(t, q) for t, q in held if t > now]
+        for q in due:
+            try:
+                q.reply(f"{prefix}/status", b'{"state": "HOLDING"}')
+                q.drop()
+            except Exception:
+                pass
+        time.sleep(0.01)
+
+queryable = session.declare_queryable(f"{prefix}/status", on_query)
+token = session.liveliness().declare_token(f"{prefix}/alive")
+threading.Thread(target=answer, daemon=True).start()
+print("READY", flush=True)
+time.sleep(3600)
+"""
+"""A robot that answers every status query `delay_s` late, as a daemon on a loaded host does."""
+
+
+@pytest.mark.timeout(300)
+def test_record_exits_cleanly_with_status_replies_still_on_their_way(tmp_path: Path) -> None:
+    """The status queries' reply callbacks are still waiting when the recorder stops (the
+    robot answers 1 s late). They must not run on daemon threads: one still inside Zenoh's
+    native code at exit aborted the recorder after it wrote its file ("FATAL: exception not
+    rethrown", exit 134)."""
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    robot = Proc([sys.executable, "-c", SLOW_ROBOT, endpoint, "cablebot/slow", "1.0"], "slow")
+    try:
+        robot.wait_line("READY", 60.0)
+        for i in range(3):
+            out = tmp_path / f"slow{i}.mcap"
+            cp = _record_cli(
+                str(out),
+                "--connect",
+                endpoint,
+                "--prefix",
+                "cablebot/slow",
+                "--duration",
+                "1.5",
+                "--status-hz",
+                "1000",
+            )
+            assert "FATAL" not in cp.stderr, cp.stderr
+            assert cp.returncode == exitcodes.OK, (i, cp.returncode, cp.stdout + cp.stderr)
+            assert f"wrote {out}:" in cp.stdout, cp.stdout
+            rec = Recording(out)
+            assert sum(1 for _ in rec.messages()) > 0 and rec.complete, rec.error
+    finally:
+        robot.terminate()
 
 
 # ------------------------------------------------------------------------------ replay

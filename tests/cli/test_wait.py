@@ -219,3 +219,39 @@ def test_path_file_append_is_sent_as_an_append(
     f.write_text(json.dumps({"points_m": pts, "append": True}))
     main(["path", str(f)])
     assert payloads and payloads[0]["append"] is True, payloads
+
+
+@pytest.mark.parametrize("signame", ["SIGTERM", "SIGHUP"])
+def test_sigterm_or_sighup_while_a_long_path_streams_brakes_to_a_hold(
+    signame: str,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """`kill` or the terminal closed while a long path file streams (no --wait): the path
+    would be cut where the sender died, so the robot brakes to a hold, as `gcode` does."""
+    from controller.cli import pathstream
+    from controller.core.commands import MAX_PATH_POINTS_SENT
+
+    sig = getattr(signal, signame)
+    sent = _fake_daemon(monkeypatch)
+    monkeypatch.setattr(client, "check_with_robot", lambda *_a, **_k: None)
+
+    def killed_while_streaming(points: Any, send: Any, *_a: Any, **_k: Any) -> Any:
+        send(points[:MAX_PATH_POINTS_SENT], False)
+        os.kill(os.getpid(), sig)
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline:  # the handler raises here
+            time.sleep(0.01)
+        raise AssertionError("no KeyboardInterrupt from the signal")
+
+    monkeypatch.setattr(pathstream, "stream_points", killed_while_streaming)
+    f = tmp_path / "long.csv"
+    f.write_text("".join(f"{0.001 * k!r},0,2\n" for k in range(1, 2 * MAX_PATH_POINTS_SENT)))
+    before = signal.getsignal(sig)
+    rc = main(["path", str(f)])
+    err = capsys.readouterr().err
+    assert rc == exitcodes.INTERRUPTED, err
+    assert "interrupted: braking to a hold" in err
+    assert sent[-1] == "cmd/stop", sent
+    assert signal.getsignal(sig) == before

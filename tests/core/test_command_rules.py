@@ -20,6 +20,7 @@ from controller.core.commands import (
     Pretension,
     Reset,
     Setpoint,
+    Shaper,
     Stop,
     Velocity,
 )
@@ -64,7 +65,7 @@ def test_the_operating_guide_shows_the_table_of_the_code() -> None:
 def _in_state(state: State) -> Rig:
     """A fresh rig (fake driver and clock) brought to `state`."""
     # Drives of a real rig (a kinematic simulator has nothing to pre-tension against).
-    rig = Rig(make_config(loop={"rate_hz": RATE_HZ}, sim={"enabled": False}))
+    rig = Rig(make_config(loop={"rate_hz": RATE_HZ}, sim={"enabled": False, "plant": "physical"}))
     rig.tick(2)
     if state is State.DISARMED:
         return rig
@@ -104,6 +105,7 @@ def _command(verb: str, rig: Rig) -> Any:
         "setpoint": Setpoint(near),
         "velocity": Velocity((0.1, 0.0, 0.0)),
         "stop": Stop(),
+        "shaper": Shaper("zv", 5.0),
     }[verb]
 
 

@@ -76,6 +76,7 @@ def test_every_verb_parses() -> None:
         "reset",
         "home",
         "pretension",
+        "shaper",
     }
 
 
@@ -150,6 +151,7 @@ VALID = {
     "pretension": b'{"position_m": [0, 0, 1]}',
     "setpoint": b'{"position_m": [0, 0, 1]}',
     "velocity": b'{"velocity_mps": [0, 0, 1]}',
+    "shaper": b'{"type": "zvd", "frequency_hz": 40}',
     **{verb: b"{}" for verb in ("stop", "estop", "arm", "disarm", "reset")},
 }
 

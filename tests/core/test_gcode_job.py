@@ -52,7 +52,30 @@ def test_g1_in_mm_from_the_origin_with_modal_feed() -> None:
     assert m[1].speed_mps == pytest.approx(0.1)  # modal F
     assert job.moves == 2
     assert job.path_m == pytest.approx(math.hypot(0.1, 0.05) + 0.01)
-    assert close(job.bbox_m[0], (1.0, -2.05, 2.0)) and close(job.bbox_m[1], (1.1, -2.0, 2.01))
+    # the box of where the job goes, not of where it starts (the origin, x 1.0 y -2.0)
+    assert close(job.bbox_m[0], (1.1, -2.05, 2.0)) and close(job.bbox_m[1], (1.1, -2.05, 2.01))
+
+
+def test_the_box_of_a_job_without_motion_is_its_start() -> None:
+    job = run("G21\nM104 S200\n", start=(0.5, 0.25, 3.0))
+    assert job.bbox_m == ((0.5, 0.25, 3.0), (0.5, 0.25, 3.0))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.tuples(*[st.floats(-1000.0, 1000.0, allow_nan=False)] * 3), min_size=1, max_size=8),
+    st.tuples(*[st.floats(-5.0, 5.0, allow_nan=False)] * 3),
+)
+def test_the_box_is_that_of_the_motions_points_wherever_the_job_starts(
+    targets_mm: list[tuple[float, float, float]], start: tuple[float, float, float]
+) -> None:
+    moves = "".join(f"G1 X{x:.4f} Y{y:.4f} Z{z:.4f}\n" for x, y, z in targets_mm)
+    text = "G21\nG90\nF6000\n" + moves
+    job = run(text, start=start)
+    pts = [p for m in motions(job) for p in m.points_m]
+    lo = tuple(min(p[i] for p in pts) for i in range(3))
+    hi = tuple(max(p[i] for p in pts) for i in range(3))
+    assert job.bbox_m == (lo, hi)
 
 
 def test_relative_inches_and_g92() -> None:
@@ -263,3 +286,49 @@ def test_dry_run_step_follows_the_shortest_segments_but_not_below_the_loop() -> 
     fine = run("G1 F6000\n" + "".join(f"G1 X{0.1 * k:.1f}\n" for k in range(1, 500)))
     assert dry_run_step_s(fine, 0.002) == pytest.approx(0.004)
     assert dry_run_step_s(fine, 0.01) == 0.01  # never below the loop's period
+
+
+# --- M593: input shaping --------------------------------------------------------------------
+
+
+def test_m593_shapes_the_moves_after_it_in_repraps_syntax() -> None:
+    from controller.core.gcode_job import Chunk, Shaping, chunks
+
+    job = run('G1 X1 F600\nM593 P"ei2" F12.5 S0.05\nG1 X2\nM593 P"None"\nM593 F30\nM593\n')
+    acts = [a for a in job.actions if not isinstance(a, Motion)]
+    assert acts == [
+        Shaping(2, "2hump_ei", 12.5, 0.05),
+        Shaping(4, "off", None, None),
+        Shaping(5, "2hump_ei", 30.0, None),  # no P: the default type; M593 alone: nothing
+    ]
+    steps = list(chunks(job.actions, 100))
+    assert [type(s).__name__ for s in steps] == ["Chunk", "Shaping", "Chunk", "Shaping", "Shaping"]
+    assert isinstance(steps[0], Chunk) and isinstance(steps[2], Chunk)
+    # RepRapFirmware's names and cablebot's, any case; no F: the model's modes
+    for word, kind in (
+        ("zvd", "zvd"),
+        ("MZV", "mzv"),
+        ("ei3", "3hump_ei"),
+        ("2hump_ei", "2hump_ei"),
+    ):
+        (shaping,) = run(f'M593 P"{word}"').actions
+        assert shaping == Shaping(1, kind, None, None)
+
+
+@pytest.mark.parametrize(
+    ("line", "why"),
+    [
+        (
+            'M593 P"zvdd" F40',
+            r"line 2: M593 P\"zvdd\": unknown or unsupported .*did you mean 'zvd'",
+        ),
+        ('M593 P"ie2" F40', r"line 2: M593 P\"ie2\": unknown .*did you mean 'ei2'"),
+        ('M593 P"custom" H0.4:0.7 T0.0135:0.0135', r"line 2: M593 H/T .*not supported"),
+        ('M593 P"zvd" F0', r"line 2: M593: frequency 0.0 Hz out of range \(0.05 to 1000 Hz\)"),
+        ('M593 P"zvd" F40 S0.5', r"line 2: M593: damping ratio 0.5 out of range \(0 to 0.3\)"),
+        ("M593 P3 F40", r"line 2: M593 P: a quoted type"),
+    ],
+)
+def test_m593_refuses_a_shaper_it_cannot_run_naming_the_line(line: str, why: str) -> None:
+    with pytest.raises(JobError, match=why):
+        run(f"G1 X1 F600\n{line}\nG1 X2\n")

@@ -17,6 +17,7 @@ from controller.core.rrf import (
     RrfError,
     driver_words,
     read_rrf,
+    written_out,
 )
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -248,3 +249,28 @@ def test_any_text_is_read_or_refused_by_line(lines: list[str], at: int) -> None:
     for group in (c.spool_radius_mm, c.min_force_n, c.max_force_n):
         assert all(math.isfinite(v.value) for v in group)
     assert math.isfinite(c.buildup_factor_mm.value) and c.buildup_factor_mm.value >= 0.0
+
+
+def test_numbers_with_an_exponent_are_read_as_reprapfirmware_reads_them() -> None:
+    """RepRapFirmware reads `S2e4` as 20000: so does the import, where the G-code parser
+    alone would read `S2` and an `E4` word (a 2 N/m spring: lines of EA 1 N)."""
+    from controller.core.gcode import numbered
+
+    c = read(HP4.replace("M666 S20000.0", "M666 S2e4").replace("D0:0:2299.83", "D0:0:2.29983E3"))
+    assert c.spring_k_per_unit_length_n.value == 20000.0
+    assert c.anchors_mm[3].value == (0.0, 0.0, 2299.83)
+    assert not any(u.where.line_no in (20, 33) for u in c.unmapped)  # no E word left over
+    c = read(HP4 + "\nM666 Q1.28181e-1 W+1e0 X7e1:7e1:7.0e+1:70\nM208 Z2e3")
+    assert c.buildup_factor_mm.value == 0.128181 and c.mover_mass_kg.value == 1.0
+    assert [v.value for v in c.max_force_n] == [70.0] * 4
+    assert c.z_max_mm.value == 2000.0
+    # a checksum is checked on the line as written
+    c = read(HP4 + "\n" + numbered(7, "M666 S2.5e4"))
+    assert c.spring_k_per_unit_length_n.value == 25000.0
+    assert "checksum" in problems(HP4 + "\nN7 M666 S2.5e4*1")[0]
+    # other commands, quoted strings and comments are as the G-code parser reads them
+    assert written_out('M550 P"hp4e5" ; S2e4') == 'M550 P"hp4e5" ; S2e4'
+    assert written_out("M666 S1e400") == "M666 S1e400"
+    assert written_out("M666 R7.5e1:.75E2 Y-1e-1") == "M666 R75.0:75.00 Y-0.1"
+    c = read(HP4.replace("M584 X40.0 Y41.0", "M584 X40.0E0:1 Y41.0"))
+    assert c.drivers[0].value == (40, 0)

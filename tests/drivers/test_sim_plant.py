@@ -25,7 +25,15 @@ DT = 0.001
 def physical_config(channel: str = "t", **sim: Any) -> RobotConfig:
     data = paper_robot_data("t")
     data["bus"]["channel"] = channel
-    data["sim"] = {"enabled": True, "plant": "physical", **sim}
+    # The tests wait for the effector to come to rest: every mode damped critically, the
+    # effector's drag 1/s (a real rope rings for seconds: `[sim] cable_damping_ratio` 0.02).
+    data["sim"] = {
+        "enabled": True,
+        "plant": "physical",
+        "cable_damping_ratio": 1.0,
+        "effector_damping_n_s_per_m": 5.0,
+        **sim,
+    }
     return parse_config(data, "test")
 
 
@@ -305,7 +313,9 @@ def test_pretension_in_torque_mode_takes_up_a_slipped_cable_and_restores_the_sta
     from controller.service.simulated import sim_plant
     from tests.fakes import make_config, power_up_turns
 
-    cfg = make_config(sim=dict(plant="physical"))
+    cfg = make_config(
+        sim=dict(plant="physical", cable_damping_ratio=1.0, effector_damping_n_s_per_m=5.0)
+    )
     turns = power_up_turns(cfg)
     plant = sim_plant(cfg, turns)
     assert isinstance(plant, ReelPlant)

@@ -101,3 +101,58 @@ def test_a_layout_that_holds_the_payload_nowhere_is_refused(
     assert code == exitcodes.REFUSED
     assert "cannot hold the 1 kg payload anywhere in the workspace" in err
     assert "not a valid robot configuration" in err
+    # the reason is the lines' limit, not the layout: the cable and its tension where the
+    # tensions come closest to it
+    assert "do not surround" not in err
+    m = re.search(
+        r"where they come closest, at \(([-0-9., ]+)\) m, cable \d tension [-0-9.]+ N "
+        r"(above 5\.5 N \(limits\.max_tension_n 6 N|below 3\.5 N \(min_tension_n 3 N) ",
+        err,
+    )
+    assert m is not None, err
+    cfg = load_config(HP4)
+    at = tuple(float(v) for v in m.group(1).split(","))
+    assert Workspace.from_limits(cfg.limits, cfg.geometry).check_point(at) is None
+
+
+def test_check_config_shows_the_stretch_inside_the_pyramid(tmp_path: Path) -> None:
+    """The stretch line's poses on the workspace's centre line: at the narrow top of the
+    anchors' pyramid the centre line leaves the workspace, and the nearest sampled point
+    inside stands in (outside, the statics there pushes on lines: negative stretch)."""
+    from controller.cli.configs import describe
+
+    cfg = load_config(write(tmp_path, text_with(HP4, top_margin_m="0.1")))
+    ws = Workspace.from_limits(cfg.limits, cfg.geometry)
+    (x_lo, x_hi), (y_lo, y_hi), (_, top) = ws.box()
+    assert ws.check_point(((x_lo + x_hi) / 2, (y_lo + y_hi) / 2, top)) is not None
+    lines, _, data = describe(cfg)
+    assert [p["pose"] for p in data["stretch"]] == ["power-up", "floor", "middle", "top"]
+    for p in data["stretch"]:
+        assert ws.check_point(p["position_m"]) is None, p
+        assert max(p["stretch_m"]) > 1e-3, p  # tens of newtons on metres of EA 20 kN line
+    (line,) = [ln for ln in lines if ln.startswith("stretch")]
+    assert "e-1" not in line and "-0," not in line, line  # poses to a tenth of a millimetre
+
+
+def test_a_layout_that_must_hang_says_why(tmp_path: Path) -> None:
+    """A Hangprinter-like file (floor above the low anchors) whose anchors cannot surround an
+    effector is held to the hanging rule; the floor's refusal says why: the anchors lie in
+    one plane, or three anchors (always in one plane)."""
+    level = HP4.read_text().replace("[0.0, 0.0, 2.29983]", "[0.2, 0.3, -0.125]")
+    for low in ("-0.13153]", "-0.12128]", "-0.12182]"):
+        level = level.replace(low, "-0.125]")
+    with pytest.raises(ConfigError, match=r"floor_z_m: 0 m must be below the lowest anchor") as e:
+        load_config(write(tmp_path, level))
+    assert "the effector cannot work among these anchors: the anchors lie in one plane" in str(
+        e.value
+    )
+    text = HP4.read_text()
+    three = (
+        text[: text.index("[[reels]]                       # C, low")]
+        + text[text.index("[[reels]]                       # D, on the ceiling") :]
+    )
+    with pytest.raises(ConfigError, match=r"3 anchors cannot surround an effector"):
+        load_config(write(tmp_path, three))
+    # the anchors below the floor, not in one plane: no reason to add
+    with pytest.raises(ConfigError, match=r"highest anchor minus top_margin_m \(1\.89983 m\)$"):
+        load_config(write(tmp_path, text_with(HP4, floor_z_m="2.5")))

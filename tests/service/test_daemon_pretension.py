@@ -48,6 +48,9 @@ def test_home_with_pretension_through_the_daemon_then_move(tmp_path: Path) -> No
             "torque_period_s": 0.01,
             # the simulator and the daemon are processes of a loaded host: either may stall
             "watchdog_timeout_s": 3.0,
+            # the pre-tension waits for the effector to be still: every mode damped critically
+            "cable_damping_ratio": 1.0,
+            "effector_damping_n_s_per_m": 5.0,
         },
         drive={"velocity_limit_rps": 100.0, "current_limit_a": 10.0},
         faults={"heartbeat_timeout_s": 2.0},

@@ -40,7 +40,14 @@ class SimDaemonRig:
             udp_bus(),
             rate_hz=250.0,
             loop={"publish_every": 5},
-            sim={"plant": "physical", "cable_ea_n": plant_ea_n, "watchdog_timeout_s": 4.0},
+            # the figures are where the effector comes to rest: every mode damped critically
+            sim={
+                "plant": "physical",
+                "cable_ea_n": plant_ea_n,
+                "watchdog_timeout_s": 4.0,
+                "cable_damping_ratio": 1.0,
+                "effector_damping_n_s_per_m": 5.0,
+            },
             # the rigid model's errors reach most of a metre; the machine is shared: a
             # starved process must not fault a measurement of where the effector rests
             faults={

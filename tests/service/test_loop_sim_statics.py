@@ -56,6 +56,9 @@ class PhysicalRig:
                 "torque_period_s": 0.004,
                 "cable_ea_n": 2e5,
                 "watchdog_timeout_s": 3.0,
+                # the tests wait for the effector to come to rest: every mode damped critically
+                "cable_damping_ratio": 1.0,
+                "effector_damping_n_s_per_m": 5.0,
             },
         )
         self.cfg = replace(cfg, homing=replace(cfg.homing, **homing)) if homing else cfg

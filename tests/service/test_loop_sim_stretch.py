@@ -67,6 +67,10 @@ def stretch_config(
             enabled=True,
             plant="physical",
             cable_ea_n=plant_ea_n,
+            # the figures are where the effector comes to rest: every mode damped critically
+            # (a real rope rings for seconds: `[sim] cable_damping_ratio` 0.02)
+            cable_damping_ratio=1.0,
+            effector_damping_n_s_per_m=base.payload.mass_kg,
             watchdog_timeout_s=4.0,
             torque_period_s=0.004,
         ),

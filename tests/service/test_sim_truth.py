@@ -76,6 +76,9 @@ def test_daemon_publishes_the_truth_and_its_pose_sits_on_it(tmp_path: Path) -> N
         "plant": "physical",
         "cable_ea_n": 2e5,
         "watchdog_timeout_s": 1.0,
+        # the test waits for the effector to come to rest: every mode damped critically
+        "cable_damping_ratio": 1.0,
+        "effector_damping_n_s_per_m": 5.0,
     }
     data["faults"] = {**data["faults"], "stale_timeout_s": 0.5, "heartbeat_timeout_s": 2.0}
     for reel in data["reels"]:

@@ -123,6 +123,10 @@ Method
   period. The table also shows the same with cable stretch, and with every reel's spool
   building up (`[[reels]] spool_buildup_factor_m`, `BENCH_BUILDUP_FACTOR_M`). No bus and no
   other process, so the figure carries over between machines.
+* `shaping_per_tick` (`shaping_per_tick.*`, `controller.cli.bench.shaping`): the same tick with
+  cable stretch, without and with the default input shaper (on the model's three modes at the
+  set-point, following it), `PAIRS` interleaved pairs; p50 and p99 of each, the p99 added and
+  the p99 ratio (medians over the pairs). Target: at most `TARGET_SHAPING_ADDED_US` added.
 * `layouts` (`layouts.<layout>.*`, `controller.cli.bench.layouts`): the statics (`solve`) and
   the FPK (1 mm of length noise) of every layout of `LAYOUTS` (the paper robot, three cables
   hanging, the Hangprinter v4 and five-anchor files, eight anchors at a box's corners), per
@@ -131,17 +135,24 @@ Method
   kind. Target: eight cables at most `TARGET_LAYOUT_OVER_PAPER4` times the paper robot's four
   at random poses and a tick after the last, for the statics and the FPK.
 
+* `client_stream` (full run only, `FULL_ONLY_SECTIONS`; `--only client`): a 100,000-point path
+  streamed to a daemon of the built-in robot by the CLI (`cablebot path FILE --wait`) and by a
+  script on the client library (`Robot.stream_path`, `Robot.wait`), back to back, each a fresh
+  process timed from start to exit, with its CPU time (`controller.cli.bench.client`). Target:
+  the script's wall time over the CLI's at most `TARGET_SCRIPT_OVER_CLI`.
+
 `--only SECTION ...` runs only those sections (`SECTIONS`: kinematics, statics, sim, decode,
-loops, estop, planning, stretch, ros2, compute, layouts); the JSON then holds their keys
-only.
+loops, estop, planning, stretch, ros2, compute, shaping, layouts; and `client`); the JSON then
+holds their keys only.
 
 Layout: `settings` (plans, targets, JSON keys), `timing` (percentiles, interleaved timing),
 `figures` (the micro-benchmarks: FPK, batch, statics, simulator, decode), `planning`,
-`stretch`, `ros2`, `compute`, `layouts` (one section each: its figures and rows), `helpers`
-(the helper processes: simulated drives, pose subscriber), `loop` (the daemon-like loop run,
-end-to-end matching), `estop` (the e-stop flood), `table` (rows and the table), `measure`
-(each section's figures and rows), `command` (`cablebot bench`), `__main__` (the helper
-processes' entry).
+`stretch`, `ros2`, `compute`, `shaping`, `layouts`, `client` (one section each: its figures and
+rows), `helpers` (the helper processes: simulated drives, pose subscriber), `loop` (the
+daemon-like loop run, end-to-end matching), `estop` (the e-stop flood), `table` (rows and the
+table), `measure` (each section's figures and rows), `command` (`cablebot bench`), `vibration`
+(the controller on the physical plant: `tools/shaping_figures.py` and the shaping tests),
+`__main__` (the helper processes' entry).
 """
 
 from __future__ import annotations

@@ -11,7 +11,14 @@ from pathlib import Path
 from typing import Any
 
 from controller.cli.bench.measure import measure
-from controller.cli.bench.settings import CIA402_RATE_HZ, FULL, QUICK, SECTIONS, BenchError
+from controller.cli.bench.settings import (
+    CIA402_RATE_HZ,
+    FULL,
+    FULL_ONLY_SECTIONS,
+    QUICK,
+    SECTIONS,
+    BenchError,
+)
 from controller.cli.bench.table import format_table, machine_line
 
 
@@ -29,7 +36,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     def log(msg: str) -> None:
         print(f"[{time.monotonic() - t_start:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
-    sections = tuple(args.only) if args.only else SECTIONS
+    default = SECTIONS if args.quick else (*SECTIONS, *FULL_ONLY_SECTIONS)
+    sections = tuple(args.only) if args.only else default
     log(f"cablebot bench ({'quick' if args.quick else 'full'}) on {machine_line()}")
     try:
         result, rows, extra = measure(plan, log, sections)
@@ -68,10 +76,13 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     p.add_argument(
         "--only",
         nargs="+",
-        choices=SECTIONS,
+        choices=(*SECTIONS, *FULL_ONLY_SECTIONS),
         default=None,
         metavar="SECTION",
-        help=f"run only these sections ({', '.join(SECTIONS)}); the JSON has their keys only",
+        help=(
+            f"run only these sections ({', '.join((*SECTIONS, *FULL_ONLY_SECTIONS))}); the JSON"
+            " has their keys only"
+        ),
     )
     # For the test: smaller batch and shorter loop runs.
     p.add_argument("--batch-poses", type=int, default=None, help=argparse.SUPPRESS)

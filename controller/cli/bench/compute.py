@@ -137,10 +137,13 @@ BENCH_BUILDUP_FACTOR_M = 1.0e-6
 0.5 m-per-turn drum whose metres per turn change by 2.5 % over the built-in robot's cables."""
 
 
-def bench_compute(ticks: int, *, stretch: bool = False, buildup: bool = False) -> dict[str, float]:
+def bench_compute(
+    ticks: int, *, stretch: bool = False, buildup: bool = False, shaper: str | None = None
+) -> dict[str, float]:
     """CPU time of `Controller.tick` per tick at `COMPUTE_RATE_HZ` on the built-in robot
     (rigid cables, or with `stretch` every cable at EA 2e5 N; with `buildup` every reel's spool
-    builds up by `BENCH_BUILDUP_FACTOR_M` from the power-up lengths), armed and flying
+    builds up by `BENCH_BUILDUP_FACTOR_M` from the power-up lengths; with `shaper` that input
+    shaper, on the model's modes at the set-point, which needs `stretch`), armed and flying
     `COMPUTE_PATH_M` at 1 m/s on an `EchoDriver`, publishing every tick to a publisher that
     drops the sample; `ticks` measured after a warm-up, GC frozen as the daemon does.
 
@@ -161,6 +164,8 @@ def bench_compute(ticks: int, *, stretch: bool = False, buildup: bool = False) -
     cfg = replace(cfg, loop=replace(cfg.loop, rate_hz=float(COMPUTE_RATE_HZ), publish_every=1))
     if stretch:
         cfg = replace(cfg, reels=tuple(replace(r, cable_ea_n=2e5) for r in cfg.reels))
+    if shaper is not None:
+        cfg = replace(cfg, shaper=replace(cfg.shaper, type=shaper))
     assert cfg.homing.power_up_position_m is not None
     lengths = kinematics.ipk_point(cfg.geometry, cfg.homing.power_up_position_m)
     if buildup:

@@ -25,6 +25,8 @@ from controller.cli.bench.settings import (
     E2E_RATE_HZ,
     ESTOP_FLOOD_THREADS,
     ESTOP_KEYS,
+    FULL_ONLY_JSON_KEYS,
+    FULL_ONLY_SECTIONS,
     JSON_KEYS,
     LOOP_KEYS,
     LOOP_RATES_HZ,
@@ -41,6 +43,7 @@ from controller.cli.bench.settings import (
     TARGET_SIMPLIFIED_US,
     Plan,
 )
+from controller.cli.bench.shaping import measure_shaping
 from controller.cli.bench.stretch import measure_stretch
 from controller.cli.bench.table import Row, _frames_row
 
@@ -406,9 +409,10 @@ def measure(
 
     Raises BenchError when a figure cannot be measured, ValueError for an unknown section.
     """
-    unknown = [s for s in sections if s not in SECTIONS]
+    known = (*SECTIONS, *FULL_ONLY_SECTIONS)
+    unknown = [s for s in sections if s not in known]
     if unknown:
-        raise ValueError(f"unknown bench sections {unknown}; known: {', '.join(SECTIONS)}")
+        raise ValueError(f"unknown bench sections {unknown}; known: {', '.join(known)}")
     rows: list[Row] = []
     result: dict[str, Any] = {}
     extra: dict[str, Any] = {}
@@ -463,9 +467,17 @@ def measure(
     if "compute" in sections:
         result["compute_per_tick"], part = measure_compute(p, log)
         rows += part
+    if "shaping" in sections:
+        result["shaping_per_tick"], part = measure_shaping(p, log)
+        rows += part
     if "layouts" in sections:
         result["layouts"], part = measure_layouts(p, log)
         rows += part
+    if "client" in sections:
+        from controller.cli.bench.client import measure_client
+
+        result["client_stream"], part = measure_client(p, log)
+        rows += part
     # The JSON keeps the documented order whatever ran.
-    result = {key: result[key] for key in JSON_KEYS if key in result}
+    result = {key: result[key] for key in (*JSON_KEYS, *FULL_ONLY_JSON_KEYS) if key in result}
     return result, rows, extra

@@ -28,6 +28,7 @@ class Plan:
     stretch_repeats: int
     ros2_samples: int
     compute_ticks: int
+    client_points: int = 100_000
 
 
 FULL = Plan(
@@ -36,7 +37,26 @@ FULL = Plan(
 
 
 QUICK = Plan(
-    101, 400, 5, 16, 3, 1_000_000, 11, 100, 100_000, 1.0, 3, 20_000, 2.0, 1, 50, 1, 3, 2000, 2000
+    101,
+    400,
+    5,
+    16,
+    3,
+    1_000_000,
+    11,
+    100,
+    100_000,
+    1.0,
+    3,
+    20_000,
+    2.0,
+    1,
+    50,
+    1,
+    3,
+    2000,
+    2000,
+    client_points=10_000,
 )
 
 
@@ -121,6 +141,10 @@ LOOP_KEYS = (
 )
 
 
+FULL_ONLY_JSON_KEYS = ("client_stream",)
+"""The keys of `FULL_ONLY_SECTIONS`, after `JSON_KEYS` in the JSON of a full run."""
+
+
 JSON_KEYS = (
     "fpk_simplified_us",
     "fpk_general_us",
@@ -141,6 +165,7 @@ JSON_KEYS = (
     "stretch_us",
     "ros2_publish_us",
     "compute_per_tick",
+    "shaping_per_tick",
     "layouts",
 )
 
@@ -156,9 +181,42 @@ SECTIONS = (
     "stretch",
     "ros2",
     "compute",
+    "shaping",
     "layouts",
 )
 """The benchmark's sections, in the order they run (`cablebot bench --only NAME ...`)."""
+
+
+FULL_ONLY_SECTIONS = ("client",)
+"""Sections the full run adds after `SECTIONS` (not `--quick`: the client section streams a
+100,000-point path twice, about a minute of flight); `--only client` runs it alone."""
+
+
+CLIENT_KEYS = (
+    "points",
+    "flight_s",
+    "cli_s",
+    "script_s",
+    "script_over_cli",
+    "cli_cpu_s",
+    "script_cpu_s",
+    "cpu_script_over_cli",
+)
+
+
+CLIENT_SPACING_M = 100e-6
+"""The client section's spiral: its points this far apart along it."""
+
+
+CLIENT_SPEED_MPS = 0.3
+"""The client section's path speed: 3,000 points a second, within the planner's 4,000 a second
+at the built-in robot's 500 Hz."""
+
+
+TARGET_SCRIPT_OVER_CLI = 1.1
+"""A path streamed from a script on the client library takes at most 10 % longer, wall clock,
+than the CLI takes to stream the same path (both paced by the daemon's queue, so both are
+mostly the flight: the ratio shows the library's own start and end, not the robot's)."""
 
 
 ESTOP_KEYS = ("reply_p50", "reply_p99", "frame_p50", "frame_p99")
@@ -219,6 +277,14 @@ COMPUTE_KEYS = ("ticks", "p50_us", "p99_us", "p99_frac")
 
 class BenchError(RuntimeError):
     """A figure could not be measured (a helper process failed, no samples, ...)."""
+
+
+TARGET_SHAPING_ADDED_US = 50.0
+"""Input shaping (the default train on the model's three modes, following the set-point) adds
+at most this to the tick's 99th percentile."""
+
+
+SHAPING_KEYS = ("p50_us_off", "p99_us_off", "p50_us_on", "p99_us_on", "added_p99_us", "on_over_off")
 
 
 LAYOUTS = ("paper-4", "triangle-3", "hangprinter-4", "hangprinter-5", "cube-8")

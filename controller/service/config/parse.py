@@ -16,9 +16,16 @@ from typing import Any
 
 from controller.core.commands import MAX_PATH_POINTS
 from controller.core.kinematics import Geometry, KinematicsError, SingularGeometryError
+from controller.core.motion.shaper import (
+    MAX_DAMPING_RATIO,
+    MAX_FREQUENCY_HZ,
+    MIN_FREQUENCY_HZ,
+    SHAPER_TYPES,
+)
 from controller.core.reel import ReelModel, spool_buildup, spool_buildup_from_factor
 from controller.core.scale import speed_scale_problem
 from controller.core.statics import TensionCheck
+from controller.core.suggest import closest
 from controller.core.workspace import Workspace, WorkspaceError, layout_geometry
 from controller.service.config.interfaces import _parse_bus, _parse_ros2, _parse_zenoh
 from controller.service.config.schema import (
@@ -44,6 +51,7 @@ from controller.service.config.schema import (
     PayloadConfig,
     ReelConfig,
     RobotConfig,
+    ShaperConfig,
     SimConfig,
     TensionLimits,
     Vec3,
@@ -216,6 +224,14 @@ def _parse_sim(st: _Table, interface: str, loop: LoopConfig) -> SimConfig:
         ),
         plant=st.string("plant", d_sim.plant) or d_sim.plant,
         cable_ea_n=st.number("cable_ea_n", d_sim.cable_ea_n, gt=0.0),
+        cable_damping_ratio=st.number(
+            "cable_damping_ratio", d_sim.cable_damping_ratio, ge=0.0, le=1.0
+        ),
+        effector_damping_n_s_per_m=(
+            st.number("effector_damping_n_s_per_m", ge=0.0)
+            if st.has("effector_damping_n_s_per_m")
+            else None
+        ),
         torque_period_s=st.number("torque_period_s", d_sim.torque_period_s, ge=0.0, le=10.0),
     )
     if sim.plant not in SIM_PLANTS:
@@ -363,6 +379,7 @@ def parse_config(data: Mapping[str, Any], source: str, text: str | None = None) 
         top, lt, ft, st, ht, loop, faults, sim, bus.interface, drive, payload, tension, pup
     )
     _check_stretch(top, lt, errs, loop, reels)
+    shaper = _parse_shaper(top, reels, payload)
 
     errs.raise_if_any()
     assert reels is not None and geometry is not None  # no problems: both were built
@@ -383,6 +400,7 @@ def parse_config(data: Mapping[str, Any], source: str, text: str | None = None) 
         tension=tension,
         ros2=ros2,
         gcode=gcode,
+        shaper=shaper,
         text=_robot_text(data) if text is None else text,
     )
 
@@ -394,6 +412,41 @@ def _robot_text(data: Mapping[str, Any]) -> str:
         return to_toml(data)
     except (TypeError, ValueError):
         return ""
+
+
+def _parse_shaper(
+    top: _Table, reels: Sequence[ReelConfig] | None, payload: PayloadConfig | None
+) -> ShaperConfig:
+    """The `[shaper]` table. Without `type` the default train shapes where the modes are known
+    (`frequency_hz`, or every reel's `cable_ea_n` and a payload), else nothing is shaped; a
+    type other than "off" needs them known. An unknown type gets a did-you-mean."""
+    sh = top.sub("shaper")
+    sh.finish(tuple(ShaperConfig.__dataclass_fields__))
+    d = ShaperConfig()
+    damping = sh.number("damping_ratio", d.damping_ratio, ge=0.0, le=MAX_DAMPING_RATIO)
+    freq: float | None = None
+    if sh.has("frequency_hz"):
+        freq = sh.number("frequency_hz", None, ge=MIN_FREQUENCY_HZ, le=MAX_FREQUENCY_HZ)
+    scale = sh.number("frequency_scale", d.frequency_scale, ge=0.2, le=5.0)
+    model = (
+        reels is not None and payload is not None and all(r.cable_ea_n is not None for r in reels)
+    )
+    known = freq is not None or model
+    kind = sh.string("type", None) if sh.has("type") else None
+    if kind is None:
+        kind = d.type if known else "off"
+    elif kind not in SHAPER_TYPES:
+        near = closest(kind.lower(), SHAPER_TYPES)
+        hint = f" (did you mean {near!r}?)" if near else ""
+        sh.fail("type", f"unknown shaper type {kind!r}{hint}; one of {', '.join(SHAPER_TYPES)}")
+        kind = "off"
+    elif kind != "off" and not known:
+        sh.fail(
+            "type",
+            f"{kind!r} needs the modes: give shaper.frequency_hz, or every reel's cable_ea_n "
+            "and [payload] for the model's",
+        )
+    return ShaperConfig(kind, damping, freq, scale)
 
 
 def _parse_gcode(top: _Table, limits: LimitsConfig | None) -> GcodeConfig:

@@ -28,6 +28,12 @@ from typing import Any, TypeVar
 
 from controller.core.kinematics import Geometry
 from controller.core.motion import DEFAULT_JUNCTION_DEVIATION_M, DEFAULT_MAX_QUEUED_POINTS
+from controller.core.motion.shaper import (
+    DEFAULT_DAMPING_RATIO,
+    DEFAULT_SHAPER_TYPE,
+    MAX_DAMPING_RATIO,
+    SHAPER_TYPES,
+)
 from controller.core.pretension import PretensionSettings
 from controller.core.reel import ReelModel
 from drivers import registry
@@ -563,6 +569,18 @@ class SimConfig:
         "virtual or udp_multicast bus",
     )
     cable_ea_n: float = key(1.0e6, "axial stiffness EA of every simulated cable (physical plant)")
+    cable_damping_ratio: float = key(
+        0.02,
+        "damping ratio of the simulated ropes (physical plant): every mode their stretch "
+        "stiffens rings down at it; real rope 0.005–0.05, 1 = critical (see "
+        "[shaping](shaping.md#the-simulator))",
+    )
+    effector_damping_n_s_per_m: float | None = key(
+        None,
+        "drag on the simulated effector (physical plant); unset = a light drag of "
+        "0.1 s⁻¹ × `[payload] mass_kg`",
+        shown="0.1 × mass_kg",
+    )
     torque_period_s: float = key(
         0.01,
         "Get_Torques broadcast period of each simulated axis (physical plant); 0 = by RTR only",
@@ -641,6 +659,39 @@ class GcodeConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class ShaperConfig:
+    """`[shaper]`: input shaping of every set-point against the effector's modes
+    (`controller.core.motion.shaper`, [shaping](shaping.md))."""
+
+    type: str = key(
+        DEFAULT_SHAPER_TYPE,
+        f"`{'`, `'.join(SHAPER_TYPES)}`: the impulse train of each mode (`off`: no shaping)",
+        shown=f"`{DEFAULT_SHAPER_TYPE}` where the modes are known, else `off`",
+    )
+    damping_ratio: float = key(
+        DEFAULT_DAMPING_RATIO,
+        f"the modes' damping ratio the trains are designed for, 0..{MAX_DAMPING_RATIO:g} "
+        "(`cablebot resonance` measures it)",
+    )
+    frequency_hz: float | None = key(
+        None,
+        "shape one mode of this frequency everywhere; unset = the model's three modes at the "
+        "set-point (needs every reel's `cable_ea_n` and `[payload]`), following the pose",
+        shown="– (the model's)",
+    )
+    frequency_scale: float = key(
+        1.0,
+        "the model's frequencies are multiplied by this measured correction (`cablebot "
+        "resonance` prints it), 0.2..5",
+    )
+
+    @property
+    def enabled(self) -> bool:
+        """True unless the type is "off"."""
+        return self.type != "off"
+
+
+@dataclass(frozen=True, slots=True)
 class RobotConfig:
     """A validated robot configuration (build it with `load_config` / `parse_config`)."""
 
@@ -662,6 +713,7 @@ class RobotConfig:
     drive: DriveConfig = field(default_factory=DriveConfig)
     ros2: Ros2Config = field(default_factory=lambda: Ros2Config())
     gcode: GcodeConfig = field(default_factory=lambda: GcodeConfig())
+    shaper: ShaperConfig = field(default_factory=lambda: ShaperConfig(type="off"))
     text: str = field(default="", compare=False, repr=False)
     """The robot file's TOML text as loaded (for a robot built from a mapping, its TOML text):
     what the daemon serves as its robot description on `<prefix>/robot`."""
@@ -736,6 +788,7 @@ class RobotConfig:
                 "config_file": self.zenoh.config_file,
             },
             "sim": _fields(self.sim),
+            "shaper": _fields(self.shaper),
             "payload": None if self.payload is None else _fields(self.payload),
             "tension": None if self.tension is None else _fields(self.tension),
             "drive": {
@@ -795,6 +848,11 @@ SECTIONS = (
     Section("sim", "", section_keys(SimConfig)),
     Section("ros2", "optional: the robot as a ROS 2 node over Zenoh", section_keys(Ros2Config)),
     Section("gcode", "optional: G-code jobs (`cablebot gcode`)", section_keys(GcodeConfig)),
+    Section(
+        "shaper",
+        "optional: input shaping against the effector's modes ([shaping](shaping.md))",
+        section_keys(ShaperConfig),
+    ),
     Section("reels", "≥ 3, in cable order: the first is cable 1", REEL_KEYS),
 )
 """Every table of a robot file, in the order the reference shows them; the `[drive]` family

@@ -19,15 +19,18 @@ from typing import TYPE_CHECKING, Any
 
 from controller.core.commands import Command, Vec3
 from controller.core.motion import MotionPlanner
+from controller.core.motion.shaper import ShaperError
 from controller.core.pretension import PretensionRun
 from controller.core.reel import ReelModel
 from controller.core.states import State
 from controller.core.statics import PATH_MAX_SAMPLES, TensionCheck
+from controller.core.vibration import ModesError
 from controller.core.workspace import Workspace
 from controller.service.cables import CableModel
 from controller.service.config import RobotConfig, tension_check
 from controller.service.pose import NullPublisher, Publisher
 from controller.service.runner import LoopStats
+from controller.service.shaping import LoopShaper
 from drivers.base import AxisReading, ReelDriver, TorqueDriver
 
 log = logging.getLogger("cablebot.loop")
@@ -167,11 +170,22 @@ class ControllerState:
         )
         self.cables = CableModel.from_config(cfg, self.tension)
         """Rigid or stretching cables: homing lengths, commanded lengths (IPK), pose (FPK)."""
+        try:
+            self.shaping = LoopShaper(cfg, self.period_s, self.tension)
+        except (ShaperError, ModesError) as exc:
+            raise ValueError(f"shaper: {exc}") from None
+        """The input shaper between the planner and the set-point (`[shaper]`; "off" passes
+        the planner's set-point through)."""
         self._tension_step_m = tension_sample_step_m(cfg)
         self.planned_tensions_n: tuple[float, ...] | None = None
         """Tensions that hold the payload at the last good set-point (None: not known)."""
         self.planned_margin_n: float | None = None
         self._planned_at: Vec3 | None = None
+        self._held_n: tuple[float, ...] | None = None
+        """The tensions that hold the payload still at the last set-point planned (without the
+        m a share): the modes' stiffness."""
+        self._planned_acc: Vec3 = (0.0, 0.0, 0.0)
+        """The set-point's acceleration the planned tensions include (its m a share)."""
         self._measure = cfg.loop.torque_telemetry != "off"
         self.measured_tensions_n: list[float | None] = [None] * self.n
         """Tensions from the motors' torque telemetry (None: no fresh reading)."""

@@ -25,12 +25,15 @@ from controller.core.commands import (
     Pretension,
     Reset,
     Setpoint,
+    Shaper,
     Stop,
     Vec3,
     Velocity,
 )
 from controller.core.motion import QueueError, check_speed, dedupe_path
+from controller.core.motion.shaper import ShaperError
 from controller.core.states import ARMED_STATES, State, refusal
+from controller.core.vibration import ModesError
 from controller.core.workspace import points_array
 from controller.service.control.base import (
     CONFLICT_HOLDOFF_S,
@@ -56,6 +59,7 @@ _VERBS: Mapping[type, str] = {
     Pretension: "pretension",
     Setpoint: "setpoint",
     Velocity: "velocity",
+    Shaper: "shaper",
 }
 _MAX_COMMANDS_PER_TICK = 8
 
@@ -301,6 +305,24 @@ class CommandExecution(Homing):
                 self._stop_brake = (self.planner.rest_point_m, f"stopped by {why}")
         return {"ok": True, "state": self.state.value}
 
+    def _cmd_shaper(
+        self, cmd: Shaper, readings: Sequence[AxisReading], now_s: float, motion: _Motion | None
+    ) -> Reply:
+        """`shaper`: a new input shaper, applied now when the set-point is at rest, else when
+        the motion ends. Raises CommandRefused for the model's frequency without a model."""
+        at = self.setpoint_m if self.setpoint_m is not None else (0.0, 0.0, 0.0)
+        try:
+            when = self.shaping.change(cmd.type, cmd.frequency_hz, cmd.damping_ratio, at)
+        except (ShaperError, ModesError) as exc:
+            raise CommandRefused(f"shaper: {exc}") from None
+        log.info("shaper %s (%s)", self.shaping.describe(), when)
+        return {
+            "ok": True,
+            "state": self.state.value,
+            "applies": when,
+            "shaper": self.shaping.describe(),
+        }
+
     def _cmd_arm(
         self, cmd: Arm, readings: Sequence[AxisReading], now_s: float, motion: _Motion | None
     ) -> Reply:
@@ -492,6 +514,7 @@ _HANDLERS: Mapping[
     "reset": CommandExecution._cmd_reset,
     "home": CommandExecution._cmd_home,
     "pretension": CommandExecution._cmd_pretension,
+    "shaper": CommandExecution._cmd_shaper,
 }
 """The handler of each verb of `controller.core.states.COMMAND_VERBS` that goes through the
 command queue (estop, streamed set-points and velocity samples do not)."""

@@ -62,6 +62,7 @@ class FaultHandling(ControllerState):
         """Put the planner on hold at the last good set-point (no further motion)."""
         if self.setpoint_m is not None:
             self.planner.hold(self.setpoint_m)
+            self.shaping.reset(self.setpoint_m)
 
     # ---------------------------------------------------------------- fault detection
 

@@ -88,6 +88,7 @@ class StatusReport(ControllerState):
                 "blends_dropped": self.planner.blends_dropped,
                 "speed_mps": self.path_speed_mps if self.planner.mode == "move" else None,
             },
+            "shaper": self.shaping.describe(),
             "velocity": {
                 "command_mps": list(self.planner.velocity_command_mps),
                 "discarded": self.velocity_discarded,

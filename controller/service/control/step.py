@@ -10,6 +10,7 @@ from collections.abc import Callable, Sequence
 
 from controller.core import kinematics
 from controller.core.commands import Vec3
+from controller.core.inertia import inertial_share, with_inertia
 from controller.core.motion import BRAKE_ACCEL_SHARE
 from controller.core.states import ARMED_STATES, State
 from controller.core.statics import StaticsError
@@ -19,6 +20,7 @@ from controller.service.pose import PoseSample
 from controller.service.runner import SPIN_S, Runner
 from drivers.base import AxisReading, BusError
 
+_ZERO: Vec3 = (0.0, 0.0, 0.0)
 STOP_POINT_TOL_M = 1e-6
 """A motion held this close to where a `stop` braked it to ended by that stop."""
 
@@ -193,7 +195,7 @@ class ControlStep(CommandExecution):
             # The pose is where the effector was when the readings were taken; the set-point has
             # moved on since by at most its speed times their age (a late reading on a busy
             # computer is not a lag of the robot; a stale one faults on its own).
-            v = self.planner.velocity_mps
+            v = self.shaping.velocity_mps
             allowed = (
                 self._tracking_max_m
                 + math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) * oldest_age_s
@@ -240,6 +242,7 @@ class ControlStep(CommandExecution):
     def _hold_at(self, p: Vec3) -> None:
         """Hold at `p`; _Fault if the payload cannot be held there (the tension rule)."""
         self.planner.hold(p)
+        self.shaping.reset(p)
         self.setpoint_m = p
         self._setpoint_tick_s = self._last_tick_s
         self.setpoint_lengths_m = None
@@ -276,10 +279,14 @@ class ControlStep(CommandExecution):
                 and self.planner.moving
             ):
                 self._set_state(State.MOVING, "velocity")
-        sp = self.planner.advance(dt)
-        sp = (float(sp[0]), float(sp[1]), float(sp[2]))
+        raw = self.planner.advance(dt)
+        raw = (float(raw[0]), float(raw[1]), float(raw[2]))
+        if not (math.isfinite(raw[0]) and math.isfinite(raw[1]) and math.isfinite(raw[2])):
+            raise _Fault(f"nan_setpoint: planner gave {raw}")
+        shaping = self.shaping
+        sp = shaping.shape(raw, self.planner.velocity_mps, dt, self.setpoint_m, self._held_n)
         if not (math.isfinite(sp[0]) and math.isfinite(sp[1]) and math.isfinite(sp[2])):
-            raise _Fault(f"nan_setpoint: planner gave {sp}")
+            raise _Fault(f"nan_setpoint: shaper gave {sp}")
         reason = self.workspace.check_point(sp)
         if reason is not None:
             raise _Fault(f"limit: set-point {_fmt(sp)}: {reason}")
@@ -290,8 +297,9 @@ class ControlStep(CommandExecution):
         reason = self.workspace.check_lengths(lengths)
         if reason is not None:
             raise _Fault(f"limit: {reason}")
-        if self.tension is not None and sp != self._planned_at:
-            self._plan_tensions(sp)
+        acc = shaping.acceleration_mps2
+        if self.tension is not None and (sp != self._planned_at or acc != self._planned_acc):
+            self._plan_tensions(sp, acc)
         try:
             paid = self.cables.commanded_lengths_m(lengths, self.planned_tensions_n)
         except kinematics.KinematicsError as exc:
@@ -303,14 +311,15 @@ class ControlStep(CommandExecution):
                 raise _Fault(f"cable_speed: {reason}")
         reels = self.reels
         rev = [reels[i].position_rev(paid[i]) for i in range(self.n)]
-        ff = self._velocity_ff(sp, self.planner.velocity_mps, lengths, rev)
+        ff = self._velocity_ff(sp, shaping.velocity_mps, lengths, rev)
         self._send(rev, ff)
         self.commanded_rev = rev
         self.commanded_ff_rps = ff
         self.setpoint_m = sp
         self._setpoint_tick_s = self._last_tick_s  # after it: see `status`
         self.setpoint_lengths_m = lengths
-        if self.state is State.MOVING and not self.planner.moving:
+        if self.state is State.MOVING and not self.planner.moving and shaping.settled:
+            shaping.take_pending(sp)
             self._set_state(State.HOLDING, self._stop_reason(sp))
 
     def _stop_reason(self, held_m: Vec3) -> str | None:
@@ -321,9 +330,11 @@ class ControlStep(CommandExecution):
             return brake[1]
         return None
 
-    def _plan_tensions(self, sp: Vec3) -> None:
-        """The tensions that hold the payload at set-point `sp`; _Fault if they break the
-        tension rule (limits and margin). A held set-point is solved once."""
+    def _plan_tensions(self, sp: Vec3, acc: Vec3 = _ZERO) -> None:
+        """The tensions that hold the payload at set-point `sp` and accelerate it at `acc`
+        (`controller.core.inertia`: the held distribution and the least-norm share of m a);
+        _Fault if the held distribution breaks the tension rule (limits and margin: the margin
+        is the room the share takes). A held set-point is solved once."""
         assert self.tension is not None
         # The FPK's tension derivative (cable stretch) comes with this solve, every 5 cm.
         want = self.cables.wants_derivative(sp)
@@ -336,9 +347,14 @@ class ControlStep(CommandExecution):
             raise _Fault(f"tension: set-point {_fmt(sp)}: {reason}")
         if want:
             self.cables.take_derivative(sp, res.derivative)
-        self.planned_tensions_n = res.tensions_n
+        planned = self._held_n = res.tensions_n
+        if acc != _ZERO:
+            share = inertial_share(self._anchors, sp, self.tension.mass_kg, acc)
+            planned = with_inertia(planned, share)
+        self.planned_tensions_n = planned
         self.planned_margin_n = res.margin_n
         self._planned_at = sp
+        self._planned_acc = acc
 
     def _velocity_ff(
         self, sp: Vec3, v_mps: Vec3, lengths: Sequence[float], rev: Sequence[float]
@@ -431,15 +447,17 @@ class ControlStep(CommandExecution):
         on a path, braking along it, longer through corner arcs; 0 when still). Thread-safe:
         read while the loop may change the planner, it is retried and, should the planner keep
         changing under it, bounded from the speed at the corner arcs' braking share of the
-        acceleration (`BRAKE_ACCEL_SHARE`). Raises nothing."""
+        acceleration (`BRAKE_ACCEL_SHARE`). With input shaping the shaped set-point arrives
+        the shaper's delay later. Raises nothing."""
         planner = self.planner
+        lag = self.shaping.max_delay_s()
         for _ in range(3):
             try:
                 t = planner.brake_time_s
             except (RuntimeError, IndexError):  # the deque changed while it was walked
                 continue
             if math.isfinite(t) and t >= 0.0:
-                return t
+                return t + (0.0 if t == 0.0 and self.shaping.settled else lag)
         vx, vy, vz = planner.velocity_mps
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)
-        return speed / (float(self.cfg.limits.max_accel_mps2) * BRAKE_ACCEL_SHARE)
+        return speed / (float(self.cfg.limits.max_accel_mps2) * BRAKE_ACCEL_SHARE) + lag

@@ -1,18 +1,23 @@
 """A whole motion checked before the robot moves: the rules of a robot (workspace, cable
 lengths, the tension rule along every leg) as the daemon applies them to each command, for
-every point of a G-code job or a path file at once, so that a bad point anywhere is refused
-before anything is sent. No argparse: a client library can use it as the CLI does.
+every point of a G-code job or a path at once, so that a bad point anywhere is refused before
+anything is sent. The rules are those of the robot the daemon runs (its description,
+`controller.client.description`), never of a file of the client's own.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
+from controller.client.errors import InputError
 from controller.core.gcode_job import motion_failure
 from controller.core.statics import TensionCheck
 from controller.core.workspace import Workspace
+
+if TYPE_CHECKING:
+    from controller.client.link import RobotLink
 
 Vec3 = tuple[float, float, float]
 
@@ -71,10 +76,12 @@ def path_refusal(
     start_m: Sequence[float] | None,
     file: str,
     line_of: Sequence[int] | None,
+    whole: str = "file",
 ) -> str | None:
     """Why the robot would refuse the path file `file` (its `points`, flown from `start_m`),
     naming the file's line of the first bad point (`line_of[i]`; without line numbers, the
-    point's position in the file from 1), or None. Raises nothing."""
+    point's position in the file from 1), or None. `whole` names what was checked whole (a
+    "file", a "path" a program gave). Raises nothing."""
     failure = rules.failure(points, start_m)
     if failure is None:
         return None
@@ -83,44 +90,43 @@ def path_refusal(
     p = points[i]
     return (
         f"{file} {where}: refused: point [{p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}]: {why}"
-        f" (the whole file is checked first: nothing was sent)"
+        f" (the whole {whole} is checked first: nothing was sent)"
     )
 
 
 class PathFile(NamedTuple):
-    """A path file as read: its name, points, their line numbers (None: JSON, whose points are
-    named by position) and whether it appends to the path in progress."""
+    """A path as read from a file (or given by a program: `whole` "path"): its name, points,
+    their line numbers (None: JSON, whose points are named by position) and whether it appends
+    to the path in progress."""
 
     file: str
     points: list[list[float]]
     line_of: list[int] | None
     append: bool
+    whole: str = "file"
 
 
 def check_with_robot(
-    session: Any,
-    prefix: str,
-    timeout_s: float,
+    robot: RobotLink,
     speed_mps: float | None,
     path: PathFile | None,
     *,
     speed_option: str = "--speed",
 ) -> None:
-    """Before anything is sent, with the robot the daemon on `prefix` runs: refuse a speed
-    above its `limits.max_speed_mps` (`speed_refusal`, naming `speed_option`) and any point
-    of a whole path file (`path_refusal`, flown from the robot's set-point when it holds and
-    the file does not append).
+    """Before anything is sent, with the robot the daemon runs (`robot.description()`): refuse
+    a speed above its `limits.max_speed_mps` (`speed_refusal`, naming `speed_option`) and any
+    point of a whole path (`path_refusal`, flown from the robot's set-point when it holds and
+    the path does not append).
 
     A daemon that serves no robot description (older than this client) is not pre-checked:
     it checks each command itself, as it always did.
 
-    Raises session.InputError with the reason, DaemonAbsent or Refused (`fetch_robot`).
+    Raises InputError with the reason, DaemonAbsent or Refused (`robot.description()`).
     """
-    from controller.cli.daemon_robot import NoDescription, fetch_robot
-    from controller.cli.session import InputError, query
+    from controller.client.description import NoDescription
 
     try:
-        cfg = fetch_robot(session, prefix, timeout_s).config
+        cfg = robot.description().config
     except NoDescription:
         return
     why = speed_refusal(speed_mps, float(cfg.limits.max_speed_mps), speed_option)
@@ -130,10 +136,10 @@ def check_with_robot(
         return
     start = None
     if not path.append:
-        st = query(session, f"{prefix.rstrip('/')}/status", None, timeout_s)
-        if isinstance(st, dict) and st.get("state") == "HOLDING":
-            start = st.get("setpoint_m")
+        st = robot.status()
+        if st.state == "HOLDING":
+            start = st.setpoint_m
     pts = [(p[0], p[1], p[2]) for p in path.points]
-    why = path_refusal(RobotRules.of(cfg), pts, start, path.file, path.line_of)
+    why = path_refusal(RobotRules.of(cfg), pts, start, path.file, path.line_of, path.whole)
     if why is not None:
         raise InputError(why)
