@@ -326,6 +326,8 @@ def test_bench_layouts_piece() -> None:
         assert all(_number(v) and v > 0.0 for v in fig.values()), (name, fig)
     assert figures["paper-4"]["statics_over_paper4"] == 1.0
     assert figures["paper-4"]["fpk_over_paper4"] == 1.0
+    assert figures["paper-4"]["statics_tick_over_paper4"] == 1.0
+    assert figures["paper-4"]["fpk_tick_over_paper4"] == 1.0
 
 
 def test_bench_sim_plant_piece() -> None:

@@ -141,7 +141,7 @@ Method
   call at random poses of the workspace and along a path in 1 mm steps (the FPK seeded by the
   last pose), all interleaved in one run; ratios to the paper robot's figures of the same
   kind. Target: eight cables at most `TARGET_LAYOUT_OVER_PAPER4` times the paper robot's four
-  at random poses, for the statics and the FPK.
+  at random poses and a tick after the last, for the statics and the FPK.
 
 * `client_stream` (full run only, `FULL_ONLY_SECTIONS`; `--only client`): a 100,000-point path
   streamed to a daemon of the built-in robot by the CLI (`cablebot path FILE --wait`) and by a

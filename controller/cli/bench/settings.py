@@ -310,6 +310,9 @@ LAYOUT_KEYS = (
     "fpk_tick_us",
     "statics_over_paper4",
     "fpk_over_paper4",
+    "statics_tick_over_paper4",
+    "fpk_tick_over_paper4",
 )
 TARGET_LAYOUT_OVER_PAPER4 = 2.0
-"""Eight cables' statics and FPK per call over the paper robot's four, at random poses."""
+"""Eight cables' statics and FPK per call over the paper robot's four, at random poses and a
+tick after the last."""
