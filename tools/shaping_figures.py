@@ -7,7 +7,7 @@ repository:
     .venv/bin/python tools/shaping_figures.py moves desk               # 9 poses x 6 directions
     .venv/bin/python tools/shaping_figures.py paths                    # the square, the vase
     .venv/bin/python tools/shaping_figures.py vertical                 # one move, drives, ticks
-    .venv/bin/python tools/shaping_figures.py offset paper --mass 5 --pose 0,-9,4.5 --direction +z \
+    .venv/bin/python tools/shaping_figures.py offset paper --mass 5 --pose=0,-9,4.5 --direction z+ \
         --model-error 0.7                                              # the wrong EA's rest offset
 
 `moves`: from each pose a rest-to-rest move in +-x, +-y, +-z (2 m on the paper robot, 0.2 m
@@ -17,10 +17,10 @@ the cables exact and 30 % off (EA x 0.7 and x 1.3: its frequencies 16 % low and 
 Per move it prints the residual vibration (the largest distance of the truth from its rest
 point over the 3 s after the move ends), the time the move took and the shaper's delay at the
 end. The summary gives, per pose, the smallest ratio unshaped / shaped over its moves, and
-the smallest and the median of those over the poses. `--pose X,Y,Z`, `--direction` (+x, -z,
+the smallest and the median of those over the poses. `--pose=X,Y,Z`, `--direction` (x+, z-,
 ...), `--model-error` and `--mass` (each repeatable) select a part of the matrix;
 `--frequency-scale` sets the shaped runs' `[shaper] frequency_scale` (the shaper's frequencies
-off on purpose, the stretch model untouched).
+off on purpose, the stretch model untouched); `--speed` the moves' speed (m/s).
 
 `offset`: where the lengths the controller commands bring the effector to rest, against the
 set-point, along a move whose model EA is off (`--model-error`): the rest offset, its slope
@@ -123,7 +123,7 @@ def target_for(cfg: Any, start: Vec3, direction: Vec3, length_m: float) -> Vec3 
     return None
 
 
-DIRECTION_NAMES = {"+x": 0, "-x": 1, "+y": 2, "-y": 3, "+z": 4, "-z": 5}
+DIRECTION_NAMES = {"x+": 0, "x-": 1, "y+": 2, "y-": 3, "z+": 4, "z-": 5}
 
 
 @dataclass(frozen=True)
@@ -136,6 +136,7 @@ class Selection:
     errors: tuple[float, ...] = MODEL_ERRORS
     masses: tuple[float, ...] | None = None
     frequency_scale: float = 1.0
+    speed_mps: float | None = None
 
 
 def moves(robot: str, kind: str, quick: bool, sel: Selection | None = None) -> None:
@@ -172,7 +173,7 @@ def moves(robot: str, kind: str, quick: bool, sel: Selection | None = None) -> N
                             if target is None:
                                 break
                         rig = PlantRig(cfg)
-                        res[shaped] = rig.move(target, spec["speed_mps"])
+                        res[shaped] = rig.move(target, sel.speed_mps or spec["speed_mps"])
                     if target is None:
                         print(f"{robot} {mass:g} kg {start} {direction}: no allowed move")
                         break
@@ -182,7 +183,7 @@ def moves(robot: str, kind: str, quick: bool, sel: Selection | None = None) -> N
                     if err == 1.0:
                         gains.append((on.duration_s - off.duration_s, on.shaper_delay_s))
                     print(
-                        f"{robot} {mass:4g} kg EA x{err:.1f} from {_p(start)} to {_p(target)}: "
+                        f"{robot} {mass:4g} kg EA x{err:g} from {_p(start)} to {_p(target)}: "
                         f"residual {off.residual_m * 1e3:9.3f} mm unshaped, "
                         f"{on.residual_m * 1e3:8.4f} mm shaped ({ratio:7.1f}x); "
                         f"{off.duration_s:.3f} s -> {on.duration_s:.3f} s "
@@ -199,7 +200,7 @@ def moves(robot: str, kind: str, quick: bool, sel: Selection | None = None) -> N
     for (mass, err), per_pose in sorted(ratios.items()):
         worst = [min(v) for v in per_pose.values()]
         print(
-            f"| {mass:g} kg | x{err:.1f} | {min(worst):.1f}x | {statistics.median(worst):.1f}x "
+            f"| {mass:g} kg | x{err:g} | {min(worst):.1f}x | {statistics.median(worst):.1f}x "
             f"| {len(worst)} |"
         )
     if gains:
@@ -269,7 +270,7 @@ def offset(robot: str, sel: Selection, steps: int = 20) -> None:
                     unit = np.subtract(target, start) / span
                     across = float(np.linalg.norm(o[-1] - along[-1] * unit))
                     print(
-                        f"{robot} {mass:g} kg EA x{err:.1f} from {_p(start)} to {_p(target)}: "
+                        f"{robot} {mass:g} kg EA x{err:g} from {_p(start)} to {_p(target)}: "
                         f"rest offset along the move {along[-1] * 1e3:+.1f} mm at the end "
                         f"(across {across * 1e3:.1f} mm), "
                         f"slope {slope.min():+.3f}..{slope.max():+.3f}, "
@@ -447,7 +448,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--type", default=DEFAULT_SHAPER_TYPE, help="the shaper's type")
     ap.add_argument("--quick", action="store_true", help="three poses only")
     ap.add_argument("--mass", type=float, action="append", help="payloads (kg; repeatable)")
-    ap.add_argument("--pose", action="append", help="start poses X,Y,Z (m; repeatable)")
+    ap.add_argument("--pose", action="append", help="start poses --pose=X,Y,Z (m; repeatable)")
     ap.add_argument(
         "--direction", action="append", choices=tuple(DIRECTION_NAMES), help="directions"
     )
@@ -457,6 +458,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument(
         "--frequency-scale", type=float, default=1.0, help="the shaped runs' frequency_scale"
     )
+    ap.add_argument("--speed", type=float, default=None, help="the moves' speed (m/s)")
     args = ap.parse_args(argv)
     sel = Selection(
         poses=[_vec(v) for v in args.pose] if args.pose else None,
@@ -466,6 +468,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         errors=tuple(args.model_error) if args.model_error else MODEL_ERRORS,
         masses=tuple(args.mass) if args.mass else None,
         frequency_scale=args.frequency_scale,
+        speed_mps=args.speed,
     )
     if args.what == "moves":
         moves(args.robot, args.type, args.quick, sel)
