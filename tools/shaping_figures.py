@@ -271,14 +271,14 @@ def offset(robot: str, sel: Selection, steps: int = 20) -> None:
                     across = float(np.linalg.norm(o[-1] - along[-1] * unit))
                     print(
                         f"{robot} {mass:g} kg EA x{err:g} from {_p(start)} to {_p(target)}: "
-                        f"rest offset along the move {along[-1] * 1e3:+.1f} mm at the end "
-                        f"(across {across * 1e3:.1f} mm), "
+                        f"rest offset along the move {along[-1] * 1e3:+.3f} mm at the end "
+                        f"(across {across * 1e3:.3f} mm), "
                         f"slope {slope.min():+.3f}..{slope.max():+.3f}, "
                         f"curvature {curve.min():+.3f}..{curve.max():+.3f} /m"
                     )
                     for k in range(0, steps + 1, max(1, steps // 5)):
                         print(
-                            f"    {s_m[k]:5.2f} m: offset {along[k] * 1e3:+8.1f} mm, "
+                            f"    {s_m[k]:5.2f} m: offset {along[k] * 1e3:+9.3f} mm, "
                             f"slope {slope[k]:+.3f}, curvature {curve[k]:+.3f} /m"
                         )
 
@@ -448,7 +448,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--type", default=DEFAULT_SHAPER_TYPE, help="the shaper's type")
     ap.add_argument("--quick", action="store_true", help="three poses only")
     ap.add_argument("--mass", type=float, action="append", help="payloads (kg; repeatable)")
-    ap.add_argument("--pose", action="append", help="start poses --pose=X,Y,Z (m; repeatable)")
+    ap.add_argument(
+        "--pose", action="append", type=_vec, help="start poses --pose=X,Y,Z (m; repeatable)"
+    )
     ap.add_argument(
         "--direction", action="append", choices=tuple(DIRECTION_NAMES), help="directions"
     )
@@ -461,7 +463,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--speed", type=float, default=None, help="the moves' speed (m/s)")
     args = ap.parse_args(argv)
     sel = Selection(
-        poses=[_vec(v) for v in args.pose] if args.pose else None,
+        poses=list(args.pose) if args.pose else None,
         directions=[DIRECTIONS[DIRECTION_NAMES[d]] for d in args.direction]
         if args.direction
         else None,
