@@ -9,6 +9,7 @@ import json
 import pytest
 
 from controller.cli import client, main
+from controller.client.model import Reply
 from controller.core.commands import CommandError, Move, parse_command
 from controller.core.motion import MIN_SPEED_MPS
 from controller.service.zenoh_io import free_tcp_port
@@ -42,13 +43,13 @@ def test_the_cli_refuses_a_speed_below_the_minimum_before_sending(
 def test_the_cli_says_when_the_speed_was_limited(capsys: pytest.CaptureFixture[str]) -> None:
     args = argparse.Namespace(json=False)
     reply = {"ok": True, "target_m": [1.0, 0.0, 2.0], "speed_mps": 2.0, "speed_limited_to_mps": 2.0}
-    client._print_reply("move", reply, args)
+    client._print_reply("move", Reply.from_reply("move", reply), args)
     lines = capsys.readouterr().out.splitlines()
     assert lines == [
         "move: to x=+1.000 y=+0.000 z=+2.000 m at 2.000 m/s "
         "(speed limited to the robot's maximum, 2.000 m/s)"
     ]
-    client._print_reply("move", {"ok": True, "speed_mps": 1.0}, args)
+    client._print_reply("move", Reply.from_reply("move", {"ok": True, "speed_mps": 1.0}), args)
     assert "limited" not in capsys.readouterr().out
-    client._print_reply("path", reply, argparse.Namespace(json=True))
+    client._print_reply("path", Reply.from_reply("path", reply), argparse.Namespace(json=True))
     assert json.loads(capsys.readouterr().out) == reply
