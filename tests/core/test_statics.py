@@ -751,6 +751,9 @@ def test_tension_derivative_is_the_statics_derivative(
         raise
     scale = max(1.0, float(np.max(np.abs(fd))))
     assume(gap < 1e-3 * scale)  # not at a kink of the distribution
+    # where the cables hold the payload (the loop plans no other set-point): below the least
+    # tension the solve's best effort ties cables that part at once, a kink at the point
+    assume(min(t) >= lim[0])
     d = s.tension_derivative(p, t)
     assume(d is not None)  # a degenerate tie (checked below to be rare)
     assert d is not None
