@@ -7,6 +7,8 @@ repository:
     .venv/bin/python tools/shaping_figures.py moves desk               # 9 poses x 6 directions
     .venv/bin/python tools/shaping_figures.py paths                    # the square, the vase
     .venv/bin/python tools/shaping_figures.py vertical                 # one move, drives, ticks
+    .venv/bin/python tools/shaping_figures.py offset paper --mass 5 --pose=0,-9,4.5 --direction z+ \
+        --model-error 0.7                                              # the wrong EA's rest offset
 
 `moves`: from each pose a rest-to-rest move in +-x, +-y, +-z (2 m on the paper robot, 0.2 m
 on the desk rig, halved until the target and the leg are allowed), for each payload, with the
@@ -15,7 +17,14 @@ the cables exact and 30 % off (EA x 0.7 and x 1.3: its frequencies 16 % low and 
 Per move it prints the residual vibration (the largest distance of the truth from its rest
 point over the 3 s after the move ends), the time the move took and the shaper's delay at the
 end. The summary gives, per pose, the smallest ratio unshaped / shaped over its moves, and
-the smallest and the median of those over the poses.
+the smallest and the median of those over the poses. `--pose=X,Y,Z`, `--direction` (x+, z-,
+...), `--model-error` and `--mass` (each repeatable) select a part of the matrix;
+`--frequency-scale` sets the shaped runs' `[shaper] frequency_scale` (the shaper's frequencies
+off on purpose, the stretch model untouched); `--speed` the moves' speed (m/s).
+
+`offset`: where the lengths the controller commands bring the effector to rest, against the
+set-point, along a move whose model EA is off (`--model-error`): the rest offset, its slope
+and its curvature (the wrong stretch seen by the plant as a different, curved move).
 
 `paths`: the repository's square (`config/square-path.csv`, paper robot, 5 kg) and the first two
 layers of `tests/data/vase.gcode.gz` (desk rig): the largest distance of the set-point and of
@@ -35,6 +44,7 @@ import statistics
 import sys
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -113,21 +123,40 @@ def target_for(cfg: Any, start: Vec3, direction: Vec3, length_m: float) -> Vec3 
     return None
 
 
-def moves(robot: str, kind: str, quick: bool, only_kg: float | None = None) -> None:
-    """The residual-vibration matrix of `robot` (module docstring), of one payload `only_kg`
-    if given."""
+DIRECTION_NAMES = {"x+": 0, "x-": 1, "y+": 2, "y-": 3, "z+": 4, "z-": 5}
+
+
+@dataclass(frozen=True)
+class Selection:
+    """A part of the `moves` matrix: poses, directions, model errors and payloads (None: all
+    of the robot's), and the shaped runs' frequency scale."""
+
+    poses: list[Vec3] | None = None
+    directions: list[Vec3] | None = None
+    errors: tuple[float, ...] = MODEL_ERRORS
+    masses: tuple[float, ...] | None = None
+    frequency_scale: float = 1.0
+    speed_mps: float | None = None
+
+
+def moves(robot: str, kind: str, quick: bool, sel: Selection | None = None) -> None:
+    """The residual-vibration matrix of `robot` (module docstring), or the part `sel`."""
+    sel = Selection() if sel is None else sel
     spec = ROBOTS[robot]
     data = robot_data(robot)
-    poses = spec["poses"][:3] if quick else spec["poses"]
+    poses = sel.poses or (spec["poses"][:3] if quick else spec["poses"])
+    shaper: dict[str, Any] = {"type": kind}
+    if sel.frequency_scale != 1.0:
+        shaper["frequency_scale"] = sel.frequency_scale
     # ratios[(mass, error)][pose] = list of unshaped / shaped over the directions
     ratios: dict[tuple[float, float], dict[int, list[float]]] = {}
     gains: list[tuple[float, float]] = []
     t0 = time.monotonic()
-    for mass in spec["masses"] if only_kg is None else (only_kg,):
+    for mass in sel.masses or spec["masses"]:
         for pi, start in enumerate(poses):
-            for direction in DIRECTIONS:
+            for direction in sel.directions or DIRECTIONS:
                 target = None
-                for err in MODEL_ERRORS:
+                for err in sel.errors:
                     res = {}
                     for shaped in (False, True):
                         cfg = robot_config(
@@ -136,7 +165,7 @@ def moves(robot: str, kind: str, quick: bool, only_kg: float | None = None) -> N
                             plant_ea_n=spec["ea"],
                             model_ea_n=spec["ea"] * err,
                             start_m=start,
-                            shaper={"type": kind} if shaped else None,
+                            shaper=shaper if shaped else None,
                             max_tension_n=spec["max_tension_n"],
                         )
                         if target is None:
@@ -144,7 +173,7 @@ def moves(robot: str, kind: str, quick: bool, only_kg: float | None = None) -> N
                             if target is None:
                                 break
                         rig = PlantRig(cfg)
-                        res[shaped] = rig.move(target, spec["speed_mps"])
+                        res[shaped] = rig.move(target, sel.speed_mps or spec["speed_mps"])
                     if target is None:
                         print(f"{robot} {mass:g} kg {start} {direction}: no allowed move")
                         break
@@ -154,14 +183,15 @@ def moves(robot: str, kind: str, quick: bool, only_kg: float | None = None) -> N
                     if err == 1.0:
                         gains.append((on.duration_s - off.duration_s, on.shaper_delay_s))
                     print(
-                        f"{robot} {mass:4g} kg EA x{err:.1f} from {_p(start)} to {_p(target)}: "
+                        f"{robot} {mass:4g} kg EA x{err:g} from {_p(start)} to {_p(target)}: "
                         f"residual {off.residual_m * 1e3:9.3f} mm unshaped, "
                         f"{on.residual_m * 1e3:8.4f} mm shaped ({ratio:7.1f}x); "
                         f"{off.duration_s:.3f} s -> {on.duration_s:.3f} s "
                         f"(delay {on.shaper_delay_s:.3f} s); off line {on.off_line_m * 1e6:.2f} um",
                         flush=True,
                     )
-    print(f"\n{robot}, shaper {kind}, {time.monotonic() - t0:.0f} s")
+    scale = f", frequency scale {sel.frequency_scale:g}" if sel.frequency_scale != 1.0 else ""
+    print(f"\n{robot}, shaper {kind}{scale}, {time.monotonic() - t0:.0f} s")
     print(
         "| payload | model EA | worst pose: smallest ratio | median over poses of the "
         "smallest ratio | poses |"
@@ -170,7 +200,7 @@ def moves(robot: str, kind: str, quick: bool, only_kg: float | None = None) -> N
     for (mass, err), per_pose in sorted(ratios.items()):
         worst = [min(v) for v in per_pose.values()]
         print(
-            f"| {mass:g} kg | x{err:.1f} | {min(worst):.1f}x | {statistics.median(worst):.1f}x "
+            f"| {mass:g} kg | x{err:g} | {min(worst):.1f}x | {statistics.median(worst):.1f}x "
             f"| {len(worst)} |"
         )
     if gains:
@@ -181,6 +211,76 @@ def moves(robot: str, kind: str, quick: bool, only_kg: float | None = None) -> N
             f"time shaping adds to a move: {lo:.3f}..{hi:.3f} s; largest excess over the shaper's "
             f"delay at the end {over * 1e3:.1f} ms"
         )
+
+
+def offset(robot: str, sel: Selection, steps: int = 20) -> None:
+    """For each selected payload, pose, direction and model error: where the lengths the
+    controller commands bring the effector to rest, against the set-point, at `steps` + 1
+    set-points along the move at rest (no acceleration). The plant starts at rest at the pose
+    (homed there: no offset at the start)."""
+    import numpy as np
+
+    from controller.core import kinematics
+    from controller.core.plant import equilibrium
+
+    spec = ROBOTS[robot]
+    data = robot_data(robot)
+    for mass in sel.masses or spec["masses"]:
+        for start in sel.poses or spec["poses"]:
+            for direction in sel.directions or DIRECTIONS:
+                for err in sel.errors:
+                    cfg = robot_config(
+                        data,
+                        mass_kg=mass,
+                        plant_ea_n=spec["ea"],
+                        model_ea_n=spec["ea"] * err,
+                        start_m=start,
+                        shaper=None,
+                        max_tension_n=spec["max_tension_n"],
+                    )
+                    target = target_for(cfg, start, direction, spec["length_m"])
+                    if target is None:
+                        print(f"{robot} {mass:g} kg {_p(start)} {_p(direction)}: no allowed move")
+                        continue
+                    rig = PlantRig(cfg)
+                    ctl = rig.ctl
+                    assert ctl.tension is not None
+                    params = rig.plant.plant.params
+                    home_l0 = rig.plant.plant.unstretched_m
+
+                    def commanded(p: Vec3, cfg: Any = cfg, ctl: Any = ctl) -> list[float]:
+                        t = ctl.tension.solve(p).tensions_n
+                        lengths = kinematics.ipk_point(cfg.geometry, p)
+                        return list(ctl.cables.commanded_lengths_m(lengths, t))
+
+                    home = commanded(start)
+                    span = math.dist(start, target)
+                    s_m = np.linspace(0.0, span, steps + 1)
+                    off = []
+                    for s in s_m:
+                        p = tuple(start[i] + s / span * (target[i] - start[i]) for i in range(3))
+                        c = commanded(p)
+                        l0 = [a + (b - b0) for a, b, b0 in zip(home_l0, c, home, strict=True)]
+                        rest = equilibrium(params, l0, p).position_m
+                        off.append([rest[i] - p[i] for i in range(3)])
+                    o = np.array(off)
+                    along = o @ (np.subtract(target, start) / span)
+                    slope = np.gradient(along, s_m)
+                    curve = np.gradient(slope, s_m)
+                    unit = np.subtract(target, start) / span
+                    across = float(np.linalg.norm(o[-1] - along[-1] * unit))
+                    print(
+                        f"{robot} {mass:g} kg EA x{err:g} from {_p(start)} to {_p(target)}: "
+                        f"rest offset along the move {along[-1] * 1e3:+.3f} mm at the end "
+                        f"(across {across * 1e3:.3f} mm), "
+                        f"slope {slope.min():+.3f}..{slope.max():+.3f}, "
+                        f"curvature {curve.min():+.3f}..{curve.max():+.3f} /m"
+                    )
+                    for k in range(0, steps + 1, max(1, steps // 5)):
+                        print(
+                            f"    {s_m[k]:5.2f} m: offset {along[k] * 1e3:+9.3f} mm, "
+                            f"slope {slope[k]:+.3f}, curvature {curve[k]:+.3f} /m"
+                        )
 
 
 def vertical(kind: str) -> None:
@@ -214,6 +314,15 @@ def vertical(kind: str) -> None:
             f"unshaped, {res[True].residual_m * 1e3:.4f} mm shaped",
             flush=True,
         )
+
+
+def _vec(text: str) -> Vec3:
+    """X,Y,Z in metres; argparse's error for anything else."""
+    try:
+        x, y, z = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a pose is X,Y,Z in metres, not {text!r}") from None
+    return (x, y, z)
 
 
 def _p(p: Sequence[float]) -> str:
@@ -334,14 +443,39 @@ def paths(kind: str) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """The command line (module docstring)."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("what", choices=("moves", "paths", "vertical"))
+    ap.add_argument("what", choices=("moves", "paths", "vertical", "offset"))
     ap.add_argument("robot", nargs="?", default="paper", choices=tuple(ROBOTS))
     ap.add_argument("--type", default=DEFAULT_SHAPER_TYPE, help="the shaper's type")
     ap.add_argument("--quick", action="store_true", help="three poses only")
-    ap.add_argument("--mass", type=float, default=None, help="one payload only (kg)")
+    ap.add_argument("--mass", type=float, action="append", help="payloads (kg; repeatable)")
+    ap.add_argument(
+        "--pose", action="append", type=_vec, help="start poses --pose=X,Y,Z (m; repeatable)"
+    )
+    ap.add_argument(
+        "--direction", action="append", choices=tuple(DIRECTION_NAMES), help="directions"
+    )
+    ap.add_argument(
+        "--model-error", type=float, action="append", help="the model's EA / the plant's"
+    )
+    ap.add_argument(
+        "--frequency-scale", type=float, default=1.0, help="the shaped runs' frequency_scale"
+    )
+    ap.add_argument("--speed", type=float, default=None, help="the moves' speed (m/s)")
     args = ap.parse_args(argv)
+    sel = Selection(
+        poses=list(args.pose) if args.pose else None,
+        directions=[DIRECTIONS[DIRECTION_NAMES[d]] for d in args.direction]
+        if args.direction
+        else None,
+        errors=tuple(args.model_error) if args.model_error else MODEL_ERRORS,
+        masses=tuple(args.mass) if args.mass else None,
+        frequency_scale=args.frequency_scale,
+        speed_mps=args.speed,
+    )
     if args.what == "moves":
-        moves(args.robot, args.type, args.quick, args.mass)
+        moves(args.robot, args.type, args.quick, sel)
+    elif args.what == "offset":
+        offset(args.robot, sel)
     elif args.what == "vertical":
         vertical(args.type)
     else:

@@ -308,6 +308,13 @@ def describe(cfg: Any) -> tuple[list[str], list[str], dict[str, Any]]:
     if stretch is not None:
         lines.append(stretch[0])
         data["stretch"] = stretch[1]
+    from controller.cli.sag_report import sag_lines, sag_poses
+
+    centre = ((x_lo + x_hi) / 2.0, (y_lo + y_hi) / 2.0)
+    sagged = sag_lines(cfg, sag_poses(cfg, centre, (x_hi, y_hi), lim.floor_z_m, top_z))
+    if sagged is not None:
+        lines.extend(sagged[0])
+        data["sag"] = sagged[1]
     from controller.cli.modes_cmd import modes_lines
 
     mode_text, mode_data = modes_lines(cfg)

@@ -1,9 +1,14 @@
 """Offline kinematics tools that need no daemon: `cablebot ipk` and `cablebot fpk`.
 
-Pure geometry from the configuration's anchors: reel homing offsets play no part.
+From the configuration's anchors and cables (reel homing offsets play no part):
 
-- `cablebot ipk [--config FILE] X Y Z` prints the cable length per reel (by node id).
-- `cablebot fpk [--config FILE] L1 L2 ...` prints the position and the RMS residual.
+- `cablebot ipk [--config FILE] X Y Z` prints the cable length per reel (by node id): the
+  straight line from anchor to effector, and where the cables stretch (`cable_ea_n`) or sag
+  (`cable_mass_kg_per_m`) what the reels pay out for the payload at rest there (the lengths the
+  controller commands; equal to the straight lines for rigid, massless cables).
+- `cablebot fpk [--config FILE] L1 L2 ...` prints the position and the RMS residual of
+  straight-line lengths; with `--paid-out`, of what the reels paid out (stretch and sag as
+  configured, the controller's pose estimate).
 
 `--json` prints one JSON object instead. Exit 0 on success; 1 with a message on stderr for a
 bad configuration, a non-finite number, a wrong number of lengths, lengths that cannot meet in
@@ -47,6 +52,31 @@ def ipk_lengths(cfg: Any, position_m: tuple[float, float, float]) -> dict[int, f
     return {int(r.node_id): float(length) for r, length in zip(cfg.reels, lengths, strict=True)}
 
 
+def paid_out_lengths(cfg: Any, position_m: tuple[float, float, float]) -> tuple[float, ...]:
+    """What the reels pay out (m, reel order) to hold the payload at rest at `position_m`:
+    the controller's commanded lengths there, with stretch and sag as configured (the
+    straight lines for rigid, massless cables).
+
+    Raises kinematics.KinematicsError (its stretch and sag subclasses included) where the
+    cables cannot hold the payload there.
+    """
+    return tuple(float(v) for v in cable_model(cfg).home_lengths_m(position_m))
+
+
+def cable_model(cfg: Any) -> Any:
+    """The controller's `CableModel` of `cfg`: rigid, stretching or heavy cables, with the
+    payload's tension rule. Raises KinematicsError / ValueError for an unusable model."""
+    from controller.service.cables import CableModel
+    from controller.service.config import tension_check
+
+    check = (
+        None
+        if cfg.tension is None or cfg.payload is None
+        else tension_check(cfg.payload, cfg.tension, cfg.geometry, cfg.reels)
+    )
+    return CableModel.from_config(cfg, check)
+
+
 def workspace_problem(cfg: Any, position_m: tuple[float, float, float]) -> str | None:
     """Why `position_m` is not an allowed pose of the configured robot (outside the workspace
     or a cable length out of range), or None when it is allowed; the workspace decides.
@@ -70,6 +100,12 @@ def cmd_ipk(args: argparse.Namespace) -> int:
     except (ConfigError, KinematicsError, OSError) as exc:
         return _fail(str(exc))
     problem = None if args.no_limits else workspace_problem(cfg, p)
+    paid: tuple[float, ...] | None = None
+    paid_problem = None
+    try:
+        paid = paid_out_lengths(cfg, p)
+    except (KinematicsError, ValueError) as exc:
+        paid_problem = f"no paid-out lengths there: {exc}"
     if args.json:
         print(
             json.dumps(
@@ -77,18 +113,38 @@ def cmd_ipk(args: argparse.Namespace) -> int:
                     "position_m": list(p),
                     "node_ids": list(lengths),
                     "cable_lengths_m": list(lengths.values()),
+                    "paid_out_m": None if paid is None else list(paid),
                     "in_workspace": problem is None,
-                    "problem": problem,
+                    "problem": problem or paid_problem,
                 }
             )
         )
     else:
         print(f"position x={p[0]:+.4f} y={p[1]:+.4f} z={p[2]:+.4f} m")
-        for node_id, length in lengths.items():
-            print(f"node {node_id:2d}  {length:.6f} m")
+        modelled = _modelled(cfg)
+        if modelled and paid is not None:
+            print(f"          straight line  paid out ({modelled})")
+            for (node_id, length), out in zip(lengths.items(), paid, strict=True):
+                print(f"node {node_id:2d}  {length:.6f} m     {out:.6f} m")
+        else:
+            for node_id, length in lengths.items():
+                print(f"node {node_id:2d}  {length:.6f} m")
     if problem is not None:
         return _fail(f"outside the workspace: {problem} (--no-limits to ignore)")
+    if paid_problem is not None:
+        return _fail(paid_problem)
     return EXIT_OK
+
+
+def _modelled(cfg: Any) -> str:
+    """What the paid-out lengths allow for ("stretch", "sag", "stretch and sag"), "" when they
+    are the straight lines. Raises nothing."""
+    parts = []
+    if any(r.cable_ea_n is not None for r in cfg.reels):
+        parts.append("stretch")
+    if any(r.cable_mass_kg_per_m for r in cfg.reels):
+        parts.append("sag")
+    return " and ".join(parts)
 
 
 def cmd_fpk(args: argparse.Namespace) -> int:
@@ -108,15 +164,30 @@ def cmd_fpk(args: argparse.Namespace) -> int:
         ids = ", ".join(str(r.node_id) for r in cfg.reels)
         return _fail(f"expected {n} cable lengths (nodes {ids}), got {len(lengths)}")
     try:
-        res = kinematics.fpk(cfg.geometry, lengths)
-    except kinematics.KinematicsError as exc:
+        if args.paid_out:
+            pose, residual = cable_model(cfg).pose(lengths, None)
+        else:
+            res = kinematics.fpk(cfg.geometry, lengths)
+            pose, residual = res.position_m, float(res.residual_m)
+    except (kinematics.KinematicsError, ValueError) as exc:
         return _fail(f"no position for these lengths: {exc}")
-    x, y, z = (float(v) for v in res.position_m)
+    x, y, z = (float(v) for v in pose)
     if args.json:
-        print(json.dumps({"position_m": [x, y, z], "residual_m": float(res.residual_m)}))
-    else:
         print(
-            f"position x={x:+.6f} y={y:+.6f} z={z:+.6f} m  residual {res.residual_m * 1e3:.3f} mm"
+            json.dumps(
+                {
+                    "position_m": [x, y, z],
+                    "residual_m": float(residual),
+                    "paid_out": bool(args.paid_out),
+                }
+            )
+        )
+    else:
+        what = ""
+        if args.paid_out:
+            what = f"  (paid-out lengths{', ' + _modelled(cfg) if _modelled(cfg) else ''})"
+        print(
+            f"position x={x:+.6f} y={y:+.6f} z={z:+.6f} m  residual {residual * 1e3:.3f} mm{what}"
         )
     return EXIT_OK
 
@@ -135,5 +206,10 @@ def register(sub: argparse._SubParsersAction[Any]) -> None:
     p = sub.add_parser("fpk", help="position for cable lengths (offline, no daemon)")
     p.add_argument("--config", default=None, metavar="FILE", help="robot TOML (default built-in)")
     p.add_argument("lengths", type=float, nargs="+", metavar="L", help="lengths in m, reel order")
+    p.add_argument(
+        "--paid-out",
+        action="store_true",
+        help="the lengths are what the reels paid out: allow for stretch and sag as configured",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_fpk)

@@ -402,19 +402,16 @@ def _figure_3d(plt: Any, tr: Trace) -> Any:
 
 
 def _draw_robot_3d(ax: Any, shape: RobotShape) -> float:
-    """Poles, anchors, footprint and workspace prism; sets the box aspect and returns the
+    """Poles, anchors, footprint and the workspace's edges; sets the box aspect and returns the
     vertical exaggeration (at most 3) that keeps a flat robot readable."""
     A = np.asarray(shape.anchors_m)  # noqa: N806
     for i in range(A.shape[0]):
         ax.plot([A[i, 0]] * 2, [A[i, 1]] * 2, [0.0, A[i, 2]], color="0.45", lw=2.5)
     fp = np.asarray(shape.footprint_m + shape.footprint_m[:1])
     ax.plot(fp[:, 0], fp[:, 1], np.zeros(len(fp)), color="0.6", lw=1, ls=":", label="footprint")
-    ws = np.asarray(shape.workspace_m + shape.workspace_m[:1])
     ws_kw: dict[str, Any] = {"color": "#2ca02c", "lw": 0.8, "ls": "--"}
-    for z in (shape.floor_z_m, shape.top_z_m):
-        ax.plot(ws[:, 0], ws[:, 1], np.full(len(ws), z), **ws_kw)
-    for x, y in shape.workspace_m:
-        ax.plot([x, x], [y, y], [shape.floor_z_m, shape.top_z_m], **ws_kw)
+    for (x0, y0, z0), (x1, y1, z1) in shape.workspace_edges_m:
+        ax.plot([x0, x1], [y0, y1], [z0, z1], **ws_kw)
     ax.plot([], [], label="workspace", **ws_kw)
     ax.scatter(A[:, 0], A[:, 1], A[:, 2], color="k", marker="v", s=50, label="anchors")
     for i in range(A.shape[0]):

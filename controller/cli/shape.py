@@ -25,17 +25,21 @@ class ShapeError(ValueError):
 
 @dataclass(frozen=True, slots=True)
 class RobotShape:
-    """What a view draws of the robot: anchors, the footprint and the workspace prism (metres).
+    """What a view draws of the robot: anchors, the footprint and the workspace (metres).
 
     `footprint_m` is the anchors' plan-view convex hull (counter-clockwise) on the floor;
-    `workspace_m` the same polygon shrunk by `limits.xy_margin_m`, between `floor_z_m` and
-    `top_z_m`. `min_cable_m` / `max_cable_m` bound the cable lengths (used for colours).
+    `workspace_m` the workspace seen from above (hanging: the footprint shrunk by
+    `limits.xy_margin_m`), between `floor_z_m` and `top_z_m`; `workspace_faces_m` the
+    workspace's solid as the polygons of its faces (`Workspace.boundary_m`: a prism for a
+    hanging robot, the shrunk hull cut by floor, top and print radius among the anchors).
+    `min_cable_m` / `max_cable_m` bound the cable lengths (used for colours).
     """
 
     name: str
     anchors_m: tuple[Vec3, ...]
     footprint_m: tuple[Vec2, ...]
     workspace_m: tuple[Vec2, ...]
+    workspace_faces_m: tuple[tuple[Vec3, ...], ...]
     floor_z_m: float
     top_z_m: float
     min_cable_m: float
@@ -48,6 +52,22 @@ class RobotShape:
         ys = [a[1] for a in self.anchors_m]
         zs = [a[2] for a in self.anchors_m]
         return math.hypot(max(xs) - min(xs), max(ys) - min(ys), max(zs) - min(zs))
+
+    @property
+    def workspace_edges_m(self) -> list[tuple[Vec3, Vec3]]:
+        """The edges of the workspace's faces, each once (two faces share every edge)."""
+        seen: set[tuple[Vec3, Vec3]] = set()
+        out: list[tuple[Vec3, Vec3]] = []
+        for face in self.workspace_faces_m:
+            for k, p in enumerate(face):
+                q = face[(k + 1) % len(face)]
+                a = (round(p[0], 9), round(p[1], 9), round(p[2], 9))
+                b = (round(q[0], 9), round(q[1], 9), round(q[2], 9))
+                key = (a, b) if a <= b else (b, a)
+                if key not in seen:
+                    seen.add(key)
+                    out.append((p, q))
+        return out
 
     @staticmethod
     def from_summary(summary: Mapping[str, Any]) -> RobotShape:
@@ -84,6 +104,7 @@ class RobotShape:
             anchors_m=anchors,
             footprint_m=ws.footprint_m,
             workspace_m=ws.polygon_m,
+            workspace_faces_m=ws.boundary_m(),
             floor_z_m=ws.floor_z_m,
             top_z_m=ws.top_z_m,
             min_cable_m=ws.min_cable_m,

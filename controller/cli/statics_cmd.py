@@ -34,6 +34,8 @@ EXIT_ERROR = exitcodes.REFUSED
 
 DEFAULT_CELLS_PER_SPAN = 100
 """Without `--step`, the longest side of the workspace box is cut into about this many cells."""
+DEFAULT_CELLS_PER_SPAN_SAG = 40
+"""The same with heavy cables (every point is a solve of the statics with sag, about 0.3 ms)."""
 MAX_CELLS = 20_000_000
 """`--step` may not ask for more cells than this (memory and time)."""
 SLICES = 6
@@ -56,7 +58,8 @@ def _positive(text: str) -> float:
 
 
 def tension_check_of(cfg: Any, mass_kg: float | None) -> Any:
-    """The `TensionCheck` of the configuration (payload `mass_kg` if given).
+    """The `TensionCheck` of the configuration (payload `mass_kg` if given; with heavy
+    cables the rule with their weight, `SagTensionCheck`).
 
     Raises ValueError naming what is missing when the configuration has no `[payload]` (and
     no mass is given), and StaticsInputError for a bad mass.
@@ -69,14 +72,17 @@ def tension_check_of(cfg: Any, mass_kg: float | None) -> Any:
             "(see the Statics section of docs/statics-and-calibration.md)"
         )
     payload = cfg.payload if mass_kg is None else PayloadConfig(mass_kg=mass_kg)
-    return tension_check(payload, cfg.tension, cfg.geometry)
+    return tension_check(payload, cfg.tension, cfg.geometry, cfg.reels)
 
 
 def statics_report(cfg: Any, check: Any, position_m: tuple[float, float, float]) -> dict[str, Any]:
     """The JSON-ready answer of `cablebot statics` for `position_m` (see `cmd_statics`).
 
-    Raises nothing: a pose where no distribution exists gives tensions and margin None and
-    the reason in "problem".
+    "tensions_n" are what the reels carry: the tension at each cable's anchor end, which
+    with heavy cables (`cable_mass_kg_per_m`) is the one at its effector end
+    ("effector_tensions_n") plus about the cable's weight over its rise ("anchor_tensions_n";
+    the same for massless cables).  Raises nothing: a pose where no distribution exists gives
+    tensions and margin None and the reason in "problem".
     """
     from controller.core.statics import StaticsError
 
@@ -90,11 +96,20 @@ def statics_report(cfg: Any, check: Any, position_m: tuple[float, float, float])
         "max_tension_source": check.max_source,
         "tension_margin_n": check.margin_n,
     }
+    sag = getattr(check, "sag", None)
     try:
-        res = check.solve(position_m)
+        if sag is not None:
+            sol = sag.solve(position_m)
+            res = check.tensions(sol)
+            ends = (list(sol.effector_tensions_n), list(sol.anchor_tensions_n))
+        else:
+            res = check.solve(position_m)
+            ends = (list(res.tensions_n), list(res.tensions_n))
     except StaticsError as exc:
         out.update(
             tensions_n=None,
+            effector_tensions_n=None,
+            anchor_tensions_n=None,
             feasible=False,
             margin_n=None,
             limiting_cable=None,
@@ -106,6 +121,8 @@ def statics_report(cfg: Any, check: Any, position_m: tuple[float, float, float])
         return out
     out.update(
         tensions_n=list(res.tensions_n),
+        effector_tensions_n=ends[0],
+        anchor_tensions_n=ends[1],
         feasible=res.feasible,
         margin_n=res.margin_n,
         limiting_cable=res.limiting_cable + 1,
@@ -139,30 +156,48 @@ def cmd_statics(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(rep, allow_nan=False))
     else:
+        heavy = getattr(check, "sag", None) is not None
+        weight = ""
+        if heavy:
+            masses = sorted({float(r.cable_mass_kg_per_m or 0.0) for r in cfg.reels})
+            weight = f" and the cables' weight ({', '.join(f'{m:g}' for m in masses)} kg/m)"
         print(
             f"position x={p[0]:+.4f} y={p[1]:+.4f} z={p[2]:+.4f} m, payload "
-            f"{check.mass_kg:g} kg, limits {check.statics.t_min_n:g}..{check.statics.t_max_n:.4g} N"
-            f" ({check.max_source}), margin {check.margin_n:g} N"
+            f"{check.mass_kg:g} kg{weight}, limits {check.statics.t_min_n:g}.."
+            f"{check.statics.t_max_n:.4g} N ({check.max_source}), margin {check.margin_n:g} N"
         )
-        if rep["tensions_n"] is not None:
+        if rep["tensions_n"] is not None and heavy:
+            print("                   at the effector   at the anchor")
+            rows = zip(
+                rep["node_ids"], rep["effector_tensions_n"], rep["anchor_tensions_n"], strict=True
+            )
+            for i, (node, t0, t1) in enumerate(rows):
+                print(f"cable {i + 1}  node {node:2d}  {t0:12.4f} N  {t1:12.4f} N")
+        elif rep["tensions_n"] is not None:
             for i, (node, t) in enumerate(zip(rep["node_ids"], rep["tensions_n"], strict=True)):
                 print(f"cable {i + 1}  node {node:2d}  {t:10.4f} N")
+        if rep["tensions_n"] is not None:
             bound = "min" if rep["limiting_bound"] == "min" else "max"
+            end = ""
+            if heavy:
+                end = " at the effector" if bound == "min" else " at the anchor"
             print(
-                f"margin {rep['margin_n']:.4f} N (cable {rep['limiting_cable']}, to the {bound}"
-                f" limit){'' if rep['within_margin'] else ': too close'}"
+                f"margin {rep['margin_n']:.4f} N (cable {rep['limiting_cable']}{end}, to the "
+                f"{bound} limit){'' if rep['within_margin'] else ': too close'}"
             )
     if rep["problem"] is not None:
         return _fail(str(rep["problem"]))
     return EXIT_OK
 
 
-def workspace_map(cfg: Any, check: Any, step_m: float | None) -> Any:
+def workspace_map(cfg: Any, check: Any, step_m: float | None, straight: bool = False) -> Any:
     """`controller.core.feasible.FeasibleWorkspace` of the geometric workspace for `check`.
 
     The grid spans the workspace's bounding box (`Workspace.box`); a cell counts where its
     centre is inside the geometric limits (`Workspace.inside_points`) and the payload can be
-    held there with every tension `check.margin_n` inside the limits. Raises
+    held there with every tension `check.margin_n` inside the limits: with heavy cables by
+    the rule with their weight (a solve per point: a coarser default grid,
+    `DEFAULT_CELLS_PER_SPAN_SAG`), or with `straight` by the straight cables' rule. Raises
     StaticsInputError for a step that gives too many cells, WorkspaceError (a ValueError) for
     an empty workspace.
     """
@@ -173,7 +208,9 @@ def workspace_map(cfg: Any, check: Any, step_m: float | None) -> Any:
     workspace = Workspace.from_limits(cfg.limits, cfg.geometry)
     box = workspace.box()
     spans = [hi - lo for lo, hi in box]
-    step = max(spans) / DEFAULT_CELLS_PER_SPAN if step_m is None else step_m
+    heavy = getattr(check, "sag", None) is not None and not straight
+    per_span = DEFAULT_CELLS_PER_SPAN_SAG if heavy else DEFAULT_CELLS_PER_SPAN
+    step = max(spans) / per_span if step_m is None else step_m
     cells = math.prod(max(1, round(s / step)) for s in spans)
     if cells > MAX_CELLS:
         raise StaticsInputError(
@@ -191,6 +228,7 @@ def workspace_map(cfg: Any, check: Any, step_m: float | None) -> Any:
         t_lo,
         t_hi,
         inside=workspace.inside_points,
+        margins=check.margins if heavy else None,
     )
 
 
@@ -220,11 +258,14 @@ def _volume(v: float) -> str:
     return f"{v:,.0f}" if abs(v) >= 100.0 else f"{v:.4g}"
 
 
-def draw_slices(cfg: Any, check: Any, ws: Any, path: str, slices: int = SLICES) -> list[float]:
+def draw_slices(
+    cfg: Any, check: Any, ws: Any, path: str, slices: int = SLICES, straight: Any = None
+) -> list[float]:
     """Write a PNG of `slices` horizontal slices of the map (tension margin in colour where the
-    payload can be held, grey where geometry allows but the tensions do not); returns the
-    slice heights. Raises ImportError without matplotlib (the `plot` extra), OSError if the
-    file cannot be written."""
+    payload can be held, grey where geometry allows but the tensions do not; with the straight
+    cables' map `straight`, red where it allows what the map refuses); returns the slice
+    heights. Raises ImportError without matplotlib (the `plot` extra), OSError if the file
+    cannot be written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -275,6 +316,16 @@ def draw_slices(cfg: Any, check: Any, ws: Any, path: str, slices: int = SLICES) 
             vmax=2.5,
             interpolation="nearest",
         )
+        if straight is not None:
+            ax.imshow(
+                np.where(straight.feasible[:, :, k] & ~feas, 1.0, np.nan).T,
+                origin="lower",
+                extent=extent,
+                cmap="Reds",
+                vmin=0.0,
+                vmax=1.2,
+                interpolation="nearest",
+            )
         image = ax.imshow(
             np.where(feas, shown[:, :, k], np.nan).T,
             origin="lower",
@@ -297,10 +348,12 @@ def draw_slices(cfg: Any, check: Any, ws: Any, path: str, slices: int = SLICES) 
     if image is not None:
         bar = fig.colorbar(image, ax=axes.ravel().tolist(), shrink=0.8)
         bar.set_label("tension margin (N): distance of the nearest cable to a limit")
+    red = "; red: straight cables would allow" if straight is not None else ""
+    heavy = " with the cables' weight" if straight is not None else ""
     fig.suptitle(
-        f"{cfg.name}: {check.mass_kg:g} kg held within {check.statics.t_min_n:g}.."
+        f"{cfg.name}: {check.mass_kg:g} kg held{heavy} within {check.statics.t_min_n:g}.."
         f"{check.statics.t_max_n:.4g} N, {check.margin_n:g} N inside; grey: geometric "
-        f"workspace the tensions exclude\nfeasible {_volume(ws.volume_m3)} ± "
+        f"workspace the tensions exclude{red}\nfeasible {_volume(ws.volume_m3)} ± "
         f"{_volume(ws.uncertainty_m3)} m³ of {_volume(ws.region_volume_m3)} m³",
         fontsize=10,
     )
@@ -312,20 +365,30 @@ def draw_slices(cfg: Any, check: Any, ws: Any, path: str, slices: int = SLICES) 
 def cmd_workspace(args: argparse.Namespace) -> int:
     """`cablebot workspace`: the tension-feasible part of the geometric workspace."""
     from controller.core.statics import StaticsInputError
+    from controller.core.workspace import Workspace
     from controller.service.config import ConfigError, load_config
 
+    straight = None
     try:
         cfg = load_config(args.config)
         check = tension_check_of(cfg, args.mass_kg)
-        ws = workspace_map(cfg, check, args.step)
+        step_m = args.step
+        if getattr(check, "sag", None) is not None:
+            if step_m is None:
+                box = Workspace.from_limits(cfg.limits, cfg.geometry).box()
+                step_m = max(hi - lo for lo, hi in box) / DEFAULT_CELLS_PER_SPAN_SAG
+            straight = workspace_map(cfg, check, step_m, straight=True)
+        ws = workspace_map(cfg, check, step_m)
     except (ConfigError, OSError, StaticsInputError, ValueError) as exc:
         return _fail(str(exc))
-    step = args.step if args.step is not None else max(ws.cell_m)
+    step = step_m if step_m is not None else max(ws.cell_m)
     rep = workspace_report(check, ws, step)
+    if straight is not None:
+        rep.update(sag_comparison(straight, ws))
     if args.png:
         try:
             rep["png"] = args.png
-            rep["slices_z_m"] = draw_slices(cfg, check, ws, args.png)
+            rep["slices_z_m"] = draw_slices(cfg, check, ws, args.png, straight=straight)
         except ImportError as exc:
             return _fail(f"--png needs matplotlib (pip install 'cablebot[plot]'): {exc}")
         except OSError as exc:
@@ -348,9 +411,42 @@ def cmd_workspace(args: argparse.Namespace) -> int:
         f"tension-feasible     {ws.volume_m3:.6g} m³ ± {ws.uncertainty_m3:.3g} m³ "
         f"({100 * frac:.1f} %)"
     )
+    if straight is not None:
+        print(
+            f"straight cables      {rep['straight_volume_m3']:.6g} m³ by the rule without "
+            "the cables' weight"
+        )
+        for key, what in (
+            ("straight_only", "the straight rule allows, the catenary refuses"),
+            ("sag_only", "the catenary allows, the straight rule refuses"),
+        ):
+            vol = rep[f"{key}_m3"]
+            z = rep[f"{key}_z_m"]
+            where = "" if z is None else f" (z {z[0]:.3g}..{z[1]:.3g} m)"
+            print(f"  {what}: {vol:.6g} m³{where}")
     if args.png:
         print(f"slices at z = {', '.join(f'{z:.3g}' for z in rep['slices_z_m'])} m: {args.png}")
     return EXIT_OK
+
+
+def sag_comparison(straight: Any, sag: Any) -> dict[str, Any]:
+    """Where the straight cables' tension rule and the rule with the cables' weight disagree
+    on one grid: the volume each allows that the other refuses, and its height range (None:
+    nowhere). Raises nothing."""
+    import numpy as np
+
+    out: dict[str, Any] = {"straight_volume_m3": straight.volume_m3}
+    cell = sag.cell_volume_m3
+    for key, cells in (
+        ("straight_only", straight.feasible & ~sag.feasible),
+        ("sag_only", sag.feasible & ~straight.feasible),
+    ):
+        ks = np.flatnonzero(cells.any(axis=(0, 1)))
+        out[f"{key}_m3"] = float(cells.sum()) * cell
+        out[f"{key}_z_m"] = (
+            None if ks.size == 0 else [float(sag.zs_m[ks[0]]), float(sag.zs_m[ks[-1]])]
+        )
+    return out
 
 
 def register(sub: argparse._SubParsersAction[Any]) -> None:

@@ -9,7 +9,9 @@ connect to `ws://HOST:PORT` (default `ws://127.0.0.1:8765`) and import
 Topics (Foxglove's own schemas where one fits, so the app draws them without configuration):
 
 - `/robot`  foxglove.SceneUpdate: anchors (labelled B1..Bn), the footprint on the floor and the
-  workspace prism; sent when a client subscribes and when the geometry changes.
+  workspace's edges (its true shape: a prism for a hanging robot, the hull's faces moved in
+  and cut by floor, top and print radius among the anchors); sent when a client subscribes
+  and when the geometry changes.
 - `/scene`  foxglove.SceneUpdate, at `--scene-hz`: each cable as a line coloured by its length
   (blue at `min_cable_m`, red at `max_cable_m`; `cable_colour` takes a tension for when the
   daemon reports one) with its length as a label, the effector, the set-point and a fading
@@ -127,7 +129,7 @@ def marker_size_m(shape: RobotShape | None) -> float:
 
 
 def robot_scene(shape: RobotShape, stamp_ns: int) -> SceneUpdate:
-    """The static scene: anchors with labels, the footprint and the workspace prism."""
+    """The static scene: anchors with labels, the footprint and the workspace's edges."""
     from foxglove.messages import (
         LinePrimitive,
         LinePrimitiveLineType,
@@ -183,19 +185,7 @@ def robot_scene(shape: RobotShape, stamp_ns: int) -> SceneUpdate:
             )
         ],
     )
-    ws = shape.workspace_m
-    lo, hi = shape.floor_z_m, shape.top_z_m
-    edges = []
-    for k in range(len(ws)):
-        (ax, ay), (bx, by) = ws[k], ws[(k + 1) % len(ws)]
-        edges += [
-            (ax, ay, lo),
-            (bx, by, lo),
-            (ax, ay, hi),
-            (bx, by, hi),
-            (ax, ay, lo),
-            (ax, ay, hi),
-        ]
+    edges = [p for edge in shape.workspace_edges_m for p in edge]
     workspace = SceneEntity(
         timestamp=ts,
         frame_id=FRAME_WORLD,

@@ -41,7 +41,7 @@ class RobotRules:
         chk = (
             None
             if cfg.tension is None or cfg.payload is None
-            else tension_check(cfg.payload, cfg.tension, cfg.geometry)
+            else tension_check(cfg.payload, cfg.tension, cfg.geometry, cfg.reels)
         )
         return cls(Workspace.from_limits(cfg.limits, cfg.geometry), chk, tension_sample_step_m(cfg))
 

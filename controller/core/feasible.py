@@ -12,6 +12,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from controller.core.statics import CableStatics, StaticsInputError, _finite
 
+Margins = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np.bool_]]]
+"""Points (M, 3) -> (margin to the tension limits (M,), feasible (M,))."""
+
 
 @dataclass(frozen=True, slots=True)
 class FeasibleWorkspace:
@@ -70,6 +73,7 @@ def feasible_workspace(
     t_min_n: float,
     t_max_n: float,
     inside: Callable[[NDArray[np.float64]], NDArray[np.bool_]] | None = None,
+    margins: Margins | None = None,
 ) -> FeasibleWorkspace:
     """Sample the box on a regular grid and return where the tensions can stay in range.
 
@@ -79,7 +83,9 @@ def feasible_workspace(
     the centre of each outer face of the cells on the box's surface (for the uncertainty).
     ``inside``, given an (M, 3) array of points, says which lie in a region of interest (e.g.
     the geometric workspace, ``controller.core.workspace.Limits.inside_points``): only those
-    count as feasible.  Raises
+    count as feasible.  ``margins``, given an (M, 3) array of points, gives each point's
+    (margin to the limits, feasible) in place of the straight cables' statics (the rule with
+    the cables' weight, ``controller.core.sag_plan.SagTensionCheck.margins``).  Raises
     ``StaticsInputError`` for a bad box, step, mass or limits or more than 2e8 cells, and what
     ``tensions_batch`` raises.
     """
@@ -97,9 +103,15 @@ def feasible_workspace(
     if total > 200_000_000:
         raise StaticsInputError(f"{total} cells is too many; use a larger step")
     statics = CableStatics(anchors_m, t_min_n, t_max_n)
+    if margins is None:
+
+        def margins(points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+            _, m, ok, _ = statics.solve_batch(points, mass_kg)
+            return m, ok
+
     gx, gy, gz = np.meshgrid(xs, ys, zs, indexing="ij")
     pts = np.stack([gx.ravel(), gy.ravel(), gz.ravel()], axis=1)
-    _, margin, feasible, _ = statics.solve_batch(pts, mass_kg)
+    margin, feasible = margins(pts)
     region = np.ones(total, dtype=bool) if inside is None else np.asarray(inside(pts), dtype=bool)
     feas = (feasible & region).reshape(shape)
     boundary = np.zeros(shape, dtype=bool)
@@ -122,7 +134,7 @@ def feasible_workspace(
             face_axes = [a if k != ax else np.array([bounds[ax][side]]) for k, a in enumerate(axes)]
             fx, fy, fz = np.meshgrid(*face_axes, indexing="ij")
             face_pts = np.stack([fx.ravel(), fy.ravel(), fz.ravel()], axis=1)
-            face_ok = statics.solve_batch(face_pts, mass_kg)[2]
+            face_ok = margins(face_pts)[1]
             if inside is not None:
                 face_ok = face_ok & np.asarray(inside(face_pts), dtype=bool)
             face_ok = face_ok.reshape(fx.shape)

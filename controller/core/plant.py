@@ -75,6 +75,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from controller.core.plant_checks import PlantError as PlantError
+from controller.core.plant_checks import finite as _finite
+from controller.core.plant_checks import non_negative as _non_negative
+from controller.core.plant_checks import positive as _positive
+from controller.core.plant_checks import vec3 as _vec3
 from controller.core.reel import ReelModel
 from controller.core.vibration import rope_damping
 
@@ -98,10 +103,6 @@ _EPS = 2.0**-52
 Vec3 = tuple[float, float, float]
 
 
-class PlantError(ValueError):
-    """A plant parameter, state or input is out of range (not finite, non-positive, wrong size)."""
-
-
 class PlantDivergedError(PlantError):
     """The simulated state stopped being finite; the plant refuses to go on."""
 
@@ -120,54 +121,22 @@ class Equilibrium(NamedTuple):
     iterations: int
 
 
-def _float(name: str, value: float) -> float:
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        raise PlantError(f"{name} must be a number, got {value!r}") from None
-
-
-def _finite(name: str, value: float) -> float:
-    v = _float(name, value)
-    if not math.isfinite(v):
-        raise PlantError(f"{name} must be finite, got {value!r}")
-    return v
-
-
-def _positive(name: str, value: float) -> float:
-    v = _float(name, value)
-    if not (math.isfinite(v) and v > 0.0):
-        raise PlantError(f"{name} must be finite and > 0, got {value!r}")
-    return v
-
-
-def _non_negative(name: str, value: float) -> float:
-    v = _float(name, value)
-    if not (math.isfinite(v) and v >= 0.0):
-        raise PlantError(f"{name} must be finite and >= 0, got {value!r}")
-    return v
-
-
-def _vec3(name: str, value: Sequence[float]) -> Vec3:
-    try:
-        x, y, z = value
-    except (TypeError, ValueError):
-        raise PlantError(f"{name} must be 3 coordinates, got {value!r}") from None
-    return (_finite(name, x), _finite(name, y), _finite(name, z))
-
-
 class PlantParams:
     """The fixed parameters of a plant: anchors, cable EA, effector mass, damping, gravity.
 
     `ea_n` is one EA (newtons) for every cable or one per cable. `effector_damping_n_s_per_m`
-    defaults to `DEFAULT_EFFECTOR_DAMPING_PER_S * mass_kg`. Raises PlantError on fewer than one
-    anchor, non-finite coordinates, a non-positive or non-finite EA or mass, a negative or
-    non-finite damping or gravity, a wrong count of EA values, or max_substeps < 1.
+    defaults to `DEFAULT_EFFECTOR_DAMPING_PER_S * mass_kg`. `cable_mass_kg_per_m` (one for
+    every cable or one per cable; default 0, massless) makes the cables hang in catenaries:
+    such a plant is a `controller.core.sag_plant.SagPlant`. Raises PlantError on fewer than
+    one anchor, non-finite coordinates, a non-positive or non-finite EA or mass, a negative or
+    non-finite damping, gravity or cable mass, a wrong count of EA or cable mass values, or
+    max_substeps < 1.
     """
 
     __slots__ = (
         "anchors_m",
         "cable_damping_ratio",
+        "cable_weight_n_per_m",
         "ea_n",
         "effector_damping_n_s_per_m",
         "gravity_mps2",
@@ -182,6 +151,8 @@ class PlantParams:
     effector_damping_n_s_per_m: float
     gravity_mps2: float
     max_substeps: int
+    cable_weight_n_per_m: tuple[float, ...]
+    """Each cable's weight per metre of unstretched cable, its mass per metre times gravity."""
 
     def __init__(
         self,
@@ -193,6 +164,7 @@ class PlantParams:
         effector_damping_n_s_per_m: float | None = None,
         gravity_mps2: float = STANDARD_GRAVITY_MPS2,
         max_substeps: int = DEFAULT_MAX_SUBSTEPS,
+        cable_mass_kg_per_m: float | Sequence[float] = 0.0,
     ) -> None:
         anchors = tuple(_vec3(f"anchor {i + 1}", a) for i, a in enumerate(anchors_m))
         if not anchors:
@@ -217,6 +189,19 @@ class PlantParams:
         )
         self.gravity_mps2 = _non_negative("gravity_mps2", gravity_mps2)
         self.max_substeps = max_substeps
+        if isinstance(cable_mass_kg_per_m, int | float | np.number):
+            masses = (_non_negative("cable_mass_kg_per_m", cable_mass_kg_per_m),) * len(anchors)
+        else:
+            if len(cable_mass_kg_per_m) != len(anchors):
+                raise PlantError(
+                    f"cable_mass_kg_per_m has {len(cable_mass_kg_per_m)} values for "
+                    f"{len(anchors)} cables"
+                )
+            masses = tuple(
+                _non_negative(f"cable_mass_kg_per_m of cable {i + 1}", v)
+                for i, v in enumerate(cable_mass_kg_per_m)
+            )
+        self.cable_weight_n_per_m = tuple(m * self.gravity_mps2 for m in masses)
 
     @property
     def cables(self) -> int:
@@ -228,12 +213,18 @@ class PlantParams:
         """The effector's weight, m g (newtons)."""
         return self.mass_kg * self.gravity_mps2
 
+    @property
+    def sags(self) -> bool:
+        """True when a cable has weight: the cables hang in catenaries (`SagPlant`)."""
+        return any(w > 0.0 for w in self.cable_weight_n_per_m)
+
     def __repr__(self) -> str:
         return (
             f"PlantParams(anchors_m={self.anchors_m!r}, ea_n={self.ea_n!r}, "
             f"mass_kg={self.mass_kg!r}, cable_damping_ratio={self.cable_damping_ratio!r}, "
             f"effector_damping_n_s_per_m={self.effector_damping_n_s_per_m!r}, "
-            f"gravity_mps2={self.gravity_mps2!r}, max_substeps={self.max_substeps!r})"
+            f"gravity_mps2={self.gravity_mps2!r}, max_substeps={self.max_substeps!r}, "
+            f"cable_weight_n_per_m={self.cable_weight_n_per_m!r})"
         )
 
 
@@ -633,6 +624,20 @@ class CablePlant:
         self._t = _static_tensions(self._params, self._p, self._l0)
         return self._p
 
+    def pull_length_m(self, cable: int, tension_n: float, dt_s: float) -> float:
+        """The unstretched length at which cable `cable` (0-based) pulls `tension_n` with the
+        effector where its velocity takes it in `dt_s`, ``L0 = L EA / (EA + T)``: following the
+        length the step starts at would lag one step behind, a drag of EA / L0 * dt (a reel in
+        torque control, `ReelPlant`).  Raises nothing for a valid cable index."""
+        ea = self._ea[cable]
+        dx = self._ax[cable] - self._p[0]
+        dy = self._ay[cable] - self._p[1]
+        dz = self._az[cable] - self._p[2]
+        vx, vy, vz = self._v
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        length -= (dx * vx + dy * vy + dz * vz) / length * dt_s
+        return length * ea / (ea + tension_n)
+
     def _damping_gain(
         self, taut: Sequence[bool]
     ) -> tuple[tuple[float, float, float, float, float, float], list[float]]:
@@ -841,7 +846,9 @@ class ReelPlant:
     at `position_m` with `tensions_n` (a statics solution; default the simple holding
     distribution of `CablePlant.at_pose`) while the reels are at `positions_rev`, so the
     reels' lengths are the geometric lengths there, as the controller's kinematics assume.
-    Elsewhere the cables stretch as their tensions demand. Not thread-safe: one owner steps it.
+    Elsewhere the cables stretch as their tensions demand. `plant` replaces the plant built
+    from `params` (heavy cables: a `controller.core.sag_plant.SagPlant` at rest at
+    `position_m`, the tensions then being its own). Not thread-safe: one owner steps it.
     Raises PlantError / EquilibriumError on bad inputs, ValueError on a wrong number of reels.
 
     A reel in torque control (`step`'s `pulls_nm`) is an ideal torque source: its motor makes
@@ -865,13 +872,14 @@ class ReelPlant:
         position_m: Sequence[float],
         positions_rev: Sequence[float],
         tensions_n: Sequence[float] | None = None,
+        plant: Any = None,
     ) -> None:
         if len(reels) != params.cables or len(positions_rev) != params.cables:
             raise ValueError(
                 f"{params.cables} cables need as many reels and positions, got {len(reels)} "
                 f"and {len(positions_rev)}"
             )
-        self.plant = CablePlant.at_pose(params, position_m, tensions_n)
+        self.plant = CablePlant.at_pose(params, position_m, tensions_n) if plant is None else plant
         self._reels = tuple(reels)
         positions = [_finite(f"positions_rev[{i}]", p) for i, p in enumerate(positions_rev)]
         self._stretch = [
@@ -936,21 +944,9 @@ class ReelPlant:
             tension = reel.tension_n(turns, torque_nm)
         except ValueError as exc:
             raise PlantError(f"reel {i + 1}: {exc}") from None
-        plant = self.plant
         l0 = reel.length_m(turns) - self._stretch[i]
-        if tension > 0.0:
-            ea = plant.params.ea_n[i]
-            ax, ay, az = plant.params.anchors_m[i]
-            px, py, pz = plant.position_m
-            vx, vy, vz = plant.velocity_mps
-            dx, dy, dz = ax - px, ay - py, az - pz
-            length = math.sqrt(dx * dx + dy * dy + dz * dz)
-            # The length at the end of the step, where the tension is read: following the
-            # length the step starts at would lag one step behind, a drag of EA / L0 * dt.
-            length -= (dx * vx + dy * vy + dz * vz) / length * dt_s
-            target = length * ea / (ea + tension)
-        else:
-            target = math.inf  # the motor pays out: nothing pulls back
+        # a pulled cable follows the plant; paying out, nothing pulls back
+        target = self.plant.pull_length_m(i, tension, dt_s) if tension > 0.0 else math.inf
         step = (
             abs(reel.length_rate_mps(turns, max_speed_rps)) * dt_s
             if max_speed_rps < math.inf

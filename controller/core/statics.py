@@ -88,11 +88,16 @@ from controller.core.tension_many import (
     Pairs,
     PairSolution,
     best_pairs,
-    least_squares_pair,
+    finite_tensions,
+    freest_pair,
     pair_solution,
     pivot_solve,
     project,
     regularised,
+    settles,
+    sum_units,
+    units_and_sum,
+    vertex_tensions,
 )
 from controller.core.tension_math import RANK_TOL, TRIPLES4, det3, maxmin_lambda
 
@@ -284,6 +289,7 @@ class CableStatics:
     __slots__ = (
         "_anchors_t",
         "_hint",
+        "_many",
         "_pairs",
         "_signs",
         "_signs_g",
@@ -301,6 +307,13 @@ class CableStatics:
             (float(r[0]), float(r[1]), float(r[2])) for r in self.anchors_m.tolist()
         )
         self._pairs = Pairs.of(self.n_cables) if self.n_cables > 4 else None
+        # N > 4: the middle of the range, its half and the strictly convex term's weight
+        half = 0.5 * (self.t_max_n - self.t_min_n)
+        self._many = (
+            0.5 * (self.t_min_n + self.t_max_n),
+            half,
+            2.0 * REGULARISE / (self.n_cables * half),
+        )
         # N > 4: the last max-min vertex's pair and the last planned distribution's bound
         # cables, tried first: they only save time (each answer is checked to be the optimum).
         self._hint: tuple[int, int] | None = None
@@ -358,6 +371,16 @@ class CableStatics:
             )
         return units
 
+    def _units_sum(self, point_m: Sequence[float]) -> tuple[list[Vec3], Vec3]:
+        """``_units`` and their sum (``sum_units``): the per-tick path of five or more
+        cables.  Raises what ``_units`` raises (it is asked whenever anything is off, and
+        names the problem)."""
+        got = units_and_sum(self._anchors_t, point_m)
+        if got is not None:
+            return got
+        u = self._units(point_m)
+        return u, sum_units(u)
+
     @staticmethod
     def _check_along(u: Sequence[Vec3], mag: float, dirn: Vec3) -> None:
         """SingularConfiguration when no cable pulls along the force (none can supply it)."""
@@ -382,6 +405,9 @@ class CableStatics:
         if the linear program fails.
         """
         m = _check_mass(mass_kg)
+        if self._pairs is not None:  # N > 4: no derivative (callers take differences)
+            u, su = self._units_sum(point_m)
+            return self._result(self._solve_many(u, m * G_MPS2, _UP, su), "lp")
         u = self._units(point_m)
         return self._distribute(u, m * G_MPS2, _UP, point_m if derivative else None)
 
@@ -453,62 +479,60 @@ class CableStatics:
             t, nv = self._solve4_parts(u, mag, dirn)
             method = "closed-form"
         else:
-            t = self._solve_many(u, mag, dirn)
-            total = sum(t)
-            if total - total != 0.0:  # never a NaN or inf out of the pair arithmetic
-                raise SingularConfiguration("tensions overflow: the configuration is singular")
+            t = self._solve_many(u, mag, dirn, sum_units(u))
             method = "lp"
             point_m = None  # no closed-form derivative: callers take differences
         if point_m is not None:
             d = derivative34(self._anchors_t, self.t_min_n, self.t_max_n, point_m, u, t, nv)
         return self._result(t, method, d)
 
-    def _solve_many(self, u: list[Vec3], mag: float, dirn: Vec3) -> list[float]:
+    def _solve_many(self, u: list[Vec3], mag: float, dirn: Vec3, su: Vec3) -> list[float]:
         """N > 4: the planned distribution (``controller.core.tension_many``): the max-min
-        rule made strictly convex (``regularised``), warm-started from the last pose's bound
-        cables, else from the max-min vertex; the max-min vertex itself where the strictly
-        convex answer leaves the limits but the vertex keeps them (the limits decide, not the
-        smoothing)."""
-        assert self._pairs is not None
-        lo, hi = self.t_min_n, self.t_max_n
-        c = 0.5 * (lo + hi)
-        r = 0.5 * (hi - lo)
-        n = len(u)
+        rule made strictly convex (``regularised``).  Where its answer frees two cables and
+        binds the rest (nearly everywhere) it is the max-min vertex itself, reached by pivots
+        from the last pose's pair or from the two cables most nearly perpendicular to the
+        force's share, and checked (``settles``); elsewhere the active set is searched from
+        the last pose's or the vertex's, and the max-min vertex itself is taken where the
+        strictly convex answer leaves the limits but the vertex keeps them (the limits decide,
+        not the smoothing).  Each start only saves time: an answer is taken where its
+        optimality conditions hold, and it is unique.  `su`: ``sum_i u_i``.  Raises
+        ``SingularConfiguration`` where the directions do not span space or the tensions
+        overflow."""
+        c, r, eps = self._many
         fx, fy, fz = dirn
-        gx, gy, gz = mag * fx, mag * fy, mag * fz
-        for x, y, z in u:
-            gx -= c * x
-            gy -= c * y
-            gz -= c * z
+        f = (mag * fx, mag * fy, mag * fz)
+        gx, gy, gz = f[0] - c * su[0], f[1] - c * su[1], f[2] - c * su[2]
         g = (gx, gy, gz)
-        scale = hi + mag
+        scale = self.t_max_n + mag
         tol = MANY_TOL * scale
-        eps = 2.0 * REGULARISE / (n * r)
-        signs = self._signs
         lx, ly, lz = self._signs_g
         self._signs_g = g
-        # The last bound cables are likely to hold when g barely moved (the tick); a pose far
-        # away (a map, a check of a distant target) goes straight to the vertex.
+        # The last active set is likely to hold when g barely moved (the tick); a pose far
+        # away (a map, a check of a distant target) starts afresh.
         near = abs(gx - lx) + abs(gy - ly) + abs(gz - lz) < 0.05 * scale
-        if signs is not None and near:
+        signs = self._signs
+        if near and signs is not None:  # the last answer was not a pair vertex
             res = regularised(u, g, eps, signs, tol, 1)
             if res is not None and res[1] <= r:
                 self._signs = res[2]
-                return project(u, (mag * fx, mag * fy, mag * fz), [c + v for v in res[0]])
+                return finite_tensions(project(u, f, c, res[0]))
         vertex = self._vertex(u, g, scale, near)
-        res = regularised(u, g, eps, vertex.signs, tol, 4 * n)
+        if settles(u, vertex, eps):
+            self._signs = None
+            return finite_tensions(vertex_tensions(u, g, c, vertex))
+        res = regularised(u, g, eps, vertex.signs, tol, 4 * len(u))
         if res is None or (res[1] > r >= vertex.rho):
-            return project(u, (mag * fx, mag * fy, mag * fz), [c + v for v in vertex.d])
+            return finite_tensions(project(u, f, c, vertex.d))
         self._signs = res[2]
-        return project(u, (mag * fx, mag * fy, mag * fz), [c + v for v in res[0]])
+        return finite_tensions(project(u, f, c, res[0]))
 
     def _vertex(self, u: list[Vec3], g: Vec3, scale: float, near: bool) -> PairSolution:
         """The max-min distribution's vertex (``tension_many``): the dual simplex from the
-        last optimal pair (`near`: the last pose's), or from the two cables nearest the middle
-        in the least-squares distribution, else every pair, else the linear program (a tie
+        last optimal pair (`near`: the last pose's), or from the two cables most nearly
+        perpendicular to g (``freest_pair``), else every pair, else the linear program (a tie
         beyond rounding)."""
         assert self._pairs is not None
-        a, b = (self._hint if near else None) or least_squares_pair(u, g)
+        a, b = (self._hint if near else None) or freest_pair(u, g)
         sol = pivot_solve(u, g, a, b, scale, 2 * len(u))
         if sol is not None:
             self._hint = (sol.a, sol.b)
@@ -627,7 +651,7 @@ class CableStatics:
         elif self.n_cables == 4:
             t, nv = self._solve4_parts(u, w, _UP)
         else:
-            t = self._solve_many(u, w, _UP)
+            t = self._solve_many(u, w, _UP, sum_units(u))
         total = sum(t)
         if total - total != 0.0:  # overflow on a pathological pose: never return inf
             raise SingularConfiguration("tensions overflow: the configuration is singular")

@@ -25,8 +25,8 @@ optimal (the primal and dual values agree); when every other cable has ``u_i . w
 zero the optimum is unique (strict complementarity).
 
 ``pivot_solve`` reaches the optimal pair by the dual simplex from the last one (none between
-ticks) or, far from the last pose, from the least-squares distribution's two freest cables
-(``least_squares_pair``: one or two pivots); ``best_pairs`` computes every pair's ratio at
+ticks) or, far from the last pose, from the two cables most nearly perpendicular to g
+(``freest_pair``: one or two pivots); ``best_pairs`` computes every pair's ratio at
 once with numpy where a pair on the way is degenerate (a symmetric pose: cables in the pair's
 plane share the rest of g, again as near the middle as they can, ``_plane_solve``).
 
@@ -36,7 +36,10 @@ optimal pair switches).  The planned distribution is therefore the unique minimi
 strictly convex ``rho + eps / 2 |d|^2`` (``regularised``; ``eps = 2 REGULARISE / (N r)`` bounds
 its largest deviation by ``(1 + REGULARISE) rho*`` where the limits can be kept), solved by an
 active set started from the last pose's bound cables (the tick: one 3x3 solve) or from the
-max-min vertex.  ``project`` takes the rounding out of the equilibrium.
+max-min vertex.  ``project`` takes the rounding out of the equilibrium.  Nearly everywhere
+that answer frees two cables and binds the rest, and then it is the max-min vertex itself:
+``settles`` tells so from the vertex's own numbers (its bound cables' multipliers are not
+negative) and ``vertex_tensions`` returns it with one refinement, with no active-set solve.
 """
 
 from __future__ import annotations
@@ -49,6 +52,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from controller.core.statics_errors import SingularConfiguration
+from controller.core.tension_batch import ANCHOR_TOL_M, UP_TOL
 from controller.core.tension_math import RANK_TOL
 
 __all__ = [
@@ -57,14 +62,20 @@ __all__ = [
     "PairSolution",
     "Pairs",
     "best_pairs",
-    "least_squares_pair",
+    "finite_tensions",
+    "freest_pair",
     "pair_solution",
     "pivot_solve",
     "project",
     "regularised",
+    "settles",
+    "sum_units",
+    "units_and_sum",
+    "vertex_tensions",
 ]
 
 Vec3 = tuple[float, float, float]
+
 
 MANY_TOL = 1e-9
 """Relative tolerance of the pair tests: a pair's own distances may exceed the others' by
@@ -121,6 +132,14 @@ class PairSolution:
     """``u_a x u_b``, turned so that ``w . g >= 0``."""
     q: list[float]
     """``u_i . w`` per cable (0 for the pair)."""
+    v: Vec3 | None = None
+    """``sum_i sgn_i u_i`` over the others when every other cable has a sign (``pivot_solve``'s
+    answers; None otherwise): what ``settles`` and ``vertex_tensions`` need."""
+    den: float = 0.0
+    """``sum_i |u_i . w|`` over the others (``w . v``)."""
+    qmin: float = 0.0
+    """The smallest ``|u_i . w|`` of the others: how far the nearest lies from the pair's
+    plane."""
 
 
 def pair_solution(u: Sequence[Vec3], g: Vec3, a: int, b: int, scale: float) -> PairSolution | None:
@@ -223,11 +242,11 @@ def pivot_solve(
             wx, wy, wz, wg, sg = -wx, -wy, -wz, -wg, -1.0
         flat = MANY_TOL * math.sqrt(ww)
         den = sx = sy = sz = 0.0  # sum |q_i| and S = sum sgn(q_i) u_i over the others
-        for i in range(n):
+        qmin = math.inf
+        for i, (x, y, z) in enumerate(u):
             if i in (a, b):
                 qs[i] = 0.0
                 continue
-            x, y, z = u[i]
             q = x * wx + y * wy + z * wz
             qs[i] = q
             if q > flat:
@@ -235,11 +254,15 @@ def pivot_solve(
                 sx += x
                 sy += y
                 sz += z
+                if q < qmin:
+                    qmin = q
             elif q < -flat:
                 den -= q
                 sx -= x
                 sy -= y
                 sz -= z
+                if -q < qmin:
+                    qmin = -q
             else:
                 return None  # a cable in the pair's plane: pair_solution's case
         rho = wg / den
@@ -254,7 +277,9 @@ def pivot_solve(
             d = [si * rho for si in signs]
             d[a] = da
             d[b] = db
-            return PairSolution(a, b, d, rho, True, True, signs, (wx, wy, wz), list(qs))
+            return PairSolution(
+                a, b, d, rho, True, True, signs, (wx, wy, wz), qs, (sx, sy, sz), den, qmin
+            )
         out, keep, dv = (a, b, da) if abs(da) >= abs(db) else (b, a, db)
         kx, ky, kz = u[keep]
         vx, vy, vz = ky * wz - kz * wy, kz * wx - kx * wz, kx * wy - ky * wx
@@ -263,11 +288,10 @@ def pivot_solve(
             vx, vy, vz = -vx, -vy, -vz
         best = -math.inf
         nxt = -1
-        for j in range(n):
+        for j, (x, y, z) in enumerate(u):
             qj = qs[j]
             if qj == 0.0:
                 continue
-            x, y, z = u[j]
             c = -(x * vx + y * vy + z * vz) / qj
             if c > best:
                 best = c
@@ -354,6 +378,105 @@ def best_pairs(u: Sequence[Vec3], g: Vec3, pairs: Pairs) -> tuple[list[tuple[int
     return [pairs.pairs[k] for k in order.tolist()], span
 
 
+def settles(u: Sequence[Vec3], vertex: PairSolution, eps: float) -> bool:
+    """Whether the pair vertex `vertex` of ``pivot_solve`` (its pair free, every other cable
+    bound at ``rho``) is also the answer of ``regularised``: with that active set its
+    equilibrium has one solution, the vertex itself, so the vertex is the strictly convex
+    answer exactly when the bound cables' multipliers are not negative.
+
+    The multipliers are ``sgn_i u_i . nu - eps rho`` with ``nu`` from ``u_a . nu = eps d_a``,
+    ``u_b . nu = eps d_b``, ``v . nu = e3 = 1 + k eps rho`` (``regularised``; k the bound
+    count).  Write ``nu = lam w + m`` with m in the pair's plane: ``|m| <= M = eps (|d_a| +
+    |d_b|) / |w|`` (the plane's dual basis has length ``1 / |w|``), ``lam = (e3 - v . m) /
+    (w . v)``, so each multiplier is at least ``(e3 - M |v|) |u_i . w| / (w . v) - M - eps
+    rho``, smallest at the cable nearest the pair's plane (``qmin``): where that bound is not
+    negative it settles them all at once; otherwise each one is computed.  False for a vertex
+    without ``v`` (not a ``pivot_solve`` answer)."""
+    v = vertex.v
+    if v is None:
+        return False
+    a, b = vertex.a, vertex.b
+    rho = vertex.rho
+    da, db = vertex.d[a], vertex.d[b]
+    k = len(u) - 2
+    vx, vy, vz = v
+    wx, wy, wz = vertex.w
+    erho = eps * rho
+    e3 = 1.0 + k * erho
+    big_m = eps * (abs(da) + abs(db)) / math.sqrt(wx * wx + wy * wy + wz * wz)
+    vn = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if (e3 - big_m * vn) * vertex.qmin >= vertex.den * (erho + big_m):
+        return True
+    # Each multiplier: nu by Cramer on the rows u_a, u_b, v.
+    ax, ay, az = u[a]
+    bx, by, bz = u[b]
+    px, py, pz = by * vz - bz * vy, bz * vx - bx * vz, bx * vy - by * vx  # u_b x v
+    qx, qy, qz = vy * az - vz * ay, vz * ax - vx * az, vx * ay - vy * ax  # v x u_a
+    rx, ry, rz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx  # u_a x u_b
+    det = ax * px + ay * py + az * pz
+    if det == 0.0:
+        return False
+    e1, e2 = eps * da, eps * db
+    nx = (e1 * px + e2 * qx + e3 * rx) / det
+    ny = (e1 * py + e2 * qy + e3 * ry) / det
+    nz = (e1 * pz + e2 * qz + e3 * rz) / det
+    for (x, y, z), si in zip(u, vertex.signs, strict=True):
+        if si != 0.0 and si * (x * nx + y * ny + z * nz) - erho < -1e-12:
+            return False
+    return True
+
+
+def vertex_tensions(u: Sequence[Vec3], g: Vec3, c: float, vertex: PairSolution) -> list[float]:
+    """The tensions ``c + d`` of a pair vertex of ``pivot_solve`` (it must have ``v``), with
+    the rounding of its solve taken out of the equilibrium: one refinement of ``d_a u_a + d_b
+    u_b + rho v = g`` (its residual solved again the way the vertex was)."""
+    v = vertex.v
+    assert v is not None
+    a, b = vertex.a, vertex.b
+    rho = vertex.rho
+    da, db = vertex.d[a], vertex.d[b]
+    ax, ay, az = u[a]
+    bx, by, bz = u[b]
+    vx, vy, vz = v
+    hx = g[0] - (da * ax + db * bx + rho * vx)
+    hy = g[1] - (da * ay + db * by + rho * vy)
+    hz = g[2] - (da * az + db * bz + rho * vz)
+    wx, wy, wz = vertex.w  # u_a x u_b turned to w . g >= 0: w . v = den, w . u_a = w . u_b = 0
+    dr = (wx * hx + wy * hy + wz * hz) / vertex.den
+    rho += dr
+    hx -= dr * vx
+    hy -= dr * vy
+    hz -= dr * vz
+    cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx  # u_a x u_b itself
+    ww = cx * cx + cy * cy + cz * cz
+    da += ((hy * bz - hz * by) * cx + (hz * bx - hx * bz) * cy + (hx * by - hy * bx) * cz) / ww
+    db += ((ay * hz - az * hy) * cx + (az * hx - ax * hz) * cy + (ax * hy - ay * hx) * cz) / ww
+    t = [c + si * rho for si in vertex.signs]
+    t[a] = c + da
+    t[b] = c + db
+    return t
+
+
+def freest_pair(u: Sequence[Vec3], g: Vec3) -> tuple[int, int]:
+    """The two cables most nearly perpendicular to `g`: where the directions spread evenly
+    (``U U^T`` near a multiple of the identity) the least-squares distribution ``U^T (U
+    U^T)^-1 g`` presses them least, and the max-min vertex frees the two cables least pressed
+    toward a limit, so this is often its pair: a cold start for ``pivot_solve`` (a pivot or
+    two otherwise)."""
+    gx, gy, gz = g
+    b1 = b2 = math.inf
+    i1 = 0
+    i2 = 1
+    for i, (x, y, z) in enumerate(u):
+        d = abs(x * gx + y * gy + z * gz)
+        if d < b1:
+            b2, i2 = b1, i1
+            b1, i1 = d, i
+        elif d < b2:
+            b2, i2 = d, i
+    return (i1, i2) if i1 < i2 else (i2, i1)
+
+
 def regularised(
     u: Sequence[Vec3], g: Vec3, eps: float, signs: Sequence[float], tol: float, max_iter: int
 ) -> tuple[list[float], float, list[float]] | None:
@@ -376,9 +499,7 @@ def regularised(
         m11 = m12 = m13 = m22 = m23 = m33 = 0.0
         vx = vy = vz = 0.0
         k = 0
-        for i in range(n):
-            x, y, z = u[i]
-            si = sig[i]
+        for (x, y, z), si in zip(u, sig, strict=True):
             if si == 0.0:
                 m11 += x * x
                 m12 += x * y
@@ -414,21 +535,22 @@ def regularised(
         ny = (c12 * b1 + c22 * b2 + c23 * b3) / det
         nz = (c13 * b1 + c23 * b2 + c33 * b3) / det
         rho = ((vx * nx + vy * ny + vz * nz) - 1.0) / (eps * k)
+        erho = eps * rho
+        lim = rho + tol
         d = [0.0] * n
         changed = False
-        for i in range(n):
-            x, y, z = u[i]
+        for i, (x, y, z) in enumerate(u):
             p = x * nx + y * ny + z * nz
             si = sig[i]
             if si == 0.0:
                 di = p / eps
                 d[i] = di
-                if abs(di) > rho + tol:
+                if abs(di) > lim:
                     sig[i] = 1.0 if di > 0.0 else -1.0
                     changed = True
             else:
                 d[i] = si * rho
-                if si * p - eps * rho < -1e-12:  # its multiplier (they sum to 1)
+                if si * p - erho < -1e-12:  # its multiplier (they sum to 1)
                     sig[i] = 0.0
                     changed = True
         if not changed:
@@ -438,11 +560,13 @@ def regularised(
     return None
 
 
-def project(u: Sequence[Vec3], f: Vec3, t: list[float]) -> list[float]:
-    """`t` moved the least (in the 2-norm) onto ``U t = f``: the rounding a solve leaves in the
-    equilibrium taken out (``t + U^T (U U^T)^-1 (f - U t)``); `t` itself when ``U U^T`` is
-    singular."""
+def project(u: Sequence[Vec3], f: Vec3, c: float, d: Sequence[float]) -> list[float]:
+    """The tensions ``t = c + d`` (the middle of the range and the deviations from it) moved
+    the least (in the 2-norm) onto ``U t = f``: the rounding a solve leaves in the
+    equilibrium taken out (``t + U^T (U U^T)^-1 (f - U t)``); ``c + d`` itself when ``U U^T``
+    is singular."""
     rx, ry, rz = f
+    t = [c + di for di in d]
     g11 = g12 = g13 = g22 = g23 = g33 = 0.0
     for (x, y, z), ti in zip(u, t, strict=True):
         rx -= ti * x
@@ -469,41 +593,52 @@ def project(u: Sequence[Vec3], f: Vec3, t: list[float]) -> list[float]:
     return [ti + x * ax + y * ay + z * az for (x, y, z), ti in zip(u, t, strict=True)]
 
 
-def least_squares_pair(u: Sequence[Vec3], g: Vec3) -> tuple[int, int]:
-    """The two cables whose deviations are smallest in the least-squares distribution
-    ``d = U^T (U U^T)^-1 g``: a cold start for ``pivot_solve`` (the max-min vertex frees the
-    two cables least pressed toward a limit; this guess is often that pair). (0, 1) when
-    ``U U^T`` is singular."""
-    g11 = g12 = g13 = g22 = g23 = g33 = 0.0
+def sum_units(u: Sequence[Vec3]) -> Vec3:
+    """``sum_i u_i``, summed in order (as ``units_and_sum`` sums them)."""
+    sx = sy = sz = 0.0
     for x, y, z in u:
-        g11 += x * x
-        g12 += x * y
-        g13 += x * z
-        g22 += y * y
-        g23 += y * z
-        g33 += z * z
-    c11 = g22 * g33 - g23 * g23
-    c12 = g13 * g23 - g12 * g33
-    c13 = g12 * g23 - g13 * g22
-    det = g11 * c11 + g12 * c12 + g13 * c13
-    if not det > 1e-18:
-        return 0, 1
-    c22 = g11 * g33 - g13 * g13
-    c23 = g12 * g13 - g11 * g23
-    c33 = g11 * g22 - g12 * g12
-    rx, ry, rz = g
-    ax = c11 * rx + c12 * ry + c13 * rz
-    ay = c12 * rx + c22 * ry + c23 * rz
-    az = c13 * rx + c23 * ry + c33 * rz
-    # the two smallest |d_i| (d = U^T x, x the solve's vector times det)
-    b1 = b2 = math.inf
-    i1 = 0
-    i2 = 1
-    for i, (x, y, z) in enumerate(u):
-        d = abs(x * ax + y * ay + z * az)
-        if d < b1:
-            b2, i2 = b1, i1
-            b1, i1 = d, i
-        elif d < b2:
-            b2, i2 = d, i
-    return (i1, i2) if i1 < i2 else (i2, i1)
+        sx += x
+        sy += y
+        sz += z
+    return sx, sy, sz
+
+
+def units_and_sum(
+    anchors: Sequence[Vec3], point_m: Sequence[float]
+) -> tuple[list[Vec3], Vec3] | None:
+    """The unit vectors from `point_m` to `anchors` and their sum in one pass, when the point
+    is three finite numbers, off every anchor, with some cable pulling up (a weight's solve);
+    None otherwise (``CableStatics._units`` then names the problem)."""
+    if len(point_m) != 3:
+        return None
+    px, py, pz = float(point_m[0]), float(point_m[1]), float(point_m[2])
+    total = px + py + pz
+    if total - total != 0.0:  # not finite
+        return None
+    units: list[Vec3] = []
+    up = -1.0
+    sx = sy = sz = 0.0
+    for ax, ay, az in anchors:
+        dx, dy, dz = ax - px, ay - py, az - pz
+        d = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if not d > ANCHOR_TOL_M:
+            return None
+        x = dx / d
+        y = dy / d
+        z = dz / d
+        if z > up:
+            up = z
+        units.append((x, y, z))
+        sx += x
+        sy += y
+        sz += z
+    return (units, (sx, sy, sz)) if up > UP_TOL else None
+
+
+def finite_tensions(t: list[float]) -> list[float]:
+    """`t`; ``SingularConfiguration`` when a tension is not finite (the pair arithmetic
+    overflowed on a pathological pose: never a NaN or inf out)."""
+    total = sum(t)
+    if total - total != 0.0:
+        raise SingularConfiguration("tensions overflow: the configuration is singular")
+    return t

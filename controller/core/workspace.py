@@ -59,7 +59,14 @@ import numpy as np
 
 from controller.core.kinematics import Geometry, KinematicsError
 from controller.core.kinematics.geometry import _convex_hull
-from controller.core.workspace_shape import Face, disk_polygon, shrunk_faces, solid_vertices
+from controller.core.workspace_shape import (
+    Face,
+    disk_polygon,
+    face_polygons,
+    shrunk_faces,
+    solid_vertices,
+    wall_planes,
+)
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -445,6 +452,17 @@ class Workspace:
         xs = [p[0] for p in self.polygon_m]
         ys = [p[1] for p in self.polygon_m]
         return (min(xs), max(xs)), (min(ys), max(ys)), (self.floor_z_m, self.top_z_m)
+
+    def boundary_m(self) -> tuple[tuple[Vec3, ...], ...]:
+        """The workspace's solid as the polygons of its faces (m; each counter-clockwise seen
+        from outside), for drawing: hanging, the prism of `polygon_m` between `floor_z_m` and
+        `top_z_m`; among the anchors, the hull with its faces moved in, cut by the floor, the
+        top and the print radius (as `polygon_m`, its inscribed polygon). Raises nothing."""
+        poly = self.polygon_m
+        planes = [*wall_planes(poly), *self._faces]
+        planes += [(0.0, 0.0, -1.0, -self.floor_z_m), (0.0, 0.0, 1.0, self.top_z_m)]
+        reach = max(math.hypot(x, y) for x, y in poly) + abs(self.floor_z_m) + abs(self.top_z_m)
+        return face_polygons(planes, reach)
 
     def contains_xy(self, x_m: float, y_m: float) -> bool:
         """True when (x, y) is inside the workspace's plan view (`polygon_m`'s rule without

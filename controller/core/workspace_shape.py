@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 from controller.core.kinematics.geometry import HullFace
 
-__all__ = ["Face", "disk_polygon", "shrunk_faces", "solid_vertices"]
+__all__ = ["Face", "disk_polygon", "face_polygons", "shrunk_faces", "solid_vertices", "wall_planes"]
 
 Vec2 = tuple[float, float]
 Vec3 = tuple[float, float, float]
@@ -59,3 +59,96 @@ def disk_polygon(radius_m: float, sides: int = 64) -> tuple[Vec2, ...]:
         )
         for k in range(sides)
     )
+
+
+def wall_planes(polygon_m: Sequence[Vec2]) -> list[Face]:
+    """The vertical planes through the edges of the convex counter-clockwise `polygon_m`, their
+    normals outward: the walls of its prism."""
+    out: list[Face] = []
+    for k, (ax, ay) in enumerate(polygon_m):
+        bx, by = polygon_m[(k + 1) % len(polygon_m)]
+        length = math.hypot(bx - ax, by - ay)
+        if length > 0.0:
+            nx, ny = (by - ay) / length, (ax - bx) / length
+            out.append((nx, ny, 0.0, nx * ax + ny * ay))
+    return out
+
+
+def _clip_face(poly: list[Vec3], plane: Face) -> list[Vec3]:
+    """The convex polygon `poly` cut to ``n . p <= c`` (Sutherland-Hodgman, one plane)."""
+    nx, ny, nz, c = plane
+    out: list[Vec3] = []
+    m = len(poly)
+    for k in range(m):
+        p = poly[k]
+        q = poly[(k + 1) % m]
+        sp = nx * p[0] + ny * p[1] + nz * p[2] - c
+        sq = nx * q[0] + ny * q[1] + nz * q[2] - c
+        if sp <= 0.0:
+            out.append(p)
+        if (sp < 0.0 < sq) or (sq < 0.0 < sp):
+            t = sp / (sp - sq)
+            out.append(
+                (p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1]), p[2] + t * (q[2] - p[2]))
+            )
+    return out
+
+
+def _area(poly: Sequence[Vec3]) -> float:
+    """The area of the planar polygon `poly` (half the length of its vector area)."""
+    sx = sy = sz = 0.0
+    ox, oy, oz = poly[0]
+    for k in range(1, len(poly) - 1):
+        ax, ay, az = poly[k][0] - ox, poly[k][1] - oy, poly[k][2] - oz
+        bx, by, bz = poly[k + 1][0] - ox, poly[k + 1][1] - oy, poly[k + 1][2] - oz
+        sx += ay * bz - az * by
+        sy += az * bx - ax * bz
+        sz += ax * by - ay * bx
+    return 0.5 * math.sqrt(sx * sx + sy * sy + sz * sz)
+
+
+def face_polygons(planes: Sequence[Face], reach_m: float) -> tuple[tuple[Vec3, ...], ...]:
+    """The boundary of the convex solid ``nx x + ny y + nz z <= c`` over `planes` (unit
+    normals), which lies within `reach_m` of the origin: for each plane that bounds it over an
+    area (once when given twice), that face's corners, counter-clockwise seen from outside.
+    A plane that only touches
+    the solid (along an edge, at a corner) or misses it gives nothing; empty when nothing is
+    left."""
+    unique: list[Face] = []
+    for f in planes:  # a plane given twice (a wall of the hull and of the outline) once
+        if all(max(abs(a - b) for a, b in zip(f, g, strict=True)) > _VERTEX_TOL_M for g in unique):
+            unique.append(f)
+    planes = unique
+    out: list[tuple[Vec3, ...]] = []
+    for i, (nx, ny, nz, c) in enumerate(planes):
+        # (e1, e2) spanning the plane, e1 x e2 = n: a square about the origin's foot on it,
+        # wider than the solid, is cut by every other plane.
+        hx, hy, hz = (1.0, 0.0, 0.0) if abs(nz) > 0.9 else (0.0, 0.0, 1.0)
+        e1x, e1y, e1z = hy * nz - hz * ny, hz * nx - hx * nz, hx * ny - hy * nx
+        norm = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+        e1x, e1y, e1z = e1x / norm, e1y / norm, e1z / norm
+        e2x, e2y, e2z = ny * e1z - nz * e1y, nz * e1x - nx * e1z, nx * e1y - ny * e1x
+        ox, oy, oz = nx * c, ny * c, nz * c
+        r = 2.0 * reach_m + abs(c) + 1.0
+        poly: list[Vec3] = [
+            (
+                ox + r * (s * e1x + t * e2x),
+                oy + r * (s * e1y + t * e2y),
+                oz + r * (s * e1z + t * e2z),
+            )
+            for s, t in ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0))
+        ]
+        for j, plane in enumerate(planes):
+            if j != i:
+                poly = _clip_face(poly, plane)
+                if len(poly) < 3:
+                    break
+        kept: list[Vec3] = []
+        for p in poly:  # corners where two cuts met at one point
+            if not kept or math.dist(p, kept[-1]) > _VERTEX_TOL_M:
+                kept.append(p)
+        if len(kept) > 1 and math.dist(kept[0], kept[-1]) <= _VERTEX_TOL_M:
+            kept.pop()
+        if len(kept) >= 3 and _area(kept) > _VERTEX_TOL_M:
+            out.append(tuple(kept))
+    return tuple(out)

@@ -1,13 +1,18 @@
 """The loop's cable model: what the reels must pay out for a set-point, and the pose of what
-they have paid out, with rigid cables or with cable stretch (`[[reels]] cable_ea_n`).
+they have paid out, with rigid cables, with cable stretch (`[[reels]] cable_ea_n`) or with
+heavy cables that sag (`[[reels]] cable_mass_kg_per_m`).
 
 One object built from the configuration (`CableModel.from_config`) that the control step asks
 at its three kinematic call sites: homing (the reel lengths at a known pose), the set-point's
-commanded lengths (IPK) and the pose (FPK).  Rigid cables (no reel has `cable_ea_n`) give
-exactly the rigid kinematics of `controller.core.kinematics`; elastic ones those of
-`controller.core.stretch`: paid-out lengths under the planned tensions, and the pose whose
-tensions (planned by statics at the pose, or measured by torque telemetry with
-`loop.stretch_tensions = "measured"`) stretch the cables to the paid-out lengths.
+commanded lengths (IPK) and the pose (FPK).  Rigid cables (no reel has `cable_ea_n` or
+`cable_mass_kg_per_m`) give exactly the rigid kinematics of `controller.core.kinematics`;
+elastic ones those of `controller.core.stretch`: paid-out lengths under the planned tensions,
+and the pose whose tensions (planned by statics at the pose, or measured by torque telemetry
+with `loop.stretch_tensions = "measured"`) stretch the cables to the paid-out lengths; heavy
+ones those of `controller.core.sag_plan`: the paid-out lengths of the catenaries the loop's
+tension plan solved at the set-point (the tension rule is then the one with the cables'
+weight, `SagTensionCheck`, whose plans this model reads), and the pose from the paid-out
+lengths with sag and stretch linearised about that plan.
 """
 
 from __future__ import annotations
@@ -17,27 +22,35 @@ from collections.abc import Sequence
 from typing import Any
 
 from controller.core import kinematics
-from controller.core.statics import TensionCheck
+from controller.core.sag_plan import SagKinematicsError, SagPlanner, SagTensionCheck
+from controller.core.statics import StaticsError, TensionCheck
 from controller.core.stretch import CableStretch, StretchError
 
 __all__ = ["CableModel"]
 
 
 class CableModel:
-    """Rigid or elastic cables for one robot (see the module docstring).
+    """Rigid, elastic or heavy cables for one robot (see the module docstring).
 
-    `stretch` is the core model (None: rigid cables); `measured` says whether the pose uses
-    measured tensions when every cable has a fresh one.  Not thread-safe: the loop owns it.
+    `stretch` is the core stretch model (None: rigid or heavy cables); `sag` the planner of
+    heavy cables (None: none has mass); `measured` says whether the pose uses measured
+    tensions when every cable has a fresh one.  Not thread-safe: the loop owns it.
     """
 
-    __slots__ = ("geometry", "measured", "stretch")
+    __slots__ = ("_last_lengths", "geometry", "measured", "sag", "stretch")
 
     def __init__(
-        self, geometry: kinematics.Geometry, stretch: CableStretch | None, measured: bool = False
+        self,
+        geometry: kinematics.Geometry,
+        stretch: CableStretch | None,
+        measured: bool = False,
+        sag: SagPlanner | None = None,
     ) -> None:
         self.geometry = geometry
         self.stretch = stretch
+        self.sag = sag
         self.measured = measured and stretch is not None
+        self._last_lengths: Sequence[float] = ()
 
     @classmethod
     def from_config(cls, cfg: Any, check: TensionCheck | None) -> CableModel:
@@ -46,6 +59,13 @@ class CableModel:
         Raises ValueError when a reel has `cable_ea_n` but there is no tension rule (the
         configuration refuses that already) and ``KinematicsError`` for an unusable EA.
         """
+        if any(r.cable_mass_kg_per_m for r in cfg.reels):
+            if not isinstance(check, SagTensionCheck):
+                raise ValueError(
+                    "heavy cables (reels' cable_mass_kg_per_m) need the tension rule with "
+                    "their weight ([payload] mass_kg)"
+                )
+            return cls(cfg.geometry, None, sag=check.planner)
         ea = [r.cable_ea_n for r in cfg.reels]
         if all(e is None for e in ea):
             return cls(cfg.geometry, None)
@@ -60,9 +80,14 @@ class CableModel:
     def home_lengths_m(self, position_m: Sequence[float]) -> tuple[float, ...]:
         """What the reels have paid out with the payload at rest at `position_m` (homing).
 
-        Raises ``KinematicsError`` for a non-finite pose (``StretchError`` where statics has
-        no tensions).
+        Raises ``KinematicsError`` for a non-finite pose (``StretchError`` or
+        ``SagKinematicsError`` where statics has no tensions).
         """
+        if self.sag is not None:
+            try:
+                return self.sag.exact(position_m).paid_out_m
+            except StaticsError as exc:
+                raise SagKinematicsError(f"no cable tensions with sag there: {exc}") from None
         if self.stretch is None:
             return kinematics.ipk_point(self.geometry, position_m)
         return self.stretch.ipk(position_m)[0]
@@ -73,9 +98,24 @@ class CableModel:
         """The lengths to command for a set-point whose geometric lengths are `lengths_m` and
         planned tensions `tensions_n` (per tick; the lengths themselves for rigid cables).
 
+        Heavy cables: the paid-out lengths of the tension rule's plan for the set-point
+        (`SagTensionCheck.solve`, which the loop calls first), matched by its chords; when the
+        set-point is the last call's (held), that plan made exact (`SagPlanner.refine`).
+
         Raises ``KinematicsError`` for a non-finite result, ``StretchError`` when elastic
-        cables have no planned tensions.
+        cables have no planned tensions, ``SagKinematicsError`` when heavy ones have no plan.
         """
+        if self.sag is not None:
+            held = lengths_m == self._last_lengths
+            self._last_lengths = lengths_m
+            try:
+                # a set-point held for a second tick gets an exact plan (once)
+                plan = self.sag.refine(lengths_m) if held else self.sag.planned(lengths_m)
+            except StaticsError as exc:
+                raise SagKinematicsError(f"cable sag: {exc}") from None
+            if plan is None:
+                raise SagKinematicsError("cable sag: no tension plan for the set-point")
+            return plan.paid_out_m
         s = self.stretch
         if s is None:
             return lengths_m
@@ -115,8 +155,21 @@ class CableModel:
         `planned` (the set-point and the tensions planned there) spares the FPK a statics solve
         when the pose is close to it (``CableStretch.fpk``).
 
-        Raises ``KinematicsError`` (``StretchError`` included) when no pose explains them.
+        Heavy cables: ``SagPlanner.fpk`` about the plan made at the set-point (`planned`'s
+        point), warm-started from `guess_m` (a failed warm start is retried cold).
+
+        Raises ``KinematicsError`` (``StretchError``, ``SagKinematicsError`` included) when no
+        pose explains them.
         """
+        if self.sag is not None:
+            guess = guess_m if guess_m is not None and all(map(math.isfinite, guess_m)) else None
+            at = None if planned is None else planned[0]
+            if guess is not None:
+                try:
+                    return self.sag.fpk(lengths_m, guess, at)
+                except SagKinematicsError:
+                    pass
+            return self.sag.fpk(lengths_m, None, at)
         s = self.stretch
         if s is None:
             res = kinematics.fpk(self.geometry, lengths_m, guess_m)

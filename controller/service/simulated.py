@@ -6,7 +6,8 @@ kind`), initialised at the configured power-up pose (motor turns =
 reel.position_rev(ipk(power-up pose)) with the config's reel offsets), with the `[sim]` section's
 speed, acceleration and tick and, where the family uses them, its broadcast periods and axis
 watchdog. With `[sim] plant = "physical"` (ODrive) the axes carry the payload on elastic cables
-(`sim_plant`) and report the torque their cables need by Get_Torques.
+(`sim_plant`; heavy ones hang in catenaries) and report the torque their cables need by
+Get_Torques.
 """
 
 from __future__ import annotations
@@ -50,12 +51,23 @@ def sim_settings(cfg: Any) -> Any:
     )
 
 
+def sim_cable_masses(cfg: Any) -> tuple[float, ...]:
+    """The simulated cables' mass per metre (kg/m): `[sim] cable_mass_kg_per_m` for every
+    cable, else each reel's `cable_mass_kg_per_m` (0 without one). Raises nothing."""
+    m = getattr(cfg.sim, "cable_mass_kg_per_m", None)
+    if m is not None:
+        return (float(m),) * len(cfg.reels)
+    return tuple(float(r.cable_mass_kg_per_m or 0.0) for r in cfg.reels)
+
+
 def sim_plant(cfg: Any, turns: Sequence[float]) -> Any:
     """The `ReelPlant` the axes carry with `[sim] plant = "physical"` (None for "kinematic").
 
     The effector starts at rest at the power-up pose, its cables holding the payload with the
-    statics distribution farthest from the tension limits, with the motors at `turns`. Raises
-    PlantError / EquilibriumError / StaticsError (ValueErrors) if that pose cannot be held.
+    statics distribution farthest from the tension limits (with heavy simulated cables, that
+    distribution along their catenaries: `controller.core.sag`), with the motors at `turns`.
+    Raises PlantError / EquilibriumError / StaticsError (ValueErrors) if that pose cannot be
+    held.
     """
     if cfg.sim.plant != "physical":
         return None
@@ -63,16 +75,26 @@ def sim_plant(cfg: Any, turns: Sequence[float]) -> Any:
     from controller.service.config import tension_check
 
     pose = tuple(float(v) for v in cfg.homing.power_up_position_m)
-    tensions = tension_check(cfg.payload, cfg.tension, cfg.geometry).solve(pose).tensions_n
     params = sim_plant_params(cfg)
-    return ReelPlant(params, [r.reel for r in cfg.reels], pose, turns, tensions)
+    reels = [r.reel for r in cfg.reels]
+    check = tension_check(cfg.payload, cfg.tension, cfg.geometry)
+    if not params.sags:
+        return ReelPlant(params, reels, pose, turns, check.solve(pose).tensions_n)
+    from controller.core.sag import SagStatics
+    from controller.core.sag_plant import SagPlant
+
+    ea = [float(cfg.sim.cable_ea_n)] * len(reels)
+    sag = SagStatics(check.statics, check.mass_kg, params.cable_weight_n_per_m, ea)
+    lengths = sag.solve(pose).paid_out_m  # the catenaries that hold it there, at rest
+    return ReelPlant(params, reels, pose, turns, plant=SagPlant(params, pose, lengths))
 
 
 def sim_plant_params(cfg: Any) -> Any:
     """The `controller.core.plant.PlantParams` of the config's physical plant: the anchors,
     `[sim] cable_ea_n`, the payload's mass, `[sim] cable_damping_ratio` and
-    `effector_damping_n_s_per_m` (unset: the plant's light drag). Raises PlantError on
-    parameters the plant refuses, AttributeError without a payload."""
+    `effector_damping_n_s_per_m` (unset: the plant's light drag), the cables' mass per metre
+    (`sim_cable_masses`). Raises PlantError on parameters the plant refuses, AttributeError
+    without a payload."""
     from controller.core.plant import PlantParams
 
     s = cfg.sim
@@ -83,6 +105,7 @@ def sim_plant_params(cfg: Any) -> Any:
         float(cfg.payload.mass_kg),
         cable_damping_ratio=float(s.cable_damping_ratio),
         effector_damping_n_s_per_m=None if drag is None else float(drag),
+        cable_mass_kg_per_m=sim_cable_masses(cfg),
     )
 
 

@@ -37,6 +37,7 @@ TOP_KEYS = {
     "estop_latency_flood_ms",
     "planning",
     "stretch_us",
+    "sag_us",
     "ros2_publish_us",
     "compute_per_tick",
     "shaping_per_tick",
@@ -64,6 +65,15 @@ NEW_SECTION_KEYS = {
         "fpk_stretch_no_setpoint",
         "fpk_stretch_measured",
         "statics",
+    },
+    "sag_us": {
+        "ipk_sag",
+        "ipk_sag_base",
+        "fpk_sag_rest",
+        "fpk_sag_moving",
+        "fpk_sag_fast",
+        "fpk_sag_no_setpoint",
+        "sag_solve",
     },
     "ros2_publish_us": {"json_encode_us", "ros2_encode_us", "tick_handoff_us", "ros2_vs_json"},
     "compute_per_tick": {"ticks", "p50_us", "p99_us", "p99_frac"},
@@ -207,6 +217,7 @@ def test_bench_only_new_sections_json(tmp_path: Path) -> None:
             "--only",
             "planning",
             "stretch",
+            "sag",
             "ros2",
             "compute",
             "--json",
@@ -224,6 +235,7 @@ def test_bench_only_new_sections_json(tmp_path: Path) -> None:
     for name in (
         "planning.advance_100k_over_10",
         "stretch_us.ipk_stretch",
+        "sag_us.fpk_sag_moving",
         "ros2_publish_us.tick_handoff_us",
         "compute_per_tick.p50_us",
     ):
@@ -245,6 +257,8 @@ def test_bench_compute_piece() -> None:
     assert figures["p50_us"] <= figures["p99_us"] <= figures["max_us"]
     stretched = bench.bench_compute(100, stretch=True)
     assert stretched["moving_frac"] == 1.0 and _number(stretched["p50_us"])
+    sagged = bench.bench_compute(100, sag=True)
+    assert sagged["moving_frac"] == 1.0 and _number(sagged["p50_us"])
 
 
 def test_echo_driver_hands_in_commanded_positions() -> None:
@@ -279,6 +293,9 @@ def test_bench_planning_stretch_ros2_pieces() -> None:
     st = bench.bench_stretch(1)
     assert set(st) == set(bench.STRETCH_KEYS)
     assert all(_number(v) and v > 0.0 for v in st.values()), st
+    sg = bench.bench_sag(1)
+    assert set(sg) == set(bench.SAG_KEYS)
+    assert all(_number(v) and v > 0.0 for v in sg.values()), sg
     ros = bench.bench_ros2(100)
     assert set(bench.ROS2_KEYS) <= set(ros)
     assert all(_number(ros[k]) and ros[k] > 0.0 for k in bench.ROS2_KEYS), ros  # type: ignore[operator]
@@ -309,6 +326,8 @@ def test_bench_layouts_piece() -> None:
         assert all(_number(v) and v > 0.0 for v in fig.values()), (name, fig)
     assert figures["paper-4"]["statics_over_paper4"] == 1.0
     assert figures["paper-4"]["fpk_over_paper4"] == 1.0
+    assert figures["paper-4"]["statics_tick_over_paper4"] == 1.0
+    assert figures["paper-4"]["fpk_tick_over_paper4"] == 1.0
 
 
 def test_bench_sim_plant_piece() -> None:

@@ -287,3 +287,35 @@ def test_the_set_point_speed_is_dated_by_the_daemon_not_by_the_replys_arrival(
     assert not tr_old.setpoint_stamped
     _, v_old = plot.speed_mps(tr_old.status_t_s, tr_old.setpoint_m, plot.SPEED_WINDOW_S)
     assert np.nanmax(np.abs(v_old - 0.5)) > 0.1
+
+
+def test_the_workspace_of_a_hangprinter_is_drawn_as_its_true_shape() -> None:
+    """The 3-D figure draws the workspace's edges (`RobotShape.workspace_edges_m`: the faces
+    of the solid the daemon enforces, here the Hangprinter v4's hull moved in and cut by its
+    print radius), each edge once, and every drawn end point is in the workspace."""
+    import matplotlib.pyplot as plt
+
+    from controller.cli.configs import find_example
+    from controller.core.workspace import Workspace
+
+    cfg = load_config(find_example("hangprinter-v4.toml"))
+    shape = RobotShape.from_summary(cfg.summary())
+    ws = Workspace.from_limits(cfg.limits, cfg.geometry)
+    fig = plt.figure()
+    try:
+        ax = fig.add_subplot(projection="3d")
+        plot._draw_robot_3d(ax, shape)
+        drawn = [line.get_data_3d() for line in ax.get_lines() if line.get_color() == "#2ca02c"]
+    finally:
+        plt.close(fig)
+    ends = {
+        tuple(round(float(c[k]), 9) for c in xyz) for xyz in drawn if len(xyz[0]) for k in (0, -1)
+    }
+    want = {tuple(round(c, 9) for c in p) for e in shape.workspace_edges_m for p in e}
+    assert ends == want
+    assert len([d for d in drawn if len(d[0])]) == len(shape.workspace_edges_m)
+    mid = np.mean(np.array(sorted(want)), axis=0)
+    for p in want:
+        q = np.asarray(p)
+        inward = q + 1e-6 * (mid - q) / np.linalg.norm(mid - q)
+        assert ws.check_point(inward.tolist()) is None, p

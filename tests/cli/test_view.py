@@ -63,6 +63,33 @@ def test_drawn_workspace_is_the_enforced_one() -> None:
     assert xs[0] == pytest.approx(-40.45 + 2.0) and xs[-1] == pytest.approx(40.45 - 2.0)
 
 
+def test_drawn_workspace_of_a_hangprinter_is_its_true_shape() -> None:
+    """Among the anchors the scene draws the solid itself (the hull's faces moved in, cut by
+    floor, top and print radius), not a prism of its outline: every drawn corner is in the
+    enforced workspace (to a micrometre) and some lie between floor and top."""
+    from controller.cli.configs import find_example
+    from controller.service.config import load_config
+
+    cfg = load_config(find_example("hangprinter-v4.toml"))
+    shape = RobotShape.from_summary(cfg.summary())
+    ws = Workspace.from_limits(cfg.limits, cfg.geometry)
+    scene = _decode_scene(robot_scene(shape, 1))
+    line = {e["id"]: e for e in scene["entities"]}["workspace"]["lines"][0]
+    pts = [(q["x"], q["y"], q["z"]) for q in line["points"]]
+    assert len(pts) >= 2 * 12 and len(pts) % 2 == 0
+    mid = [sum(p[k] for p in pts) / len(pts) for k in range(3)]
+    for p in pts:
+        d = math.dist(p, mid)
+        inward = [p[k] + 1e-6 * (mid[k] - p[k]) / d for k in range(3)]
+        assert ws.check_point(inward) is None, p
+    assert any(ws.floor_z_m + 0.01 < p[2] < ws.top_z_m - 0.01 for p in pts)
+    # the apex region: nothing drawn at the top height as wide as the outline seen from above
+    top = [p for p in pts if abs(p[2] - ws.top_z_m) < 1e-9]
+    assert max(math.hypot(p[0], p[1]) for p in top) < 0.5 * max(
+        math.hypot(x, y) for x, y in shape.workspace_m
+    )
+
+
 def test_shrink_polygon_square_and_errors() -> None:
     sq = ((0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0))
     out = shrink_polygon(sq, 0.5)

@@ -34,20 +34,40 @@ class SimDaemonRig:
     """`cablebot sim` and `cablebot run` as processes on a udp_multicast bus of their own, and
     a Zenoh client session to the daemon following its pose and the simulator's truth."""
 
-    def __init__(self, tmp_path: Path, plant_ea_n: float, model_ea_n: float | None) -> None:
+    def __init__(
+        self,
+        tmp_path: Path,
+        plant_ea_n: float,
+        model_ea_n: float | None,
+        *,
+        plant_mass_kg_per_m: float | None = None,
+        model_mass_kg_per_m: float | None = None,
+        payload_kg: float | None = None,
+        sim_in_process: bool = False,
+    ) -> None:
+        """The paper robot's cables of EA `plant_ea_n` and mass per metre
+        `plant_mass_kg_per_m` (None: massless) in the simulator, `model_ea_n` and
+        `model_mass_kg_per_m` in the daemon's reels (None: rigid, massless); with
+        `sim_in_process` the daemon runs the simulated drives itself (`[sim] enabled`, on the
+        same udp_multicast bus) and no `cablebot sim` is started."""
+        # the figures are where the effector comes to rest: every mode damped critically, the
+        # effector's drag 1 s^-1 times its mass (the paper robot's 5 kg unless told)
+        sim = {
+            "plant": "physical",
+            "cable_ea_n": plant_ea_n,
+            "watchdog_timeout_s": 4.0,
+            "cable_damping_ratio": 1.0,
+            "effector_damping_n_s_per_m": 5.0 if payload_kg is None else payload_kg,
+        }
+        if plant_mass_kg_per_m is not None:
+            sim["cable_mass_kg_per_m"] = plant_mass_kg_per_m
         path, info = write_config(
             tmp_path,
             udp_bus(),
             rate_hz=250.0,
+            sim_enabled=sim_in_process,
             loop={"publish_every": 5},
-            # the figures are where the effector comes to rest: every mode damped critically
-            sim={
-                "plant": "physical",
-                "cable_ea_n": plant_ea_n,
-                "watchdog_timeout_s": 4.0,
-                "cable_damping_ratio": 1.0,
-                "effector_damping_n_s_per_m": 5.0,
-            },
+            sim=sim,
             # the rigid model's errors reach most of a metre; the machine is shared: a
             # starved process must not fault a measurement of where the effector rests
             faults={
@@ -63,10 +83,16 @@ class SimDaemonRig:
                 reel.pop("cable_ea_n", None)
             else:
                 reel["cable_ea_n"] = model_ea_n
+            if model_mass_kg_per_m is not None:
+                reel["cable_mass_kg_per_m"] = model_mass_kg_per_m
+        if payload_kg is not None:
+            data["payload"] = {"mass_kg": payload_kg}
         data["limits"] = {**data["limits"], "max_speed_mps": 2.0, "default_speed_mps": 2.0}
         path.write_text(to_toml(data))
         self.prefix = str(info["prefix"])
-        self.sim = Proc([*CABLEBOT, "sim", "--config", str(path)], "sim")
+        self.sim: Proc | None = (
+            None if sim_in_process else Proc([*CABLEBOT, "sim", "--config", str(path)], "sim")
+        )
         self.daemon: Proc | None = None
         self.session: Any = None
         self._lock = threading.Lock()
@@ -74,7 +100,8 @@ class SimDaemonRig:
         self._truth: dict[str, Any] | None = None
         self._truths: queue.Queue[tuple[float, Vec3]] = queue.Queue()
         try:
-            self.sim.wait_line("READY", 60.0)
+            if self.sim is not None:
+                self.sim.wait_line("READY", 60.0)
             self.daemon = Proc(
                 [*CABLEBOT, "run", "--config", str(path), "--status-every", "0"], "daemon"
             )
@@ -101,7 +128,8 @@ class SimDaemonRig:
             return self._pose, self._truth
 
     def log(self) -> str:
-        return self.sim.log() + "\n" + (self.daemon.log() if self.daemon else "")
+        sim = self.sim.log() if self.sim is not None else ""
+        return sim + "\n" + (self.daemon.log() if self.daemon else "")
 
     def wait(self, pred: Callable[[], bool], timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s
@@ -119,6 +147,9 @@ class SimDaemonRig:
             lambda: (p := self.latest()[0]) is not None and bool(p["valid"]), 60.0, "a valid pose"
         )
         self.wait(lambda: self.latest()[1] is not None, 30.0, "the truth")
+        if self.sim is None:  # the daemon's own simulated drives: it arms itself
+            self.wait(lambda: self.state() == "HOLDING", 30.0, "HOLDING")
+            return
         reply = zquery(self.session, f"{self.prefix}/cmd/arm", {}, 10.0)
         assert "error" not in reply, reply
         self.wait(lambda: self.state() == "HOLDING", 30.0, "HOLDING")
@@ -174,7 +205,8 @@ class SimDaemonRig:
             self.session = None
         if self.daemon is not None:
             self.daemon.terminate(10.0)
-        self.sim.terminate(10.0)
+        if self.sim is not None:
+            self.sim.terminate(10.0)
 
 
 def test_sim_process_and_daemon_with_stretch_are_within_a_millimetre(tmp_path: Path) -> None:

@@ -109,6 +109,13 @@ Method
   per call (best of 5 x 500 calls, wall clock) of the loop's IPK and FPK with rigid cables and
   with every cable of the built-in robot at EA 2e5 N; target: each call with stretch under
   `TARGET_STRETCH_US`.
+* `sag_us` (`sag_us.*`): `controller.cli.sag_bench.sag_cost_us`, microseconds per call (best
+  of 5 runs, the thread's CPU time) of the loop's IPK and FPK with heavy cables, the built-in
+  robot's cables as 3 mm steel rope (EA 4.5e5 N, 0.036 kg/m): a tick's plan and paid-out
+  lengths, the full solve a move makes every 2.5 cm, the FPK at rest and moving 1 mm and 8 mm
+  with the set-point's plan, and without a set-point; target: each call the armed loop makes
+  every tick under `TARGET_STRETCH_US`. The compute section's table also shows a tick with
+  them.
 * `ros2_publish_us` (`ros2_publish_us.*`): `controller.service.ros2.bench.measure_publish_cost`,
   the median per sample of the JSON encoding (`json_encode_us`, the JSON publisher's thread),
   the ROS 2 encoding (`ros2_encode_us`, the ROS 2 node's thread) and the tick's added cost of
@@ -120,8 +127,9 @@ Method
   `command` sends nothing, armed and flying a 4 m loop at 1 m/s, publishing every tick to a
   publisher that drops the sample; the thread's CPU time of each `tick` over 5,000 ticks (2,000
   with `--quick`) after a warm-up, GC frozen as in the daemon; p50, p99 and p99 over the
-  period. The table also shows the same with cable stretch, and with every reel's spool
-  building up (`[[reels]] spool_buildup_factor_m`, `BENCH_BUILDUP_FACTOR_M`). No bus and no
+  period. The table also shows the same with cable stretch, with every reel's spool
+  building up (`[[reels]] spool_buildup_factor_m`, `BENCH_BUILDUP_FACTOR_M`) and with cable
+  sag (every cable 3 mm steel rope). No bus and no
   other process, so the figure carries over between machines.
 * `shaping_per_tick` (`shaping_per_tick.*`, `controller.cli.bench.shaping`): the same tick with
   cable stretch, without and with the default input shaper (on the model's three modes at the
@@ -133,7 +141,7 @@ Method
   call at random poses of the workspace and along a path in 1 mm steps (the FPK seeded by the
   last pose), all interleaved in one run; ratios to the paper robot's figures of the same
   kind. Target: eight cables at most `TARGET_LAYOUT_OVER_PAPER4` times the paper robot's four
-  at random poses, for the statics and the FPK.
+  at random poses and a tick after the last, for the statics and the FPK.
 
 * `client_stream` (full run only, `FULL_ONLY_SECTIONS`; `--only client`): a 100,000-point path
   streamed to a daemon of the built-in robot by the CLI (`cablebot path FILE --wait`) and by a
@@ -142,17 +150,17 @@ Method
   the script's wall time over the CLI's at most `TARGET_SCRIPT_OVER_CLI`.
 
 `--only SECTION ...` runs only those sections (`SECTIONS`: kinematics, statics, sim, decode,
-loops, estop, planning, stretch, ros2, compute, shaping, layouts; and `client`); the JSON then
-holds their keys only.
+loops, estop, planning, stretch, sag, ros2, compute, shaping, layouts; and `client`); the JSON
+then holds their keys only.
 
 Layout: `settings` (plans, targets, JSON keys), `timing` (percentiles, interleaved timing),
 `figures` (the micro-benchmarks: FPK, batch, statics, simulator, decode), `planning`,
-`stretch`, `ros2`, `compute`, `shaping`, `layouts`, `client` (one section each: its figures and
-rows), `helpers` (the helper processes: simulated drives, pose subscriber), `loop` (the
-daemon-like loop run, end-to-end matching), `estop` (the e-stop flood), `table` (rows and the
-table), `measure` (each section's figures and rows), `command` (`cablebot bench`), `vibration`
-(the controller on the physical plant: `tools/shaping_figures.py` and the shaping tests),
-`__main__` (the helper processes' entry).
+`stretch`, `sag`, `ros2`, `compute`, `shaping`, `layouts`, `client` (one section each: its
+figures and rows), `helpers` (the helper processes: simulated drives, pose subscriber), `loop`
+(the daemon-like loop run, end-to-end matching), `estop` (the e-stop flood), `table` (rows and
+the table), `measure` (each section's figures and rows), `command` (`cablebot bench`),
+`vibration` (the controller on the physical plant: `tools/shaping_figures.py` and the shaping
+tests), `__main__` (the helper processes' entry).
 """
 
 from __future__ import annotations
@@ -187,6 +195,7 @@ from controller.cli.bench.loop import (
 from controller.cli.bench.measure import measure
 from controller.cli.bench.planning import bench_planning_figures
 from controller.cli.bench.ros2 import bench_ros2
+from controller.cli.bench.sag import bench_sag
 from controller.cli.bench.settings import (
     CHILD_START_TIMEOUT_S,
     CIA402_RATE_HZ,
@@ -209,6 +218,7 @@ from controller.cli.bench.settings import (
     PLANNING_KEYS,
     QUICK,
     ROS2_KEYS,
+    SAG_KEYS,
     SECTIONS,
     SEED,
     SIM_TICK_S,
@@ -256,6 +266,7 @@ __all__ = [
     "PLANNING_KEYS",
     "QUICK",
     "ROS2_KEYS",
+    "SAG_KEYS",
     "SECTIONS",
     "SEED",
     "SIM_TICK_S",
@@ -286,6 +297,7 @@ __all__ = [
     "bench_loop",
     "bench_planning_figures",
     "bench_ros2",
+    "bench_sag",
     "bench_sim_plant",
     "bench_statics",
     "bench_stretch",

@@ -138,12 +138,18 @@ BENCH_BUILDUP_FACTOR_M = 1.0e-6
 
 
 def bench_compute(
-    ticks: int, *, stretch: bool = False, buildup: bool = False, shaper: str | None = None
+    ticks: int,
+    *,
+    stretch: bool = False,
+    buildup: bool = False,
+    sag: bool = False,
+    shaper: str | None = None,
 ) -> dict[str, float]:
     """CPU time of `Controller.tick` per tick at `COMPUTE_RATE_HZ` on the built-in robot
     (rigid cables, or with `stretch` every cable at EA 2e5 N; with `buildup` every reel's spool
-    builds up by `BENCH_BUILDUP_FACTOR_M` from the power-up lengths; with `shaper` that input
-    shaper, on the model's modes at the set-point, which needs `stretch`), armed and flying
+    builds up by `BENCH_BUILDUP_FACTOR_M` from the power-up lengths; with `sag` every cable
+    3 mm steel rope: `controller.cli.sag_bench.sag_config`; with `shaper` that input shaper,
+    on the model's modes at the set-point, which needs `stretch`), armed and flying
     `COMPUTE_PATH_M` at 1 m/s on an `EchoDriver`, publishing every tick to a publisher that
     drops the sample; `ticks` measured after a warm-up, GC frozen as the daemon does.
 
@@ -164,6 +170,10 @@ def bench_compute(
     cfg = replace(cfg, loop=replace(cfg.loop, rate_hz=float(COMPUTE_RATE_HZ), publish_every=1))
     if stretch:
         cfg = replace(cfg, reels=tuple(replace(r, cable_ea_n=2e5) for r in cfg.reels))
+    if sag:
+        from controller.cli.sag_bench import sag_config
+
+        cfg = sag_config(cfg)
     if shaper is not None:
         cfg = replace(cfg, shaper=replace(cfg.shaper, type=shaper))
     assert cfg.homing.power_up_position_m is not None
@@ -245,11 +255,12 @@ def bench_compute(
 
 def measure_compute(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any], list[Row]]:
     """The no-transport section's JSON figures (`COMPUTE_KEYS`, rigid cables) and table rows
-    (rigid and with stretch). Raises BenchError."""
+    (rigid, with stretch and with sag). Raises BenchError."""
     log(f"controller compute per tick without transport ({p.compute_ticks:,} ticks) ...")
     f = bench_compute(p.compute_ticks)
     fs = bench_compute(p.compute_ticks, stretch=True)
     fb = bench_compute(p.compute_ticks, buildup=True)
+    fg = bench_compute(p.compute_ticks, sag=True)
     n = f"{f['ticks']:,} ticks at {COMPUTE_RATE_HZ} Hz, CPU time"
     rows = [
         Row("compute_per_tick.p50_us", f["p50_us"], "us", "", None, n),
@@ -278,6 +289,14 @@ def measure_compute(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any]
             None,
             f"p99 {fb['p99_us']:.1f}; spool_buildup_factor_m"
             f" {BENCH_BUILDUP_FACTOR_M:g} on every reel",
+        ),
+        Row(
+            "  with cable sag p50",
+            fg["p50_us"],
+            "us",
+            "",
+            None,
+            f"p99 {fg['p99_us']:.1f}, max {fg['max_us']:.0f}; 3 mm steel on every cable",
         ),
     ]
     return {key: f[key] for key in COMPUTE_KEYS}, rows

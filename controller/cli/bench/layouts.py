@@ -6,7 +6,8 @@ starts afresh, as the `statics_us` and `fpk4_us` figures of the statics and kine
 sections; the statics where the payload is held, the FPK anywhere) and along a path in 1 mm
 steps (`statics_tick_us`, `fpk_tick_us`: the loop's calls, each a tick after the last; the FPK
 seeded by the last pose). The FPK's lengths carry 1 mm of
-noise. Ratios are to the paper robot's figures of the same kind, timed interleaved with them.
+noise. Ratios are to the paper robot's figures of the same kind (random poses to random poses,
+ticks to ticks), timed interleaved with them.
 """
 
 from __future__ import annotations
@@ -147,6 +148,8 @@ def bench_layouts(repeats: int, n_poses: int) -> dict[str, dict[str, float]]:
             "fpk_tick_us": t.cpu(i + 3, n_poses) / 1e3,
             "statics_over_paper4": t.ratio(i, 0),
             "fpk_over_paper4": t.ratio(i + 2, 2),
+            "statics_tick_over_paper4": t.ratio(i + 1, 1),
+            "fpk_tick_over_paper4": t.ratio(i + 3, 3),
         }
         for key in LAYOUT_KEYS:
             if not (math.isfinite(fig[key]) and fig[key] > 0.0):
@@ -157,8 +160,8 @@ def bench_layouts(repeats: int, n_poses: int) -> dict[str, dict[str, float]]:
 
 def measure_layouts(p: Plan, log: Callable[[str], None]) -> tuple[dict[str, Any], list[Row]]:
     """The layouts section's JSON figures and table rows; the eight-cable robot's statics and
-    FPK have a target: at most `TARGET_LAYOUT_OVER_PAPER4` times the paper robot's. Raises
-    BenchError."""
+    FPK have a target: at most `TARGET_LAYOUT_OVER_PAPER4` times the paper robot's, at random
+    poses and a tick after the last. Raises BenchError."""
     log("layouts (statics and FPK of 3, 4, 5 and 8 cables) ...")
     f = bench_layouts(p.statics_repeats, p.statics_poses)
     rep = f"median of {p.statics_repeats} x {p.statics_poses} poses"

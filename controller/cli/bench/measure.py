@@ -19,6 +19,7 @@ from controller.cli.bench.layouts import measure_layouts
 from controller.cli.bench.loop import bench_loop, merge_runs
 from controller.cli.bench.planning import measure_planning
 from controller.cli.bench.ros2 import measure_ros2
+from controller.cli.bench.sag import measure_sag
 from controller.cli.bench.settings import (
     CIA402_RATE_HZ,
     E2E_MARGIN_US,
@@ -460,6 +461,9 @@ def measure(
         rows += part
     if "stretch" in sections:
         result["stretch_us"], part = measure_stretch(p, log)
+        rows += part
+    if "sag" in sections:
+        result["sag_us"], part = measure_sag(p, log)
         rows += part
     if "ros2" in sections:
         result["ros2_publish_us"], part = measure_ros2(p, log)

@@ -163,6 +163,7 @@ JSON_KEYS = (
     "estop_latency_flood_ms",
     "planning",
     "stretch_us",
+    "sag_us",
     "ros2_publish_us",
     "compute_per_tick",
     "shaping_per_tick",
@@ -179,6 +180,7 @@ SECTIONS = (
     "estop",
     "planning",
     "stretch",
+    "sag",
     "ros2",
     "compute",
     "shaping",
@@ -261,6 +263,17 @@ STRETCH_KEYS = (
 )
 
 
+SAG_KEYS = (
+    "ipk_sag",
+    "ipk_sag_base",
+    "fpk_sag_rest",
+    "fpk_sag_moving",
+    "fpk_sag_fast",
+    "fpk_sag_no_setpoint",
+    "sag_solve",
+)
+
+
 ROS2_KEYS = (
     "json_encode_us",
     "ros2_encode_us",
@@ -297,6 +310,9 @@ LAYOUT_KEYS = (
     "fpk_tick_us",
     "statics_over_paper4",
     "fpk_over_paper4",
+    "statics_tick_over_paper4",
+    "fpk_tick_over_paper4",
 )
 TARGET_LAYOUT_OVER_PAPER4 = 2.0
-"""Eight cables' statics and FPK per call over the paper robot's four, at random poses."""
+"""Eight cables' statics and FPK per call over the paper robot's four, at random poses and a
+tick after the last."""

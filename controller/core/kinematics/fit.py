@@ -109,8 +109,9 @@ RETRY_RMS_M = 0.002
 #: is under sqrt(this) = 1e-8 m (10 nm, far below any encoder): one evaluation fewer per call.
 GN_AMONG_NEXT_TOL2 = 1e-16
 
-# Module-level alias: one global lookup per call.
+# Module-level aliases: one global lookup per call.
 _sqrt = math.sqrt
+_dist = math.dist
 
 
 @dataclass(frozen=True, slots=True)
@@ -358,9 +359,37 @@ def _gauss_newton_among(
     directions turn by about the step over the cable length between iterations), and each
     trial point costs only the residuals and J^T r; the same stopping rule with
     ``GN_AMONG_NEXT_TOL2``. Not settled within ``GN_MAX_ITER`` steps (a far start): the full
-    Gauss-Newton from where it got. Returns x, y, z, RMS residual."""
+    Gauss-Newton from where it got. Returns x, y, z, RMS residual.
+
+    The tick's path: ``_normal_eq`` and ``_cost_grad`` are written out here (the same
+    quantities, with ``math.dist`` for the distances; J^T J's trace is N, its rows being unit
+    vectors, so its last diagonal entry is taken from the other two; J^T r of a trial point as
+    ``P sum k_i - sum A_i k_i`` with ``k_i = r_i / d_i``), a point on an anchor (a division by
+    zero) handed to them."""
     n = len(anchors)
-    cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = _normal_eq(anchors, lengths, x, y, z)
+    cost = a11 = a12 = a13 = a22 = a23 = g1 = g2 = g3 = 0.0
+    p = (x, y, z)
+    try:
+        for a, ln in zip(anchors, lengths, strict=True):
+            d = _dist(p, a)
+            t = 1.0 / d
+            ax, ay, az = a
+            ux = (x - ax) * t
+            uy = (y - ay) * t
+            uz = (z - az) * t
+            res = d - ln
+            cost += res * res
+            a11 += ux * ux
+            a12 += ux * uy
+            a13 += ux * uz
+            a22 += uy * uy
+            a23 += uy * uz
+            g1 += ux * res
+            g2 += uy * res
+            g3 += uz * res
+        a33 = n - a11 - a22
+    except ZeroDivisionError:
+        cost, a11, a12, a13, a22, a23, a33, g1, g2, g3 = _normal_eq(anchors, lengths, x, y, z)
     c11 = a22 * a33 - a23 * a23
     c12 = a13 * a23 - a12 * a33
     c13 = a12 * a23 - a13 * a22
@@ -389,14 +418,32 @@ def _gauss_newton_among(
         allowed = cost + (GN_COST_REL_TOL * cost + GN_COST_ROUND_M * _sqrt(cost))
         for _halving in range(GN_MAX_HALVINGS):
             tx, ty, tz = x - sx, y - sy, z - sz
-            trial = _cost_grad(anchors, lengths, tx, ty, tz)
-            if trial[0] <= allowed:
+            p = (tx, ty, tz)
+            # J^T r = sum (P - A_i) k_i = P sum k_i - sum A_i k_i (k_i = r_i / d_i)
+            tc = kk = h1 = h2 = h3 = 0.0
+            try:
+                for a, ln in zip(anchors, lengths, strict=True):
+                    d = _dist(p, a)
+                    res = d - ln
+                    tc += res * res
+                    k = res / d
+                    kk += k
+                    ax, ay, az = a
+                    h1 += ax * k
+                    h2 += ay * k
+                    h3 += az * k
+                h1 = tx * kk - h1
+                h2 = ty * kk - h2
+                h3 = tz * kk - h3
+            except ZeroDivisionError:
+                tc, h1, h2, h3 = _cost_grad(anchors, lengths, tx, ty, tz)
+            if tc <= allowed:
                 break
             sx, sy, sz = 0.5 * sx, 0.5 * sy, 0.5 * sz
         else:
             return x, y, z, _sqrt(cost / n)  # no decrease along the step: at the minimum
         x, y, z = tx, ty, tz
-        cost, g1, g2, g3 = trial
+        cost, g1, g2, g3 = tc, h1, h2, h3
     return _gauss_newton(anchors, lengths, x, y, z, None, GN_AMONG_NEXT_TOL2)
 
 

@@ -24,9 +24,10 @@ from controller.core.motion.shaper import (
 )
 from controller.core.reel import ReelModel, spool_buildup, spool_buildup_from_factor
 from controller.core.scale import speed_scale_problem
-from controller.core.statics import TensionCheck
+from controller.core.statics import G_MPS2, TensionCheck
 from controller.core.suggest import closest
 from controller.core.workspace import Workspace, WorkspaceError, layout_geometry
+from controller.service.config.heavy import cable_self_weight_problems
 from controller.service.config.interfaces import _parse_bus, _parse_ros2, _parse_zenoh
 from controller.service.config.schema import (
     _NAME_RE,
@@ -114,6 +115,7 @@ def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
     ref = t.number("reference_length_m", _REEL_DEFAULTS["reference_length_m"], ge=0.0)
     max_torque = t.number("max_torque_nm", gt=0.0) if t.has("max_torque_nm") else None
     cable_ea = t.number("cable_ea_n", gt=0.0) if t.has("cable_ea_n") else None
+    cable_mass = t.number("cable_mass_kg_per_m", ge=0.0) if t.has("cable_mass_kg_per_m") else None
     if not t.errs.clean_since(mark) or node_id is None or anchor is None:
         return None
     try:
@@ -134,6 +136,7 @@ def _parse_reel(t: _Table, family: registry.Family | None) -> ReelConfig | None:
         reel=model,
         max_torque_nm=max_torque,
         cable_ea_n=cable_ea,
+        cable_mass_kg_per_m=cable_mass,
     )
 
 
@@ -224,6 +227,9 @@ def _parse_sim(st: _Table, interface: str, loop: LoopConfig) -> SimConfig:
         ),
         plant=st.string("plant", d_sim.plant) or d_sim.plant,
         cable_ea_n=st.number("cable_ea_n", d_sim.cable_ea_n, gt=0.0),
+        cable_mass_kg_per_m=(
+            st.number("cable_mass_kg_per_m", ge=0.0) if st.has("cable_mass_kg_per_m") else None
+        ),
         cable_damping_ratio=st.number(
             "cable_damping_ratio", d_sim.cable_damping_ratio, ge=0.0, le=1.0
         ),
@@ -379,6 +385,7 @@ def parse_config(data: Mapping[str, Any], source: str, text: str | None = None) 
         top, lt, ft, st, ht, loop, faults, sim, bus.interface, drive, payload, tension, pup
     )
     _check_stretch(top, lt, errs, loop, reels)
+    _check_sag(top, errs, loop, reels, limits if limits_ok else None, tension, geometry)
     shaper = _parse_shaper(top, reels, payload)
 
     errs.raise_if_any()
@@ -525,6 +532,40 @@ def _check_stretch(
             lt.fail("stretch_tensions", '"measured" needs loop.torque_telemetry on')
         if reels is not None and not stretchy:
             lt.fail("stretch_tensions", '"measured" does nothing: no reel has cable_ea_n')
+
+
+def _check_sag(
+    top: _Table,
+    errs: _Errors,
+    loop: LoopConfig,
+    reels: Sequence[ReelConfig] | None,
+    limits: LimitsConfig | None,
+    tension: TensionLimits | None,
+    geometry: Geometry | None,
+) -> None:
+    """Heavy cables (`[[reels]] cable_mass_kg_per_m`) need `[payload]` and planned tensions
+    for the pose; a cable too heavy to hang within the tension limit anywhere in the workspace
+    is refused with the pose (`cable_self_weight_problem`)."""
+    heavy = [i for i, r in enumerate(reels or ()) if r.cable_mass_kg_per_m]
+    if not heavy:
+        return
+    if not top.has("payload"):
+        for i in heavy:
+            errs.add(
+                f"reels[{i}].cable_mass_kg_per_m",
+                "needs [payload] mass_kg (the sag follows the tensions that hold it)",
+            )
+        return
+    if loop.stretch_tensions == "measured":
+        errs.add(
+            "loop.stretch_tensions",
+            '"measured" is not modelled with heavy cables (reels\' cable_mass_kg_per_m): '
+            'use "planned"',
+        )
+    if reels is None or limits is None or tension is None or geometry is None:
+        return
+    for i, key, problem in cable_self_weight_problems(reels, limits, tension, geometry):
+        errs.add(f"reels[{i}].{key}", problem)
 
 
 def _check_telemetry_and_plant(
@@ -688,18 +729,38 @@ def _parse_statics(
         return None, None
     tension = TensionLimits(min_n=lo, max_n=max_n, margin_n=margin, max_source=max_source)
     if power_up_m is not None:
-        problem = tension_problem(geometry, payload, tension, power_up_m)
+        problem = tension_problem(geometry, payload, tension, power_up_m, reels)
         if problem is not None:
             errs.add("homing.power_up_position_m", problem)
     return payload, tension
 
 
 def tension_check(
-    payload: PayloadConfig, tension: TensionLimits, geometry: Geometry
+    payload: PayloadConfig,
+    tension: TensionLimits,
+    geometry: Geometry,
+    reels: Sequence[ReelConfig] = (),
 ) -> TensionCheck:
-    """The `controller.core.statics.TensionCheck` of this payload and these limits.
+    """The tension rule of this payload and these limits: with heavy `reels` (a
+    `cable_mass_kg_per_m`) the rule with the cables' weight
+    (`controller.core.sag_plan.SagTensionCheck`), else the straight cables'
+    (`controller.core.statics.TensionCheck`).
 
     Raises StaticsInputError only for values validation refuses."""
+    weights = [(r.cable_mass_kg_per_m or 0.0) * G_MPS2 for r in reels]
+    if any(w > 0.0 for w in weights):
+        from controller.core.sag_plan import SagTensionCheck
+
+        return SagTensionCheck(
+            geometry.anchors_m,
+            payload.mass_kg,
+            tension.min_n,
+            tension.max_n,
+            tension.margin_n,
+            tension.max_source,
+            weights,
+            [r.cable_ea_n for r in reels],
+        )
     return TensionCheck(
         geometry.anchors_m,
         payload.mass_kg,
@@ -711,11 +772,15 @@ def tension_check(
 
 
 def tension_problem(
-    geometry: Geometry, payload: PayloadConfig, tension: TensionLimits, point_m: Vec3
+    geometry: Geometry,
+    payload: PayloadConfig,
+    tension: TensionLimits,
+    point_m: Vec3,
+    reels: Sequence[ReelConfig] = (),
 ) -> str | None:
     """Why the cables cannot hold `payload` at `point_m` within the tension limits and their
-    margin, or None when they can. Raises nothing."""
-    return tension_check(payload, tension, geometry).check(point_m)
+    margin (with heavy `reels`, their weight too), or None when they can. Raises nothing."""
+    return tension_check(payload, tension, geometry, reels).check(point_m)
 
 
 def _parse_reels(

@@ -177,6 +177,13 @@ REEL_KEYS = (
         "planned tensions (`docs/cable-stretch.md`; needs `[payload]`); absent = rigid",
         shown="– (rigid)",
     ),
+    Key(
+        "cable_mass_kg_per_m",
+        "the cable's mass per metre: the statics and kinematics account for its sag "
+        "(elastic catenary, `docs/cable-sag.md`; needs `[payload]`); absent = massless",
+        shown="– (massless)",
+        unit="kg/m",
+    ),
 )
 """The keys of one `[[reels]]` table (a reel's model is `controller.core.reel.ReelModel`)."""
 
@@ -244,6 +251,9 @@ class ReelConfig:
     cable_ea_n: float | None = None
     """The cable's axial stiffness EA (N): the kinematics account for its stretch under the
     planned tensions (`controller.core.stretch`; needs `[payload]`). None = rigid."""
+    cable_mass_kg_per_m: float | None = None
+    """The cable's mass per metre (kg/m): the statics and kinematics account for its sag
+    (`controller.core.sag`; needs `[payload]`). None = massless."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -569,6 +579,13 @@ class SimConfig:
         "virtual or udp_multicast bus",
     )
     cable_ea_n: float = key(1.0e6, "axial stiffness EA of every simulated cable (physical plant)")
+    cable_mass_kg_per_m: float | None = key(
+        None,
+        "mass per metre of every simulated cable (physical plant: heavy cables hang in "
+        "catenaries); absent = each reel's `cable_mass_kg_per_m` (massless without it)",
+        shown="the reels'",
+        unit="kg/m",
+    )
     cable_damping_ratio: float = key(
         0.02,
         "damping ratio of the simulated ropes (physical plant): every mode their stretch "
@@ -751,6 +768,7 @@ class RobotConfig:
                     "reference_length_m": m.reference_length_m,
                     "max_torque_nm": r.max_torque_nm,
                     "cable_ea_n": r.cable_ea_n,
+                    "cable_mass_kg_per_m": r.cable_mass_kg_per_m,
                 }
             )
         return {

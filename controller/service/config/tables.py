@@ -16,6 +16,7 @@ from controller.core.suggest import closest
 from controller.service.config.schema import _MAX_ABS, ConfigError, Vec3
 
 _UNIT_WORDS = {
+    "_kg_per_m": "kilograms per metre",
     "_kg": "kilograms",
     "_nm": "newton-metres",
     "_n": "newtons",

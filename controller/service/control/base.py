@@ -166,10 +166,11 @@ class ControllerState:
         self.tension: TensionCheck | None = (
             None
             if cfg.tension is None or cfg.payload is None
-            else tension_check(cfg.payload, cfg.tension, cfg.geometry)
+            else tension_check(cfg.payload, cfg.tension, cfg.geometry, cfg.reels)
         )
         self.cables = CableModel.from_config(cfg, self.tension)
-        """Rigid or stretching cables: homing lengths, commanded lengths (IPK), pose (FPK)."""
+        """Rigid, stretching or heavy cables: homing lengths, commanded lengths (IPK), pose
+        (FPK)."""
         try:
             self.shaping = LoopShaper(cfg, self.period_s, self.tension)
         except (ShaperError, ModesError) as exc:
