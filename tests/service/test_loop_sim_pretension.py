@@ -15,6 +15,7 @@ from controller.core.commands import Arm, Move, Pretension, Reset
 from controller.core.plant import equilibrium, unstretched_lengths
 from controller.core.states import State
 from controller.service.config import tension_check
+from tests.fakes import make_config
 from tests.service.test_loop_sim_statics import PhysicalRig
 
 # Stillness to 0.2 mm/s of cable for 3 s: the effector's vertical bounce on the paper robot's
@@ -29,9 +30,21 @@ def rig() -> Iterator[PhysicalRig]:
     r.close()
 
 
+@pytest.fixture
+def limited_rig() -> Iterator[PhysicalRig]:
+    """The rig with the drives' configured limits known (the simulated drives' own vel_limit
+    and a current limit), so the pre-tension winds at `pretension_speed_mps`: at the drives'
+    5 m/s of cable, 20 cm of slack taken up yanks the effector into a swing that moved a cable
+    0.46 m of the 0.5 m travel limit on the plant alone, past it after a stall of a loaded host."""
+    r = PhysicalRig("cyclic", HOMING, drive_limits=(make_config().sim.max_velocity_rps, 40.0))
+    yield r
+    r.close()
+
+
 def test_slipped_cables_are_taken_up_and_the_home_is_declared_where_the_effector_is(
-    rig: PhysicalRig,
+    limited_rig: PhysicalRig,
 ) -> None:
+    rig = limited_rig
     home = tuple(float(v) for v in rig.cfg.homing.power_up_position_m)
     rig.wait(lambda: rig.ctl.pose_valid, 3.0, "a valid pose")
     plant = rig.bank.coupling
@@ -56,6 +69,7 @@ def test_slipped_cables_are_taken_up_and_the_home_is_declared_where_the_effector
 
     reply = rig.ctl.submit(Pretension(home)).result(timeout=2.0)
     assert reply["tensions_n"] == pytest.approx(want, rel=1e-9)
+    assert reply["speed_limited"] is True
     assert rig.ctl.state is State.PRETENSIONING
     took = rig.wait(lambda: rig.ctl.state is not State.PRETENSIONING, 60.0, "the pre-tension")
     assert rig.ctl.state is State.HOLDING, rig.ctl.reason
