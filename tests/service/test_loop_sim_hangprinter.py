@@ -40,7 +40,17 @@ class HangprinterLoop:
         data["bus"] = {"interface": "virtual", "channel": channel}
         data["loop"] = {"rate_hz": 250.0, "realtime": False, "torque_telemetry": "cyclic"}
         data["faults"] = {**data["faults"], "stale_timeout_s": 2.0, "heartbeat_timeout_s": 2.0}
-        data["sim"] = {**data["sim"], "torque_period_s": 0.004, "watchdog_timeout_s": 3.0}
+        # The test waits for the effector to come to rest, twice: damped like the other rigs
+        # that do (ropes critically, a drag of 1/s per kg). In torque control the reels follow
+        # their lines, so the ropes' own damping does not act and the file's light drag alone
+        # (0.1/s per kg, a frictionless ideal reel) takes over a minute to still the swing.
+        data["sim"] = {
+            **data["sim"],
+            "torque_period_s": 0.004,
+            "watchdog_timeout_s": 3.0,
+            "cable_damping_ratio": 1.0,
+            "effector_damping_n_s_per_m": 1.0,
+        }
         data["homing"] = {
             **data["homing"],
             "pretension_still_mps": 0.0005,

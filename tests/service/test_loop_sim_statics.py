@@ -30,9 +30,18 @@ DEADLINE_SCALE = 4.0 * slow_factor_value()
 
 class PhysicalRig:
     """The controller in its loop thread and simulated ODrives carrying the payload, on a
-    virtual bus of their own; `homing` replaces `[homing]` keys."""
+    virtual bus of their own; `homing` replaces `[homing]` keys. `drive_limits` are the
+    drives' configured (velocity_limit_rps, current_limit_a), the `[drive]` options that let
+    the pre-tension lower the velocity limit (None: unknown, the reels wind at the simulated
+    drives' own limit)."""
 
-    def __init__(self, telemetry: str, homing: Mapping[str, Any] | None = None) -> None:
+    def __init__(
+        self,
+        telemetry: str,
+        homing: Mapping[str, Any] | None = None,
+        *,
+        drive_limits: tuple[float, float] | None = None,
+    ) -> None:
         channel = f"test-loop-phys-{uuid.uuid4().hex[:8]}"
         cfg = make_config(
             bus={"interface": "virtual", "channel": channel},
@@ -70,6 +79,8 @@ class PhysicalRig:
             [r.node_id for r in self.cfg.reels],
             torque_rtr=telemetry == "rtr",
             torque_rtr_period_s=0.01,
+            velocity_limit_rps=None if drive_limits is None else drive_limits[0],
+            current_limit_a=None if drive_limits is None else drive_limits[1],
         )
         self.pub = RecordingPublisher()
         self.ctl = Controller(self.cfg, self.driver, self.pub)
