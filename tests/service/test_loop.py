@@ -276,6 +276,27 @@ def test_streamed_setpoints_are_rate_limited() -> None:
     assert rig.ctl.stream_last_refusal is not None
 
 
+def test_a_setpoint_sent_before_a_move_does_not_replace_it() -> None:
+    """A set-point and then a move reaching the loop within one tick: the move is the latest,
+    the set-point superseded (said in the stream's refusals), the robot flies the move."""
+    rig = Rig()
+    rig.arm()
+    early, goal = _target(rig, 0.2), _target(rig, 0.5)
+    rig.ctl.submit_setpoint(early)
+    fut = rig.ctl.submit(Move(goal))
+    rig.tick()
+    assert fut.result(timeout=0)["ok"] is True
+    assert rig.ctl.stream_refused == 1
+    assert "superseded" in (rig.ctl.stream_last_refusal or "")
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert _dist(rig.ctl.pose_m, goal) < 1e-3
+    # a set-point sent after the move is the latest again
+    rig.ctl.submit_setpoint(early)
+    rig.tick()
+    rig.until(lambda: rig.ctl.state is State.HOLDING)
+    assert _dist(rig.ctl.pose_m, early) < 1e-3
+
+
 # ------------------------------------------------------------------------ refusals
 
 
@@ -981,7 +1002,7 @@ def test_setpoint_from_an_earlier_armed_session_is_discarded() -> None:
     stale_epoch = rig.ctl._arm_epoch
     rig.do(Disarm())
     rig.arm()
-    rig.ctl._stream_target = (_far(rig), stale_epoch)
+    rig.ctl._stream_target = (_far(rig), stale_epoch, next(rig.ctl._arrivals))
     rig.tick(50)
     assert rig.state() is State.HOLDING
     assert _dist(rig.ctl.setpoint_m, rig.start) < 1e-9

@@ -8,6 +8,7 @@ declares the few methods a part calls in a part built on top of it, for the type
 from __future__ import annotations
 
 import concurrent.futures
+import itertools
 import logging
 import math
 import queue
@@ -107,7 +108,8 @@ class _Motion:
     speed below the minimum), or None."""
 
 
-_Pending = tuple[Command, "concurrent.futures.Future[dict[str, Any]]", _Motion | None]
+_Pending = tuple[Command, "concurrent.futures.Future[dict[str, Any]]", _Motion | None, int]
+"""A queued command, its future, its prepared motion and its place in arrival order."""
 Reply = dict[str, Any] | concurrent.futures.Future[dict[str, Any]]
 """A command's reply, or a future of it when it comes later (a homing save)."""
 
@@ -220,8 +222,14 @@ class ControllerState:
         self._estop_futures: list[concurrent.futures.Future[dict[str, Any]]] = []
         self._estop_lock = threading.Lock()
         self._estop_flag = False
-        self._stream_target: tuple[Vec3, int] | None = None
-        """The latest streamed set-point and the armed session (`_arm_epoch`) it arrived in."""
+        self._stream_target: tuple[Vec3, int, int] | None = None
+        """The latest streamed set-point, the armed session (`_arm_epoch`) it arrived in and its
+        place in arrival order (`_arrivals`)."""
+        self._arrivals = itertools.count()
+        """Arrival order of commands and streamed set-points (next() is atomic in CPython)."""
+        self._motion_taken_at = -1
+        """The arrival place of the last motion command the tick took: a set-point that came
+        before it is superseded, though the tick meets it after."""
         self._stop_brake: tuple[Vec3, str] | None = None
         """Where a `stop` taken while MOVING brakes to and why: the HOLDING there carries the
         reason (a motion that replaced the braking ends elsewhere and carries none)."""

@@ -100,7 +100,7 @@ class CommandExecution(Homing):
             # Here, in the submitting thread: O(number of points), so never in the tick.
             motion = self._prepare_motion(cmd)
         try:
-            self._queue.put_nowait((cmd, fut, motion))
+            self._queue.put_nowait((cmd, fut, motion, next(self._arrivals)))
         except queue.Full:
             fut.set_exception(CommandRefused("busy: command queue full"))
         return fut
@@ -131,7 +131,7 @@ class CommandExecution(Homing):
             self.stream_last_discard = text
             self.stream_discarded += 1  # after the reason: a reader of the count finds it
             return text
-        self._stream_target = (p, epoch)  # one reference assignment: atomic
+        self._stream_target = (p, epoch, next(self._arrivals))  # one assignment: atomic
         return None
 
     def submit_velocity(self, velocity_mps: Sequence[float]) -> None:
@@ -211,7 +211,7 @@ class CommandExecution(Homing):
     def _take_commands(self, readings: Sequence[AxisReading], now_s: float) -> None:
         for _ in range(_MAX_COMMANDS_PER_TICK):
             try:
-                cmd, fut, motion = self._queue.get_nowait()
+                cmd, fut, motion, arrived = self._queue.get_nowait()
             except queue.Empty:
                 return
             if not fut.set_running_or_notify_cancel():
@@ -225,6 +225,8 @@ class CommandExecution(Homing):
                 log.exception("command %r failed", cmd)
                 fut.set_exception(CommandRefused(f"internal error: {exc}"))
             else:
+                if isinstance(cmd, Move | Path | Stop):
+                    self._motion_taken_at = arrived
                 if isinstance(reply, concurrent.futures.Future):  # answered later (homing save)
                     reply.add_done_callback(_chain(fut))
                 else:

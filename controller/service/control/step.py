@@ -256,9 +256,12 @@ class ControlStep(CommandExecution):
         item = None if self._closing else self._stream_target
         if item is not None:
             self._stream_target = None
-            target, epoch = item
+            target, epoch, arrived = item
             if epoch != self._arm_epoch:
                 reason: str | None = "set-point from before the last `arm` discarded"
+            elif arrived < self._motion_taken_at:
+                # sent before a move, path or stop the tick took first: that one is the latest
+                reason = "set-point sent before the last move, path or stop: superseded"
             else:
                 reason = self._check_target(target)
             if reason is None:
