@@ -66,6 +66,7 @@ import numpy as np
 import numpy.typing as npt
 
 from controller.core.kinematics.errors import KinematicsError
+from controller.core.kinematics.fitgen import AmongFit, _make_among
 from controller.core.kinematics.fitplan import _Planar4
 from controller.core.kinematics.spheres import (
     Vec3,
@@ -108,6 +109,15 @@ RETRY_RMS_M = 0.002
 #: Among the anchors Gauss-Newton stops once the next step, predicted from the convergence rate,
 #: is under sqrt(this) = 1e-8 m (10 nm, far below any encoder): one evaluation fewer per call.
 GN_AMONG_NEXT_TOL2 = 1e-16
+#: The among-anchors fit's constants, as ``fitgen._make_among`` takes them.
+_AMONG_TOLS = (
+    GN_DET_MIN,
+    GN_STEP_TOL_M * GN_STEP_TOL_M,
+    GN_AMONG_NEXT_TOL2,
+    GN_COST_REL_TOL,
+    GN_COST_ROUND_M,
+    GN_MAX_ITER,
+)
 
 # Module-level aliases: one global lookup per call.
 _sqrt = math.sqrt
@@ -503,35 +513,46 @@ def _inner_seed(geom: Geometry, x: float, y: float, z: float) -> Vec3:
     return _mirror(tilt, x, y, z)
 
 
+def _among_fit(geom: Geometry) -> AmongFit:
+    """The geometry's fit written out for its layout (``fitgen``), made on its first use."""
+    fit = geom._among
+    if fit is None:
+        fit = geom._among = _make_among(geom._anchors_t, geom._lin, _AMONG_TOLS)
+    return fit
+
+
 def _fpk_among(geom: Geometry, lengths: list[float], seed_m: Sequence[float] | None) -> FpkResult:
     """``fpk`` for an effector among its anchors (module docstring)."""
     anchors = geom._anchors_t
     tri = geom.seed_triple
+    fit = geom._among or _among_fit(geom)
     best: tuple[float, float, float, float] | None = None
     if seed_m is not None and len(seed_m) == 3:
         gx, gy, gz = float(seed_m[0]), float(seed_m[1]), float(seed_m[2])
         if math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz):
-            best = _gauss_newton_among(anchors, lengths, gx, gy, gz)
+            best = fit(lengths, gx, gy, gz) or _gauss_newton_among(anchors, lengths, gx, gy, gz)
             if best[3] <= RETRY_RMS_M:
                 return FpkResult((best[0], best[1], best[2]), best[3], tri)
     lin = geom._lin
-    if lin is not None:
-        # The linearised trilateration of every cable: no mirror image, within the noise.
-        x, y, z = lin.p0
-        for (wx, wy, wz), ln in zip(lin.w, lengths, strict=True):
-            s = ln * ln
-            x -= wx * s
-            y -= wy * s
-            z -= wz * s
-    else:  # pragma: no cover - among the anchors they never lie in one plane
-        sd = geom._seed
-        r1, r2, r3 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3]
-        if isinstance(sd, _EqualSeed):
-            x, y, z = _seed_equal(sd, r1, r2, r3, True)
-        else:
-            x, y, z = _seed_general(sd, r1, r2, r3, True)
-        x, y, z = _inner_seed(geom, x, y, z)
-    res = _gauss_newton_among(anchors, lengths, x, y, z)
+    res = fit(lengths, None, 0.0, 0.0) if lin is not None else None
+    if res is None:
+        if lin is not None:
+            # The linearised trilateration of every cable: no mirror image, within the noise.
+            x, y, z = lin.p0
+            for (wx, wy, wz), ln in zip(lin.w, lengths, strict=True):
+                s = ln * ln
+                x -= wx * s
+                y -= wy * s
+                z -= wz * s
+        else:  # pragma: no cover - among the anchors they never lie in one plane
+            sd = geom._seed
+            r1, r2, r3 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3]
+            if isinstance(sd, _EqualSeed):
+                x, y, z = _seed_equal(sd, r1, r2, r3, True)
+            else:
+                x, y, z = _seed_general(sd, r1, r2, r3, True)
+            x, y, z = _inner_seed(geom, x, y, z)
+        res = _gauss_newton_among(anchors, lengths, x, y, z)
     if best is not None and best[3] < res[3]:
         res = best
     return FpkResult((res[0], res[1], res[2]), res[3], tri)

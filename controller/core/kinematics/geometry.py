@@ -38,7 +38,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -59,6 +59,9 @@ from controller.core.kinematics.spheres import (
     _make_equal_seed,
     _make_general_seed,
 )
+
+if TYPE_CHECKING:
+    from controller.core.kinematics.fitgen import AmongFit
 
 __all__ = [
     "COINCIDENT_TOL_M",
@@ -216,6 +219,7 @@ class Geometry:
     """
 
     __slots__ = (
+        "_among",
         "_anchors_t",
         "_fit",
         "_lin",
@@ -253,6 +257,7 @@ class Geometry:
     _fit: _Fit
     _lin: _Linear | None
     _p4: _Planar4 | None
+    _among: AmongFit | None
 
     def __init__(
         self, anchors_m: Any, height_tol_m: float = HEIGHT_TOL_M, *, hanging: bool = True
@@ -321,6 +326,7 @@ class Geometry:
         )
         self._fit = _make_fit(pts, seed)
         self._lin = None if self.hanging else _make_linear(pts)
+        self._among = None  # the fit written out for this layout, made by its first FPK
         self._p4 = (
             _make_planar4(pts, self._seed, self._fit.others)
             if isinstance(self._seed, _EqualSeed) and self.hanging
