@@ -18,10 +18,10 @@ from scipy.optimize import least_squares
 from controller.core.kinematics import Geometry, SingularGeometryError, fpk
 from controller.core.kinematics.fit import (
     RETRY_RMS_M,
-    _among_fit,
     _gauss_newton,
     _gauss_newton_among,
 )
+from controller.core.kinematics.fitgen import AmongFit
 
 FAST = settings(max_examples=200, deadline=None, derandomize=True)
 
@@ -78,6 +78,13 @@ def test_the_tick_fit_is_the_general_fit_and_scipys(
     assert math.dist(got.position_m, ref.x.tolist()) <= 1e-7
 
 
+def _written_out(geom: Geometry) -> AmongFit:
+    """The geometry's written-out fit (``fitgen``)."""
+    fit = geom._among
+    assert fit is not None
+    return fit
+
+
 def _linear_seed(geom: Geometry, lengths: list[float]) -> tuple[float, float, float]:
     """The linearised trilateration, as the loop's caller computes it."""
     lin = geom._lin
@@ -106,7 +113,7 @@ def test_the_written_out_fit_is_the_loops(
         raise
     lengths = (np.linalg.norm(anchors - p, axis=1) + noise).tolist()
     pts = geom._anchors_t
-    fit = _among_fit(geom)
+    fit = _written_out(geom)
     lx, ly, lz = (float(v) for v in last)
     for start, got in (
         ((lx, ly, lz), fit(lengths, lx, ly, lz)),
@@ -127,7 +134,7 @@ def test_the_written_out_fit_fits_the_bench_layout_without_the_loop() -> None:
     case itself (the speed it is there for) and agrees with scipy's least squares."""
     corners = np.array([[x, y, z] for x in (-1.2, 1.2) for y in (-1.0, 1.0) for z in (-0.1, 2.1)])
     geom = Geometry(corners, hanging=False)
-    fit = _among_fit(geom)
+    fit = _written_out(geom)
     rng = np.random.default_rng(5)
     pts = rng.uniform([-0.9, -0.7, 0.2], [0.9, 0.7, 1.8], (300, 3))
     for p in pts:
@@ -150,7 +157,7 @@ def test_a_start_on_an_anchor_or_far_away_is_handed_to_the_loop() -> None:
     pose."""
     corners = np.array([[x, y, z] for x in (-1.2, 1.2) for y in (-1.0, 1.0) for z in (-0.1, 2.1)])
     geom = Geometry(corners, hanging=False)
-    fit = _among_fit(geom)
+    fit = _written_out(geom)
     p = np.array([0.3, -0.2, 0.9])
     lengths = np.linalg.norm(corners - p, axis=1).tolist()
     on_anchor = tuple(corners[3].tolist())

@@ -10,6 +10,7 @@ Pure package: ``math`` and ``numpy`` only, no I/O, no global state.  One module 
 * ``spheres``: the paper's three-spheres intersection, simplified (equal heights) and general,
   with their per-tick forms; the diagnosis of lengths that cannot meet.
 * ``fitplan``: what the fit precomputes from the anchors (built by ``Geometry``).
+* ``fitgen``: the among-anchors fit written out for one layout (built by ``Geometry``).
 * ``fit``: ``fpk``, one pose over N cables: the three-spheres seed, then the least-squares fit.
 * ``batch``: ``fpk_batch``, the same fit for many poses at once (offline analysis, benchmark).
 """

@@ -30,8 +30,8 @@ import numpy as np
 import numpy.typing as npt
 
 from controller.core.kinematics.errors import KinematicsError, UnreachableError
-from controller.core.kinematics.fit import GN_STEP_TOL_M, _fpk, _planar4_solve
-from controller.core.kinematics.fitplan import _Planar4
+from controller.core.kinematics.fit import _fpk, _planar4_solve
+from controller.core.kinematics.fitplan import GN_STEP_TOL_M, _Planar4
 from controller.core.kinematics.geometry import Geometry
 from controller.core.kinematics.spheres import Vec3, _equal_xy
 

@@ -52,7 +52,11 @@ millimetres of such a fit), stopping once the next step would be under 10 nm
 (``GN_AMONG_NEXT_TOL2``).  A fit from the last pose that
 leaves more than ``RETRY_RMS_M`` of residual (a stale or far guess) is done again from the
 linear seed, and the better one is kept.  (The seed triple is also a face of the hull, with
-the effector on the hull's side of its plane, ``Geometry.seed_up``.)
+the effector on the hull's side of its plane, ``Geometry.seed_up``.)  The seed and this fit
+run as ``fitgen`` writes them out for the layout (made with the ``Geometry``): the same
+arithmetic without the loop over the cables; a case it does not cover (a point on an anchor,
+a singular J^T J, a step to halve, no convergence) goes to ``_gauss_newton_among`` from the
+same start.
 """
 
 from __future__ import annotations
@@ -66,8 +70,17 @@ import numpy as np
 import numpy.typing as npt
 
 from controller.core.kinematics.errors import KinematicsError
-from controller.core.kinematics.fitgen import AmongFit, _make_among
-from controller.core.kinematics.fitplan import _Planar4
+from controller.core.kinematics.fitplan import (
+    GN_AMONG_NEXT_TOL2,
+    GN_COST_REL_TOL,
+    GN_COST_ROUND_M,
+    GN_DET_MIN,
+    GN_MAX_HALVINGS,
+    GN_MAX_ITER,
+    GN_NEXT_TOL2,
+    GN_STEP_TOL_M,
+    _Planar4,
+)
 from controller.core.kinematics.spheres import (
     Vec3,
     _equal_xy,
@@ -84,40 +97,9 @@ __all__ = ["FpkResult", "fpk"]
 
 FloatArray = npt.NDArray[np.float64]
 
-#: Gauss-Newton stops when the step is below this; other cables agreeing with the seed to
-#: this are consistent (no fit).
-GN_STEP_TOL_M = 1e-12
-#: Gauss-Newton also stops once a step is under 1 um and the next one, predicted from the
-#: linear convergence rate (|s_k|^2 / |s_k-1|), is under sqrt(GN_NEXT_TOL2) = 1e-10 m: one
-#: evaluation fewer than waiting for a 1e-12 m step, for a difference of about 1e-11 m.
-GN_NEXT_TOL2 = 1e-20
-#: Gauss-Newton iteration cap.
-GN_MAX_ITER = 8
-#: Step halvings tried before a Gauss-Newton step is given up.
-GN_MAX_HALVINGS = 40
-#: A trial step is accepted when the cost (sum of squared residuals, m^2) does not grow by
-#: more than this fraction plus ``GN_COST_ROUND_M`` * sqrt(cost): rounding noise, not an
-#: overshoot.  Each residual |P - B| - L carries a rounding error of about 1e-16 of the cable
-#: length, so near the minimum the cost wobbles by about 2 * sqrt(N * cost) * that error.
-GN_COST_REL_TOL = 1e-9
-GN_COST_ROUND_M = 1e-11
-#: J^T J determinant (sum of unit vectors' outer products) below which the fit stops.
-GN_DET_MIN = 1e-12
 #: Among the anchors: a fit from the caller's last pose with a larger RMS residual (m) is done
 #: again from the three-spheres seed on the hull's side.
 RETRY_RMS_M = 0.002
-#: Among the anchors Gauss-Newton stops once the next step, predicted from the convergence rate,
-#: is under sqrt(this) = 1e-8 m (10 nm, far below any encoder): one evaluation fewer per call.
-GN_AMONG_NEXT_TOL2 = 1e-16
-#: The among-anchors fit's constants, as ``fitgen._make_among`` takes them.
-_AMONG_TOLS = (
-    GN_DET_MIN,
-    GN_STEP_TOL_M * GN_STEP_TOL_M,
-    GN_AMONG_NEXT_TOL2,
-    GN_COST_REL_TOL,
-    GN_COST_ROUND_M,
-    GN_MAX_ITER,
-)
 
 # Module-level aliases: one global lookup per call.
 _sqrt = math.sqrt
@@ -513,19 +495,12 @@ def _inner_seed(geom: Geometry, x: float, y: float, z: float) -> Vec3:
     return _mirror(tilt, x, y, z)
 
 
-def _among_fit(geom: Geometry) -> AmongFit:
-    """The geometry's fit written out for its layout (``fitgen``), made on its first use."""
-    fit = geom._among
-    if fit is None:
-        fit = geom._among = _make_among(geom._anchors_t, geom._lin, _AMONG_TOLS)
-    return fit
-
-
 def _fpk_among(geom: Geometry, lengths: list[float], seed_m: Sequence[float] | None) -> FpkResult:
     """``fpk`` for an effector among its anchors (module docstring)."""
     anchors = geom._anchors_t
     tri = geom.seed_triple
-    fit = geom._among or _among_fit(geom)
+    fit = geom._among
+    assert fit is not None  # made with every geometry among its anchors
     best: tuple[float, float, float, float] | None = None
     if seed_m is not None and len(seed_m) == 3:
         gx, gy, gz = float(seed_m[0]), float(seed_m[1]), float(seed_m[2])

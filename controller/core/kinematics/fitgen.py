@@ -16,10 +16,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from functools import lru_cache
 from typing import cast
 
-from controller.core.kinematics.fitplan import _Linear
+from controller.core.kinematics.fitplan import (
+    GN_AMONG_NEXT_TOL2,
+    GN_COST_REL_TOL,
+    GN_COST_ROUND_M,
+    GN_DET_MIN,
+    GN_MAX_ITER,
+    GN_STEP_TOL_M,
+    _Linear,
+)
 from controller.core.kinematics.spheres import Vec3
 
 __all__ = ["AmongFit"]
@@ -137,24 +144,20 @@ def _source(pts: tuple[Vec3, ...], lin: _Linear | None) -> str:
     return "\n".join(out) + "\n"
 
 
-@lru_cache(maxsize=64)
-def _make_among(
-    pts: tuple[Vec3, ...], lin: _Linear | None, tol: tuple[float, float, float, float, float, int]
-) -> AmongFit:
-    """The fit for anchors ``pts`` (``tol``: ``fit``'s J^T J determinant floor, step
-    tolerance squared, predicted-next-step tolerance squared, cost tolerances relative and
-    rounding, iteration cap).  Raises ValueError for a non-finite anchor or constant."""
-    det_min, tol2, next_tol2, rel_tol, round_m, max_iter = tol
+def _make_among(pts: tuple[Vec3, ...], lin: _Linear | None) -> AmongFit:
+    """The fit for anchors ``pts`` with ``fitplan``'s tolerances (about a millisecond for
+    eight anchors, once per ``Geometry``).  Raises ValueError for a non-finite anchor or
+    constant."""
     ns: dict[str, object] = {
         "_sqrt": math.sqrt,
         "_dist": math.dist,
         "INF": math.inf,
-        "ITERS": tuple(range(max_iter)),
-        "DET_MIN": det_min,
-        "TOL2": tol2,
-        "NEXT_TOL2": next_tol2,
-        "COST_REL_TOL": rel_tol,
-        "COST_ROUND_M": round_m,
+        "ITERS": tuple(range(GN_MAX_ITER)),
+        "DET_MIN": GN_DET_MIN,
+        "TOL2": GN_STEP_TOL_M * GN_STEP_TOL_M,
+        "NEXT_TOL2": GN_AMONG_NEXT_TOL2,
+        "COST_REL_TOL": GN_COST_REL_TOL,
+        "COST_ROUND_M": GN_COST_ROUND_M,
     }
     ns.update({f"A{i}": p for i, p in enumerate(pts)})
     src = _source(pts, lin)

@@ -2,7 +2,8 @@
 
 ``_Fit``: the cables outside the seed triple and, when that triple is tilted, its plane.
 ``_Planar4``: the constants of the one-multiplier fit for four anchors at one height (see the
-``fit`` module docstring). Pure Python floats; depends only on the seed (``spheres``), so that
+``fit`` module docstring); the Gauss-Newton fit's tolerances (``fit``, ``fitgen``). Pure
+Python floats; depends only on the seed (``spheres``), so that
 ``geometry`` can build these without importing the fit itself.
 """
 
@@ -13,6 +14,29 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from controller.core.kinematics.spheres import Vec3, _EqualSeed
+
+#: Gauss-Newton stops when the step is below this; other cables agreeing with the seed to
+#: this are consistent (no fit).
+GN_STEP_TOL_M = 1e-12
+#: Gauss-Newton also stops once a step is under 1 um and the next one, predicted from the
+#: linear convergence rate (|s_k|^2 / |s_k-1|), is under sqrt(GN_NEXT_TOL2) = 1e-10 m: one
+#: evaluation fewer than waiting for a 1e-12 m step, for a difference of about 1e-11 m.
+GN_NEXT_TOL2 = 1e-20
+#: Gauss-Newton iteration cap.
+GN_MAX_ITER = 8
+#: Step halvings tried before a Gauss-Newton step is given up.
+GN_MAX_HALVINGS = 40
+#: A trial step is accepted when the cost (sum of squared residuals, m^2) does not grow by
+#: more than this fraction plus ``GN_COST_ROUND_M`` * sqrt(cost): rounding noise, not an
+#: overshoot.  Each residual |P - B| - L carries a rounding error of about 1e-16 of the cable
+#: length, so near the minimum the cost wobbles by about 2 * sqrt(N * cost) * that error.
+GN_COST_REL_TOL = 1e-9
+GN_COST_ROUND_M = 1e-11
+#: J^T J determinant (sum of unit vectors' outer products) below which the fit stops.
+GN_DET_MIN = 1e-12
+#: Among the anchors Gauss-Newton stops once the next step, predicted from the convergence rate,
+#: is under sqrt(this) = 1e-8 m (10 nm, far below any encoder): one evaluation fewer per call.
+GN_AMONG_NEXT_TOL2 = 1e-16
 
 
 @dataclass(frozen=True, slots=True)

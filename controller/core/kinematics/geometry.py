@@ -38,12 +38,13 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from controller.core.kinematics.errors import KinematicsError, SingularGeometryError
+from controller.core.kinematics.fitgen import AmongFit, _make_among
 from controller.core.kinematics.fitplan import (
     _Fit,
     _Linear,
@@ -59,9 +60,6 @@ from controller.core.kinematics.spheres import (
     _make_equal_seed,
     _make_general_seed,
 )
-
-if TYPE_CHECKING:
-    from controller.core.kinematics.fitgen import AmongFit
 
 __all__ = [
     "COINCIDENT_TOL_M",
@@ -326,7 +324,7 @@ class Geometry:
         )
         self._fit = _make_fit(pts, seed)
         self._lin = None if self.hanging else _make_linear(pts)
-        self._among = None  # the fit written out for this layout, made by its first FPK
+        self._among = None if self.hanging else _make_among(pts, self._lin)
         self._p4 = (
             _make_planar4(pts, self._seed, self._fit.others)
             if isinstance(self._seed, _EqualSeed) and self.hanging
