@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from controller.core import kinematics as kin
+from controller.core.kinematics.fit import SEED_MISS_FIT_RMS_M
 from controller.core.kinematics import (
     FpkBatchResult,
     FpkResult,
@@ -176,6 +177,48 @@ def test_too_short_cable_raises_naming_it(paper: Geometry) -> None:
     with pytest.raises(UnreachableError) as ei2:
         fpk(paper, bad)
     assert 0.0 < ei2.value.shortfall_m < 2e-6
+
+
+def test_a_seed_triple_missed_by_noise_near_the_anchors_plane_is_fitted_over_every_cable() -> None:
+    # Five anchors at one height, the effector 0.5 m below them: the seed triple's spheres meet
+    # at a grazing angle, and cable 1 a centimetre long makes them miss each other (the control
+    # loop faulted "fpk_unreachable" on such noise). The other cables say where the effector is.
+    g = Geometry(
+        [(0.0, -14.0, 2.0), (3.0, 0.0, 2.0), (3.0, 13.0, 2.0), (0.0, 0.0, 2.0), (1.0, 3.0, 2.0)]
+    )
+    assert 0 in g.seed_triple
+    p = (2.0, 8.0, 1.5)
+    lengths = ipk(g, p)
+    lengths[0] += 0.01
+    sd = g.seed_triple
+    with pytest.raises(UnreachableError):
+        three_spheres_equal_height(*(g.anchors_m[i] for i in sd), *(lengths[i] for i in sd))
+    res = fpk(g, lengths)
+    assert res.seed_triple != g.seed_triple
+    # the least-squares point, found by an independent solver
+    from scipy.optimize import least_squares
+
+    ref = least_squares(
+        lambda q: np.linalg.norm(q - g.anchors_m, axis=1) - lengths,
+        np.array(p),
+        xtol=1e-15,
+        ftol=1e-15,
+        gtol=1e-15,
+    ).x
+    # (z is poorly determined this close to the anchors' plane: the cost is flat along it)
+    assert res.position_m == pytest.approx(ref.tolist(), abs=1e-6)
+    at = np.linalg.norm(np.array(res.position_m) - g.anchors_m, axis=1) - lengths
+    at_ref = np.linalg.norm(ref - g.anchors_m, axis=1) - lengths
+    assert res.residual_m == pytest.approx(math.sqrt(float(np.mean(at**2))), abs=1e-12)
+    assert res.residual_m == pytest.approx(math.sqrt(float(np.mean(at_ref**2))), rel=1e-9)
+    assert 1e-3 < res.residual_m < SEED_MISS_FIT_RMS_M
+    batch = fpk_batch(g, np.vstack([lengths, lengths]))
+    assert batch.valid.all()
+    assert batch.position_m[0] == pytest.approx(res.position_m, abs=1e-12)
+    # A cable far too long is still named: no point explains the lengths.
+    lengths[0] += 1.0
+    with pytest.raises(UnreachableError, match="cable 1 is too long"):
+        fpk(g, lengths)
 
 
 def test_too_long_cable_is_named_as_such(paper: Geometry) -> None:

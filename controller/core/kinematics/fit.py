@@ -8,7 +8,11 @@ cables that is the answer.  With more, the other cables are checked against the 
 they agree to ``GN_STEP_TOL_M`` (consistent lengths, e.g. from IPK) the seed is the answer.
 Otherwise the lengths disagree (noise, a slack or slipped cable) and ``fpk`` returns the
 least-squares point, minimising sum (|P - B_i| - L_i)^2 over all N cables;
-``residual_m`` is the RMS of |P - B_i| - L_i at the returned point.
+``residual_m`` is the RMS of |P - B_i| - L_i at the returned point.  Near the anchors' plane
+the seed triple's spheres meet at a grazing angle, and a little noise makes them miss each
+other; with more than three cables the fit then starts from another triple that meets, and
+stands when it explains every cable to ``SEED_MISS_FIT_RMS_M`` (a real miss, a cable far too
+short or long, still raises ``UnreachableError`` naming it).
 
 Four anchors at one height (the usual rig): one multiplier equation
 ------------------------------------------------------------------------
@@ -69,7 +73,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import numpy.typing as npt
 
-from controller.core.kinematics.errors import KinematicsError
+from controller.core.kinematics.errors import KinematicsError, UnreachableError
 from controller.core.kinematics.fitplan import (
     GN_AMONG_NEXT_TOL2,
     GN_COST_REL_TOL,
@@ -88,6 +92,7 @@ from controller.core.kinematics.spheres import (
     _is_tangent,
     _seed_equal,
     _seed_general,
+    three_spheres,
 )
 
 if TYPE_CHECKING:
@@ -100,6 +105,12 @@ FloatArray = npt.NDArray[np.float64]
 #: Among the anchors: a fit from the caller's last pose with a larger RMS residual (m) is done
 #: again from the three-spheres seed on the hull's side.
 RETRY_RMS_M = 0.002
+
+#: A hanging robot with more than three cables whose seed triple's spheres miss each other
+#: (noise on lengths near the anchors' plane, where the three meet at a grazing angle) is fitted
+#: from another triple that meets; the fit stands when its RMS residual over every cable is at
+#: most this (m), else the seed triple's miss is the answer (``UnreachableError``).
+SEED_MISS_FIT_RMS_M = 0.01
 
 # Module-level aliases: one global lookup per call.
 _sqrt = math.sqrt
@@ -552,17 +563,53 @@ def _fpk(geom: Geometry, lengths: list[float], seed_m: Sequence[float] | None = 
             raise KinematicsError("FPK produced a non-finite result")  # defensive
         return res
     r1, r2, r3 = lengths[sd.i1], lengths[sd.i2], lengths[sd.i3]
-    if isinstance(sd, _EqualSeed):
-        x, y, z = _seed_equal(sd, r1, r2, r3)
-    else:
-        x, y, z = _seed_general(sd, r1, r2, r3)
     tri = geom.seed_triple
+    try:
+        if isinstance(sd, _EqualSeed):
+            x, y, z = _seed_equal(sd, r1, r2, r3)
+        else:
+            x, y, z = _seed_general(sd, r1, r2, r3)
+    except UnreachableError:
+        if n == 3:
+            raise
+        return _fpk_seed_missed(geom, lengths)
     if n == 3:
         return FpkResult((x, y, z), 0.0, tri)
     x, y, z, rms = _refine(geom, lengths, x, y, z)
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z) and math.isfinite(rms)):
         raise KinematicsError("FPK produced a non-finite result")  # defensive, not expected
     return FpkResult((x, y, z), rms, tri)
+
+
+def _fpk_seed_missed(geom: Geometry, lengths: list[float]) -> FpkResult:
+    """A hanging robot's fit when its seed triple's spheres miss each other (N > 3): from the
+    first other usable triple whose spheres meet, over every cable; it stands when its RMS
+    residual is at most ``SEED_MISS_FIT_RMS_M``.  Raises the seed triple's ``UnreachableError``
+    otherwise (no triple meets, or no point explains the lengths)."""
+    anchors = geom._anchors_t
+    for tri in geom.triples:
+        if tri == geom.seed_triple:
+            continue
+        i, j, k = tri
+        try:
+            x, y, z = three_spheres(
+                anchors[i], anchors[j], anchors[k], lengths[i], lengths[j], lengths[k]
+            )
+        except KinematicsError:  # this triple misses too (or is singular in plan view)
+            continue
+        sd = geom._seed
+        mirror = sd.zn if geom.equal_heights and isinstance(sd, _EqualSeed) else None
+        x, y, z, rms = _gauss_newton(anchors, lengths, x, y, z, mirror)
+        if rms <= SEED_MISS_FIT_RMS_M and math.isfinite(x + y + z):
+            return FpkResult((x, y, z), rms, tri)
+        break
+    sd = geom._seed
+    r = (lengths[sd.i1], lengths[sd.i2], lengths[sd.i3])
+    if isinstance(sd, _EqualSeed):
+        _seed_equal(sd, *r)
+    else:
+        _seed_general(sd, *r)
+    raise KinematicsError("the seed triple's spheres miss each other")  # pragma: no cover
 
 
 def fpk(
@@ -579,7 +626,9 @@ def fpk(
     fit of an effector among its anchors (``Geometry.hanging`` False) and is not needed for
     a hanging one (ignored there).  Raises ``KinematicsError`` for a wrong shape or count or
     for non-finite / non-positive lengths, and ``UnreachableError`` (naming the 1-based cable
-    and its shortfall) when the seed triple cannot meet.
+    and its shortfall) when the seed triple cannot meet (with more than three cables: unless
+    another triple meets and the fit from it over every cable leaves at most
+    ``SEED_MISS_FIT_RMS_M``).
     """
     if isinstance(lengths_m, np.ndarray):
         if lengths_m.ndim != 1:
