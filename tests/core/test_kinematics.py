@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from controller.core import kinematics as kin
-from controller.core.kinematics.fit import SEED_MISS_FIT_RMS_M
 from controller.core.kinematics import (
     FpkBatchResult,
     FpkResult,
@@ -25,6 +24,7 @@ from controller.core.kinematics import (
     three_spheres,
     three_spheres_equal_height,
 )
+from controller.core.kinematics.fit import SEED_MISS_FIT_RMS_M
 
 # The paper's constants (section 6): W = 50.0 m, L = 80.9 m, h = 7.62 m; printed anchors.
 H = 7.62

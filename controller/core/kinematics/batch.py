@@ -67,8 +67,8 @@ def fpk_batch(geom: Geometry, lengths_m: Any) -> FpkBatchResult:
     """FPK of M poses from an (M, N) array of lengths; never raises per row.
 
     Each row gets what ``fpk`` gives for it.  Rows with non-finite or non-positive lengths,
-    or where ``fpk`` raises ``UnreachableError``, get ``valid`` False, position and residual 0 (never
-    NaN).  Raises ``KinematicsError`` only for a wrong shape.
+    or where ``fpk`` raises ``UnreachableError``, get ``valid`` False, position and
+    residual 0 (never NaN).  Raises ``KinematicsError`` only for a wrong shape.
     """
     lens = np.asarray(lengths_m, dtype=np.float64)
     n = geom.n_cables
