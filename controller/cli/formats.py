@@ -247,6 +247,8 @@ def format_home(reply: dict[str, Any]) -> str:
         )
     if reply.get("saved"):
         parts.append(f"saved to {reply.get('state_file')}")
+    elif reply.get("saving"):
+        parts.append(f"saving to {reply.get('state_file')} (not confirmed yet: see `status`)")
     elif reply.get("error"):
         parts.append(f"NOT SAVED: {reply['error']}")
     else:

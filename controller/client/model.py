@@ -399,13 +399,15 @@ def _offsets(value: Any) -> Mapping[int, float] | None:
 @dataclass(frozen=True, slots=True)
 class PretensionResult:
     """How a pre-tension ended: `ok` (the reels came to rest and the robot was homed there),
-    after how long, where it homed and the offsets, the measured tensions; else `reason`."""
+    after how long, where it homed and the offsets, the measured tensions, whether the offsets
+    are still being saved to the state file (`saving`); else `reason`."""
 
     ok: bool
     reason: str | None
     still_after_s: float | None
     position_m: Vec3 | None
     measured_tensions_n: tuple[float | None, ...] | None
+    saving: bool = False
     raw: Mapping[str, Any] = field(default_factory=lambda: _EMPTY, repr=False, compare=False)
 
     @classmethod
@@ -417,6 +419,7 @@ class PretensionResult:
             still_after_s=number(r.get("still_after_s")),
             position_m=vec3(r.get("position_m")),
             measured_tensions_n=numbers(r.get("measured_tensions_n")),
+            saving=r.get("saving") is True,
             raw=MappingProxyType(dict(r)),
         )
 

@@ -78,6 +78,9 @@ ARM_POLL_S = 0.1
 """How often `wait_armed` asks the daemon how the arming goes (s)."""
 PRETENSION_POLL_S = 0.2
 """How often `wait_pretension` asks the daemon how the pre-tension goes (s)."""
+SAVE_WAIT_S = 10.0
+"""How long `wait_pretension` waits, after the reels came to rest, for the daemon to report
+the homing offsets on disk (a loaded host's fsync can take seconds)."""
 WAIT_TIMEOUT_S = 120.0
 """How long `wait` and `wait_pretension` wait by default (s)."""
 
@@ -412,17 +415,26 @@ class Robot(RobotLink):
         on_progress: Callable[[Status, float], None] | None = None,
     ) -> PretensionResult:
         """Follow a pre-tension until it ends; returns its result (the reels came to rest and
-        the robot is homed, HOLDING). `on_progress(status, elapsed_s)` is called at every
-        status poll. Raises Failed when it ended otherwise (FAULT, or another state without
-        homing), WaitTimeout after `timeout_s` (the daemon goes on), DaemonAbsent."""
+        the robot is homed, HOLDING), once the daemon has said whether the offsets are saved
+        (at most `SAVE_WAIT_S` later: then `result.saving` is still True). `on_progress(status,
+        elapsed_s)` is called at every status poll. Raises Failed when it ended otherwise
+        (FAULT, or another state without homing), WaitTimeout after `timeout_s` (the daemon
+        goes on), DaemonAbsent."""
         wait_s = inputs.positive_s(timeout_s, "timeout_s")
         t0 = time.monotonic()
+        saving_since: float | None = None
         while True:
             st = self.status()
             result = st.pretension.result
             if st.state != "PRETENSIONING":
                 if st.state == "HOLDING" and result is not None and result.ok:
-                    return result
+                    now = time.monotonic()
+                    if saving_since is None:
+                        saving_since = now
+                    if not result.saving or now - saving_since >= SAVE_WAIT_S:
+                        return result
+                    time.sleep(PRETENSION_POLL_S)
+                    continue
                 raise Failed(f"the pre-tension ended in {st.state}: {st.reason}")
             elapsed = time.monotonic() - t0
             if elapsed > wait_s:

@@ -180,3 +180,48 @@ def test_the_pose_line_of_a_pose_not_valid() -> None:
     assert pose_text(7, "FAULT", None, None) == (
         "seq 7  state FAULT  x=   ---  y=   ---  z=   ---  m (pose not valid)"
     )
+
+
+def test_wait_pretension_waits_for_the_daemon_to_say_the_offsets_are_saved(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The reels came to rest (HOLDING, result ok) while the offsets were still going to disk:
+    # `wait_pretension` goes on asking until the daemon says they are saved, and the line the
+    # CLI prints then says where (it once said "no [homing] state_file").
+    from controller.cli.formats import format_pretension_result
+    from controller.client import robot as robot_mod
+    from controller.client.model import Status
+
+    result = {"ok": True, "still_after_s": 3.2, "position_m": [0.3, 0.0, 2.0], "saved": False}
+    replies = [
+        {"state": "PRETENSIONING", "pretension": {"active": True, "result": None}},
+        {
+            "state": "HOLDING",
+            "pretension": {"result": {**result, "saving": True, "state_file": "/x/o.json"}},
+        },
+        {
+            "state": "HOLDING",
+            "pretension": {"result": {**result, "saving": True, "state_file": "/x/o.json"}},
+        },
+        {
+            "state": "HOLDING",
+            "pretension": {"result": {**result, "saved": True, "state_file": "/x/o.json"}},
+        },
+    ]
+    asked: list[int] = []
+
+    def status(self: Any) -> Status:
+        asked.append(1)
+        return Status.from_mapping(replies[min(len(asked), len(replies)) - 1])
+
+    monkeypatch.setattr(robot_mod.Robot, "status", status)
+    monkeypatch.setattr(robot_mod, "PRETENSION_POLL_S", 0.0)
+    res = robot_mod.Robot.wait_pretension(object.__new__(robot_mod.Robot), 30.0)  # type: ignore[arg-type]
+    assert len(asked) == 4
+    assert res.ok and not res.saving and res.raw["saved"] is True
+    assert "; saved to /x/o.json" in format_pretension_result(dict(res.raw))
+    # still saving when the wait for it ends: said as such, never "no state_file"
+    saving = Status.from_mapping(replies[1]).pretension.result
+    assert saving is not None and saving.saving
+    line = format_pretension_result(dict(saving.raw))
+    assert "saving to /x/o.json (not confirmed yet" in line and "no [homing]" not in line

@@ -103,6 +103,39 @@ def test_pretension_pulls_with_the_statics_torques_then_homes_where_the_reels_re
     assert rig.state() is State.MOVING
 
 
+def test_the_result_says_saving_until_the_offsets_are_on_disk(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The offsets are saved off the loop thread; on a loaded host the fsync takes a while. Until
+    # it is done the published result says "saving" (a client that read "saved": False then
+    # told its user there was no state file at all).
+    import threading
+
+    from controller.service import offsets
+
+    release = threading.Event()
+    real = offsets.save_offsets
+
+    def slow_save(path: Any, state: Any) -> None:
+        assert release.wait(30.0)
+        real(path, state)
+
+    monkeypatch.setattr(offsets, "save_offsets", slow_save)
+    state_file = tmp_path / "offsets.json"
+    rig = Rig(cfg=_rig_cfg(state_file=str(state_file)))
+    rig.arm()
+    rig.do(Pretension(rig.start))
+    rig.until(lambda: rig.state() is not State.PRETENSIONING, 2 * SETTLE_TICKS)
+    assert rig.state() is State.HOLDING, rig.ctl.reason
+    res = rig.ctl.status()["pretension"]["result"]
+    assert res["ok"] is True and res["saving"] is True and res["saved"] is False
+    assert res["state_file"] == str(state_file) and not state_file.exists()
+    release.set()
+    rig.ctl.wait_for_saves(30.0)
+    res = rig.ctl.status()["pretension"]["result"]
+    assert res["saved"] is True and "saving" not in res and state_file.exists()
+
+
 def test_pretension_from_disarmed_arms_in_torque_control() -> None:
     rig = Rig(_rig_cfg())
     rig.tick(2)

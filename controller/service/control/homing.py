@@ -249,9 +249,13 @@ class Homing(FaultHandling):
             "offsets_rev": dict(zip(map(str, self.node_ids), offsets, strict=True)),
             "saved": False,
         }
-        self.pretension_result = result
         saved = self._save_home(offsets, p, result)
-        if saved is not None:
+        if saved is None:
+            self.pretension_result = result
+        else:
+            # the offsets go to disk off the loop thread: until they are there the result says
+            # so (a client waiting for the pre-tension waits for the save's outcome too)
+            self.pretension_result = {**result, "saving": True, "state_file": self._state_file}
 
             def record(fut: concurrent.futures.Future[dict[str, Any]]) -> None:
                 self.pretension_result = fut.result()  # one reference assignment: atomic
