@@ -114,7 +114,7 @@ def test_two_passes_at_a_fixed_frequency_are_the_train_convolved_with_itself() -
     amps, times = impulses("zvd", f_hz, 0.02)
     ls.reset((0.0, 0.0, 0.0))
     got = []
-    for k in range(1, 1600):
+    for _ in range(1, 1600):
         got.append(ls.shape((1.0, 0.0, 0.0), (0.0, 0.0, 0.0), period, None, None)[0])
     t = np.arange(1, 1600) * period
     want = np.zeros_like(t)
