@@ -19,7 +19,8 @@ point over the 3 s after the move ends), the time the move took and the shaper's
 end. The summary gives, per pose, the smallest ratio unshaped / shaped over its moves, and
 the smallest and the median of those over the poses. `--pose=X,Y,Z`, `--direction` (x+, z-,
 ...), `--model-error` and `--mass` (each repeatable) select a part of the matrix;
-`--frequency-scale` sets the shaped runs' `[shaper] frequency_scale` (the shaper's frequencies
+`--passes` sets the shaped runs' `[shaper] passes`; `--frequency-scale` sets their
+`[shaper] frequency_scale` (the shaper's frequencies
 off on purpose, the stretch model untouched); `--speed` the moves' speed (m/s).
 
 `offset`: where the lengths the controller commands bring the effector to rest, against the
@@ -137,6 +138,7 @@ class Selection:
     masses: tuple[float, ...] | None = None
     frequency_scale: float = 1.0
     speed_mps: float | None = None
+    passes: int = 1
 
 
 def moves(robot: str, kind: str, quick: bool, sel: Selection | None = None) -> None:
@@ -148,6 +150,8 @@ def moves(robot: str, kind: str, quick: bool, sel: Selection | None = None) -> N
     shaper: dict[str, Any] = {"type": kind}
     if sel.frequency_scale != 1.0:
         shaper["frequency_scale"] = sel.frequency_scale
+    if sel.passes != 1:
+        shaper["passes"] = sel.passes
     # ratios[(mass, error)][pose] = list of unshaped / shaped over the directions
     ratios: dict[tuple[float, float], dict[int, list[float]]] = {}
     gains: list[tuple[float, float]] = []
@@ -191,6 +195,7 @@ def moves(robot: str, kind: str, quick: bool, sel: Selection | None = None) -> N
                         flush=True,
                     )
     scale = f", frequency scale {sel.frequency_scale:g}" if sel.frequency_scale != 1.0 else ""
+    scale += f", {sel.passes} passes" if sel.passes != 1 else ""
     print(f"\n{robot}, shaper {kind}{scale}, {time.monotonic() - t0:.0f} s")
     print(
         "| payload | model EA | worst pose: smallest ratio | median over poses of the "
@@ -461,6 +466,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--frequency-scale", type=float, default=1.0, help="the shaped runs' frequency_scale"
     )
     ap.add_argument("--speed", type=float, default=None, help="the moves' speed (m/s)")
+    ap.add_argument("--passes", type=int, default=1, help="the shaped runs' [shaper] passes")
     args = ap.parse_args(argv)
     sel = Selection(
         poses=list(args.pose) if args.pose else None,
@@ -471,6 +477,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         masses=tuple(args.mass) if args.mass else None,
         frequency_scale=args.frequency_scale,
         speed_mps=args.speed,
+        passes=args.passes,
     )
     if args.what == "moves":
         moves(args.robot, args.type, args.quick, sel)

@@ -19,6 +19,7 @@ import sys
 from typing import Any
 
 from controller.cli import add_xyz_arguments, exitcodes
+from controller.cli.shaper_cmd import shaper_name
 
 EXIT_OK = exitcodes.OK
 EXIT_ERROR = exitcodes.REFUSED
@@ -98,7 +99,7 @@ def modes_report(cfg: Any, position_m: tuple[float, float, float], sim: bool) ->
     )
     sc = cfg.shaper
     if sc.enabled:
-        per = duration_periods(sc.type)
+        per = duration_periods(sc.type) * sc.passes
         freqs = (
             [sc.frequency_hz]
             if sc.frequency_hz is not None
@@ -106,6 +107,7 @@ def modes_report(cfg: Any, position_m: tuple[float, float, float], sim: bool) ->
         )
         out["shaper"] = {
             "type": sc.type,
+            "passes": sc.passes,
             "frequencies_hz": freqs,
             "delay_s": sum(per / f for f in freqs),
         }
@@ -159,17 +161,19 @@ def modes_lines(cfg: Any) -> tuple[list[str], dict[str, Any]]:
     if not sc.enabled:
         lines.append("shaper     off (`[shaper] type`; on by default where the modes are known)")
         return lines, data
-    per = duration_periods(sc.type)
+    per = duration_periods(sc.type) * sc.passes
     data["shaper"] = {
         "type": sc.type,
         "damping_ratio": sc.damping_ratio,
         "frequency_hz": sc.frequency_hz,
         "frequency_scale": sc.frequency_scale,
+        "passes": sc.passes,
     }
     if sc.frequency_hz is not None:
         delay = per / sc.frequency_hz
         lines.append(
-            f"shaper     {sc.type} at {sc.frequency_hz:g} Hz everywhere, damping ratio "
+            f"shaper     {shaper_name(sc.type, sc.passes)} at {sc.frequency_hz:g} Hz everywhere, "
+            f"damping ratio "
             f"{sc.damping_ratio:g}: delays every move by {delay * 1e3:.3g} ms"
         )
         data["shaper"]["delay_s"] = [delay, delay]
@@ -179,7 +183,8 @@ def modes_lines(cfg: Any) -> tuple[list[str], dict[str, Any]]:
         hi = sum(per / (f * k) for f in rng.low_hz)
         scale = "" if k == 1.0 else f" x {k:g}"
         lines.append(
-            f"shaper     {sc.type} on the model's three modes at the set-point{scale}, damping "
+            f"shaper     {shaper_name(sc.type, sc.passes)} on the model's three modes at the "
+            f"set-point{scale}, damping "
             f"ratio {sc.damping_ratio:g}: delays a move by {lo:.3g}..{hi:.3g} s"
         )
         data["shaper"]["delay_s"] = [lo, hi]
@@ -229,7 +234,8 @@ def cmd_modes(args: argparse.Namespace) -> int:
         sh = rep.get("shaper")
         if sh is not None:
             parts = " + ".join(f"{cfg_delay:.3f}" for cfg_delay in _delays(sh))
-            print(f"shaper  {sh['type']}: delays a move by {parts} = {sh['delay_s']:.3f} s here")
+            name = shaper_name(sh["type"], int(sh.get("passes", 1)))
+            print(f"shaper  {name}: delays a move by {parts} = {sh['delay_s']:.3f} s here")
         else:
             print('shaper  off ([shaper] type = "off", or no model of the modes)')
     if rep.get("problem") is not None:
@@ -241,7 +247,7 @@ def _delays(shaper: dict[str, Any]) -> list[float]:
     """Each stage's delay (s) of a `modes_report` shaper entry."""
     from controller.core.motion.shaper import duration_periods
 
-    per = duration_periods(shaper["type"])
+    per = duration_periods(shaper["type"]) * int(shaper.get("passes", 1))
     return [per / f for f in shaper["frequencies_hz"]]
 
 

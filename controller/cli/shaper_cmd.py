@@ -17,6 +17,12 @@ from typing import Any
 from controller.cli import exitcodes
 
 
+def shaper_name(kind: str, passes: int) -> str:
+    """A shaper's train as the user reads it: its type, and how many times it is applied when
+    more than once ("2hump_ei x2"). Raises nothing."""
+    return kind if passes == 1 else f"{kind} x{passes}"
+
+
 def describe(shaper: dict[str, Any]) -> str:
     """One line for a status's or reply's `shaper` object."""
     kind = shaper.get("type")
@@ -26,7 +32,8 @@ def describe(shaper: dict[str, Any]) -> str:
         freq = shaper.get("frequency_hz")
         where = f"at {freq:g} Hz" if freq is not None else "on the model's modes at the set-point"
         now = shaper.get("frequencies_hz") or []
-        text = f"{kind} {where}, damping ratio {shaper.get('damping_ratio'):g}"
+        name = shaper_name(str(kind), int(shaper.get("passes") or 1))
+        text = f"{name} {where}, damping ratio {shaper.get('damping_ratio'):g}"
         if now:
             text += (
                 f"; now {', '.join(f'{f:.3g}' for f in now)} Hz, delay {shaper['delay_s']:.3f} s"

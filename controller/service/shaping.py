@@ -194,16 +194,21 @@ class LoopShaper:
         self._fixed = None
         if sc.type == "off":
             return None
+        passes = int(sc.passes)
         if sc.frequency_hz is not None:
             f = float(sc.frequency_hz)
-            self._fixed = (f,)
+            self._fixed = (f,) * passes
             return InputShaper(
-                sc.type, sc.damping_ratio, stages=1, min_frequency_hz=f, period_s=self._period_s
+                sc.type,
+                sc.damping_ratio,
+                stages=passes,
+                min_frequency_hz=f,
+                period_s=self._period_s,
             )
         return InputShaper(
             sc.type,
             sc.damping_ratio,
-            stages=3,
+            stages=3 * passes,
             min_frequency_hz=self._floor_hz,
             period_s=self._period_s,
         )
@@ -228,7 +233,10 @@ class LoopShaper:
             "damping_ratio": sc.damping_ratio,
             "frequency_hz": sc.frequency_hz,
             "frequency_scale": sc.frequency_scale,
-            "frequencies_hz": [] if sh is None else [f for f in sh.frequencies_hz if f < math.inf],
+            "passes": sc.passes,
+            "frequencies_hz": []
+            if sh is None
+            else [f for f in sh.frequencies_hz[: sh.stages // sc.passes] if f < math.inf],
             "delay_s": 0.0 if sh is None else sh.duration_s,
             "pending": None if self._pending is None else self._pending.type,
         }
@@ -275,7 +283,10 @@ class LoopShaper:
             # late, a tick's jitter would shake the delays, and the set-point with them)
             v = sh.velocity_mps
             now = (at_m[0] + v[0] * dt_s, at_m[1] + v[1] * dt_s, at_m[2] + v[2] * dt_s)
-            freqs = self._tracker.frequencies_hz(now, tensions_n)
+            modes = self._tracker.frequencies_hz(now, tensions_n)
+            passes = self.settings.passes
+            # with more passes each mode's train comes again, in cascade
+            freqs = modes if modes is None or passes == 1 else modes * passes
         else:
             freqs = None
         return sh.shape(position_m, velocity_mps, dt_s, freqs)

@@ -43,7 +43,16 @@ TOP_KEYS = {
     "shaping_per_tick",
     "layouts",
 }
-SHAPING_KEYS = {"p50_us_off", "p99_us_off", "p50_us_on", "p99_us_on", "added_p99_us", "on_over_off"}
+SHAPING_KEYS = {
+    "p50_us_off",
+    "p99_us_off",
+    "p50_us_on",
+    "p99_us_on",
+    "added_p99_us",
+    "on_over_off",
+    "p99_us_two_passes",
+    "added_p99_us_two_passes",
+}
 NEW_SECTION_KEYS = {
     "planning": {
         "plan_us_per_point",

@@ -66,6 +66,37 @@ def test_modes_text(capsys: pytest.CaptureFixture[str], paper_ea: Path) -> None:
     assert "nan" not in out.lower()
 
 
+def test_two_passes_double_the_delay_everywhere_it_is_said(
+    capsys: pytest.CaptureFixture[str], paper_ea: Path, tmp_path: Path
+) -> None:
+    from controller.cli.shaper_cmd import describe
+
+    twice = tmp_path / "paper-ea-2.toml"
+    twice.write_text(paper_ea.read_text() + "\n[shaper]\npasses = 2\n")
+    code, out, err = run(capsys, "modes", "0", "0", "2", "--config", str(twice), "--json")
+    assert code == 0, err
+    data = json.loads(out)
+    assert data["shaper"]["passes"] == 2
+    assert data["shaper"]["delay_s"] == pytest.approx(sum(3.0 / f for f in data["frequencies_hz"]))
+    code, out, err = run(capsys, "modes", "0", "0", "2", "--config", str(twice))
+    assert "shaper  2hump_ei x2: delays a move by" in out
+    code, out, err = run(capsys, "check-config", "--config", str(twice))
+    assert code == 0, err
+    assert "shaper     2hump_ei x2 on the model's three modes" in out
+    # the line `status` and `shaper` print for a running robot's shaper
+    line = describe(
+        {
+            "type": "2hump_ei",
+            "passes": 2,
+            "damping_ratio": 0.02,
+            "frequency_hz": None,
+            "frequencies_hz": [1.6, 7.2, 11.7],
+            "delay_s": 2.5,
+        }
+    )
+    assert line.startswith("2hump_ei x2 on the model's modes at the set-point, damping ratio 0.02")
+
+
 def test_a_rigid_model_or_a_pose_outside_is_said(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, err = run(capsys, "modes", "0", "0", "2")  # the built-in robot: rigid cables
     assert code == 1 and out == ""

@@ -41,6 +41,8 @@ def test_the_default_shapes_where_the_modes_are_known() -> None:
         data({"type": "zvd", "damping_ratio": 0.05, "frequency_scale": 0.9}, ea=4.5e5), "t"
     ).shaper
     assert (sc.type, sc.damping_ratio, sc.frequency_scale) == ("zvd", 0.05, 0.9)
+    assert sc.passes == 1
+    assert parse_config(data({"passes": 2}, ea=4.5e5), "t").shaper.passes == 2
 
 
 @pytest.mark.parametrize(
@@ -59,6 +61,10 @@ def test_the_default_shapes_where_the_modes_are_known() -> None:
         ({"damping_ratio": -0.1}, 4.5e5, r"shaper.damping_ratio: must be >= 0"),
         ({"frequency_scale": 10}, 4.5e5, r"shaper.frequency_scale: must be <= 5"),
         ({"frequncy_hz": 3.0}, 4.5e5, r"shaper.frequncy_hz.*frequency_hz"),
+        ({"passes": 0}, 4.5e5, r"shaper.passes: must be >= 1, got 0"),
+        ({"passes": 4}, 4.5e5, r"shaper.passes: must be <= 3, got 4"),
+        ({"passes": 1.5}, 4.5e5, r"shaper.passes: must be an integer, got 1.5"),
+        ({"passes": "2"}, 4.5e5, r"shaper.passes: must be an integer, got '2'"),
     ],
 )
 def test_bad_shapers_are_named_errors(

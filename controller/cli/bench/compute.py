@@ -144,12 +144,14 @@ def bench_compute(
     buildup: bool = False,
     sag: bool = False,
     shaper: str | None = None,
+    shaper_passes: int = 1,
 ) -> dict[str, float]:
     """CPU time of `Controller.tick` per tick at `COMPUTE_RATE_HZ` on the built-in robot
     (rigid cables, or with `stretch` every cable at EA 2e5 N; with `buildup` every reel's spool
     builds up by `BENCH_BUILDUP_FACTOR_M` from the power-up lengths; with `sag` every cable
     3 mm steel rope: `controller.cli.sag_bench.sag_config`; with `shaper` that input shaper,
-    on the model's modes at the set-point, which needs `stretch`), armed and flying
+    on the model's modes at the set-point, which needs `stretch`, each mode's train applied
+    `shaper_passes` times), armed and flying
     `COMPUTE_PATH_M` at 1 m/s on an `EchoDriver`, publishing every tick to a publisher that
     drops the sample; `ticks` measured after a warm-up, GC frozen as the daemon does.
 
@@ -175,7 +177,7 @@ def bench_compute(
 
         cfg = sag_config(cfg)
     if shaper is not None:
-        cfg = replace(cfg, shaper=replace(cfg.shaper, type=shaper))
+        cfg = replace(cfg, shaper=replace(cfg.shaper, type=shaper, passes=shaper_passes))
     assert cfg.homing.power_up_position_m is not None
     lengths = kinematics.ipk_point(cfg.geometry, cfg.homing.power_up_position_m)
     if buildup:

@@ -297,7 +297,16 @@ TARGET_SHAPING_ADDED_US = 50.0
 at most this to the tick's 99th percentile."""
 
 
-SHAPING_KEYS = ("p50_us_off", "p99_us_off", "p50_us_on", "p99_us_on", "added_p99_us", "on_over_off")
+SHAPING_KEYS = (
+    "p50_us_off",
+    "p99_us_off",
+    "p50_us_on",
+    "p99_us_on",
+    "added_p99_us",
+    "on_over_off",
+    "p99_us_two_passes",
+    "added_p99_us_two_passes",
+)
 
 
 LAYOUTS = ("paper-4", "triangle-3", "hangprinter-4", "hangprinter-5", "cube-8")

@@ -72,6 +72,9 @@ DEFAULT_DAMPING_RATIO = 0.02
 MAX_DAMPING_RATIO = 0.3
 """Above this the shaper's model of a lightly damped mode no longer holds (and there is
 little to cancel): refused."""
+MAX_PASSES = 3
+"""The most times a mode's train may be applied in a row (`[shaper] passes`): each pass
+multiplies the residual a wrong frequency leaves by the train's own, and adds its delay."""
 MIN_FREQUENCY_HZ = 0.05
 """The lowest frequency a shaper may target (a 20 s period)."""
 MAX_FREQUENCY_HZ = 1000.0

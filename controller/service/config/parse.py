@@ -19,6 +19,7 @@ from controller.core.kinematics import Geometry, KinematicsError, SingularGeomet
 from controller.core.motion.shaper import (
     MAX_DAMPING_RATIO,
     MAX_FREQUENCY_HZ,
+    MAX_PASSES,
     MIN_FREQUENCY_HZ,
     SHAPER_TYPES,
 )
@@ -435,6 +436,7 @@ def _parse_shaper(
     if sh.has("frequency_hz"):
         freq = sh.number("frequency_hz", None, ge=MIN_FREQUENCY_HZ, le=MAX_FREQUENCY_HZ)
     scale = sh.number("frequency_scale", d.frequency_scale, ge=0.2, le=5.0)
+    passes = sh.integer("passes", d.passes, ge=1, le=MAX_PASSES)
     model = (
         reels is not None and payload is not None and all(r.cable_ea_n is not None for r in reels)
     )
@@ -453,7 +455,7 @@ def _parse_shaper(
             f"{kind!r} needs the modes: give shaper.frequency_hz, or every reel's cable_ea_n "
             "and [payload] for the model's",
         )
-    return ShaperConfig(kind, damping, freq, scale)
+    return ShaperConfig(kind, damping, freq, scale, passes)
 
 
 def _parse_gcode(top: _Table, limits: LimitsConfig | None) -> GcodeConfig:

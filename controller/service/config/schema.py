@@ -32,6 +32,7 @@ from controller.core.motion.shaper import (
     DEFAULT_DAMPING_RATIO,
     DEFAULT_SHAPER_TYPE,
     MAX_DAMPING_RATIO,
+    MAX_PASSES,
     SHAPER_TYPES,
 )
 from controller.core.pretension import PretensionSettings
@@ -700,6 +701,11 @@ class ShaperConfig:
         1.0,
         "the model's frequencies are multiplied by this measured correction (`cablebot "
         "resonance` prints it), 0.2..5",
+    )
+    passes: int = key(
+        1,
+        f"each mode's train applied this many times in a row, 1..{MAX_PASSES}: 2 for a robot "
+        "whose model may be well off (a cable EA not measured), for twice the delay",
     )
 
     @property
